@@ -1,0 +1,80 @@
+# MoralityGym. Two commands set everything up on a fresh machine:
+#   make reproduce-table1      # the main job (PRESET=quick by default; smoke | quick | paper)
+#   make test                  # the tests (installs the Debian packages they need, as root)
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+PIP := $(VENV)/bin/pip
+STAMP := .make
+PRESET ?= quick
+LAUNCHER ?= local
+RESULTS ?= results
+PYTEST_ARGS ?=
+# Debian packages the tests use: a real single-node SLURM (with accounting) and headless Chromium.
+DEBIAN_PACKAGES := slurm-wlm munge slurmdbd mariadb-server chromium
+
+.PHONY: help venv system-deps test test-fast bench reproduce-table1 leaderboard mlflow-ui docs \
+        slurm-up slurm-down clean
+
+help:
+	@echo "make reproduce-table1 [PRESET=smoke|quick|paper] [LAUNCHER=local|slurm]  run the Table 1 sweeps and build the leaderboard"
+	@echo "make test            install everything and run the whole test suite"
+	@echo "make bench           measure speed; writes BENCHMARKS.md"
+	@echo "make leaderboard     rebuild results/table1.* and leaderboard/site from existing results"
+	@echo "make mlflow-ui       browse the MLflow runs under $(RESULTS)/"
+	@echo "make docs            regenerate docs/envs/*.md from the scenario files"
+
+venv: $(STAMP)/venv
+$(STAMP)/venv: pyproject.toml
+	@mkdir -p $(STAMP)
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	# torch first and pinned: a CPU wheel of 2.13.0 is on disk; anything else pulls GBs of CUDA.
+	$(PIP) install -q torch==2.13.0
+	$(PIP) install -q -e '.[dev]'
+	@touch $@
+
+system-deps: $(STAMP)/system-deps
+$(STAMP)/system-deps:
+	@mkdir -p $(STAMP)
+	@missing=$$(for p in $(DEBIAN_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+	  if [ "$$(id -u)" != 0 ]; then echo "need root to apt-get install:$$missing" >&2; exit 1; fi; \
+	  echo "apt-get install$$missing"; \
+	  export DEBIAN_FRONTEND=noninteractive; \
+	  apt-get update -qq && apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
+	fi
+	@touch $@
+
+test: venv system-deps
+	$(PY) -m pytest $(PYTEST_ARGS)
+
+# The tests that need neither SLURM nor a browser nor learning (for a quick local loop).
+test-fast: venv
+	$(PY) -m pytest -m "not slow and not slurm and not browser" $(PYTEST_ARGS)
+
+bench: venv
+	$(PY) -m benchmarks.run --output BENCHMARKS.md
+
+reproduce-table1: venv
+	$(PY) -m runners.table1 preset=$(PRESET) launcher=$(LAUNCHER) results_dir=$(RESULTS)
+	$(PY) -m leaderboard.build --results $(RESULTS)
+	@echo "Table 1: $(RESULTS)/table1.md   leaderboard: leaderboard/site/index.html"
+
+leaderboard: venv
+	$(PY) -m leaderboard.build --results $(RESULTS)
+
+mlflow-ui: venv
+	$(VENV)/bin/mlflow ui --backend-store-uri sqlite:///$(abspath $(RESULTS))/mlflow.db --port 5000
+
+docs: venv
+	$(PY) -m morality_gym docs --output docs/envs
+
+slurm-up: system-deps
+	bash runners/slurm/slurm_up.sh
+
+slurm-down:
+	bash runners/slurm/slurm_down.sh
+
+clean:
+	rm -rf $(STAMP) $(VENV) .pytest_cache
