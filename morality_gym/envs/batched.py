@@ -1,0 +1,177 @@
+"""The batched simulator: N copies of one environment stepped with numpy arrays in and out.
+
+Every copy of an env id walks the same enumerated state graph, so stepping all of them is a few
+array gathers: ``next_state = table[state * 6 + action]``. Observations, rewards and flags are
+gathered the same way, and a step's norm events come back as bit masks over
+:data:`morality_gym.world.vocab.EVENTS`. This is the engine behind the Gymnasium ``VectorEnv``
+and the SB3 ``VecEnv`` in :mod:`morality_gym.envs.vector`, and it reproduces the single
+environment step for step (tested), including truncation on step ``max_steps + 1``.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, NamedTuple
+
+import numpy as np
+
+from morality_gym.envs.registry import parse_env_id, state_graph
+from morality_gym.envs.trolley import DEFAULT_MAX_STEPS, _overrides
+from morality_gym.world.graph import N_ACTIONS, GraphTables
+from morality_gym.world.vocab import EVENT_BIT
+
+AutoReset = Literal["same_step", "disabled"]
+
+_HARM_BIT = np.uint32(1 << EVENT_BIT["harm"])
+_LIVING_BITS = np.uint32(sum(1 << EVENT_BIT[n] for n in ("human_harm", "animal_harm", "robot_harm")))
+
+
+class BatchStep(NamedTuple):
+    """What one batched step returns; all arrays have length ``num_envs``.
+
+    ``transition`` is the row of each copy's transition in the graph tables, so callers can gather
+    more (``tables.utility[transition]``, ``tables.goal[transition]``) only when they need it.
+    ``final_obs`` holds the last observation of the copies that ended in this step (zeros
+    elsewhere) when auto-reset is on, and is ``None`` otherwise.
+    """
+
+    obs: np.ndarray
+    reward: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray
+    events: np.ndarray
+    transition: np.ndarray
+    final_obs: np.ndarray | None
+
+
+def utility_present(events: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which utility keys a step reported, from its event masks (spec section 8).
+
+    Returns (``type_keys``, ``n_harm``): ``n_human_harm``, ``n_animal_harm``, ``n_robot_harm`` and
+    ``n_weighted_harm`` are present whenever anything (the trolley included) was harmed;
+    ``n_harm`` only when a human, animal or robot (the agent included) was harmed. The cost needs
+    this because a present zero is normalised differently from an absent key.
+    """
+    return (events & _HARM_BIT) != 0, (events & _LIVING_BITS) != 0
+
+
+class BatchedTrolleyEnv:
+    """``num_envs`` copies of one env id, stepped together with arrays.
+
+    Args:
+        env_id: a registered id such as ``PushOrSwitch-Human-v1``.
+        num_envs: number of copies.
+        max_steps: truncation on step ``max_steps + 1`` (``None``: never).
+        obs_dtype: dtype of the observation arrays (float32 halves memory traffic; the values are
+            the reference's float64 values rounded to float32).
+        autoreset: ``"same_step"`` resets a copy in the step it ends (its last observation goes to
+            ``final_obs``), as SB3 expects; ``"disabled"`` leaves ended copies inert (reward 0, no
+            events) until :meth:`reset` is called for them.
+    """
+
+    #: The batched simulator does not render (SB3 and Gymnasium probe this attribute).
+    render_mode: str | None = None
+
+    def __init__(
+        self,
+        env_id: str,
+        num_envs: int,
+        *,
+        max_steps: int | None = DEFAULT_MAX_STEPS,
+        obs_dtype: type = np.float32,
+        autoreset: AutoReset = "same_step",
+        normalise_obs: bool = True,
+        overrides: dict | None = None,
+    ) -> None:
+        if not isinstance(num_envs, int) or num_envs < 1:
+            raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+        if autoreset not in ("same_step", "disabled"):
+            raise ValueError(f"autoreset must be 'same_step' or 'disabled', got {autoreset!r}")
+        if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 0):
+            raise ValueError(f"max_steps must be a non-negative int or None, got {max_steps!r}")
+        scenario, variant = parse_env_id(env_id)
+        self.env_id = scenario.env_id(variant)
+        self.num_envs = num_envs
+        self.max_steps = max_steps
+        self.autoreset = autoreset
+        self.graph = state_graph(self.env_id, _overrides(overrides), normalise_obs)
+        self.tables: GraphTables = self.graph.tables()
+        t = self.tables
+        self._next = t.next
+        self._reward = t.reward.astype(np.float32)
+        self._events = t.events
+        self._done = t.done
+        self._obs = np.ascontiguousarray(t.obs.astype(obs_dtype))
+        self.obs_dim = self._obs.shape[1]
+        self._limit = np.iinfo(np.int32).max if max_steps is None else max_steps
+        self.state = np.zeros(num_envs, dtype=np.int32)
+        self.elapsed = np.zeros(num_envs, dtype=np.int32)
+        self.ended = np.zeros(num_envs, dtype=bool)
+        self._zero_reward = np.float32(0.0)
+
+    # ------------------------------------------------------------------ API
+    def reset(self, mask: np.ndarray | None = None) -> np.ndarray:
+        """Reset every copy (or those where ``mask`` is true); returns all observations."""
+        if mask is None:
+            self.state.fill(0)
+            self.elapsed.fill(0)
+            self.ended.fill(False)
+        else:
+            self.state[mask] = 0
+            self.elapsed[mask] = 0
+            self.ended[mask] = False
+        return self._gather(self.state)
+
+    def step(self, actions: np.ndarray) -> BatchStep:
+        """Advance every copy by one action (integers 0..5, one per copy)."""
+        actions = np.asarray(actions)
+        if actions.shape != (self.num_envs,):
+            raise ValueError(f"expected {self.num_envs} actions, got an array of shape {actions.shape}")
+        if actions.dtype.kind not in "iu":
+            raise ValueError(f"actions must be integers 0..5, got dtype {actions.dtype}")
+        if actions.size and (actions.min() < 0 or actions.max() >= N_ACTIONS):
+            bad = actions[(actions < 0) | (actions >= N_ACTIONS)][0]
+            raise ValueError(f"invalid action {bad}: expected integers in 0..5")
+        k = self.state * N_ACTIONS + actions
+        nxt = self._next[k]
+        reward = self._reward[k]
+        events = self._events[k]
+        self.elapsed += 1
+        terminated = self._done[nxt]
+        truncated = self.elapsed > self._limit
+        final_obs = None
+        if self.autoreset == "disabled":
+            if self.ended.any():
+                frozen = self.ended
+                nxt = np.where(frozen, self.state, nxt)
+                reward = np.where(frozen, self._zero_reward, reward)
+                events = np.where(frozen, np.uint32(0), events)
+                self.elapsed[frozen] -= 1
+                terminated = np.where(frozen, self._done[self.state], terminated)
+                truncated = np.where(frozen, self.elapsed > self._limit, truncated)
+            self.ended |= terminated | truncated
+            self.state = nxt
+            obs = self._gather(nxt)
+        else:
+            ended = terminated | truncated
+            if ended.any():
+                final_obs = np.zeros((self.num_envs, self.obs_dim), dtype=self._obs.dtype)
+                final_obs[ended] = self._obs[nxt[ended]]
+                nxt = np.where(ended, 0, nxt).astype(np.int32)
+                self.elapsed[ended] = 0
+            self.state = nxt
+            obs = self._gather(nxt)
+        return BatchStep(obs, reward, terminated, truncated, events, k, final_obs)
+
+    # ------------------------------------------------------------------ helpers
+    def _gather(self, states: np.ndarray) -> np.ndarray:
+        return self._obs[states]
+
+    def utility(self, transition: np.ndarray) -> np.ndarray:
+        """Utility values ``[n, 5]`` (``vocab.UTILITIES`` order, 0 when absent) of the given transitions."""
+        return self.tables.utility[transition]
+
+    def goal_reached(self, transition: np.ndarray) -> np.ndarray:
+        return self.tables.goal[transition]
+
+    def __repr__(self) -> str:
+        return f"<BatchedTrolleyEnv {self.env_id} x{self.num_envs} max_steps={self.max_steps} autoreset={self.autoreset}>"

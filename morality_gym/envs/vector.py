@@ -1,0 +1,199 @@
+"""Vectorised faces of the batched simulator: a Gymnasium ``VectorEnv`` and an SB3 ``VecEnv``.
+
+Both wrap :class:`~morality_gym.envs.batched.BatchedTrolleyEnv`, so N copies step as a few array
+operations instead of N Python calls. They report a step's norm events compactly: ``events`` is a
+bit mask over :data:`morality_gym.world.vocab.EVENTS` (decode with
+:func:`morality_gym.world.vocab.mask_to_names`) and ``transition`` indexes the graph tables for
+utilities. :class:`morality_gym.norms.wrappers.VecCostWrapper` turns these into ``info["cost"]``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
+
+from morality_gym.envs.batched import BatchedTrolleyEnv, BatchStep
+from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
+
+
+class TrolleyVectorEnv(VectorEnv):
+    """Gymnasium ``VectorEnv`` over the batched simulator (``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")``).
+
+    Supports all three Gymnasium autoreset modes. ``infos`` holds ``events`` (uint32 masks),
+    ``goal_reached`` and ``transition`` for every copy, and ``final_obs`` (object array, with
+    ``_final_obs`` mask) in ``SAME_STEP`` mode.
+    """
+
+    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.SAME_STEP}
+
+    def __init__(
+        self,
+        env_id: str,
+        num_envs: int = 1,
+        *,
+        max_steps: int | None = DEFAULT_MAX_STEPS,
+        autoreset_mode: str | AutoresetMode = AutoresetMode.SAME_STEP,
+        obs_dtype: type = np.float32,
+        obs_type: str = "flat",
+        normalise_obs: bool = True,
+        overrides: dict | None = None,
+        render_mode: str | None = None,
+    ) -> None:
+        if obs_type not in ("flat", "np.ndarray"):
+            raise ValueError("the vectorised env supports only obs_type='flat'")
+        if render_mode is not None:
+            raise ValueError("the vectorised env does not render; use TrolleyEnv for pictures")
+        self.autoreset_mode = AutoresetMode(autoreset_mode) if not isinstance(autoreset_mode, AutoresetMode) else autoreset_mode
+        self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
+        self.batch = BatchedTrolleyEnv(
+            env_id,
+            num_envs,
+            max_steps=max_steps,
+            obs_dtype=obs_dtype,
+            autoreset="same_step" if self.autoreset_mode == AutoresetMode.SAME_STEP else "disabled",
+            normalise_obs=normalise_obs,
+            overrides=overrides,
+        )
+        self.num_envs = num_envs
+        codec = self.batch.graph.codec
+        self.single_observation_space = codec.flat_space(obs_dtype)
+        self.single_action_space = spaces.Discrete(6)
+        self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, num_envs)
+        self.action_space = spaces.MultiDiscrete(np.full(num_envs, 6))
+        self.render_mode = None
+        self._pending = np.zeros(num_envs, dtype=bool)
+        self._ones = np.ones(num_envs, dtype=bool)
+        self.spec = None
+
+    def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        """Reset the copies (all, or ``options["reset_mask"]``); the start state does not depend on the seed."""
+        if seed is not None:
+            self.action_space.seed(seed if isinstance(seed, int) else next((s for s in seed if s is not None), None))
+        mask = None if options is None else options.get("reset_mask")
+        obs = self.batch.reset(mask)
+        if mask is None:
+            self._pending[:] = False
+        else:
+            self._pending[mask] = False
+        return obs, {}
+
+    def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        actions = np.asarray(actions)
+        res = self.batch.step(actions)
+        obs, reward, terminated, truncated, events = res.obs, res.reward, res.terminated, res.truncated, res.events
+        infos: dict[str, Any] = {
+            "events": events,
+            "_events": self._ones,
+            "goal_reached": self.batch.goal_reached(res.transition),
+            "_goal_reached": self._ones,
+            "transition": res.transition,
+            "_transition": self._ones,
+        }
+        if self.autoreset_mode == AutoresetMode.SAME_STEP and res.final_obs is not None:
+            ended = terminated | truncated
+            final = np.full(self.num_envs, None, dtype=object)
+            for i in np.flatnonzero(ended):
+                final[i] = res.final_obs[i]
+            infos["final_obs"] = final
+            infos["_final_obs"] = ended
+        elif self.autoreset_mode == AutoresetMode.NEXT_STEP:
+            pending = self._pending
+            if pending.any():
+                obs = self.batch.reset(pending)
+                reward = np.where(pending, np.float32(0), reward)
+                terminated = terminated & ~pending
+                truncated = truncated & ~pending
+                infos["events"] = np.where(pending, np.uint32(0), events)
+            self._pending = terminated | truncated
+        return obs, reward, terminated, truncated, infos
+
+    def close_extras(self, **kwargs: Any) -> None:
+        return None
+
+
+class TrolleyVecEnv(VecEnv):
+    """Stable-Baselines3 ``VecEnv`` over the batched simulator (same-step auto-reset, like SB3's own).
+
+    Each step's ``infos[i]`` holds ``events`` (int mask), ``goal_reached`` and ``transition``; ended
+    copies also get ``terminal_observation`` and ``TimeLimit.truncated`` as SB3 expects.
+    ``last_step`` keeps the whole :class:`~morality_gym.envs.batched.BatchStep` so wrappers can
+    work on arrays instead of the info dicts.
+    """
+
+    def __init__(
+        self,
+        env_id: str,
+        num_envs: int,
+        *,
+        max_steps: int | None = DEFAULT_MAX_STEPS,
+        obs_dtype: type = np.float32,
+        normalise_obs: bool = True,
+        overrides: dict | None = None,
+    ) -> None:
+        self.batch = BatchedTrolleyEnv(
+            env_id,
+            num_envs,
+            max_steps=max_steps,
+            obs_dtype=obs_dtype,
+            autoreset="same_step",
+            normalise_obs=normalise_obs,
+            overrides=overrides,
+        )
+        self.env_id = self.batch.env_id
+        super().__init__(num_envs, self.batch.graph.codec.flat_space(obs_dtype), spaces.Discrete(6))
+        self._actions: np.ndarray | None = None
+        self.last_step: BatchStep | None = None
+
+    def reset(self) -> np.ndarray:
+        obs = self.batch.reset()
+        self._reset_seeds()
+        self._reset_options()
+        self.reset_infos = [{} for _ in range(self.num_envs)]
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions).reshape(self.num_envs).astype(np.int64, copy=False)
+
+    def step_wait(self) -> VecEnvStepReturn:
+        if self._actions is None:
+            raise RuntimeError("step_wait() called without step_async()")
+        res = self.batch.step(self._actions)
+        self._actions = None
+        self.last_step = res
+        ended = res.terminated | res.truncated
+        goal = self.batch.goal_reached(res.transition)
+        infos: list[dict[str, Any]] = [
+            {"events": int(e), "goal_reached": int(g), "transition": int(k)}
+            for e, g, k in zip(res.events.tolist(), goal.tolist(), res.transition.tolist())
+        ]
+        if res.final_obs is not None:
+            for i in np.flatnonzero(ended):
+                infos[i]["terminal_observation"] = res.final_obs[i]
+                infos[i]["TimeLimit.truncated"] = bool(res.truncated[i] and not res.terminated[i])
+        return res.obs, res.reward, ended, infos
+
+    def close(self) -> None:
+        return None
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        value = getattr(self.batch, attr_name)
+        return [value for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        raise AttributeError("the copies of a batched env share one simulator; attributes cannot differ per copy")
+
+    def env_method(self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any) -> list[Any]:
+        raise AttributeError(f"the batched env has no per-copy method {method_name!r}")
+
+    def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
+
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
+        """Seeds have no effect on these deterministic worlds (spec Q19); kept for the SB3 API."""
+        return super().seed(seed)
