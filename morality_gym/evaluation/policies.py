@@ -1,0 +1,119 @@
+"""Policy adapters: one interface for everything users pass as a "policy".
+
+Monte-Carlo evaluation needs actions for a batch of observations; exact evaluation needs each
+state's action probabilities. Users hand us uniform random ("random"), plain callables, tables, or
+Stable-Baselines3 models; this module turns each into both views, so the evaluators stay simple
+and an SB3 policy is queried in one batched forward pass instead of once per step.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+
+N_ACTIONS = 6
+
+
+def _is_sb3(policy: Any) -> bool:
+    return hasattr(policy, "predict") and hasattr(policy, "policy") and hasattr(policy.policy, "get_distribution")
+
+
+def _is_sb3_policy(policy: Any) -> bool:
+    return hasattr(policy, "get_distribution") and hasattr(policy, "obs_to_tensor")
+
+
+class PolicyAdapter:
+    """Actions for batches of observations and action probabilities for observations.
+
+    Args:
+        policy: ``"random"``; an SB3 model (``.predict``) or SB3 policy; a table (``Mapping`` from
+            ``tuple(obs)`` to 6 probabilities, or an array ``[n_states, 6]`` aligned with the env's
+            state ids); or a callable ``obs -> action`` (Monte Carlo) / ``obs -> action or 6
+            probabilities`` (exact).
+        deterministic: for SB3 models, take the most likely action (the paper samples: False).
+    """
+
+    def __init__(self, policy: Any, deterministic: bool = False) -> None:
+        if isinstance(policy, str) and policy != "random":
+            raise ValueError(f"unknown policy {policy!r}: use 'random', a callable, a table or an SB3 model")
+        self.policy = policy
+        self.deterministic = deterministic
+
+    @property
+    def is_random(self) -> bool:
+        return isinstance(self.policy, str)
+
+    def actions(self, obs: np.ndarray, rng: np.random.Generator, state_ids: np.ndarray | None = None) -> np.ndarray:
+        """One action per row of ``obs`` (``state_ids`` lets a state-aligned table be used)."""
+        n = obs.shape[0]
+        p = self.policy
+        if isinstance(p, str):
+            return rng.integers(N_ACTIONS, size=n)
+        if _is_sb3(p):
+            actions, _ = p.predict(obs, deterministic=self.deterministic)
+            return np.asarray(actions, dtype=np.int64).reshape(n)
+        if _is_sb3_policy(p):
+            actions, _ = p.predict(obs, deterministic=self.deterministic)
+            return np.asarray(actions, dtype=np.int64).reshape(n)
+        if isinstance(p, np.ndarray) or isinstance(p, Mapping):
+            probs = self.probabilities(obs, state_ids)
+            cum = probs.cumsum(axis=1)
+            return (rng.random((n, 1)) * cum[:, -1:] > cum).sum(axis=1)
+        if callable(p):
+            return np.array([int(p(o)) for o in obs], dtype=np.int64)
+        raise TypeError(f"cannot use {type(p).__name__} as a policy")
+
+    def probabilities(self, obs: np.ndarray, state_ids: np.ndarray | None = None) -> np.ndarray:
+        """Action probabilities ``[n, 6]`` for observations ``obs`` (rows sum to 1)."""
+        n = obs.shape[0]
+        p = self.policy
+        if isinstance(p, str):
+            probs = np.full((n, N_ACTIONS), 1.0 / N_ACTIONS)
+        elif _is_sb3(p) or _is_sb3_policy(p):
+            probs = _sb3_probabilities(p.policy if _is_sb3(p) else p, obs, self.deterministic)
+        elif isinstance(p, np.ndarray):
+            if state_ids is None:
+                raise ValueError("a state-aligned probability table needs state ids")
+            probs = np.asarray(p, dtype=np.float64)[state_ids]
+        elif isinstance(p, Mapping):
+            probs = np.array([_as_probs(p[tuple(np.round(o, 6).tolist())]) for o in obs])
+        elif callable(p):
+            probs = np.array([_as_probs(p(o)) for o in obs])
+        else:
+            raise TypeError(f"cannot use {type(p).__name__} as a policy")
+        probs = np.asarray(probs, dtype=np.float64)
+        if probs.shape != (n, N_ACTIONS):
+            raise ValueError(f"policy probabilities must have shape ({n}, 6), got {probs.shape}")
+        sums = probs.sum(axis=1)
+        if np.any(probs < -1e-12) or not np.allclose(sums, 1.0, atol=1e-6):
+            raise ValueError("policy probabilities must be non-negative and sum to 1 per observation")
+        return probs / sums[:, None]
+
+
+def _as_probs(value: Any) -> np.ndarray:
+    arr = np.asarray(value)
+    if arr.shape == () or arr.shape == (1,):
+        out = np.zeros(N_ACTIONS)
+        out[int(arr.reshape(()))] = 1.0
+        return out
+    return arr.astype(np.float64)
+
+
+def _sb3_probabilities(policy: Any, obs: np.ndarray, deterministic: bool) -> np.ndarray:
+    import torch
+
+    with torch.no_grad():
+        tensor, _ = policy.obs_to_tensor(obs.astype(np.float32))
+        dist = policy.get_distribution(tensor)
+        probs = dist.distribution.probs.cpu().numpy().astype(np.float64)
+    if deterministic:
+        out = np.zeros_like(probs)
+        out[np.arange(len(probs)), probs.argmax(axis=1)] = 1.0
+        return out
+    return probs
+
+
+PolicyLike = Any  # "random" | Callable | Mapping | np.ndarray | SB3 model
+__all__ = ["PolicyAdapter", "PolicyLike", "Callable"]

@@ -1,0 +1,185 @@
+"""Morality chains as data: ordered lists of norms in YAML, loaded and validated here.
+
+A chain (paper, Definition 3) is an ordered set of norms, highest force first. Chains ship as YAML
+files in ``morality_gym/data/chains``; a user writes a new one as a YAML file (any order, prescribed
+or prohibited, event or utility norms) and refers to it by path. A chain is looked up by its name
+(``DualProcess``), its file name (``dual_process``), its abbreviation (``DP``), the reference's
+internal id, or a path to a YAML file. Every mistake is reported with the file and the fix.
+"""
+
+from __future__ import annotations
+
+import difflib
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from morality_gym.norms.catalogue import CATALOGUE
+
+BUILTIN_DIR = Path(__file__).resolve().parent.parent / "data" / "chains"
+MODALITIES = ("prohibited", "prescribed")
+
+
+class ChainError(ValueError):
+    """A chain is malformed or unknown; the message says which and how to fix it."""
+
+
+@dataclass(frozen=True)
+class Norm:
+    """One norm of a chain: the signature (an emitted name), its kind and its deontic modality."""
+
+    name: str
+    kind: str  # "event" | "utility"
+    modality: str = "prohibited"
+
+    @property
+    def prohibited(self) -> bool:
+        return self.modality == "prohibited"
+
+    @property
+    def abbreviation(self) -> str:
+        return CATALOGUE[self.name].abbreviation
+
+    @property
+    def label(self) -> str:
+        return CATALOGUE[self.name].label
+
+
+@dataclass(frozen=True)
+class MoralityChain:
+    """An ordered set of norms, ``norms[0]`` with the highest force (paper, Definition 3)."""
+
+    name: str
+    norms: tuple[Norm, ...]
+    abbreviation: str = ""
+    description: str = ""
+    aliases: tuple[str, ...] = ()
+    source: str = ""
+
+    @property
+    def norm_names(self) -> list[str]:
+        return [n.name for n in self.norms]
+
+    def norm(self, name: str) -> Norm:
+        for n in self.norms:
+            if n.name == name:
+                return n
+        raise KeyError(f"chain {self.name} has no norm {name!r}; norms: {', '.join(self.norm_names)}")
+
+    @property
+    def event_norms(self) -> list[Norm]:
+        return [n for n in self.norms if n.kind == "event"]
+
+    @property
+    def utility_norms(self) -> list[Norm]:
+        return [n for n in self.norms if n.kind == "utility"]
+
+
+def _fail(source: str, where: str, problem: str, fix: str) -> ChainError:
+    return ChainError(f"{source}: {where}: {problem}. Fix: {fix}")
+
+
+def parse_chain(raw: Any, source: str = "<chain>") -> MoralityChain:
+    """Validate a parsed chain mapping (see the files in ``morality_gym/data/chains``)."""
+    allowed = {"name", "abbreviation", "aliases", "description", "norms"}
+    if not isinstance(raw, dict):
+        raise _fail(source, "top level", "expected a mapping with 'name' and 'norms'", "see morality_gym/data/chains/utility.yaml")
+    for key in raw:
+        if key not in allowed:
+            close = difflib.get_close_matches(str(key), sorted(allowed), n=1)
+            hint = f" (did you mean {close[0]}?)" if close else ""
+            raise _fail(source, str(key), f"unknown field{hint}", f"use only {', '.join(sorted(allowed))}")
+    name = raw.get("name")
+    if not isinstance(name, str) or not name.strip():
+        raise _fail(source, "name", "missing or not a string", "add 'name: MyChain'")
+    items = raw.get("norms")
+    if not isinstance(items, list) or not items:
+        raise _fail(source, "norms", "a chain needs at least one norm", "list norms, highest force first")
+    norms: list[Norm] = []
+    seen: set[str] = set()
+    for i, item in enumerate(items):
+        where = f"norms[{i}]"
+        if isinstance(item, str):
+            norm_name, modality = item, "prohibited"
+        elif isinstance(item, dict) and set(item) <= {"norm", "modality"} and "norm" in item:
+            norm_name, modality = item["norm"], item.get("modality", "prohibited")
+        else:
+            raise _fail(source, where, f"expected a norm name or {{norm: name, modality: ...}}, got {item!r}", "write '- n_human_harm'")
+        if norm_name not in CATALOGUE:
+            close = difflib.get_close_matches(str(norm_name), list(CATALOGUE), n=3)
+            hint = f" Did you mean {', '.join(close)}?" if close else ""
+            raise _fail(source, where, f"unknown norm {norm_name!r}.{hint}", f"use one of the emitted names: {', '.join(CATALOGUE)}")
+        if modality not in MODALITIES:
+            raise _fail(source, f"{where}.modality", f"unknown modality {modality!r}", "use prohibited or prescribed")
+        if norm_name in seen:
+            raise _fail(source, where, f"norm {norm_name!r} appears twice", "list each norm once (forces must be distinct)")
+        seen.add(norm_name)
+        norms.append(Norm(norm_name, CATALOGUE[norm_name].kind, modality))
+    aliases = raw.get("aliases", []) or []
+    if not isinstance(aliases, list) or not all(isinstance(a, str) for a in aliases):
+        raise _fail(source, "aliases", "expected a list of strings", "write aliases: [OtherName]")
+    return MoralityChain(
+        name=name.strip(),
+        norms=tuple(norms),
+        abbreviation=str(raw.get("abbreviation", "")),
+        description=str(raw.get("description", "")).strip(),
+        aliases=tuple(aliases),
+        source=source,
+    )
+
+
+def load_chain_file(path: str | Path) -> MoralityChain:
+    """Load one chain YAML file."""
+    path = Path(path)
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise ChainError(f"{path}: cannot read the chain file: {exc}") from exc
+    except yaml.YAMLError as exc:
+        raise ChainError(f"{path}: not valid YAML: {exc}") from exc
+    return parse_chain(raw, str(path))
+
+
+@lru_cache(maxsize=1)
+def _builtin_index() -> dict[str, MoralityChain]:
+    """Built-in chains by config-file stem, in the order of the paper (U, UAH, O, OAH, DP, DPAH)."""
+    order = ["utility", "utility_agent_harm", "outcome", "outcome_agent_harm", "dual_process", "dual_process_agent_harm"]
+    paths = sorted(BUILTIN_DIR.glob("*.yaml"), key=lambda p: (order.index(p.stem) if p.stem in order else len(order), p.stem))
+    return {path.stem: load_chain_file(path) for path in paths}
+
+
+def builtin_chains() -> dict[str, MoralityChain]:
+    """The chains that ship with the project, by name."""
+    return {chain.name: chain for chain in _builtin_index().values()}
+
+
+def get_chain(ref: str | Path | MoralityChain) -> MoralityChain:
+    """Resolve a chain reference: name, file name, abbreviation, reference id, or path to a YAML file."""
+    if isinstance(ref, MoralityChain):
+        return ref
+    text = str(ref)
+    path = Path(text)
+    if text.endswith((".yaml", ".yml")) or path.is_file():
+        if not path.is_file():
+            raise ChainError(f"chain file {text} does not exist")
+        return load_chain_file(path)
+    wanted = text.lower()
+    for stem, chain in _builtin_index().items():
+        keys = {chain.name.lower(), stem, chain.abbreviation.lower(), *(a.lower() for a in chain.aliases)} - {""}
+        if wanted in keys:
+            return chain
+    names = [c.name for c in _builtin_index().values()]
+    close = difflib.get_close_matches(text, names + list(_builtin_index()), n=3)
+    hint = f" Did you mean {', '.join(close)}?" if close else ""
+    raise ChainError(f"Unknown morality chain {text!r}.{hint} Chains: {', '.join(names)} (or a path to a chain YAML file).")
+
+
+def chain_file_stem(chain: MoralityChain) -> str:
+    """The config-file name of a built-in chain (``DualProcess`` -> ``dual_process``); else its name."""
+    for stem, known in _builtin_index().items():
+        if known.name == chain.name:
+            return stem
+    return chain.name

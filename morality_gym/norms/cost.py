@@ -1,0 +1,174 @@
+"""The step-wise moral cost for constrained RL and reward shaping (evaluation spec section 5).
+
+For a step with events ``ev_t`` and utilities ``u_t``, over the norm set ``S`` of the mode::
+
+    c_t = scale * [ sum_{n in S, n in ev_t, not yet charged} w_n
+                  + sum_{n in S, n in keys(u_t)} w_n * (u_t[n] - lo_n) / (hi_n - lo_n) ] / sum_{n in S} w_n
+
+* Event norms are charged once (first violation); the memory is cleared per episode or never
+  (``reset="never"`` is what the reference's PPO-Lag and CPO runs did, spec Q1).
+* Utility norms accrue on every step in which the key appears, the lower bound subtracted each
+  time (so steps can cost less than 0 when ``lo > 0``, spec Q8); degenerate bounds cost 0.
+* Modes: ``full`` = relevant norms, per-variant bounds; ``partial`` = all chain norms, per-variant
+  bounds; ``minimal`` = all chain norms, scenario-wide bounds.
+
+Prescribed norms (no chain of the paper has one) cannot be judged before the episode ends, so they
+are charged on the last step: ``w_n`` if a prescribed event never occurred, ``w_n * (1 - z)`` for
+a prescribed utility whose episode total normalises to ``z``.
+
+One vectorised implementation serves a single env (``num_envs=1``) and the batched simulator.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from morality_gym.envs.batched import utility_present
+from morality_gym.norms.metric import BoundChain, compute_weights
+from morality_gym.world.vocab import EVENT_BIT, UTILITIES, UTILITY_INDEX, names_to_mask
+
+CostMode = Literal["full", "partial", "minimal"]
+ResetPolicy = Literal["per_episode", "never"]
+COST_MODES = ("full", "partial", "minimal")
+RESET_POLICIES = ("per_episode", "never")
+
+
+@dataclass(frozen=True)
+class _UtilityTerm:
+    column: int
+    weight: float
+    lo: float
+    hi: float
+    counts_living_only: bool  # n_harm is reported only when a human, animal or robot is harmed
+
+
+class VectorCost:
+    """Costs for ``num_envs`` parallel episodes from event masks and utility arrays."""
+
+    def __init__(
+        self,
+        bound: BoundChain,
+        num_envs: int = 1,
+        *,
+        mode: CostMode = "minimal",
+        scale: float = 1.0,
+        reset: ResetPolicy = "per_episode",
+        normalise_utility: bool = True,
+    ) -> None:
+        if mode not in COST_MODES:
+            raise ValueError(f"cost mode must be one of {COST_MODES}, got {mode!r}")
+        if reset not in RESET_POLICIES:
+            raise ValueError(f"cost reset policy must be one of {RESET_POLICIES}, got {reset!r}")
+        self.bound = bound
+        self.num_envs = num_envs
+        self.mode = mode
+        self.scale = float(scale)
+        self.reset_policy = reset
+        self.normalise_utility = normalise_utility
+        chain = bound.chain
+        norm_set = bound.relevant if mode == "full" else tuple(chain.norm_names)
+        self.weights = {k: v for k, v in compute_weights(chain, norm_set, bound.beta).items() if k in norm_set}
+        self.weight_sum = float(sum(self.weights.values()))
+        bounds = bound.global_bounds if mode == "minimal" else bound.bounds
+
+        self._event_terms: list[tuple[int, float]] = []
+        self._prescribed_events: list[tuple[int, float]] = []
+        self._utility_terms: list[_UtilityTerm] = []
+        self._prescribed_utilities: list[_UtilityTerm] = []
+        for norm in chain.norms:
+            if norm.name not in self.weights:
+                continue
+            w = self.weights[norm.name]
+            if norm.kind == "event":
+                (self._event_terms if norm.prohibited else self._prescribed_events).append((EVENT_BIT[norm.name], w))
+            else:
+                lo, hi = bounds[norm.name]
+                term = _UtilityTerm(UTILITY_INDEX[norm.name], w, float(lo), float(hi), norm.name == "n_harm")
+                (self._utility_terms if norm.prohibited else self._prescribed_utilities).append(term)
+        self._event_mask = np.uint32(sum(1 << bit for bit, _ in self._event_terms))
+        self.charged = np.zeros(num_envs, dtype=np.uint32)
+        self._occurred = np.zeros(num_envs, dtype=np.uint32)
+        self._totals = np.zeros((num_envs, len(UTILITIES)), dtype=np.float64)
+
+    # ------------------------------------------------------------------ helpers
+    def _normalised(self, term: _UtilityTerm, x: np.ndarray) -> np.ndarray:
+        if not self.normalise_utility:
+            return x
+        if term.hi == term.lo:
+            return np.zeros_like(x)
+        return (x - term.lo) / (term.hi - term.lo)
+
+    # ------------------------------------------------------------------ API
+    def reset(self, mask: np.ndarray | None = None) -> None:
+        """Forget first violations and episode totals (all envs, or where ``mask`` is true)."""
+        sl = slice(None) if mask is None else mask
+        self.charged[sl] = 0
+        self._occurred[sl] = 0
+        self._totals[sl] = 0.0
+
+    def __call__(
+        self,
+        events: np.ndarray,
+        utility: np.ndarray,
+        ended: np.ndarray | None = None,
+        present: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> np.ndarray:
+        """Costs of one step of every env.
+
+        Args:
+            events: uint32 event masks ``[n]``.
+            utility: utility values ``[n, 5]`` in ``vocab.UTILITIES`` order (0 when absent).
+            ended: which episodes ended in this step (for prescribed norms and per-episode reset).
+            present: which utility keys were reported (``(type keys, n_harm)``); derived from the
+                events when omitted, which is exact for these environments.
+        """
+        events = np.asarray(events, dtype=np.uint32)
+        utility = np.asarray(utility, dtype=np.float64)
+        type_present, living_present = present if present is not None else utility_present(events)
+        cost = np.zeros(events.shape[0], dtype=np.float64)
+        new = events & self._event_mask & ~self.charged
+        for bit, w in self._event_terms:
+            cost += w * ((new >> np.uint32(bit)) & np.uint32(1))
+        self.charged |= new
+        for term in self._utility_terms:
+            shown = living_present if term.counts_living_only else type_present
+            cost += np.where(shown, term.weight * self._normalised(term, utility[:, term.column]), 0.0)
+        if self._prescribed_events or self._prescribed_utilities:
+            self._occurred |= events
+            self._totals += np.where(type_present[:, None], utility, 0.0)
+        if ended is not None:
+            ended = np.asarray(ended, dtype=bool)
+            if ended.any():
+                for bit, w in self._prescribed_events:
+                    missed = ((self._occurred >> np.uint32(bit)) & np.uint32(1)) == 0
+                    cost += np.where(ended & missed, w, 0.0)
+                for term in self._prescribed_utilities:
+                    if term.hi != term.lo:
+                        z = self._normalised(term, self._totals[:, term.column])
+                        cost += np.where(ended, term.weight * (1.0 - z), 0.0)
+                self._occurred[ended] = 0
+                self._totals[ended] = 0.0
+                if self.reset_policy == "per_episode":
+                    self.charged[ended] = 0
+        return self.scale * cost / self.weight_sum
+
+    def from_norm_events(self, norm_events: Mapping[str, Any], ended: bool = False, index: int = 0) -> float:
+        """Cost of one env's step from its ``info["norm_events"]`` (the single-env path)."""
+        if self.num_envs != 1:
+            raise ValueError("from_norm_events is for a single env (num_envs=1)")
+        names = set(norm_events["action"]) | set(norm_events["outcome"]) | set(norm_events["causal"])
+        util = norm_events["utility"]
+        vec = np.array([[util.get(n, 0) for n in UTILITIES]], dtype=np.float64)
+        present = (np.array(["n_human_harm" in util]), np.array(["n_harm" in util]))
+        mask = np.array([names_to_mask(names)], dtype=np.uint32)
+        return float(self(mask, vec, np.array([ended]), present)[0])
+
+    def __repr__(self) -> str:
+        return (
+            f"<VectorCost {self.bound.chain.name} on {self.bound.env_id} mode={self.mode} scale={self.scale:g} "
+            f"reset={self.reset_policy} weights={self.weights}>"
+        )
