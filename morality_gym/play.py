@@ -1,0 +1,294 @@
+"""``python -m morality_gym play ENV_ID``: play a dilemma yourself in the terminal.
+
+Playing an environment by hand is the quickest way to understand a scenario (and to check that
+it does what its description says), so every step prints what an agent would receive: the
+picture, the reward, the running return, the step's norm events and who has stopped.
+
+Keys: ``w a s d`` (or the arrow keys) move, space or ``.`` waits, ``e`` interacts (pull the
+adjacent levers, push the adjacent pushable groups), ``r`` restarts, ``q`` quits, ``?`` helps.
+On a terminal single key presses are read (cbreak mode, always restored); otherwise one line is
+read at a time and every character in it is a key, so that tests and scripts can drive a game
+through a pipe (``printf 'ed\\n' | python -m morality_gym play ...``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import sys
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any, TextIO
+
+from morality_gym.world.rules import ACTION_NAMES, DOWN, FOUND, HARMED, INTERACT, LEFT, RIGHT, STAY, UP
+from morality_gym.world.vocab import EVENTS
+
+QUIT, RESTART, HELP = "quit", "restart", "help"
+
+#: Key -> action number or command. Arrow keys arrive as escape sequences, see _tokens().
+KEYS: dict[str, int | str] = {
+    "w": UP,
+    "a": LEFT,
+    "s": DOWN,
+    "d": RIGHT,
+    " ": STAY,
+    ".": STAY,
+    "e": INTERACT,
+    "r": RESTART,
+    "q": QUIT,
+    "?": HELP,
+    "\x03": QUIT,  # Ctrl-C / Ctrl-D as raw bytes, in case the terminal delivers them as keys
+    "\x04": QUIT,
+}
+_ARROWS = {"A": UP, "B": DOWN, "C": RIGHT, "D": LEFT}
+
+HELP_TEXT = """\
+keys: w/up  a/left  s/down  d/right  move     space or .  stay     e  interact (levers, push)
+      r  restart     q  quit     ?  this help
+picture: P agent (X harmed)  T trolley (t stopped)  h a r human/animal/robot group
+         (H A R: pushable, x: harmed)  G landmark  / lever  < > ^ v rails (a switch shows its setting)  # wall"""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The ``play`` sub-command's arguments (the main CLI owns the parser)."""
+    parser.add_argument("env_id", help="environment id, e.g. SwitchStandard-HumanA-v1 (see morality_gym.list_envs())")
+    parser.add_argument(
+        "--max-steps",
+        type=int,
+        default=200,
+        help="truncate the episode on step max_steps + 1, as the environment does (default: 200)",
+    )
+    parser.add_argument(
+        "--no-colour",
+        "--no-color",
+        dest="no_colour",
+        action="store_true",
+        help="plain ASCII picture without ANSI colours",
+    )
+
+
+# ---------------------------------------------------------------------------------------- input
+def _tokens(text: str) -> Iterator[int | str]:
+    """Commands in ``text``: known keys, arrow escape sequences, and the unknown keys as text."""
+    i = 0
+    while i < len(text):
+        ch = text[i]
+        if ch == "\x1b" and i + 2 < len(text) and text[i + 1] in "[O" and text[i + 2] in _ARROWS:
+            yield _ARROWS[text[i + 2]]
+            i += 3
+            continue
+        lowered = ch.lower()
+        yield KEYS.get(lowered, ch)
+        i += 1
+
+
+def _line_commands(stdin: TextIO) -> Iterator[int | str]:
+    """Pipe mode: one line at a time, every character a key (the newline is not a key)."""
+    for line in stdin:
+        yield from _tokens(line.rstrip("\r\n"))
+
+
+@contextlib.contextmanager
+def _cbreak(stdin: TextIO) -> Iterator[None]:
+    """Single key presses without echo; the terminal settings are restored however we leave."""
+    import termios
+    import tty
+
+    fd = stdin.fileno()
+    saved = termios.tcgetattr(fd)
+    try:
+        tty.setcbreak(fd, termios.TCSANOW)  # TCSANOW keeps keys typed ahead (TCSAFLUSH drops them)
+        yield
+    finally:
+        termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+
+
+def _key_commands(stdin: TextIO) -> Iterator[int | str]:
+    """Terminal mode: read key presses as they come, with arrow keys decoded."""
+    import select
+
+    fd = stdin.fileno()
+    while True:
+        data = os.read(fd, 1)
+        if not data:
+            return
+        if data == b"\x1b":  # maybe an arrow key: its bytes follow immediately
+            while select.select([fd], [], [], 0.05)[0] and len(data) < 3:
+                data += os.read(fd, 1)
+        yield from _tokens(data.decode("utf-8", errors="replace"))
+
+
+# ---------------------------------------------------------------------------------------- the game
+@dataclass
+class Episode:
+    """What happened so far in the current episode (for the summary)."""
+
+    steps: int = 0
+    total: float = 0.0
+    events: set[str] = field(default_factory=set)
+    harm: dict[str, int] = field(default_factory=lambda: {"human": 0, "animal": 0, "robot": 0})
+    over: bool = False
+    ending: str = ""
+
+
+def _in_vocabulary_order(names: Any) -> list[str]:
+    """Event names in the order of the vocabulary (stable and readable, unlike set order)."""
+    order = {name: i for i, name in enumerate(EVENTS)}
+    return sorted(names, key=lambda n: (order.get(n, len(order)), n))
+
+
+def _format_events(norm_events: dict[str, Any]) -> list[str]:
+    """Only the non-empty categories, names sorted in vocabulary order."""
+    lines = []
+    for category in ("action", "outcome", "causal"):
+        names = _in_vocabulary_order(norm_events[category])
+        if names:
+            lines.append(f"  {category + ':':9}{', '.join(names)}")
+    if norm_events["utility"]:
+        values = ", ".join(f"{k}={v}" for k, v in norm_events["utility"].items())
+        lines.append(f"  {'utility:':9}{values}")
+    return lines or ["  no norm events"]
+
+
+def _format_statuses(statuses: dict[str, bool]) -> str:
+    return ", ".join(f"{name} {'stopped' if stopped else 'active'}" for name, stopped in statuses.items())
+
+
+def _ending(env: Any, terminated: bool, truncated: bool) -> str:
+    flags = env.state[1]
+    agent = "the agent reached the landmark" if flags & FOUND else "the agent was harmed" if flags & HARMED else ""
+    if truncated and not terminated:
+        return f"truncated after {env.elapsed_steps} steps" + (f" ({agent})" if agent else "")
+    return "terminated: " + (agent or "everything stopped")
+
+
+class Game:
+    """One terminal session: an environment, the output stream and the current episode."""
+
+    def __init__(self, env: Any, out: TextIO, colour: bool) -> None:
+        self.env = env
+        self.out = out
+        self.colour = colour
+        self.episode = Episode()
+
+    def say(self, text: str = "") -> None:
+        self.out.write(text + "\n")
+        self.out.flush()
+
+    def picture(self) -> None:
+        from morality_gym.render.ansi import render_ansi
+
+        self.out.write(render_ansi(self.env.world, self.env.state, colour=self.colour))
+
+    def start(self) -> None:
+        self.env.reset()
+        self.episode = Episode()
+        self.say(f"\n{self.env.env_id}: {self.env.scenario.summary}")
+        self.say("keys: w a s d move, space wait, e interact, r restart, q quit, ? help")
+        self.picture()
+
+    def step(self, action: int) -> None:
+        if self.episode.over:
+            self.say("the episode is over: r to restart, q to quit")
+            return
+        _obs, reward, terminated, truncated, info = self.env.step(action)
+        ep = self.episode
+        ep.steps += 1
+        ep.total += float(reward)
+        ne = info["norm_events"]
+        ep.events.update(ne["action"], ne["outcome"], ne["causal"])
+        for kind in ep.harm:
+            ep.harm[kind] += ne["utility"].get(f"n_{kind}_harm", 0)
+        self.say(f"\nstep {ep.steps}: {ACTION_NAMES[action]}")
+        self.picture()
+        self.say(f"reward {float(reward):g}   return {ep.total:g}")
+        for line in _format_events(ne):
+            self.say(line)
+        self.say(f"terminated={terminated} truncated={truncated}   ({_format_statuses(info['termination_statuses'])})")
+        if terminated or truncated:
+            ep.over = True
+            ep.ending = _ending(self.env, terminated, truncated)
+            self.summary()
+            self.say("r to play again, q to quit")
+
+    def summary(self) -> None:
+        ep = self.episode
+        self.say(f"\n=== episode summary: {ep.ending or 'unfinished'} ===")
+        self.say(f"return {ep.total:g}   length {ep.steps} steps")
+        events = _in_vocabulary_order(ep.events)
+        self.say("events: " + (", ".join(events) if events else "none"))
+        self.say("harm: " + ", ".join(f"{kind} {n}" for kind, n in ep.harm.items()))
+
+    def play(self, commands: Iterator[int | str]) -> int:
+        """Run commands until quit or the end of the input; returns the exit code."""
+        self.start()
+        for command in commands:
+            if command == QUIT:
+                break
+            if command == HELP:
+                self.say(HELP_TEXT)
+            elif command == RESTART:
+                if self.episode.steps and not self.episode.over:
+                    self.summary()
+                self.say("restarting")
+                self.start()
+            elif isinstance(command, int):
+                self.step(command)
+            elif command.isspace():
+                continue  # tabs and the like in piped input
+            else:
+                self.say(f"unknown key {command!r} (? for help)")
+        if self.episode.steps and not self.episode.over:
+            self.summary()
+        self.say("bye")
+        return 0
+
+
+def run(
+    args: argparse.Namespace, stdin: TextIO = sys.stdin, stdout: TextIO = sys.stdout, stderr: TextIO | None = None
+) -> int:
+    """Play ``args.env_id``; returns the exit code (2 for an unknown id or bad arguments).
+
+    ``stderr`` defaults to ``sys.stderr`` at call time (so pytest's capture sees it).
+    """
+    from morality_gym.envs.registry import UnknownEnvError
+    from morality_gym.envs.trolley import TrolleyEnv
+
+    err = stderr if stderr is not None else sys.stderr
+    try:
+        env = TrolleyEnv(args.env_id, max_steps=args.max_steps)
+    except (UnknownEnvError, ValueError, TypeError) as exc:
+        err.write(f"morality_gym play: error: {exc}\n")
+        err.flush()
+        return 2
+    colour = not getattr(args, "no_colour", False) and _isatty(stdout)
+    game = Game(env, stdout, colour)
+    try:
+        if _isatty(stdin) and _HAS_TERMIOS:
+            with _cbreak(stdin):
+                return game.play(_key_commands(stdin))
+        return game.play(_line_commands(stdin))
+    except KeyboardInterrupt:
+        game.say("\ninterrupted")
+        return 130
+    finally:
+        env.close()
+
+
+try:  # single key presses need POSIX terminal control; elsewhere keys are read line by line
+    import termios as _termios  # noqa: F401
+
+    _HAS_TERMIOS = True
+except ImportError:  # pragma: no cover - Windows
+    _HAS_TERMIOS = False
+
+
+def _isatty(stream: Any) -> bool:
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError):
+        return False
+
+
+__all__ = ["HELP_TEXT", "KEYS", "add_arguments", "run"]

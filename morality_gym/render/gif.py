@@ -1,0 +1,142 @@
+"""Animated GIFs of episodes: the easiest way to show someone what an agent did.
+
+:func:`write_gif` turns frames into a looping GIF; :func:`record_episode` plays one episode with a
+policy and writes its GIF together with a summary of what happened. Files are written to a
+temporary name in the target directory and renamed at the end, so an interrupted run never leaves
+a truncated GIF behind under the real name (a later step would otherwise happily pick it up).
+"""
+
+from __future__ import annotations
+
+import os
+import uuid
+from collections.abc import Callable, Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image
+
+from morality_gym.world.rules import ACTION_NAMES
+from morality_gym.world.vocab import EVENTS, UTILITIES
+
+Policy = Callable[[Any], Any]
+
+
+def _as_image(frame: np.ndarray | Image.Image) -> Image.Image:
+    if isinstance(frame, Image.Image):
+        return frame.convert("RGB")
+    array = np.asarray(frame)
+    if array.dtype != np.uint8 or array.ndim != 3 or array.shape[2] != 3:
+        raise ValueError(f"frames must be uint8 arrays of shape (H, W, 3), got {array.dtype} {array.shape}")
+    return Image.fromarray(array, mode="RGB")
+
+
+def write_gif(frames: Iterable[np.ndarray | Image.Image], path: str | os.PathLike[str], fps: float = 4) -> Path:
+    """Write ``frames`` as a GIF that loops forever, atomically (temporary file, then rename).
+
+    GIF stores delays in hundredths of a second, so ``fps`` is rounded to that. Note that
+    identical consecutive frames are merged by the encoder into one longer frame (the total
+    duration is kept); :func:`record_episode` captions every frame with its step so that each
+    step stays a frame of its own.
+    """
+    if fps <= 0:
+        raise ValueError(f"fps must be positive, got {fps!r}")
+    images = [_as_image(f) for f in frames]
+    if not images:
+        raise ValueError("write_gif needs at least one frame")
+    sizes = {im.size for im in images}
+    if len(sizes) > 1:
+        raise ValueError(f"all frames must have the same size, got {sorted(sizes)}")
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    duration_ms = max(10, round(1000 / fps / 10) * 10)
+    # A unique name next to the target (same file system, so the rename is atomic); opened with
+    # "xb" rather than tempfile.mkstemp so the file gets the usual permissions, not 0600.
+    tmp = target.with_name(f".{target.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
+    try:
+        with open(tmp, "xb") as fh:
+            images[0].save(fh, format="GIF", save_all=True, append_images=images[1:], duration=duration_ms, loop=0)
+        os.replace(tmp, target)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return target
+
+
+def _caption(step: int, action: int | None, reward: float, total: float) -> str:
+    if action is None:
+        return "step 0  start"
+    return f"step {step}  {ACTION_NAMES[action]}  reward {reward:g}  return {total:g}"
+
+
+def record_episode(
+    env_id: str,
+    policy: Policy | None,
+    path: str | os.PathLike[str],
+    *,
+    max_steps: int = 50,
+    seed: int | None = None,
+    env_kwargs: Mapping[str, Any] | None = None,
+    fps: float = 4,
+    cell_size: int = 48,
+) -> dict[str, Any]:
+    """Play one episode of ``env_id`` and write it as a GIF (initial frame included).
+
+    ``policy`` maps an observation to an action; ``None`` draws uniform random actions from
+    ``np.random.default_rng(seed)``. The episode stops at termination, truncation or after
+    ``max_steps`` steps. Returns ``{"env_id", "path", "steps", "return", "terminated", "truncated",
+    "actions", "events", "utility", "frames"}`` where ``events`` lists every norm event that
+    occurred (vocabulary order) and ``utility`` sums each harm count over the episode, so the
+    episode can be replayed and checked.
+    """
+    from morality_gym.envs.trolley import TrolleyEnv
+    from morality_gym.render.rgb import render_rgb
+
+    if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 0:
+        raise ValueError(f"max_steps must be a non-negative int, got {max_steps!r}")
+    kwargs = dict(env_kwargs or {})
+    if "render_mode" in kwargs:
+        raise ValueError("record_episode renders rgb_array frames itself; do not pass render_mode in env_kwargs")
+    rng = np.random.default_rng(seed)
+    env = TrolleyEnv(env_id, render_mode="rgb_array", **kwargs)
+    try:
+        obs, _info = env.reset(seed=seed)
+        frames = [render_rgb(env.world, env.state, cell_size, caption=_caption(0, None, 0.0, 0.0))]
+        actions: list[int] = []
+        occurred: set[str] = set()
+        utility = dict.fromkeys(UTILITIES, 0)
+        total = 0.0
+        terminated = truncated = False
+        while len(actions) < max_steps and not (terminated or truncated):
+            action = int(rng.integers(6)) if policy is None else int(policy(obs))
+            obs, reward, terminated, truncated, info = env.step(action)
+            actions.append(action)
+            total += float(reward)
+            ne = info["norm_events"]
+            occurred.update(ne["action"], ne["outcome"], ne["causal"])
+            for name, value in ne["utility"].items():
+                utility[name] += value
+            frames.append(
+                render_rgb(
+                    env.world, env.state, cell_size, caption=_caption(len(actions), action, float(reward), total)
+                )
+            )
+    finally:
+        env.close()
+    written = write_gif(frames, path, fps=fps)
+    return {
+        "env_id": env.env_id,
+        "path": str(written),
+        "steps": len(actions),
+        "return": total,
+        "terminated": bool(terminated),
+        "truncated": bool(truncated),
+        "actions": actions,
+        "events": [name for name in EVENTS if name in occurred],
+        "utility": utility,
+        "frames": len(frames),
+    }
+
+
+__all__ = ["record_episode", "write_gif"]
