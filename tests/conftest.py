@@ -17,3 +17,6 @@ def shared_dir() -> Path:
     if not (SHARED / "conformance" / "INDEX.json").is_file():
         pytest.skip(f"reference material not found at {SHARED} (set MORALITY_GYM_SHARED); a user's clone has none")
     return SHARED
+
+
+from tests.slurm_cluster import slurm_cluster  # noqa: E402,F401 - session fixture for the SLURM tests
