@@ -6,22 +6,64 @@
 
 from __future__ import annotations
 
+from morality_gym.api import make
+from morality_gym.envs.batched import BatchedTrolleyEnv
 from morality_gym.envs.registration import register_all
 from morality_gym.envs.registry import UnknownEnvError, add_scenario_dir, list_envs, parse_env_id, scenarios
 from morality_gym.envs.trolley import InvalidActionError, TrolleyEnv
+from morality_gym.evaluation.exact import exact_evaluate
+from morality_gym.evaluation.montecarlo import evaluate
+from morality_gym.evaluation.oracle import oracle
+from morality_gym.norms.chain import ChainError, MoralityChain, builtin_chains, get_chain
+from morality_gym.norms.cost import VectorCost
+from morality_gym.norms.metric import BoundChain, bind_chain
 from morality_gym.world.rules import ACTION_NAMES
 
 __version__ = "0.1.0"
 
 register_all()
 
+# These import Stable-Baselines3 (and so torch, ~1.5 s); load them only when first used.
+_LAZY = {
+    "TrolleyVecEnv": "morality_gym.envs.vector",
+    "TrolleyVectorEnv": "morality_gym.envs.vector",
+    "MoralityWrapper": "morality_gym.norms.wrappers",
+    "RewardCostSpec": "morality_gym.norms.wrappers",
+    "VecMoralityWrapper": "morality_gym.norms.wrappers",
+}
+
+
+def __getattr__(name: str) -> object:
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'morality_gym' has no attribute {name!r}")
+
 __all__ = [
     "ACTION_NAMES",
+    "BatchedTrolleyEnv",
+    "BoundChain",
+    "ChainError",
     "InvalidActionError",
+    "MoralityChain",
+    "MoralityWrapper",
+    "RewardCostSpec",
     "TrolleyEnv",
+    "TrolleyVecEnv",
+    "TrolleyVectorEnv",
     "UnknownEnvError",
+    "VecMoralityWrapper",
+    "VectorCost",
     "add_scenario_dir",
+    "bind_chain",
+    "builtin_chains",
+    "evaluate",
+    "exact_evaluate",
+    "get_chain",
     "list_envs",
+    "make",
+    "oracle",
     "parse_env_id",
     "scenarios",
 ]

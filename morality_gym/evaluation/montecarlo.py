@@ -12,18 +12,19 @@ all episodes rather than once per episode step.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from morality_gym.envs.batched import BatchedTrolleyEnv, utility_present
-from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
+from morality_gym.envs.trolley import DEFAULT_MAX_STEPS, TrolleyEnv
 from morality_gym.evaluation.policies import PolicyAdapter
 from morality_gym.evaluation.result import EpisodeRecord, EvaluationResult
 from morality_gym.norms.chain import MoralityChain
 from morality_gym.norms.cost import CostMode, VectorCost
 from morality_gym.norms.metric import DEFAULT_BETA, BoundChain, bind_chain
-from morality_gym.world.vocab import EVENT_BIT, UTILITIES
+from morality_gym.world.vocab import EVENT_BIT, UTILITIES, names_to_mask
 
 MAX_EPISODE_STEPS = 5000  # the reference evaluator's cap when the env itself never truncates
 _CHUNK = 1024
@@ -78,11 +79,7 @@ def evaluate(
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
     bound = chain if isinstance(chain, BoundChain) else bind_chain(chain, env_id, beta)
     adapter = PolicyAdapter(policy, deterministic=deterministic)
-    rng = np.random.default_rng(seed)
-    if seed is not None and not adapter.is_random:
-        import torch
-
-        torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)  # the only randomness used: torch's global RNG is never touched
     masks_all, sums_all, present_all, rets, lens, truncs, goals, costs = [], [], [], [], [], [], [], []
     bar = None
     if progress:
@@ -94,7 +91,6 @@ def evaluate(
         n = min(_CHUNK, remaining)
         remaining -= n
         env = BatchedTrolleyEnv(bound.env_id, n, max_steps=max_steps, autoreset="disabled")
-        cost = VectorCost(bound, n, mode=cost_mode, scale=1.0, reset="per_episode") if cost_mode else None
         obs = env.reset()
         masks = np.zeros(n, dtype=np.uint32)
         sums = np.zeros((n, len(UTILITIES)))
@@ -103,7 +99,8 @@ def evaluate(
         length = np.zeros(n, dtype=np.int64)
         trunc = np.zeros(n, dtype=bool)
         goal = np.zeros(n, dtype=bool)
-        ep_cost = np.zeros(n)
+        steps_type = np.zeros(n)
+        steps_living = np.zeros(n)
         active = np.ones(n, dtype=bool)
         for _ in range(MAX_EPISODE_STEPS):
             actions = adapter.actions(obs, rng, env.state)
@@ -115,12 +112,12 @@ def evaluate(
             sums += np.where(live[:, None], util, 0)
             present[:, 1:] |= (type_p & live)[:, None]
             present[:, 0] |= living_p & live
+            steps_type += type_p & live
+            steps_living += living_p & live
             ret += np.where(live, res.reward, 0.0)
             length += live
             goal |= live & env.goal_reached(res.transition)
             ended_now = live & (res.terminated | res.truncated)
-            if cost is not None:
-                ep_cost += np.where(live, cost(res.events, util, ended_now), 0.0)
             trunc |= live & res.truncated
             active = active & ~ended_now
             obs = res.obs
@@ -136,23 +133,42 @@ def evaluate(
         lens.append(length)
         truncs.append(trunc)
         goals.append(goal)
-        costs.append(ep_cost)
+        if cost_mode:
+            costs.append(VectorCost(bound, n, mode=cost_mode, scale=1.0).episode_costs(masks, sums, steps_type, steps_living))
     if bar is not None:
         bar.close()
-    masks = np.concatenate(masks_all)
-    sums = np.concatenate(sums_all)
-    present = np.concatenate(present_all)
-    ret = np.concatenate(rets)
-    length = np.concatenate(lens)
-    trunc = np.concatenate(truncs)
-    goal = np.concatenate(goals)
-    ep_cost = np.concatenate(costs)
+    return _summarise(
+        bound,
+        np.concatenate(masks_all),
+        np.concatenate(sums_all),
+        np.concatenate(present_all),
+        np.concatenate(rets),
+        np.concatenate(lens),
+        np.concatenate(truncs),
+        np.concatenate(goals),
+        np.concatenate(costs) if cost_mode else None,
+        keep_episodes,
+    )
 
+
+def _summarise(
+    bound: BoundChain,
+    masks: np.ndarray,
+    sums: np.ndarray,
+    present: np.ndarray,
+    ret: np.ndarray,
+    length: np.ndarray,
+    trunc: np.ndarray,
+    goal: np.ndarray,
+    ep_cost: np.ndarray | None,
+    keep_episodes: bool,
+) -> EvaluationResult:
+    """Turn per-episode arrays into an :class:`EvaluationResult` (spec 4.1-4.3)."""
+    n_episodes = len(masks)
     event_freq = _event_freq(bound, masks)
     utility_mean = {name: float(sums[:, i].mean()) for i, name in enumerate(UTILITIES)}
     functions = bound.morality_functions(event_freq, utility_mean)
     per_episode = episode_metrics(bound, masks, sums)
-    metric = bound.metric(functions)
     stderr = float(per_episode.std(ddof=1) / math.sqrt(n_episodes)) if n_episodes > 1 else float("nan")
     episodes = []
     if keep_episodes:
@@ -166,7 +182,7 @@ def evaluate(
         chain=bound.chain.name,
         beta=bound.beta,
         exact=False,
-        metric=metric,
+        metric=bound.metric(functions),
         functions=functions,
         weights=dict(bound.weights),
         relevant=list(bound.relevant),
@@ -178,6 +194,55 @@ def evaluate(
         goal_rate=float(goal.mean()),
         n_episodes=n_episodes,
         metric_stderr=stderr,
-        mean_cost=float(ep_cost.mean()) if cost_mode else None,
+        mean_cost=float(ep_cost.mean()) if ep_cost is not None else None,
         episodes=episodes,
     )
+
+
+def evaluate_sequential(
+    act: Callable[[np.ndarray], int],
+    env: TrolleyEnv,
+    bound: BoundChain,
+    n_episodes: int,
+    cost_mode: CostMode | None = "minimal",
+    keep_episodes: bool = True,
+) -> EvaluationResult:
+    """Episodes one after another on one env, as the reference's evaluator runs them.
+
+    Slower than :func:`evaluate`, but it consumes a policy's random numbers in exactly the
+    reference's order (one draw per step, episode after episode), which is what reproduces the
+    paper's Random column bit for bit.
+    """
+    masks = np.zeros(n_episodes, dtype=np.uint32)
+    sums = np.zeros((n_episodes, len(UTILITIES)))
+    present = np.zeros((n_episodes, len(UTILITIES)), dtype=bool)
+    ret = np.zeros(n_episodes)
+    length = np.zeros(n_episodes, dtype=np.int64)
+    trunc = np.zeros(n_episodes, dtype=bool)
+    goal = np.zeros(n_episodes, dtype=bool)
+    steps_type = np.zeros(n_episodes)
+    steps_living = np.zeros(n_episodes)
+    for i in range(n_episodes):
+        obs, _ = env.reset()
+        for _ in range(MAX_EPISODE_STEPS):
+            obs, r, terminated, truncated, info = env.step(act(obs))
+            ne = info["norm_events"]
+            masks[i] |= names_to_mask(set(ne["action"]) | set(ne["outcome"]) | set(ne["causal"]))
+            util = ne["utility"]
+            if util:
+                for key, value in util.items():
+                    j = UTILITIES.index(key)
+                    sums[i, j] += value
+                    present[i, j] = True
+                steps_type[i] += "n_human_harm" in util
+                steps_living[i] += "n_harm" in util
+            ret[i] += r
+            length[i] += 1
+            goal[i] |= bool(info["goal_reached"])
+            if terminated or truncated:
+                trunc[i] = truncated
+                break
+        else:
+            trunc[i] = True
+    ep_cost = VectorCost(bound, n_episodes, mode=cost_mode, scale=1.0).episode_costs(masks, sums, steps_type, steps_living) if cost_mode else None
+    return _summarise(bound, masks, sums, present, ret, length, trunc, goal, ep_cost, keep_episodes)

@@ -51,16 +51,11 @@ class PolicyAdapter:
         p = self.policy
         if isinstance(p, str):
             return rng.integers(N_ACTIONS, size=n)
-        if _is_sb3(p):
-            actions, _ = p.predict(obs, deterministic=self.deterministic)
-            return np.asarray(actions, dtype=np.int64).reshape(n)
-        if _is_sb3_policy(p):
-            actions, _ = p.predict(obs, deterministic=self.deterministic)
-            return np.asarray(actions, dtype=np.int64).reshape(n)
-        if isinstance(p, np.ndarray) or isinstance(p, Mapping):
-            probs = self.probabilities(obs, state_ids)
-            cum = probs.cumsum(axis=1)
-            return (rng.random((n, 1)) * cum[:, -1:] > cum).sum(axis=1)
+        if _is_sb3(p) or _is_sb3_policy(p) or isinstance(p, (np.ndarray, Mapping)):
+            # SB3 policies are sampled here, from their probabilities, with numpy's generator:
+            # ``model.predict`` would draw from torch's global RNG and so change the training
+            # run's random stream whenever an evaluation happens during learning.
+            return sample_actions(self.probabilities(obs, state_ids), rng)
         if callable(p):
             return np.array([int(p(o)) for o in obs], dtype=np.int64)
         raise TypeError(f"cannot use {type(p).__name__} as a policy")
@@ -90,6 +85,12 @@ class PolicyAdapter:
         if np.any(probs < -1e-12) or not np.allclose(sums, 1.0, atol=1e-6):
             raise ValueError("policy probabilities must be non-negative and sum to 1 per observation")
         return probs / sums[:, None]
+
+
+def sample_actions(probs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One action per row of ``probs`` (inverse-CDF sampling with one uniform draw per row)."""
+    cum = probs.cumsum(axis=1)
+    return np.minimum((rng.random((len(probs), 1)) * cum[:, -1:] > cum).sum(axis=1), N_ACTIONS - 1)
 
 
 def _as_probs(value: Any) -> np.ndarray:

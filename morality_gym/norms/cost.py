@@ -156,6 +156,37 @@ class VectorCost:
                     self.charged[ended] = 0
         return self.scale * cost / self.weight_sum
 
+    def episode_costs(self, masks: np.ndarray, sums: np.ndarray, type_steps: np.ndarray, living_steps: np.ndarray) -> np.ndarray:
+        """Whole-episode costs with the memory reset every episode, from episode aggregates.
+
+        With a per-episode reset, an event norm costs its weight once if it occurred at all, and a
+        utility norm costs ``w * (total - lo * k) / (hi - lo)`` where ``k`` is the number of steps
+        that reported the key; this equals the sum of the step costs without stepping.
+
+        Args:
+            masks: uint32 ``[n]``: events that occurred in each episode.
+            sums: ``[n, 5]`` utility totals.
+            type_steps / living_steps: ``[n]``: steps that reported the type keys / ``n_harm``.
+        """
+        masks = np.asarray(masks, dtype=np.uint32)
+        sums = np.asarray(sums, dtype=np.float64)
+        cost = np.zeros(len(masks))
+        for bit, w in self._event_terms:
+            cost += w * ((masks >> np.uint32(bit)) & np.uint32(1))
+        for bit, w in self._prescribed_events:
+            cost += w * (((masks >> np.uint32(bit)) & np.uint32(1)) == 0)
+        for term in self._utility_terms:
+            k = living_steps if term.counts_living_only else type_steps
+            x = sums[:, term.column]
+            if not self.normalise_utility:
+                cost += term.weight * x
+            elif term.hi != term.lo:
+                cost += term.weight * (x - term.lo * k) / (term.hi - term.lo)
+        for term in self._prescribed_utilities:
+            if term.hi != term.lo:
+                cost += term.weight * (1.0 - self._normalised(term, sums[:, term.column]))
+        return self.scale * cost / self.weight_sum
+
     def from_norm_events(self, norm_events: Mapping[str, Any], ended: bool = False, index: int = 0) -> float:
         """Cost of one env's step from its ``info["norm_events"]`` (the single-env path)."""
         if self.num_envs != 1:

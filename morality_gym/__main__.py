@@ -1,0 +1,277 @@
+"""Command line: ``python -m morality_gym {play,eval,oracle,list,docs}``.
+
+``eval`` and ``oracle`` are stable interfaces (other tools call them with ``--json``); their JSON
+shapes are documented in the README and covered by tests.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from morality_gym.envs.registry import UnknownEnvError, list_envs, scenario_named
+from morality_gym.norms.chain import ChainError, builtin_chains, chain_file_stem, get_chain
+
+
+class CliError(Exception):
+    """A user error: printed without a traceback, exit code 2."""
+
+
+def _env_ids(scenario: str, variants: list[str] | None) -> list[str]:
+    scn = scenario_named(scenario)
+    if not variants:
+        return scn.env_ids
+    unknown = [v for v in variants if v not in scn.variants]
+    if unknown:
+        raise CliError(f"scenario {scn.name} has no variant {', '.join(unknown)}; variants: {', '.join(scn.variants)}")
+    return [scn.env_id(v) for v in variants]
+
+
+def _beta(text: str) -> float | str:
+    if text == "derived":
+        return text
+    try:
+        value = float(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"beta must be a number in (0, 1] or 'derived', got {text!r}") from exc
+    if not 0 < value <= 1:
+        raise argparse.ArgumentTypeError(f"beta must be in (0, 1], got {value}")
+    return value
+
+
+def _max_steps(text: str) -> int | None:
+    if text.lower() == "none":
+        return None
+    try:
+        value = int(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"max-steps must be a non-negative integer or 'none', got {text!r}") from exc
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"max-steps must be >= 0, got {value}")
+    return value
+
+
+def _load_policy(spec: str) -> Any:
+    if spec == "random":
+        return "random"
+    path = Path(spec)
+    if not path.exists():
+        raise CliError(f"--policy must be 'random' or the path of a saved model; {spec!r} does not exist")
+    from morality_gym.baselines.io import load_model
+
+    return load_model(path)
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from morality_gym.evaluation.exact import exact_evaluate
+    from morality_gym.evaluation.montecarlo import evaluate
+
+    if args.exact and (args.episodes is not None or args.seed is not None):
+        raise CliError("--exact computes expectations; it does not take --episodes or --seed")
+    chain = get_chain(args.chain)
+    env_ids = _env_ids(args.scenario, args.variant)
+    policy = _load_policy(args.policy)
+    results = {}
+    for env_id in env_ids:
+        if args.exact:
+            res = exact_evaluate(policy, env_id, chain, max_steps=args.max_steps, beta=args.beta, deterministic=args.deterministic)
+        else:
+            res = evaluate(
+                policy,
+                env_id,
+                chain,
+                n_episodes=args.episodes or 100,
+                seed=args.seed,
+                max_steps=args.max_steps,
+                beta=args.beta,
+                deterministic=args.deterministic,
+                progress=not args.json and sys.stderr.isatty(),
+                keep_episodes=False,
+            )
+        results[env_id] = res
+    mean_metric = sum(r.metric for r in results.values()) / len(results)
+    first = next(iter(results.values()))
+    if args.json:
+        out = {
+            "chain": chain.name,
+            "scenario": scenario_named(args.scenario).name,
+            "beta": first.beta,
+            "exact": bool(args.exact),
+            "envs": {
+                env_id: {
+                    "metric": r.metric,
+                    "functions": r.functions,
+                    "mean_return": r.mean_return,
+                    "mean_length": r.mean_length,
+                }
+                for env_id, r in results.items()
+            },
+            "mean_metric": mean_metric,
+        }
+        print(json.dumps(out))
+        return 0
+    console = Console()
+    kind = "exact expectation" if args.exact else f"Monte Carlo, {args.episodes or 100} episodes, seed {args.seed}"
+    table = Table(title=f"{chain.name} on {scenario_named(args.scenario).name} ({kind}, beta {first.beta:g})")
+    table.add_column("env id")
+    table.add_column("metric", justify="right")
+    if not args.exact:
+        table.add_column("± s.e.", justify="right")
+    for norm in chain.norms:
+        table.add_column(norm.abbreviation, justify="right")
+    table.add_column("return", justify="right")
+    table.add_column("length", justify="right")
+    for env_id, r in results.items():
+        row = [env_id, f"{r.metric:.4f}"]
+        if not args.exact:
+            row.append(f"{r.metric_stderr:.4f}")
+        for norm in chain.norms:
+            value = f"{r.functions[norm.name]:.3f}"
+            row.append(value if norm.name in r.relevant else f"[dim]{value}[/dim]")
+        row += [f"{r.mean_return:.2f}", f"{r.mean_length:.1f}"]
+        table.add_row(*row)
+    console.print(table)
+    console.print(f"mean metric over {len(results)} variant(s): [bold]{mean_metric:.4f}[/bold]  (dim = norm not relevant in that variant)")
+    return 0
+
+
+def cmd_oracle(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from morality_gym.evaluation.oracle import oracle
+    from morality_gym.world.rules import ACTION_NAMES
+
+    chain = get_chain(args.chain)
+    env_ids = _env_ids(args.scenario, args.variant)
+    results = {env_id: oracle(env_id, chain, beta=args.beta, max_steps=args.max_steps) for env_id in env_ids}
+    first = next(iter(results.values()))
+    if args.json:
+        out = {
+            "chain": chain.name,
+            "scenario": scenario_named(args.scenario).name,
+            "beta": first.beta,
+            "envs": {
+                env_id: {
+                    "best": {"metric": r.best.metric, "actions": r.best.actions},
+                    "worst": {"metric": r.worst.metric, "actions": r.worst.actions},
+                }
+                for env_id, r in results.items()
+            },
+        }
+        print(json.dumps(out))
+        return 0
+    short = {i: n[0] if n != "INTERACT" else "I" for i, n in enumerate(ACTION_NAMES)}
+    short[4] = "."
+    table = Table(title=f"Oracle: {chain.name} on {scenario_named(args.scenario).name} (beta {first.beta:g}, max_steps {args.max_steps})")
+    for col in ("env id", "best", "return", "best actions", "worst", "return", "worst actions"):
+        table.add_column(col, justify="right" if col in ("best", "worst", "return") else "left")
+    for env_id, r in results.items():
+        table.add_row(
+            env_id,
+            f"{r.best.metric:.4f}",
+            f"{r.best.ret:g}",
+            "".join(short[a] for a in r.best.actions),
+            f"{r.worst.metric:.4f}",
+            f"{r.worst.ret:g}",
+            "".join(short[a] for a in r.worst.actions),
+        )
+    Console().print(table)
+    best = sum(r.best.metric for r in results.values()) / len(results)
+    worst = sum(r.worst.metric for r in results.values()) / len(results)
+    Console().print(f"mean over variants: best {best:.4f}, worst {worst:.4f}   actions: U D L R . (stay) I (interact)")
+    return 0
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    if args.what == "chains":
+        for stem_chain in builtin_chains().values():
+            print(f"{stem_chain.name:22s} {chain_file_stem(stem_chain):26s} {' > '.join(n.abbreviation for n in stem_chain.norms)}")
+    elif args.what == "scenarios":
+        from morality_gym.envs.registry import scenarios
+
+        for s in scenarios().values():
+            print(f"{s.name:28s} {len(s.variants):3d} variants  {s.summary}")
+    else:
+        for env_id in list_envs(args.scenario):
+            print(env_id)
+    return 0
+
+
+def cmd_docs(args: argparse.Namespace) -> int:
+    from morality_gym.envs.registration import env_class
+    from morality_gym.envs.registry import scenarios
+
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    index = ["# MoralityGym environments", "", "Generated by `python -m morality_gym docs` from the scenario files.", ""]
+    for s in scenarios().values():
+        doc = env_class(s.name).__doc__ or ""
+        (out / f"{s.name}.md").write_text(f"# {s.name}\n\n{doc}")
+        index.append(f"- [{s.name}]({s.name}.md): {s.summary} ({len(s.variants)} variants)")
+    (out / "README.md").write_text("\n".join(index) + "\n")
+    print(f"wrote {len(scenarios()) + 1} files to {out}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m morality_gym", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    from morality_gym import play
+
+    p_play = sub.add_parser("play", help="play an env in the terminal")
+    play.add_arguments(p_play)
+    p_play.set_defaults(func=play.run)
+
+    def common(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--chain", required=True, help="chain name (DualProcess), file name (dual_process), abbreviation or YAML path")
+        p.add_argument("--scenario", required=True, help="scenario name, e.g. PushOrSwitch")
+        p.add_argument("--variant", action="append", help="variant name (repeatable); default: every variant")
+        p.add_argument("--beta", type=_beta, default=0.1, help="weight resolution (default 0.1, as the paper; 'derived' = reference default)")
+        p.add_argument("--json", action="store_true", help="print one JSON object")
+
+    p_eval = sub.add_parser("eval", help="evaluate a policy's morality metric (Monte Carlo or exact)")
+    common(p_eval)
+    p_eval.add_argument("--policy", default="random", help="'random' or the path of a saved model (.zip)")
+    p_eval.add_argument("--max-steps", type=_max_steps, default=200, help="truncate on step max_steps + 1 (default 200; 'none')")
+    p_eval.add_argument("--exact", action="store_true", help="exact expectation instead of sampling")
+    p_eval.add_argument("--episodes", type=int, default=None, help="Monte-Carlo episodes per env (default 100)")
+    p_eval.add_argument("--seed", type=int, default=None, help="Monte-Carlo seed")
+    p_eval.add_argument("--deterministic", action="store_true", help="most likely action instead of sampling (models)")
+    p_eval.set_defaults(func=cmd_eval)
+
+    p_oracle = sub.add_parser("oracle", help="best and worst achievable metric and the action sequences")
+    common(p_oracle)
+    p_oracle.add_argument("--max-steps", type=_max_steps, default=200)
+    p_oracle.set_defaults(func=cmd_oracle)
+
+    p_list = sub.add_parser("list", help="list env ids, scenarios or chains")
+    p_list.add_argument("what", nargs="?", choices=["envs", "scenarios", "chains"], default="envs")
+    p_list.add_argument("--scenario", default=None)
+    p_list.set_defaults(func=cmd_list)
+
+    p_docs = sub.add_parser("docs", help="write Markdown docs of every scenario")
+    p_docs.add_argument("--output", default="docs/envs")
+    p_docs.set_defaults(func=cmd_docs)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (CliError, ChainError, UnknownEnvError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
