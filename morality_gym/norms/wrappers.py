@@ -63,11 +63,11 @@ class MoralityWrapper(gym.Wrapper):
     def __init__(self, env: gym.Env, bound: BoundChain, spec: RewardCostSpec = RewardCostSpec()) -> None:
         super().__init__(env)
         self.bound = bound
-        self.spec = spec
+        self.reward_cost = spec
         self.cost = VectorCost(bound, 1, mode=spec.cost_mode, scale=spec.cost_scale, reset=spec.cost_reset)
 
     def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
-        if self.spec.cost_reset == "per_episode":
+        if self.reward_cost.cost_reset == "per_episode":
             self.cost.reset()
         return self.env.reset(**kwargs)
 
@@ -76,7 +76,7 @@ class MoralityWrapper(gym.Wrapper):
         cost = self.cost.from_norm_events(info["norm_events"], ended=terminated or truncated)
         info["orig_reward"] = reward
         info["cost"] = cost
-        return obs, float(self.spec.transform(reward, cost)), terminated, truncated, info
+        return obs, float(self.reward_cost.transform(reward, cost)), terminated, truncated, info
 
 
 class VecMoralityWrapper(VecEnvWrapper):
@@ -85,12 +85,12 @@ class VecMoralityWrapper(VecEnvWrapper):
     def __init__(self, venv: VecEnv, bound: BoundChain, spec: RewardCostSpec = RewardCostSpec()) -> None:
         super().__init__(venv)
         self.bound = bound
-        self.spec = spec
+        self.reward_cost = spec
         self.cost = VectorCost(bound, venv.num_envs, mode=spec.cost_mode, scale=spec.cost_scale, reset=spec.cost_reset)
         self._batched = hasattr(venv, "last_step") and hasattr(venv, "batch")
 
     def reset(self) -> Any:
-        if self.spec.cost_reset == "per_episode":
+        if self.reward_cost.cost_reset == "per_episode":
             self.cost.reset()
         return self.venv.reset()
 
@@ -118,5 +118,5 @@ class VecMoralityWrapper(VecEnvWrapper):
         for info, r, c in zip(infos, rewards.tolist(), costs.tolist()):
             info["orig_reward"] = r
             info["cost"] = c
-        new_rewards = np.asarray(self.spec.transform(rewards.astype(np.float64), costs), dtype=np.float32)
+        new_rewards = np.asarray(self.reward_cost.transform(rewards.astype(np.float64), costs), dtype=np.float32)
         return obs, new_rewards, dones, infos

@@ -1,0 +1,292 @@
+"""One interface for the runners: build a learner from its spec, learn, evaluate, save and load.
+
+``Learner.learn`` trains (logging learn-time evaluations through a callback that uses its own
+numpy random generator, so evaluating never changes the training run's random stream),
+``final_evaluation`` is the paper's stochastic 100-episode evaluation, ``exact_evaluation`` the
+exact expectation of the same policy, and the trained policy (``learner.policy``) plugs into
+:func:`morality_gym.evaluate` and :func:`morality_gym.exact_evaluate`.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from morality_gym.envs.registry import parse_env_id
+from morality_gym.envs.trolley import DEFAULT_MAX_STEPS, TrolleyEnv
+from morality_gym.evaluation.exact import exact_evaluate
+from morality_gym.evaluation.montecarlo import evaluate, evaluate_sequential
+from morality_gym.evaluation.policies import PolicyAdapter, sample_actions
+from morality_gym.evaluation.result import EvaluationResult
+from morality_gym.norms.metric import BoundChain
+from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, protocol_spec, training_steps
+
+#: Called with each learn-time evaluation: {"step", "metric", "exact_metric", "functions", ...}.
+EvalHook = Callable[[dict[str, Any]], None]
+LEARN_EVAL_EVERY = 50_000
+LEARN_EVAL_EPISODES = 10
+
+
+def _eval_row(step: int, mc: EvaluationResult, exact: EvaluationResult | None, started: float) -> dict[str, Any]:
+    return {
+        "step": int(step),
+        "metric": mc.metric,
+        "exact_metric": exact.metric if exact is not None else float("nan"),
+        "mean_return": mc.mean_return,
+        "mean_cost": mc.mean_cost if mc.mean_cost is not None else float("nan"),
+        "mean_length": mc.mean_length,
+        "functions": dict(mc.functions),
+        "wall_time_s": time.perf_counter() - started,
+    }
+
+
+class Learner:
+    """Base class: the protocol-independent parts (evaluation, GIFs, save/load bookkeeping)."""
+
+    def __init__(
+        self,
+        spec: LearnerSpec,
+        bound: BoundChain,
+        protocol: ProtocolSpec | str = "paper",
+        seed: int = 41,
+        max_steps: int | None = DEFAULT_MAX_STEPS,
+    ) -> None:
+        self.spec = spec
+        self.bound = bound
+        self.env_id = bound.env_id
+        parse_env_id(self.env_id)
+        self.protocol = protocol_spec(protocol)
+        self.seed = int(seed)
+        self.max_steps = max_steps
+        self.trained_steps = 0
+        self.learn_evals: list[dict[str, Any]] = []
+
+    # ------------------------------------------------------------------ to override
+    @property
+    def policy(self) -> Any:
+        """Something :class:`~morality_gym.evaluation.policies.PolicyAdapter` accepts."""
+        raise NotImplementedError
+
+    def learn(
+        self, budget: int, eval_every: int = LEARN_EVAL_EVERY, eval_episodes: int = LEARN_EVAL_EPISODES, on_eval: EvalHook | None = None
+    ) -> int:
+        raise NotImplementedError
+
+    def save(self, path: str | Path) -> Path:
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ shared
+    def final_evaluation(self, n_episodes: int = 100) -> EvaluationResult:
+        """The paper's final evaluation: the stochastic policy, ``n_episodes`` episodes, seeded by the run."""
+        return evaluate(self.policy, self.env_id, self.bound, n_episodes=n_episodes, seed=self.seed, max_steps=self.max_steps, keep_episodes=False)
+
+    def exact_evaluation(self) -> EvaluationResult:
+        return exact_evaluate(self.policy, self.env_id, self.bound, max_steps=self.max_steps)
+
+    def record_gif(self, path: str | Path, max_steps: int = 50) -> dict[str, Any]:
+        """One evaluation episode of the stochastic policy as a GIF (like the reference's render episode)."""
+        from morality_gym.render.gif import record_episode
+
+        adapter = PolicyAdapter(self.policy)
+        rng = np.random.default_rng(self.seed + 7919)
+
+        def act(obs: np.ndarray) -> int:
+            if adapter.is_random:
+                return int(rng.integers(6))
+            return int(sample_actions(adapter.probabilities(np.asarray(obs, dtype=np.float64)[None]), rng)[0])
+
+        return record_episode(self.env_id, act, path, max_steps=max_steps, env_kwargs={"max_steps": self.max_steps})
+
+    def metadata(self) -> dict[str, Any]:
+        return {
+            "algo": self.spec.name,
+            "label": self.spec.label,
+            "implementation": self.spec.implementation,
+            "env_id": self.env_id,
+            "chain": self.bound.chain.name,
+            "beta": self.bound.beta,
+            "protocol": self.protocol.name,
+            "seed": self.seed,
+            "trained_steps": self.trained_steps,
+        }
+
+
+class RandomLearner(Learner):
+    """Uniformly random actions; nothing to learn.
+
+    Under the ``paper`` protocol its evaluations replay the reference's random stream: one
+    generator seeded with the run seed feeds, in order, the learn-time evaluations at steps 0 and
+    50,000 (10 episodes each, each followed by a render episode of up to 50 steps) and then the
+    final 100-episode evaluation. This reproduces the paper's Random column to the last digit.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._final: EvaluationResult | None = None
+        self._rng = np.random.default_rng(self.seed)
+
+    @property
+    def policy(self) -> Any:
+        return "random"
+
+    def _act(self, obs: Any) -> int:
+        return int(self._rng.integers(6))
+
+    def _render_episode(self, env: TrolleyEnv) -> None:
+        env.reset()
+        for _ in range(self.protocol.render_episode_steps):
+            _, _, terminated, truncated, _ = env.step(self._act(None))
+            if terminated or truncated:
+                break
+
+    def learn(
+        self, budget: int, eval_every: int = LEARN_EVAL_EVERY, eval_episodes: int = LEARN_EVAL_EPISODES, on_eval: EvalHook | None = None
+    ) -> int:
+        started = time.perf_counter()
+        self._rng = np.random.default_rng(self.seed)
+        self._env = TrolleyEnv(self.env_id, max_steps=self.max_steps)
+        if self.protocol.random_replays_learn_evals:
+            for step in self.protocol.random_learn_eval_steps:
+                mc = evaluate_sequential(self._act, self._env, self.bound, eval_episodes, keep_episodes=False)
+                self._render_episode(self._env)
+                row = _eval_row(step, mc, None, started)
+                self.learn_evals.append(row)
+                if on_eval:
+                    on_eval(row)
+        self.trained_steps = 0
+        return 0
+
+    def final_evaluation(self, n_episodes: int = 100) -> EvaluationResult:
+        if not hasattr(self, "_env"):
+            self.learn(0)
+        return evaluate_sequential(self._act, self._env, self.bound, n_episodes, keep_episodes=False)
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path).with_suffix(".json")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps({**self.metadata(), "policy": "uniform random"}, indent=1))
+        return path
+
+
+class SB3Learner(Learner):
+    """PPO and PPO-Shaped on SB3's PPO; PPO-Lagrangian and CPO on this package's SB3 subclasses."""
+
+    def __init__(self, *args: Any, model: Any = None, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.model = model if model is not None else self._build()
+
+    def _algorithm_class(self) -> type:
+        impl = self.spec.implementation
+        if impl == "ppo":
+            from stable_baselines3 import PPO
+
+            return PPO
+        if impl == "ppo_lag":
+            from morality_gym.baselines.safe import PPOLag
+
+            return PPOLag
+        from morality_gym.baselines.safe import CPO
+
+        return CPO
+
+    def make_vec_env(self) -> Any:
+        """The training VecEnv: batched simulator (or SB3 DummyVecEnv) -> VecMonitor -> cost/reward wrapper."""
+        from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
+
+        from morality_gym.envs.vector import TrolleyVecEnv
+        from morality_gym.norms.wrappers import VecMoralityWrapper
+
+        if self.spec.vec_env == "batched":
+            venv: Any = TrolleyVecEnv(self.env_id, self.spec.n_envs, max_steps=self.max_steps)
+        else:
+            env_id, max_steps = self.env_id, self.max_steps
+            venv = DummyVecEnv([lambda: TrolleyEnv(env_id, max_steps=max_steps) for _ in range(self.spec.n_envs)])
+        venv = VecMonitor(venv)
+        return VecMoralityWrapper(venv, self.bound, self.spec.reward_cost(self.protocol))
+
+    def _build(self) -> Any:
+        import inspect
+
+        import torch
+
+        from morality_gym.baselines.specs import SpecError
+
+        cls = self._algorithm_class()
+        accepted = set(inspect.signature(cls.__init__).parameters) - {"self", "policy", "env"}
+        unknown = [k for k in self.spec.hparams if k not in accepted]
+        if unknown:
+            raise SpecError(
+                f"learner {self.spec.name!r}: hyper-parameter(s) {unknown} are not accepted by {cls.__name__}; "
+                f"valid: {', '.join(sorted(accepted))}"
+            )
+        activation = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}[self.spec.activation]
+        arch = list(self.spec.net_arch)
+        policy_kwargs = {"activation_fn": activation}
+        if self.spec.implementation == "ppo":
+            policy_kwargs["net_arch"] = {"pi": arch, "vf": arch}
+        else:
+            policy_kwargs["net_arch"] = {"pi": arch, "vf": arch, "cf": arch} if "cf" in _net_arch_keys(cls) else {"pi": arch, "vf": arch}
+        return cls(
+            "MlpPolicy",
+            self.make_vec_env(),
+            seed=self.seed,
+            device="cpu",
+            verbose=0,
+            policy_kwargs=policy_kwargs,
+            **dict(self.spec.hparams),
+        )
+
+    @property
+    def policy(self) -> Any:
+        return self.model
+
+    def learn(
+        self, budget: int, eval_every: int = LEARN_EVAL_EVERY, eval_episodes: int = LEARN_EVAL_EPISODES, on_eval: EvalHook | None = None
+    ) -> int:
+        from morality_gym.baselines.callbacks import MoralityEvalCallback
+
+        total = training_steps(self.spec, budget)
+        callback = MoralityEvalCallback(self, eval_every, eval_episodes, on_eval)
+        if total > 0:
+            self.model.learn(total_timesteps=total, callback=callback, reset_num_timesteps=True)
+        else:
+            callback.evaluate_now(0)
+        self.trained_steps = int(self.model.num_timesteps)
+        return self.trained_steps
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path).with_suffix(".zip")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.model.save(path)
+        path.with_suffix(".json").write_text(json.dumps({**self.metadata(), "spec": _spec_dict(self.spec)}, indent=1))
+        return path
+
+
+def _net_arch_keys(cls: type) -> set[str]:
+    keys = getattr(cls, "net_arch_keys", None)
+    return set(keys) if keys else {"pi", "vf"}
+
+
+def _spec_dict(spec: LearnerSpec) -> dict[str, Any]:
+    import dataclasses
+
+    out = dataclasses.asdict(spec)
+    out["hparams"] = dict(spec.hparams)
+    return out
+
+
+def build_learner(
+    spec: LearnerSpec,
+    bound: BoundChain,
+    protocol: ProtocolSpec | str = "paper",
+    seed: int = 41,
+    max_steps: int | None = DEFAULT_MAX_STEPS,
+) -> Learner:
+    """The learner of ``spec`` for one env id and chain (see :mod:`morality_gym.baselines.specs`)."""
+    cls = RandomLearner if spec.implementation == "random" else SB3Learner
+    return cls(spec, bound, protocol=protocol, seed=seed, max_steps=max_steps)
