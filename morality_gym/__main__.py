@@ -16,6 +16,13 @@ from morality_gym.envs.registry import UnknownEnvError, list_envs, scenario_name
 from morality_gym.norms.chain import ChainError, builtin_chains, chain_file_stem, get_chain
 
 
+def _console() -> Any:
+    """A rich console; when output is piped, wide enough that tables are never cut."""
+    from rich.console import Console
+
+    return Console(width=None if sys.stdout.isatty() else 200)
+
+
 class CliError(Exception):
     """A user error: printed without a traceback, exit code 2."""
 
@@ -66,7 +73,6 @@ def _load_policy(spec: str) -> Any:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    from rich.console import Console
     from rich.table import Table
 
     from morality_gym.evaluation.exact import exact_evaluate
@@ -116,7 +122,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         }
         print(json.dumps(out))
         return 0
-    console = Console()
+    console = _console()
     kind = "exact expectation" if args.exact else f"Monte Carlo, {args.episodes or 100} episodes, seed {args.seed}"
     table = Table(title=f"{chain.name} on {scenario_named(args.scenario).name} ({kind}, beta {first.beta:g})")
     table.add_column("env id")
@@ -142,7 +148,6 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_oracle(args: argparse.Namespace) -> int:
-    from rich.console import Console
     from rich.table import Table
 
     from morality_gym.evaluation.oracle import oracle
@@ -182,10 +187,11 @@ def cmd_oracle(args: argparse.Namespace) -> int:
             f"{r.worst.ret:g}",
             "".join(short[a] for a in r.worst.actions),
         )
-    Console().print(table)
+    console = _console()
+    console.print(table)
     best = sum(r.best.metric for r in results.values()) / len(results)
     worst = sum(r.worst.metric for r in results.values()) / len(results)
-    Console().print(f"mean over variants: best {best:.4f}, worst {worst:.4f}   actions: U D L R . (stay) I (interact)")
+    console.print(f"mean over variants: best {best:.4f}, worst {worst:.4f}   actions: U D L R . (stay) I (interact)")
     return 0
 
 

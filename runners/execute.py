@@ -1,0 +1,261 @@
+"""Execute one planned run: learn, evaluate, save artifacts, write its Parquet row last.
+
+The run's Parquet file is written last and atomically, so its existence means "finished"; every
+other artifact (model, GIF, learn-time evaluations) is written before it. A per-run lock
+(``flock``, released by the kernel even on ``kill -9``) keeps two processes from executing the
+same run at once when a sweep is resumed while an orphan is still busy. Any exception becomes a
+``failed`` row with the error and traceback, so one bad run never stops the others.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import platform
+import socket
+import subprocess
+import time
+import traceback
+from datetime import datetime, timezone
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+from runners.schema import MF_PREFIX, SCHEMA_VERSION, run_path, runs_dir, write_learn, write_run
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+@lru_cache(maxsize=1)
+def git_commit() -> str:
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent, capture_output=True, text=True, timeout=10
+        )
+        return out.stdout.strip() if out.returncode == 0 else "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+@lru_cache(maxsize=1)
+def versions() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {"python": platform.python_version()}
+    for pkg in ("morality-gym", "numpy", "torch", "gymnasium", "stable-baselines3", "sb3-contrib", "pyarrow", "mlflow"):
+        try:
+            out[pkg] = version(pkg)
+        except PackageNotFoundError:
+            out[pkg] = "not installed"
+    return json.dumps(out, sort_keys=True)
+
+
+def limit_threads() -> None:
+    """One compute thread per worker: the pool provides the parallelism (no oversubscription)."""
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ[var] = "1"
+    try:
+        import torch
+
+        torch.set_num_threads(1)
+    except ImportError:  # pragma: no cover - torch is a dependency
+        pass
+
+
+class RunLock:
+    """An exclusive, non-blocking lock per run id (None if another live process holds it)."""
+
+    def __init__(self, results_dir: Path, run_id: str) -> None:
+        directory = runs_dir(results_dir) / ".locks"
+        directory.mkdir(parents=True, exist_ok=True)
+        self.path = directory / f"{run_id}.lock"
+        self.fh: Any = None
+
+    def acquire(self) -> bool:
+        self.fh = open(self.path, "a+")
+        try:
+            fcntl.flock(self.fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return True
+        except BlockingIOError:
+            self.fh.close()
+            self.fh = None
+            return False
+
+    def release(self) -> None:
+        if self.fh is not None:
+            fcntl.flock(self.fh, fcntl.LOCK_UN)
+            self.fh.close()
+            self.fh = None
+
+
+def finished_status(results_dir: Path, run_id: str) -> str | None:
+    """``ok`` / ``failed`` if the run has a result file, else None."""
+    path = run_path(results_dir, run_id)
+    if not path.is_file():
+        return None
+    import pyarrow.parquet as pq
+
+    return str(pq.read_table(path, columns=["status"]).column("status")[0].as_py())
+
+
+def _base_row(config: dict[str, Any], run_id: str) -> dict[str, Any]:
+    algo = config["algo"]
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "run_id": run_id,
+        "env_id": config["env_id"],
+        "scenario": config["scenario"],
+        "variant": config["variant"],
+        "chain": config["chain"]["name"],
+        "algo": algo["name"],
+        "learner": algo["label"],
+        "protocol": config["protocol"]["name"],
+        "preset": config["preset"],
+        "seed": int(config["seed"]),
+        "budget": int(config["budget"]),
+        "beta": float(config["beta"]),
+        "max_steps": config["max_steps"],
+        "eval_episodes": int(config["eval_episodes"]),
+        "hostname": socket.gethostname(),
+        "git_commit": git_commit(),
+        "versions": versions(),
+        "config": json.dumps(config, sort_keys=True),
+    }
+
+
+def _chain(config: dict[str, Any]) -> Any:
+    from morality_gym.norms.chain import parse_chain
+
+    c = config["chain"]
+    return parse_chain({"name": c["name"], "norms": [{"norm": n, "modality": m} for n, m in c["norms"]]}, source=f"run config {c['name']}")
+
+
+def execute(config: dict[str, Any], run_id: str, results_dir: str | Path, gif: bool = True) -> dict[str, Any]:
+    """Run one configuration and record its outcome. Returns a short summary for the parent."""
+    results_dir = Path(results_dir)
+    lock = RunLock(results_dir, run_id)
+    if not lock.acquire():
+        return {"run_id": run_id, "status": "busy"}
+    try:
+        if finished_status(results_dir, run_id) == "ok":
+            return {"run_id": run_id, "status": "ok", "skipped": True}
+        return _execute_locked(config, run_id, results_dir, gif)
+    finally:
+        lock.release()
+
+
+def _execute_locked(config: dict[str, Any], run_id: str, results_dir: Path, gif: bool) -> dict[str, Any]:
+    limit_threads()
+    started, t0 = _now(), time.perf_counter()
+    row = _base_row(config, run_id)
+    norms = [n for n, _ in config["chain"]["norms"]]
+    try:
+        from morality_gym.baselines.learners import build_learner
+        from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec
+        from morality_gym.norms.metric import bind_chain
+
+        bound = bind_chain(_chain(config), config["env_id"], config["beta"])
+        algo = dict(config["algo"])
+        algo["return_bounds"] = tuple(algo["return_bounds"])
+        algo["net_arch"] = tuple(algo["net_arch"])
+        spec = LearnerSpec(**algo)
+        proto = dict(config["protocol"])
+        proto["random_learn_eval_steps"] = tuple(proto["random_learn_eval_steps"])
+        learner = build_learner(spec, bound, ProtocolSpec(**proto), seed=config["seed"], max_steps=config["max_steps"])
+        learn_rows: list[dict[str, Any]] = []
+        learner.learn(
+            config["budget"],
+            eval_every=config["learn_eval_every"],
+            eval_episodes=config["learn_eval_episodes"],
+            on_eval=learn_rows.append,
+        )
+        final = learner.final_evaluation(config["eval_episodes"])
+        exact = learner.exact_evaluation()
+        artifacts = runs_dir(results_dir) / run_id
+        artifacts.mkdir(parents=True, exist_ok=True)
+        model_path = learner.save(artifacts / "model")
+        gif_rel = None
+        if gif:
+            learner.record_gif(artifacts / "episode.gif")
+            gif_rel = str((artifacts / "episode.gif").relative_to(results_dir))
+        if learn_rows:
+            write_learn(
+                results_dir,
+                run_id,
+                [
+                    {
+                        "schema_version": SCHEMA_VERSION,
+                        "run_id": run_id,
+                        "step": r["step"],
+                        "metric": r["metric"],
+                        "exact_metric": r["exact_metric"],
+                        "mean_return": r["mean_return"],
+                        "mean_cost": r["mean_cost"],
+                        "mean_length": r["mean_length"],
+                        "wall_time_s": r["wall_time_s"],
+                        **{f"{MF_PREFIX}{n}": r["functions"].get(n) for n in norms},
+                    }
+                    for r in learn_rows
+                ],
+                norms,
+            )
+        row.update(
+            status="ok",
+            error=None,
+            traceback=None,
+            total_steps=int(learner.trained_steps),
+            relevant_norms=list(bound.relevant),
+            metric=final.metric,
+            metric_stderr=final.metric_stderr,
+            exact_metric=exact.metric,
+            mean_return=final.mean_return,
+            mean_cost=final.mean_cost,
+            mean_length=final.mean_length,
+            truncation_rate=final.truncation_rate,
+            goal_rate=final.goal_rate,
+            model_path=str(model_path.relative_to(results_dir)),
+            gif_path=gif_rel,
+            **{f"{MF_PREFIX}{n}": final.functions[n] for n in norms},
+        )
+    except Exception as exc:  # noqa: BLE001 - every failure must be recorded, whatever it is
+        row.update(
+            status="failed",
+            error=f"{type(exc).__name__}: {exc}",
+            traceback=traceback.format_exc(),
+            total_steps=0,
+            relevant_norms=[],
+            metric=None,
+            metric_stderr=None,
+            exact_metric=None,
+            mean_return=None,
+            mean_cost=None,
+            mean_length=None,
+            truncation_rate=None,
+            goal_rate=None,
+            model_path=None,
+            gif_path=None,
+            **{f"{MF_PREFIX}{n}": None for n in norms},
+        )
+    row.update(started_at=started, finished_at=_now(), wall_time_s=time.perf_counter() - t0)
+    write_run(results_dir, row, norms)
+    return {"run_id": run_id, "status": row["status"], "error": row["error"], "metric": row["metric"], "wall_time_s": row["wall_time_s"]}
+
+
+def record_failure(config: dict[str, Any], run_id: str, results_dir: str | Path, error: str, trace: str = "") -> None:
+    """Record a run that died without recording itself (a killed worker, a lost SLURM job)."""
+    results_dir = Path(results_dir)
+    if finished_status(results_dir, run_id) is not None:
+        return
+    norms = [n for n, _ in config["chain"]["norms"]]
+    row = _base_row(config, run_id)
+    now = _now()
+    row.update(
+        status="failed", error=error, traceback=trace or None, total_steps=0, relevant_norms=[], metric=None,
+        metric_stderr=None, exact_metric=None, mean_return=None, mean_cost=None, mean_length=None,
+        truncation_rate=None, goal_rate=None, model_path=None, gif_path=None, started_at=now, finished_at=now,
+        wall_time_s=0.0, **{f"{MF_PREFIX}{n}": None for n in norms},
+    )
+    write_run(results_dir, row, norms)

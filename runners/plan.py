@@ -1,0 +1,115 @@
+"""Expand a validated sweep into runs, give each a content-hash identity, and estimate the time.
+
+A run's identity is the SHA-256 of its resolved configuration (canonical JSON: env id, the chain's
+full definition, the learner's complete spec, the protocol, the preset's budget and evaluation
+settings, seed, beta, max_steps, results-schema version). The same configuration always gets the
+same id, so re-running a sweep finds finished runs by file name, and any change that could change
+the numbers gives a new id. Launch settings (workers, SLURM partition, results_dir) are not part
+of it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from dataclasses import dataclass
+from typing import Any
+
+from morality_gym.baselines.specs import training_steps
+from morality_gym.envs.registry import scenario_named
+from runners.config import SweepConfig
+from runners.schema import SCHEMA_VERSION
+
+
+@dataclass(frozen=True)
+class PlannedRun:
+    run_id: str
+    config: dict[str, Any]  # the resolved run config (what the worker executes)
+    est_seconds: float
+
+    @property
+    def identity(self) -> dict[str, Any]:
+        c = self.config
+        return {
+            "run_id": self.run_id,
+            "env_id": c["env_id"],
+            "scenario": c["scenario"],
+            "variant": c["variant"],
+            "chain": c["chain"]["name"],
+            "algo": c["algo"]["name"],
+            "learner": c["algo"]["label"],
+            "protocol": c["protocol"]["name"],
+            "preset": c["preset"],
+            "seed": c["seed"],
+        }
+
+
+def run_id_of(config: dict[str, Any]) -> str:
+    """The content hash identifying a run (16 hex digits of SHA-256 over canonical JSON)."""
+    canonical = json.dumps(config, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(canonical.encode()).hexdigest()[:16]
+
+
+def _spec_dict(spec: Any) -> dict[str, Any]:
+    out = dataclasses.asdict(spec)
+    for key, value in out.items():
+        if isinstance(value, tuple):
+            out[key] = list(value)
+    if hasattr(spec, "hparams"):
+        out["hparams"] = dict(spec.hparams)
+    return out
+
+
+def plan(sweep: SweepConfig) -> list[PlannedRun]:
+    """Every run of the sweep, in a stable order (chain, scenario, variant, algo, seed)."""
+    runs: list[PlannedRun] = []
+    seen: set[str] = set()
+    protocol = _spec_dict(sweep.protocol)
+    for chain, scenario_name in sweep.pairs:
+        scenario = scenario_named(scenario_name)
+        chain_def = {"name": chain.name, "norms": [[n.name, n.modality] for n in chain.norms]}
+        variants = [v for v in scenario.variants if sweep.variants is None or v in sweep.variants]
+        for variant in variants:
+            env_id = scenario.env_id(variant)
+            for algo in sweep.algos:
+                for seed in sweep.seeds:
+                    budget = 0 if algo.spec.implementation == "random" else sweep.preset.budget_for(scenario_name)
+                    config = {
+                        "schema_version": SCHEMA_VERSION,
+                        "env_id": env_id,
+                        "scenario": scenario_name,
+                        "variant": variant,
+                        "chain": chain_def,
+                        "algo": _spec_dict(algo.spec),
+                        "protocol": protocol,
+                        "preset": sweep.preset.name,
+                        "seed": int(seed),
+                        "budget": int(budget),
+                        "beta": sweep.beta,
+                        "max_steps": sweep.max_steps,
+                        "eval_episodes": sweep.preset.eval_episodes,
+                        "learn_eval_every": sweep.preset.learn_eval_every,
+                        "learn_eval_episodes": sweep.preset.learn_eval_episodes,
+                    }
+                    rid = run_id_of(config)
+                    if rid in seen:
+                        continue
+                    seen.add(rid)
+                    steps = training_steps(algo.spec, budget)
+                    runs.append(PlannedRun(rid, config, algo.overhead_s + steps / max(algo.steps_per_s, 1e-9)))
+    return runs
+
+
+def describe(runs: list[PlannedRun], done: set[str], workers: int) -> dict[str, Any]:
+    """Counts and an estimate of the wall time for what remains."""
+    todo = [r for r in runs if r.run_id not in done]
+    by_algo: dict[str, list[int]] = {}
+    for r in runs:
+        entry = by_algo.setdefault(r.config["algo"]["label"], [0, 0])
+        entry[0] += 1
+        entry[1] += r.run_id in done
+    est = sum(r.est_seconds for r in todo) / max(1, workers)
+    # The longest single run bounds the wall time from below.
+    est = max(est, max((r.est_seconds for r in todo), default=0.0))
+    return {"total": len(runs), "done": len(runs) - len(todo), "todo": len(todo), "by_algo": by_algo, "est_seconds": est}

@@ -1,0 +1,151 @@
+"""A local pool of worker processes that survives the death of any of them.
+
+``concurrent.futures.ProcessPoolExecutor`` gives up entirely when one worker is killed; a sweep
+must instead record that run as failed, start a replacement and carry on. Each worker is a spawned
+process (torch is imported once per worker, not once per run) that executes one run at a time and
+asks the kernel to kill it when the parent dies (``PR_SET_PDEATHSIG``), so ``kill -9`` of the
+sweep leaves no orphan that could race a resumed sweep.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import multiprocessing as mp
+import os
+import signal
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from multiprocessing.connection import Connection, wait
+from pathlib import Path
+from typing import Any
+
+from runners.plan import PlannedRun
+
+ResultHook = Callable[[PlannedRun, dict[str, Any]], None]
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent() -> None:
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
+    except OSError:  # pragma: no cover - non-Linux
+        pass
+
+
+def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int) -> None:
+    _die_with_parent()
+    if os.getppid() != parent_pid:  # the parent died before prctl took effect
+        os._exit(1)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    from runners.execute import execute, limit_threads
+
+    limit_threads()
+    import morality_gym  # noqa: F401 - warm imports before the first run
+    import stable_baselines3  # noqa: F401
+
+    conn.send(("ready", os.getpid()))
+    while True:
+        try:
+            message = conn.recv()
+        except EOFError:
+            return
+        if message is None:
+            return
+        run_id, config = message
+        summary = execute(config, run_id, results_dir, gif)
+        conn.send(("done", summary))
+
+
+@dataclass
+class _Worker:
+    process: Any
+    conn: Connection
+    run: PlannedRun | None = None
+
+
+class WorkerPool:
+    """Run planned runs on ``n_workers`` processes; ``on_result`` is called in the parent."""
+
+    def __init__(self, n_workers: int, results_dir: Path, gif: bool) -> None:
+        self.n_workers = n_workers
+        self.results_dir = str(results_dir)
+        self.gif = gif
+        self._ctx = mp.get_context("spawn")
+        self._workers: list[_Worker] = []
+
+    def _start(self) -> _Worker:
+        parent, child = self._ctx.Pipe()
+        process = self._ctx.Process(
+            target=_worker_main, args=(child, self.results_dir, self.gif, os.getpid()), daemon=True, name="morality-gym-worker"
+        )
+        process.start()
+        child.close()
+        return _Worker(process, parent)
+
+    def run(self, runs: list[PlannedRun], on_result: ResultHook, on_failure: Callable[[PlannedRun, str], None]) -> None:
+        """Execute ``runs``; a worker that dies takes only its current run with it (``on_failure``)."""
+        queue: deque[PlannedRun] = deque(runs)
+        self._workers = [self._start() for _ in range(min(self.n_workers, max(1, len(runs))))]
+        ready: set[int] = set()
+        deferred_until = 0.0
+        try:
+            while queue or any(w.run is not None for w in self._workers):
+                for w in self._workers:
+                    if w.run is None and queue and id(w) in ready and time.monotonic() >= deferred_until:
+                        w.run = queue.popleft()
+                        w.conn.send((w.run.run_id, w.run.config))
+                waitables: list[Any] = []
+                for w in self._workers:
+                    waitables += [w.conn, w.process.sentinel]
+                for obj in wait(waitables, timeout=1.0):
+                    # A dead worker makes both its pipe and its sentinel ready; handle it once.
+                    worker = next((w for w in self._workers if obj in (w.conn, w.process.sentinel)), None)
+                    if worker is None:
+                        continue
+                    message = None
+                    if obj is worker.conn:
+                        try:
+                            message = worker.conn.recv()
+                        except (EOFError, OSError):
+                            message = None
+                    if message is not None and message[0] == "ready":
+                        ready.add(id(worker))
+                        continue
+                    if message is not None and message[0] == "done":
+                        run, worker.run = worker.run, None
+                        summary = message[1]
+                        if run is not None and summary["status"] == "busy":
+                            queue.append(run)  # another process holds the run: try again later
+                            deferred_until = time.monotonic() + 1.0
+                        elif run is not None:
+                            on_result(run, summary)
+                        continue
+                    # The worker died (killed, crashed, out of memory).
+                    worker.process.join(timeout=5)
+                    code = worker.process.exitcode
+                    reason = f"signal {-code}" if code is not None and code < 0 else f"exit code {code}"
+                    if worker.run is not None:
+                        on_failure(worker.run, f"worker process died ({reason}) while running this configuration")
+                    self._workers.remove(worker)
+                    ready.discard(id(worker))
+                    if queue or any(w.run is not None for w in self._workers):
+                        self._workers.append(self._start())
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        for w in self._workers:
+            try:
+                w.conn.send(None)
+            except (OSError, BrokenPipeError):
+                pass
+        deadline = time.monotonic() + 5
+        for w in self._workers:
+            w.process.join(timeout=max(0.0, deadline - time.monotonic()))
+            if w.process.is_alive():
+                w.process.kill()
+                w.process.join(timeout=5)
+        self._workers = []

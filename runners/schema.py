@@ -1,0 +1,171 @@
+"""The results contract between sweeps and everything that reads them (versioned).
+
+Each run writes ``<results_dir>/runs/<run_id>.parquet``: one row with the columns below (fixed
+names and types, whatever the chain), plus one ``mf_<norm>`` float column per norm of the run's
+chain. Learn-time evaluations go to ``<results_dir>/runs/<run_id>.learn.parquet`` (one row per
+evaluation). Files are written to a temporary name and renamed, so a reader never sees half a file
+and a killed run leaves no result behind.
+
+Readers must select columns by name (never by position) and check ``schema_version``.
+Bump :data:`SCHEMA_VERSION` on any incompatible change and document it in ``CHANGES`` below.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+SCHEMA_VERSION = 1
+CHANGES = {1: "first version"}
+
+#: Fixed columns of a run row (``mf_<norm>`` columns come on top, one per norm of the chain).
+RUN_FIELDS: list[pa.Field] = [
+    pa.field("schema_version", pa.int32()),
+    pa.field("run_id", pa.string()),  # content hash of the resolved run config
+    pa.field("status", pa.string()),  # "ok" | "failed"
+    pa.field("error", pa.string()),  # one-line error of a failed run, else null
+    pa.field("traceback", pa.string()),
+    # identity and configuration
+    pa.field("env_id", pa.string()),
+    pa.field("scenario", pa.string()),
+    pa.field("variant", pa.string()),
+    pa.field("chain", pa.string()),  # chain name, e.g. DualProcess
+    pa.field("algo", pa.string()),  # config name: random | ppo | ppo_shaped | ppo_lag | cpo
+    pa.field("learner", pa.string()),  # paper label: Random | PPO | PPO Shaped | PPO Lag | CPO
+    pa.field("protocol", pa.string()),  # paper | corrected
+    pa.field("preset", pa.string()),  # smoke | quick | paper | ...
+    pa.field("seed", pa.int64()),
+    pa.field("budget", pa.int64()),  # configured training budget (steps)
+    pa.field("total_steps", pa.int64()),  # environment steps actually trained
+    pa.field("beta", pa.float64()),
+    pa.field("max_steps", pa.int64()),
+    pa.field("eval_episodes", pa.int64()),
+    pa.field("relevant_norms", pa.list_(pa.string())),
+    # final evaluation (stochastic policy, Monte Carlo, as the paper) and its exact value
+    pa.field("metric", pa.float64()),
+    pa.field("metric_stderr", pa.float64()),
+    pa.field("exact_metric", pa.float64()),
+    pa.field("mean_return", pa.float64()),
+    pa.field("mean_cost", pa.float64()),  # minimal-mode cost, scale 1, reset per episode
+    pa.field("mean_length", pa.float64()),
+    pa.field("truncation_rate", pa.float64()),
+    pa.field("goal_rate", pa.float64()),
+    # provenance
+    pa.field("wall_time_s", pa.float64()),
+    pa.field("started_at", pa.string()),  # ISO 8601, UTC
+    pa.field("finished_at", pa.string()),
+    pa.field("hostname", pa.string()),
+    pa.field("git_commit", pa.string()),
+    pa.field("versions", pa.string()),  # JSON {package: version}
+    pa.field("config", pa.string()),  # JSON of the resolved run config
+    pa.field("model_path", pa.string()),  # relative to results_dir, null if none
+    pa.field("gif_path", pa.string()),  # relative to results_dir, null if none
+]
+
+LEARN_FIELDS: list[pa.Field] = [
+    pa.field("schema_version", pa.int32()),
+    pa.field("run_id", pa.string()),
+    pa.field("step", pa.int64()),
+    pa.field("metric", pa.float64()),
+    pa.field("exact_metric", pa.float64()),
+    pa.field("mean_return", pa.float64()),
+    pa.field("mean_cost", pa.float64()),
+    pa.field("mean_length", pa.float64()),
+    pa.field("wall_time_s", pa.float64()),
+]
+
+RUN_COLUMNS = [f.name for f in RUN_FIELDS]
+MF_PREFIX = "mf_"
+
+
+def run_schema(norms: Iterable[str]) -> pa.Schema:
+    """Schema of one run file for a chain with these norms."""
+    return pa.schema(RUN_FIELDS + [pa.field(f"{MF_PREFIX}{n}", pa.float64()) for n in norms])
+
+
+def learn_schema(norms: Iterable[str]) -> pa.Schema:
+    return pa.schema(LEARN_FIELDS + [pa.field(f"{MF_PREFIX}{n}", pa.float64()) for n in norms])
+
+
+def runs_dir(results_dir: str | Path) -> Path:
+    return Path(results_dir) / "runs"
+
+
+def run_path(results_dir: str | Path, run_id: str) -> Path:
+    return runs_dir(results_dir) / f"{run_id}.parquet"
+
+
+def learn_path(results_dir: str | Path, run_id: str) -> Path:
+    return runs_dir(results_dir) / f"{run_id}.learn.parquet"
+
+
+def atomic_write_table(table: pa.Table, path: Path) -> None:
+    """Write a Parquet file under a temporary name in the same directory, fsync, then rename."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        pq.write_table(table, tmp)
+        with open(tmp, "rb") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_run(results_dir: str | Path, row: Mapping[str, Any], norms: Iterable[str]) -> Path:
+    """Validate one run row against the schema and write it atomically; returns the path."""
+    norms = list(norms)
+    schema = run_schema(norms)
+    missing = [name for name in schema.names if name not in row]
+    extra = [name for name in row if name not in schema.names]
+    if missing or extra:
+        raise ValueError(f"run row does not match schema v{SCHEMA_VERSION}: missing {missing}, unexpected {extra}")
+    table = pa.Table.from_pylist([dict(row)], schema=schema)
+    path = run_path(results_dir, str(row["run_id"]))
+    atomic_write_table(table, path)
+    return path
+
+
+def write_learn(results_dir: str | Path, run_id: str, rows: list[Mapping[str, Any]], norms: Iterable[str]) -> Path:
+    schema = learn_schema(norms)
+    table = pa.Table.from_pylist([dict(r) for r in rows], schema=schema)
+    path = learn_path(results_dir, run_id)
+    atomic_write_table(table, path)
+    return path
+
+
+def read_runs(results_dir: str | Path) -> "Any":
+    """All run rows under ``results_dir`` as one pandas DataFrame (columns unified by name).
+
+    Files of another schema version raise; a file that cannot be read is reported, not skipped.
+    """
+    import pandas as pd
+
+    frames = []
+    for path in sorted(runs_dir(results_dir).glob("*.parquet")):
+        if path.name.endswith(".learn.parquet"):
+            continue
+        table = pq.read_table(path)
+        version = table.column("schema_version")[0].as_py()
+        if version != SCHEMA_VERSION:
+            raise ValueError(f"{path}: schema version {version}, this code reads version {SCHEMA_VERSION}")
+        frames.append(table.to_pandas())
+    if not frames:
+        return pd.DataFrame(columns=RUN_COLUMNS)
+    return pd.concat(frames, ignore_index=True, sort=False)
+
+
+def read_learn(results_dir: str | Path) -> "Any":
+    import pandas as pd
+
+    frames = [pq.read_table(p).to_pandas() for p in sorted(runs_dir(results_dir).glob("*.learn.parquet"))]
+    return pd.concat(frames, ignore_index=True, sort=False) if frames else pd.DataFrame(columns=[f.name for f in LEARN_FIELDS])

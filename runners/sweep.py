@@ -1,0 +1,219 @@
+"""``python -m runners.sweep algo=cpo chain=utility``: compose, validate, plan, dispatch, record.
+
+1. Hydra composes ``conf/``; :mod:`runners.config` validates everything before anything runs.
+2. The plan expands chain x scenario x variant x algorithm x seed, prints the counts and an
+   estimate of the time, and writes the sweep manifest (what should exist when it is done).
+3. Finished runs are skipped (their Parquet file exists with status ``ok``; failed ones are
+   retried unless ``retry_failed=false``); the rest go to the local pool or SLURM.
+4. Each finished run is mirrored into MLflow by this process; anything left unmirrored by an
+   earlier, interrupted sweep is mirrored at the end.
+Exit status: 0 if every planned run is ``ok``, 1 if some failed (they are listed), 2 for an
+invalid configuration. Killing the sweep at any point and running it again finishes it with no
+lost and no duplicated results.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import hydra
+from omegaconf import DictConfig
+
+from runners.config import ConfigError, SweepConfig, validate
+from runners.execute import finished_status, record_failure
+from runners.manifest import write_manifest
+from runners.plan import PlannedRun, describe, plan
+
+_EXIT = {"code": 0}
+
+
+def _fmt_duration(seconds: float) -> str:
+    seconds = int(round(seconds))
+    h, rem = divmod(seconds, 3600)
+    m, s = divmod(rem, 60)
+    return f"{h}h{m:02d}m{s:02d}s" if h else f"{m}m{s:02d}s"
+
+
+def _workers(sweep: SweepConfig) -> int:
+    if sweep.launcher["name"] == "slurm":
+        return int(sweep.launcher["array_parallelism"])
+    return int(sweep.launcher.get("workers") or os.cpu_count() or 1)
+
+
+def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
+    """Plan and execute a validated sweep; returns the exit status."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+    from rich.table import Table
+
+    console = console or Console(stderr=True)
+    runs = plan(sweep)
+    sweep.results_dir.mkdir(parents=True, exist_ok=True)
+    status = {r.run_id: finished_status(sweep.results_dir, r.run_id) for r in runs}
+    done = {rid for rid, s in status.items() if s == "ok" or (s == "failed" and not sweep.retry_failed)}
+    workers = _workers(sweep)
+    info = describe(runs, done, workers)
+    console.print(f"sweep [bold]{sweep.name}[/bold]: {info['total']} runs ({info['done']} done, {info['todo']} to run)")
+    table = Table()
+    for col in ("learner", "runs", "done"):
+        table.add_column(col, justify="right" if col != "learner" else "left")
+    for label, (n, d) in info["by_algo"].items():
+        table.add_row(label, str(n), str(d))
+    console.print(table)
+    console.print(
+        f"protocol [bold]{sweep.protocol.name}[/bold], preset [bold]{sweep.preset.name}[/bold], seeds {list(sweep.seeds)}, "
+        f"launcher [bold]{sweep.launcher['name']}[/bold] ({workers} parallel), results in {sweep.results_dir}; "
+        f"estimated time for what remains: [bold]{_fmt_duration(info['est_seconds'])}[/bold]"
+    )
+    write_manifest(
+        sweep.results_dir,
+        sweep.name,
+        [r.identity for r in runs],
+        command=" ".join(sys.argv),
+        preset=sweep.preset.name,
+        protocol=sweep.protocol.name,
+    )
+    if sweep.dry_run:
+        listing = Table(title="planned runs")
+        for col in ("run id", "env id", "chain", "learner", "seed", "budget", "status"):
+            listing.add_column(col)
+        for r in runs:
+            c = r.config
+            listing.add_row(r.run_id, c["env_id"], c["chain"]["name"], c["algo"]["label"], str(c["seed"]), str(c["budget"]), status[r.run_id] or "-")
+        console.print(listing)
+        return 0
+
+    todo = [r for r in runs if r.run_id not in done]
+    tracker = None
+    if sweep.mlflow:
+        from runners.tracking import Tracker
+
+        tracker = Tracker(sweep.results_dir)
+    failures: dict[str, str] = {}
+    started = time.perf_counter()
+    with Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[failed]} failed"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        transient=False,
+    ) as progress:
+        task = progress.add_task(sweep.name, total=len(todo), failed=0)
+
+        def finish(run: PlannedRun, summary: dict[str, Any]) -> None:
+            if summary["status"] != "ok":
+                failures[run.run_id] = str(summary.get("error"))
+            else:
+                failures.pop(run.run_id, None)
+            if tracker is not None:
+                try:
+                    tracker.sync(run.run_id)
+                except Exception as exc:  # noqa: BLE001 - tracking must never lose a result
+                    console.print(f"[yellow]MLflow mirror of {run.run_id} failed ({exc}); it is retried next time[/yellow]")
+            progress.update(task, advance=1, failed=len(failures))
+
+        def fail(run: PlannedRun, error: str) -> None:
+            record_failure(run.config, run.run_id, sweep.results_dir, error)
+            finish(run, {"status": "failed", "error": error})
+
+        if todo:
+            if sweep.launcher["name"] == "slurm":
+                from runners.slurm_launcher import run_on_slurm
+
+                run_on_slurm(todo, sweep.launcher, sweep.results_dir, sweep.gif, sweep.name, finish, fail)
+            else:
+                from runners.pool import WorkerPool
+
+                WorkerPool(workers, sweep.results_dir, sweep.gif).run(todo, finish, fail)
+    if tracker is not None:
+        for r in runs:
+            if finished_status(sweep.results_dir, r.run_id) is not None:
+                try:
+                    tracker.sync(r.run_id)
+                except Exception as exc:  # noqa: BLE001
+                    console.print(f"[yellow]MLflow mirror of {r.run_id} failed: {exc}[/yellow]")
+    final = {r.run_id: finished_status(sweep.results_dir, r.run_id) for r in runs}
+    failed = [r for r in runs if final[r.run_id] == "failed"]
+    missing = [r for r in runs if final[r.run_id] is None]
+    console.print(
+        f"finished in {_fmt_duration(time.perf_counter() - started)}: {sum(s == 'ok' for s in final.values())} ok, "
+        f"{len(failed)} failed, {len(missing)} missing (of {len(runs)})"
+    )
+    if failed:
+        import pyarrow.parquet as pq
+
+        from runners.schema import run_path
+
+        console.print("[red]failed runs:[/red]")
+        for r in failed:
+            err = pq.read_table(run_path(sweep.results_dir, r.run_id), columns=["error"]).column("error")[0].as_py()
+            c = r.config
+            console.print(f"  {r.run_id} {c['algo']['label']} {c['env_id']} {c['chain']['name']} seed {c['seed']}: {err}")
+    return 0 if not failed and not missing else 1
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+def _app(cfg: DictConfig) -> None:
+    from rich.console import Console
+
+    console = Console(stderr=True, width=None if sys.stderr.isatty() else 160)
+    try:
+        sweep = validate(cfg)
+    except ConfigError as exc:
+        console.print(f"[red]configuration error:[/red] {exc}")
+        _EXIT["code"] = 2
+        return
+    _EXIT["code"] = run_sweep(sweep, console)
+
+
+_GROUPS = ("scenario", "chain", "algo", "protocol", "preset", "launcher", "experiment")
+
+
+def precheck(argv: list[str]) -> str | None:
+    """Check config-group selections on the command line (Hydra's own message for a list
+    selection does not say what the valid options are). Returns an error message or None."""
+    import difflib
+
+    from runners.config import CONF_DIR
+
+    extra = [Path(a.split("=", 1)[1]) for a in argv if a.startswith("--config-dir=")]
+    for arg in argv:
+        if "=" not in arg or arg.startswith("-"):
+            continue
+        key, value = arg.split("=", 1)
+        group = key.lstrip("+~")
+        if group not in _GROUPS:
+            continue
+        value = value.strip()
+        options = [o.strip() for o in value.strip("[]").split(",") if o.strip()] if value not in ("null", "[]") else []
+        valid = sorted({p.stem for d in [CONF_DIR, *extra] for p in (d / group).glob("*.yaml")})
+        for option in options:
+            if option not in valid:
+                close = difflib.get_close_matches(option, valid, n=1)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                return f"{group}={value}: unknown {group} {option!r}{hint}; valid: {', '.join(valid)}"
+    return None
+
+
+def main() -> int:
+    os.environ.setdefault("MORALITY_GYM_ORIGINAL_CWD", os.getcwd())
+    problem = precheck(sys.argv[1:])
+    if problem:
+        print(f"configuration error: {problem}", file=sys.stderr)
+        return 2
+    try:
+        _app()
+    except SystemExit as exc:  # Hydra could not compose the configuration
+        return 2 if exc.code else 0
+    return _EXIT["code"]
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,109 @@
+"""Mirror finished runs into MLflow, idempotently, from their Parquet files.
+
+The Parquet files are the source of truth; MLflow is a browsable mirror. Only the sweep's parent
+process logs (one writer, so the default embedded SQLite store never sees concurrent writers),
+after each run finishes and again at the end of every sweep for anything not yet mirrored (runs
+finished while the parent was killed, runs that came back from SLURM). A marker file
+``<results>/tracking/<run_id>.json`` records the MLflow run id; MLflow runs carry the run id as a
+tag, so a mirror interrupted half-way is found and replaced rather than duplicated.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import pyarrow.parquet as pq
+
+from runners.schema import MF_PREFIX, learn_path, run_path
+
+EXPERIMENT = "morality-gym"
+_METRICS = ("metric", "metric_stderr", "exact_metric", "mean_return", "mean_cost", "mean_length", "truncation_rate", "goal_rate", "wall_time_s", "total_steps")
+
+
+def tracking_uri(results_dir: str | Path) -> str:
+    """``MLFLOW_TRACKING_URI`` if set, else an embedded SQLite store under ``results_dir``."""
+    return os.environ.get("MLFLOW_TRACKING_URI") or f"sqlite:///{Path(results_dir).resolve() / 'mlflow.db'}"
+
+
+def marker_path(results_dir: str | Path, run_id: str) -> Path:
+    return Path(results_dir) / "tracking" / f"{run_id}.json"
+
+
+def _flatten(prefix: str, value: Any, out: dict[str, str]) -> None:
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _flatten(f"{prefix}.{k}" if prefix else str(k), v, out)
+    else:
+        out[prefix] = json.dumps(value) if isinstance(value, (list, tuple)) else str(value)
+
+
+class Tracker:
+    """Logs runs of one results directory to MLflow."""
+
+    def __init__(self, results_dir: str | Path) -> None:
+        import logging
+
+        from mlflow.tracking import MlflowClient
+
+        logging.getLogger("mlflow").setLevel(logging.WARNING)
+        logging.getLogger("alembic").setLevel(logging.WARNING)
+        self.results_dir = Path(results_dir).resolve()
+        self.results_dir.mkdir(parents=True, exist_ok=True)
+        self.client = MlflowClient(tracking_uri(self.results_dir))
+        exp = self.client.get_experiment_by_name(EXPERIMENT)
+        if exp is None:
+            self.experiment_id = self.client.create_experiment(EXPERIMENT, artifact_location=(self.results_dir / "mlartifacts").as_uri())
+        else:
+            self.experiment_id = exp.experiment_id
+
+    def sync(self, run_id: str) -> str | None:
+        """Mirror one finished run (no-op if already mirrored); returns the MLflow run id."""
+        from mlflow.entities import Metric, Param, RunTag
+
+        marker = marker_path(self.results_dir, run_id)
+        if marker.is_file():
+            return json.loads(marker.read_text())["mlflow_run_id"]
+        path = run_path(self.results_dir, run_id)
+        if not path.is_file():
+            return None
+        row = pq.read_table(path).to_pylist()[0]
+        for old in self.client.search_runs([self.experiment_id], filter_string=f"tags.run_id = '{run_id}'"):
+            self.client.delete_run(old.info.run_id)  # an interrupted earlier mirror
+        tags = {k: str(row[k]) for k in ("run_id", "env_id", "scenario", "variant", "chain", "algo", "learner", "protocol", "preset", "seed", "status")}
+        run = self.client.create_run(self.experiment_id, tags=tags, run_name=f"{row['learner']} {row['env_id']} {row['chain']} s{row['seed']}")
+        mid = run.info.run_id
+        params: dict[str, str] = {}
+        _flatten("", json.loads(row["config"]), params)
+        metrics = [Metric(k, float(row[k]), 0, int(row.get("total_steps") or 0)) for k in _METRICS if row.get(k) is not None]
+        metrics += [Metric(k, float(v), 0, int(row.get("total_steps") or 0)) for k, v in row.items() if k.startswith(MF_PREFIX) and v is not None]
+        lp = learn_path(self.results_dir, run_id)
+        if lp.is_file():
+            for r in pq.read_table(lp).to_pylist():
+                for key in ("metric", "exact_metric", "mean_return", "mean_cost", "mean_length"):
+                    if r.get(key) is not None and r[key] == r[key]:
+                        metrics.append(Metric(f"learn/{key}", float(r[key]), 0, int(r["step"])))
+        items = list(params.items())
+        for i in range(0, max(1, len(items)), 100):
+            self.client.log_batch(mid, params=[Param(k, v[:6000]) for k, v in items[i : i + 100]])
+        for i in range(0, len(metrics), 900):
+            self.client.log_batch(mid, metrics=metrics[i : i + 900])
+        if row.get("error"):
+            self.client.log_batch(mid, tags=[RunTag("error", str(row["error"])[:5000])])
+        self.client.log_artifact(mid, str(path))
+        for key in ("gif_path", "model_path"):
+            if row.get(key):
+                artifact = self.results_dir / row[key]
+                if artifact.is_file():
+                    self.client.log_artifact(mid, str(artifact))
+                    sidecar = artifact.with_suffix(".json")
+                    if key == "model_path" and sidecar.is_file():
+                        self.client.log_artifact(mid, str(sidecar))
+        self.client.set_terminated(mid, "FINISHED" if row["status"] == "ok" else "FAILED")
+        marker.parent.mkdir(parents=True, exist_ok=True)
+        tmp = marker.with_suffix(".tmp")
+        tmp.write_text(json.dumps({"mlflow_run_id": mid, "experiment_id": self.experiment_id, "tracking_uri": tracking_uri(self.results_dir)}))
+        os.replace(tmp, marker)
+        return mid

@@ -1,0 +1,242 @@
+"""Sweeps: validation before anything runs, planning, resume, failures, SIGKILL, MLflow, SLURM."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+
+from runners.manifest import read_manifests
+from runners.schema import RUN_COLUMNS, read_runs
+
+REPO = Path(__file__).resolve().parents[1]
+SMALL = ["algo=random", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "seed=[41]"]
+
+
+def sweep(results: Path, *args: str, timeout: float = 600, background: bool = False) -> subprocess.CompletedProcess | subprocess.Popen:
+    options = [a for a in args if a.startswith("--")]  # Hydra flags must precede the overrides
+    cmd = [sys.executable, "-m", "runners.sweep", *options, f"results_dir={results}", *(a for a in args if not a.startswith("--"))]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    env.pop("MLFLOW_TRACKING_URI", None)
+    if background:
+        return subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, start_new_session=True)
+    return subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=timeout, env=env)
+
+
+def result_files(results: Path) -> dict[str, Path]:
+    return {p.name.split(".")[0]: p for p in (results / "runs").glob("*.parquet") if not p.name.endswith(".learn.parquet")}
+
+
+def planned_ids(results: Path) -> set[str]:
+    return {r["run_id"] for m in read_manifests(results) for r in m["runs"]}
+
+
+def mlflow_run_ids(results: Path) -> list[str]:
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(f"sqlite:///{results / 'mlflow.db'}")
+    exp = client.get_experiment_by_name("morality-gym")
+    return [r.data.tags["run_id"] for r in client.search_runs([exp.experiment_id], max_results=5000)]
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["scenario=[push_or_swich]"], "did you mean 'push_or_switch'"),
+        (["algo=[random,cpoo]"], "unknown algo 'cpoo'"),
+        (["chain=utilty"], "did you mean 'utility'"),
+        (["algo=random", "variant=[Humn]"], "did you mean 'Human'"),
+        (["algo=ppo", "algo.ppo.hparams.learning_rate=fast"], "hparams.learning_rate"),
+        (["algo=ppo", "algo.ppo.hparams.n_stepz=3"], "n_stepz"),
+        (["algo=ppo", "preset.budget=0"], "budget of 0"),
+        (["algo=random", "seed=[a]"], "seed"),
+        (["algo=random", "launcher.workers=0"], "launcher.workers"),
+        (["algo=random", "beta=2"], "beta"),
+        (["algo=random", "max_steps=many"], "max_steps"),
+    ],
+)
+def test_bad_input_fails_before_any_run(tmp_path: Path, args: list[str], message: str) -> None:
+    out = sweep(tmp_path / "r", *args)
+    assert out.returncode == 2, out.stdout + out.stderr
+    assert message in out.stdout + out.stderr
+    assert not (tmp_path / "r" / "runs").exists()
+    assert not (tmp_path / "r" / "manifests").exists()
+
+
+def test_unwritable_results_dir_and_malformed_user_chain(tmp_path: Path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    out = sweep(blocker / "sub", *SMALL)
+    assert out.returncode == 2 and "results_dir" in out.stderr
+    conf = tmp_path / "conf" / "chain"
+    conf.mkdir(parents=True)
+    (conf / "mine.yaml").write_text("# @package chain.mine\nname: Mine\nnorms: [n_human_harm, n_humans_harm]\n")
+    out = sweep(tmp_path / "r", f"--config-dir={tmp_path / 'conf'}", "algo=random", "chain=mine", "scenario=[switch_standard]")
+    assert out.returncode == 2 and "n_humans_harm" in out.stderr and "did you mean" in out.stderr.lower()
+
+
+def test_plan_narrowing_and_stable_ids(tmp_path: Path) -> None:
+    base = [*SMALL, "variant=[HumanA,HumanB]", "seed=[41,42]", "dry_run=true"]
+    first = sweep(tmp_path, *base)
+    assert first.returncode == 0, first.stderr
+    ids = planned_ids(tmp_path)
+    assert len(ids) == 4 and "4 runs" in first.stderr
+    assert sweep(tmp_path, *base).returncode == 0 and planned_ids(tmp_path) == ids  # content hashes are stable
+    sweep(tmp_path, *base, "beta=0.2", "name=b02")
+    assert len(planned_ids(tmp_path)) == 8  # a different beta is a different run
+    default = sweep(tmp_path / "d", "algo=random", "chain=utility", "dry_run=true", "preset=smoke")
+    scenarios = {r["scenario"] for m in read_manifests(tmp_path / "d") for r in m["runs"]}
+    assert scenarios == {"Push2OrSwitch", "PushOrSwitch", "Switch2Trolley4Track", "Switch5", "Switch7", "SwitchStandard"}
+    assert default.returncode == 0 and not (tmp_path / "d" / "runs").exists() or not result_files(tmp_path / "d")
+
+
+@pytest.mark.slow
+def test_local_sweep_end_to_end_then_resume_skips(tmp_path: Path) -> None:
+    args = ["algo=[random,ppo_shaped]", "chain=utility", "scenario=[switch_standard]", "variant=[HumanA]", "seed=[41]", "preset=smoke"]
+    out = sweep(tmp_path, *args)
+    assert out.returncode == 0, out.stdout + out.stderr
+    files = result_files(tmp_path)
+    assert set(files) == planned_ids(tmp_path) and len(files) == 2
+    df = read_runs(tmp_path)
+    assert set(RUN_COLUMNS) <= set(df.columns) and {"mf_n_human_harm", "mf_n_animal_harm", "mf_n_robot_harm"} <= set(df.columns)
+    assert (df.status == "ok").all() and df.metric.between(0, 1).all() and df.exact_metric.between(0, 1).all()
+    shaped = df[df.algo == "ppo_shaped"].iloc[0]
+    assert shaped.learner == "PPO Shaped" and shaped.total_steps == 2048 and shaped.protocol == "paper" and shaped.preset == "smoke"
+    assert (tmp_path / shaped.model_path).is_file() and (tmp_path / shaped.gif_path).is_file()
+    assert json.loads(shaped.config)["algo"]["cost_scale"] == 50.0
+    learn = pq.read_table(tmp_path / "runs" / f"{shaped.run_id}.learn.parquet").to_pandas()
+    assert list(learn.step) == [0, 1024, 2048]
+    assert sorted(mlflow_run_ids(tmp_path)) == sorted(files)
+    mtimes = {k: p.stat().st_mtime_ns for k, p in files.items()}
+    again = sweep(tmp_path, *args)
+    assert again.returncode == 0 and "0 to run" in again.stderr
+    assert {k: p.stat().st_mtime_ns for k, p in result_files(tmp_path).items()} == mtimes
+    assert sorted(mlflow_run_ids(tmp_path)) == sorted(files)
+
+
+@pytest.mark.slow
+def test_failing_run_is_recorded_and_does_not_stop_others(tmp_path: Path) -> None:
+    # SB3 rejects n_steps * n_envs == 1 when the model is built: a run-time failure after validation.
+    args = ["algo=[random,ppo]", "algo.ppo.hparams.n_steps=1", "algo.ppo.n_envs=1", "chain=utility",
+            "scenario=[switch_standard]", "variant=[HumanA,HumanB]", "seed=[41]", "preset=smoke", "gif=false"]
+    out = sweep(tmp_path, *args)
+    assert out.returncode == 1
+    df = read_runs(tmp_path)
+    assert len(df) == 4
+    assert (df[df.algo == "random"].status == "ok").all()
+    failed = df[df.algo == "ppo"]
+    assert (failed.status == "failed").all() and failed.error.str.contains("n_steps").all()
+    assert failed.traceback.str.contains("Traceback").all()
+    assert "failed runs:" in out.stderr and all(rid in out.stderr for rid in failed.run_id)
+    kept = sweep(tmp_path, *args, "retry_failed=false")
+    assert kept.returncode == 1 and "0 to run" in kept.stderr
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for proc in Path("/proc").iterdir():
+        if proc.name.isdigit():
+            try:
+                fields = (proc / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                out.append(int(proc.name))
+    return out
+
+
+def _wait_for_results(results: Path, n: int, proc: subprocess.Popen, timeout: float = 180) -> None:
+    deadline = time.monotonic() + timeout
+    while len(result_files(results)) < n:
+        assert proc.poll() is None, proc.stdout.read() if proc.stdout else ""
+        assert time.monotonic() < deadline, "sweep made no progress"
+        time.sleep(0.1)
+
+
+@pytest.mark.slow
+def test_sigkill_of_the_sweep_then_resume_gives_exact_run_set(tmp_path: Path) -> None:
+    args = ["algo=random", "chain=utility", "scenario=[switch_standard,push_or_switch]", "seed=[41,42]", "preset=smoke", "launcher.workers=2"]
+    proc = sweep(tmp_path, *args, background=True)
+    _wait_for_results(tmp_path, 3, proc)
+    workers = _children(proc.pid)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=30)
+    deadline = time.monotonic() + 20
+    while any(Path(f"/proc/{w}").exists() and "Z" not in Path(f"/proc/{w}/stat").read_text().split()[2] for w in workers):
+        assert time.monotonic() < deadline, "workers outlived the killed sweep"
+        time.sleep(0.2)
+    partial = set(result_files(tmp_path))
+    planned = planned_ids(tmp_path)
+    assert 3 <= len(partial) < len(planned) == 44
+    resumed = sweep(tmp_path, *args)
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"{len(partial)} done" in resumed.stderr
+    assert set(result_files(tmp_path)) == planned
+    df = read_runs(tmp_path)
+    assert len(df) == len(planned) and df.run_id.is_unique and (df.status == "ok").all()
+    assert sorted(mlflow_run_ids(tmp_path)) == sorted(planned)  # mirrored once each, none lost
+    assert not list((tmp_path / "runs").glob(".*.tmp"))
+
+
+def _busy_worker(sweep_pid: int) -> tuple[int, str] | None:
+    """A worker process of the sweep that currently holds a run lock, and that run's id."""
+    for pid in _children(sweep_pid):
+        try:
+            if b"spawn_main" not in Path(f"/proc/{pid}/cmdline").read_bytes():
+                continue  # e.g. multiprocessing's resource tracker
+            for fd in Path(f"/proc/{pid}/fd").iterdir():
+                target = os.readlink(fd)
+                if "/.locks/" in target:
+                    return pid, Path(target).stem
+        except OSError:
+            continue
+    return None
+
+
+@pytest.mark.slow
+def test_sigkill_of_a_worker_fails_one_run_and_resume_finishes(tmp_path: Path) -> None:
+    args = ["algo=ppo_shaped", "chain=utility", "scenario=[switch_standard]", "seed=[41]", "preset=smoke", "launcher.workers=2", "gif=false"]
+    proc = sweep(tmp_path, *args, background=True)
+    _wait_for_results(tmp_path, 1, proc)
+    deadline = time.monotonic() + 60
+    while (busy := _busy_worker(proc.pid)) is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    victim, victim_run = busy
+    os.kill(victim, signal.SIGKILL)
+    output, _ = proc.communicate(timeout=600)
+    assert proc.returncode == 1, output  # the killed worker's run failed, the sweep carried on
+    df = read_runs(tmp_path)
+    assert len(df) == 12 and list(df[df.status == "failed"].run_id) == [victim_run]
+    assert df[df.status == "failed"].error.iloc[0].startswith("worker process died (signal 9)")
+    resumed = sweep(tmp_path, *args)
+    assert resumed.returncode == 0 and "11 done, 1 to run" in resumed.stderr
+    df = read_runs(tmp_path)
+    assert len(df) == 12 and (df.status == "ok").all() and set(df.run_id) == planned_ids(tmp_path)
+    assert sorted(mlflow_run_ids(tmp_path)) == sorted(df.run_id)  # the failed mirror was replaced, not duplicated
+
+
+@pytest.mark.slurm
+@pytest.mark.slow
+def test_sweep_through_real_slurm_with_a_failing_run(slurm_cluster, tmp_path: Path) -> None:
+    args = ["launcher=slurm", f"launcher.partition={slurm_cluster.partition}", "launcher.timeout_min=10",
+            f"launcher.cpus_per_task=1", "launcher.mem_gb=2", "launcher.array_parallelism=2", "launcher.poll_s=0.5",
+            "algo=[random,ppo]", "algo.ppo.hparams.n_steps=1", "algo.ppo.n_envs=1",
+            "chain=utility", "scenario=[switch_standard]", "variant=[HumanA,HumanB]", "seed=[41]", "preset=smoke"]
+    out = sweep(tmp_path, *args, timeout=600)
+    assert out.returncode == 1, out.stdout + out.stderr
+    df = read_runs(tmp_path)
+    assert set(df.run_id) == planned_ids(tmp_path) and len(df) == 4
+    assert (df[df.algo == "random"].status == "ok").all()
+    assert (df[df.algo == "ppo"].status == "failed").all()
+    assert len(list((tmp_path / "slurm").rglob("*_log.out"))) >= 4  # submitit logs of the array tasks
+    assert sorted(mlflow_run_ids(tmp_path)) == sorted(df.run_id)
+    again = sweep(tmp_path, *[a for a in args if not a.startswith("algo")], "algo=[random]")
+    assert again.returncode == 0 and "0 to run" in again.stderr
