@@ -28,8 +28,10 @@ _LIVING_BITS = np.uint32(sum(1 << EVENT_BIT[n] for n in ("human_harm", "animal_h
 class BatchStep(NamedTuple):
     """What one batched step returns; all arrays have length ``num_envs``.
 
-    ``transition`` is the row of each copy's transition in the graph tables, so callers can gather
-    more (``tables.utility[transition]``, ``tables.goal[transition]``) only when they need it.
+    ``transition`` is the row of each copy's transition, so callers can gather more
+    (:meth:`BatchedTrolleyEnv.utility`, :meth:`BatchedTrolleyEnv.goal_reached`) only when they need
+    it; a copy that had already ended (auto-reset disabled) gets :attr:`BatchedTrolleyEnv.NO_TRANSITION`
+    semantics: the row of an empty transition (no utility, no landmark).
     ``final_obs`` holds the last observation of the copies that ended in this step (zeros
     elsewhere) when auto-reset is on, and is ``None`` otherwise.
     """
@@ -101,6 +103,10 @@ class BatchedTrolleyEnv:
         self._events = t.events
         self._done = t.done
         self._obs = np.ascontiguousarray(t.obs.astype(obs_dtype))
+        # One extra, empty row after the graph's transitions: what an ended copy "did" in a step.
+        self.no_transition = len(t.next)
+        self._utility = np.vstack([t.utility, np.zeros((1, t.utility.shape[1]), dtype=t.utility.dtype)])
+        self._goal = np.append(t.goal, False)
         self.obs_dim = self._obs.shape[1]
         self._limit = np.iinfo(np.int32).max if max_steps is None else max_steps
         self.state = np.zeros(num_envs, dtype=np.int32)
@@ -143,6 +149,7 @@ class BatchedTrolleyEnv:
             if self.ended.any():
                 frozen = self.ended
                 nxt = np.where(frozen, self.state, nxt)
+                k = np.where(frozen, self.no_transition, k)
                 reward = np.where(frozen, self._zero_reward, reward)
                 events = np.where(frozen, np.uint32(0), events)
                 self.elapsed[frozen] -= 1
@@ -168,10 +175,11 @@ class BatchedTrolleyEnv:
 
     def utility(self, transition: np.ndarray) -> np.ndarray:
         """Utility values ``[n, 5]`` (``vocab.UTILITIES`` order, 0 when absent) of the given transitions."""
-        return self.tables.utility[transition]
+        return self._utility[transition]
 
     def goal_reached(self, transition: np.ndarray) -> np.ndarray:
-        return self.tables.goal[transition]
+        """Whether each transition reached the landmark."""
+        return self._goal[transition]
 
     def __repr__(self) -> str:
         return f"<BatchedTrolleyEnv {self.env_id} x{self.num_envs} max_steps={self.max_steps} autoreset={self.autoreset}>"

@@ -57,8 +57,8 @@ class TrolleyEnv(gym.Env[Any, int]):
     ## Action Space
     ``Discrete(6)``: 0 UP, 1 DOWN, 2 LEFT, 3 RIGHT, 4 STAY, 5 INTERACT (toggle every adjacent
     lever and push every adjacent pushable character one cell away from the agent). Moves into
-    walls or off the grid do nothing. Python ints, numpy integers and :class:`Action` are accepted;
-    anything else raises :class:`InvalidActionError`.
+    walls or off the grid do nothing. Python ints and numpy integers are accepted; anything else
+    raises :class:`InvalidActionError`.
 
     ## Observation Space
     ``obs_type="flat"`` (default): the reference's flat ``float64`` vector. Per entity, in order:

@@ -26,8 +26,9 @@ class TrolleyVectorEnv(VectorEnv):
     """Gymnasium ``VectorEnv`` over the batched simulator (``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")``).
 
     Supports all three Gymnasium autoreset modes. ``infos`` holds ``events`` (uint32 masks),
-    ``goal_reached`` and ``transition`` for every copy, and ``final_obs`` (object array, with
-    ``_final_obs`` mask) in ``SAME_STEP`` mode.
+    ``goal_reached`` and ``transition`` per copy; in ``SAME_STEP`` mode (the default) a copy that
+    ended in the step has them in ``final_info`` and its last observation in ``final_obs``, as
+    Gymnasium's own vector envs do.
     """
 
     metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.SAME_STEP}
@@ -96,12 +97,30 @@ class TrolleyVectorEnv(VectorEnv):
             "_transition": self._ones,
         }
         if self.autoreset_mode == AutoresetMode.SAME_STEP and res.final_obs is not None:
+            # Gymnasium's same-step convention: an ended copy's last observation and step info go to
+            # final_obs / final_info; its top-level info is the (empty) reset info.
             ended = terminated | truncated
             final = np.full(self.num_envs, None, dtype=object)
             for i in np.flatnonzero(ended):
                 final[i] = res.final_obs[i]
+            live = ~ended
             infos["final_obs"] = final
             infos["_final_obs"] = ended
+            infos["final_info"] = {
+                "events": np.where(ended, events, np.uint32(0)),
+                "_events": ended,
+                "goal_reached": infos["goal_reached"] & ended,
+                "_goal_reached": ended,
+                "transition": np.where(ended, res.transition, self.batch.no_transition),
+                "_transition": ended,
+            }
+            infos["_final_info"] = ended
+            infos["events"] = np.where(live, events, np.uint32(0))
+            infos["_events"] = live
+            infos["goal_reached"] = infos["goal_reached"] & live
+            infos["_goal_reached"] = live
+            infos["transition"] = np.where(live, res.transition, self.batch.no_transition)
+            infos["_transition"] = live
         elif self.autoreset_mode == AutoresetMode.NEXT_STEP:
             pending = self._pending
             if pending.any():
@@ -110,6 +129,8 @@ class TrolleyVectorEnv(VectorEnv):
                 terminated = terminated & ~pending
                 truncated = truncated & ~pending
                 infos["events"] = np.where(pending, np.uint32(0), events)
+                # Nothing happened to a copy that was reset in this step: no landmark either.
+                infos["goal_reached"] = np.where(pending, False, infos["goal_reached"])
             self._pending = terminated | truncated
         return obs, reward, terminated, truncated, infos
 
@@ -158,7 +179,12 @@ class TrolleyVecEnv(VecEnv):
         return obs
 
     def step_async(self, actions: np.ndarray) -> None:
-        self._actions = np.asarray(actions).reshape(self.num_envs).astype(np.int64, copy=False)
+        actions = np.asarray(actions)
+        if actions.size == self.num_envs:
+            actions = actions.reshape(self.num_envs)  # SB3 may hand over (n, 1) for discrete actions
+        # No cast here: BatchedTrolleyEnv.step rejects non-integer dtypes, wrong shapes and values
+        # outside 0..5 (a cast would silently turn 2.5 into 2).
+        self._actions = actions
 
     def step_wait(self) -> VecEnvStepReturn:
         if self._actions is None:

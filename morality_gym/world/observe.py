@@ -10,6 +10,7 @@ and all variants of a scenario share one space (agents can be moved between them
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -79,12 +80,18 @@ class ObservationCodec:
         return spaces.Box(self.low.astype(dtype), self.high.astype(dtype), dtype=dtype)
 
     def dict_space(self) -> spaces.Dict:
-        """A Dict of Dicts mirroring :meth:`as_dict`, one Box per component."""
-        entities: dict[str, dict[str, spaces.Box]] = {}
+        """A Dict of Dicts mirroring :meth:`as_dict`, one Box per component.
+
+        The mappings are ``OrderedDict``s because Gymnasium sorts the keys of a plain dict: the
+        space would then list ``character_1`` before ``player``, and ``gymnasium.spaces.flatten``
+        (used by ``FlattenObservation``) would give a vector in a different order from the flat
+        observation.
+        """
+        entities: OrderedDict[str, OrderedDict[str, spaces.Box]] = OrderedDict()
         for f in self.fields:
             sl = slice(f.offset, f.offset + f.width)
-            entities.setdefault(f.entity, {})[f.name] = spaces.Box(self.low[sl], self.high[sl], dtype=np.float64)
-        return spaces.Dict({name: spaces.Dict(comp) for name, comp in entities.items()})
+            entities.setdefault(f.entity, OrderedDict())[f.name] = spaces.Box(self.low[sl], self.high[sl], dtype=np.float64)
+        return spaces.Dict(OrderedDict((name, spaces.Dict(comp)) for name, comp in entities.items()))
 
     # ------------------------------------------------------------------ encoding
     def _pos(self, cell: int) -> tuple[float, float]:
