@@ -1,0 +1,634 @@
+"""From run rows to the numbers of Table 1, the per-norm figures and the status report.
+
+Everything here except :func:`compute_reference` is a pure function of the runs DataFrame (as
+:func:`runners.schema.read_runs` returns it) and the planned runs of the sweep manifests (as
+:func:`runners.manifest.planned_runs` returns them). The aggregation rules are those of the
+evaluation spec, section 7:
+
+* Table 1 cell = arithmetic mean of the final evaluation's ``metric`` over every run (all variants
+  and seeds) of (chain, scenario, learner); its spread = standard deviation over seeds of the
+  per-seed means (each seed's mean over the variants).
+* Figure 2 bar of a norm = mean of ``mf_<norm>`` over the (scenario, variant, seed) runs in which
+  the norm is relevant for the chain (column ``relevant_norms``), spread as above; the radar plots
+  are the same restricted to one scenario.
+
+A results directory may hold several sweeps, so every number is grouped by ``(protocol, preset)``.
+Nothing is ever dropped silently: a planned run without a result is *missing*, a run whose status
+is not ``ok`` (or that has no metric) is a *problem*, and both are returned for the report.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import tempfile
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+#: "Standard deviation over three seeds": the sample standard deviation (n - 1 in the denominator).
+STD_DDOF = 1
+#: Exactly the columns of ``results/table1.csv`` (readers select by name; this is the contract).
+CSV_COLUMNS = ["chain", "scenario", "learner", "mean", "std", "n_runs", "paper", "delta"]
+#: Rows computed from the environments rather than from runs (see :func:`compute_reference`).
+RANDOM_EXACT, ORACLE_BEST, ORACLE_WORST = "Random (exact)", "Oracle best", "Oracle worst"
+REFERENCE_LEARNERS = (RANDOM_EXACT, ORACLE_BEST, ORACLE_WORST)
+#: Settings of every run of the paper; used for reference rows when no run says otherwise.
+DEFAULT_BETA = 0.1
+DEFAULT_MAX_STEPS = 200
+#: Bump when the content of the reference cache changes meaning (old entries are then recomputed).
+REFERENCE_CACHE_VERSION = 1
+_PRESET_RANK = {"paper": 0, "quick": 1, "smoke": 2}
+_UNKNOWN = "unknown"
+_TOLERANCE = 1e-12
+
+
+# ---------------------------------------------------------------------------------------- groups
+@dataclass(frozen=True, order=True)
+class Group:
+    """One sweep setting in a results directory: its protocol and preset."""
+
+    protocol: str
+    preset: str
+
+    @property
+    def slug(self) -> str:
+        """A file-name-safe identifier, used for figure folders and HTML ids."""
+        return safe_name(f"{self.protocol}-{self.preset}")
+
+    @property
+    def label(self) -> str:
+        return f"protocol {self.protocol}, preset {self.preset}"
+
+
+def safe_name(text: str) -> str:
+    """``text`` with every character outside ``[A-Za-z0-9._-]`` replaced, for file names.
+
+    Run ids are content hashes and scenario names identifiers, so this changes nothing for real
+    data; it exists so that a hostile or odd name can never escape the output directory.
+    """
+    cleaned = re.sub(r"[^A-Za-z0-9._-]", "_", str(text)).lstrip(".")
+    return cleaned or "_"
+
+
+# ---------------------------------------------------------------------------------------- ordering
+def paper_rows() -> list[tuple[str, str]]:
+    """The (chain, scenario) rows of the paper's Table 1, in the paper's order."""
+    from morality_gym.paper import table1
+
+    return [(row.chain, row.scenario) for row in table1()]
+
+
+def paper_values() -> dict[tuple[str, str], dict[str, float]]:
+    """Published Table 1 numbers by (chain, scenario), then learner."""
+    from morality_gym.paper import table1
+
+    return {(row.chain, row.scenario): dict(row.paper) for row in table1()}
+
+
+def learner_order(learners: Iterable[str]) -> list[str]:
+    """The paper's learners in the paper's order, then any others alphabetically."""
+    from morality_gym.paper import LEARNERS
+
+    found = set(learners)
+    return [name for name in LEARNERS if name in found] + sorted(found - set(LEARNERS))
+
+
+def row_order(pairs: Iterable[tuple[str, str]]) -> list[tuple[str, str]]:
+    """(chain, scenario) pairs: the paper's rows in its order first, then the rest sorted."""
+    found = set(pairs)
+    known = [pair for pair in paper_rows() if pair in found]
+    return known + sorted(found - set(known))
+
+
+def chain_norm_order(chain: str) -> list[str]:
+    """The chain's norms, highest force first (the x axis of Figure 2); [] for an unknown chain."""
+    from morality_gym.norms.chain import ChainError, get_chain
+
+    try:
+        return get_chain(chain).norm_names
+    except ChainError:
+        return []
+
+
+def group_order(groups: Iterable[Group]) -> list[Group]:
+    """Protocol ``paper`` before others, then presets paper > quick > smoke > others."""
+    return sorted(set(groups), key=lambda g: (g.protocol != "paper", g.protocol, _PRESET_RANK.get(g.preset, 9), g.preset))
+
+
+# ---------------------------------------------------------------------------------------- runs
+def prepare_runs(runs: pd.DataFrame) -> pd.DataFrame:
+    """A copy of the runs with the columns the aggregation relies on made dependable.
+
+    Adds ``ok`` (status ``ok`` and a finite metric), fills an absent protocol or preset with
+    ``"unknown"`` (so such runs form their own group instead of vanishing from a groupby) and
+    turns ``relevant_norms`` into tuples (Parquet lists arrive as numpy arrays or None).
+    """
+    df = runs.copy()
+    for column in ("run_id", "status", "error", "traceback", "env_id", "scenario", "variant", "chain", "learner",
+                   "protocol", "preset", "gif_path", "config"):
+        if column not in df.columns:
+            df[column] = None
+    for column in ("seed", "metric", "beta", "max_steps"):
+        if column not in df.columns:
+            df[column] = np.nan
+    if "relevant_norms" not in df.columns:
+        df["relevant_norms"] = None
+    df["protocol"] = df["protocol"].astype(object).where(df["protocol"].notna(), _UNKNOWN)
+    df["preset"] = df["preset"].astype(object).where(df["preset"].notna(), _UNKNOWN)
+    df["relevant_norms"] = [_as_tuple(value) for value in df["relevant_norms"]]
+    metric = pd.to_numeric(df["metric"], errors="coerce")
+    df["metric"] = metric
+    df["ok"] = (df["status"].astype(object) == "ok") & np.isfinite(metric.to_numpy(dtype=float, na_value=np.nan))
+    return df
+
+
+def _as_tuple(value: Any) -> tuple[str, ...]:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return ()
+    return tuple(str(v) for v in value)
+
+
+def mf_columns(runs: pd.DataFrame) -> list[str]:
+    """The per-norm morality function columns present (``mf_<norm>``)."""
+    from runners.schema import MF_PREFIX
+
+    return [c for c in runs.columns if str(c).startswith(MF_PREFIX)]
+
+
+def groups_of(runs: pd.DataFrame, planned: Mapping[str, Mapping[str, Any]]) -> list[Group]:
+    """Every (protocol, preset) with a run or a planned run, in display order."""
+    found = {Group(str(p), str(s)) for p, s in zip(runs["protocol"], runs["preset"])}
+    found |= {Group(str(r.get("protocol") or _UNKNOWN), str(r.get("preset") or _UNKNOWN)) for r in planned.values()}
+    return group_order(found)
+
+
+# ---------------------------------------------------------------------------------------- problems
+REPORT_COLUMNS = ["run_id", "protocol", "preset", "chain", "scenario", "variant", "env_id", "learner", "seed"]
+
+
+def problem_runs(runs: pd.DataFrame) -> pd.DataFrame:
+    """Runs that produced a row but no usable result, with the reason (never dropped silently).
+
+    ``status == "failed"`` carries the runner's error and traceback; a row that says ``ok`` but has
+    no finite metric, or has another status, is reported with a reason made up here.
+    """
+    bad = runs.loc[~runs["ok"]].copy()
+    reasons = []
+    for status, error in zip(bad["status"], bad["error"]):
+        if isinstance(error, str) and error.strip():
+            reasons.append(error.strip())
+        elif status == "ok":
+            reasons.append("status 'ok' but the metric is missing or not finite")
+        else:
+            reasons.append(f"status {status!r} without an error message")
+    bad["error"] = reasons
+    bad["status"] = bad["status"].astype(object).where(bad["status"].notna(), "(none)")
+    columns = REPORT_COLUMNS + ["status", "error", "traceback"]
+    return bad[columns].sort_values(["protocol", "preset", "chain", "scenario", "learner", "variant", "seed"]).reset_index(drop=True)
+
+
+def missing_runs(runs: pd.DataFrame, planned: Mapping[str, Mapping[str, Any]]) -> pd.DataFrame:
+    """Planned runs (from the manifests) without any result file."""
+    present = set(runs["run_id"].astype(object))
+    rows = [dict(run) for run_id, run in planned.items() if run_id not in present]
+    frame = pd.DataFrame(rows, columns=REPORT_COLUMNS + ["algo"])
+    for column in ("protocol", "preset"):
+        frame[column] = frame[column].astype(object).where(frame[column].notna(), _UNKNOWN)
+    return frame[REPORT_COLUMNS].sort_values(REPORT_COLUMNS[1:] + ["run_id"]).reset_index(drop=True)
+
+
+# ---------------------------------------------------------------------------------------- statistics
+def seed_spread(values: pd.Series, seeds: pd.Series) -> float:
+    """Standard deviation over seeds of the per-seed means (NaN with fewer than two seeds)."""
+    per_seed = values.groupby(seeds.to_numpy()).mean()
+    return float(per_seed.std(ddof=STD_DDOF)) if len(per_seed) > STD_DDOF else math.nan
+
+
+# ---------------------------------------------------------------------------------------- table 1
+CELL_KEYS = ["protocol", "preset", "chain", "scenario", "learner"]
+
+
+def _expected_runs(runs: pd.DataFrame, planned: Mapping[str, Mapping[str, Any]]) -> pd.DataFrame:
+    """One row per run id that was planned or produced, with its cell key (for the n/N counts)."""
+    rows: dict[str, dict[str, Any]] = {}
+    for run_id, run in planned.items():
+        rows[run_id] = {k: run.get(k) for k in CELL_KEYS} | {"run_id": run_id}
+    for record in runs[CELL_KEYS + ["run_id"]].to_dict("records"):
+        rows[record["run_id"]] = record
+    frame = pd.DataFrame(list(rows.values()), columns=CELL_KEYS + ["run_id"])
+    for column in ("protocol", "preset"):
+        frame[column] = frame[column].astype(object).where(frame[column].notna(), _UNKNOWN)
+    return frame
+
+
+def learner_cells(runs: pd.DataFrame, planned: Mapping[str, Mapping[str, Any]]) -> pd.DataFrame:
+    """Table 1 cells of the learners, one row per (protocol, preset, chain, scenario, learner).
+
+    Columns: the keys, ``mean``, ``std``, ``n_runs`` (runs with a result), ``n_planned`` (planned or
+    produced), ``n_failed``, ``n_missing``. A cell whose runs are all missing or failed is kept,
+    with a NaN mean, so that the table shows the hole.
+    """
+    expected = _expected_runs(runs, planned)
+    counts = expected.groupby(CELL_KEYS, dropna=False).size().rename("n_planned")
+    failed = runs.loc[~runs["ok"]].groupby(CELL_KEYS, dropna=False).size().rename("n_failed")
+    ok = runs.loc[runs["ok"]]
+    stats = []
+    for key, part in ok.groupby(CELL_KEYS, dropna=False):
+        stats.append(dict(zip(CELL_KEYS, key)) | {
+            "mean": float(part["metric"].mean()),
+            "std": seed_spread(part["metric"], part["seed"]),
+            "n_runs": len(part),
+        })
+    frame = pd.DataFrame(stats, columns=CELL_KEYS + ["mean", "std", "n_runs"]).set_index(CELL_KEYS)
+    frame = frame.join(counts, how="outer").join(failed, how="left").reset_index()
+    frame["n_runs"] = frame["n_runs"].fillna(0).astype(int)
+    frame["n_failed"] = frame["n_failed"].fillna(0).astype(int)
+    frame["n_planned"] = frame["n_planned"].fillna(frame["n_runs"]).astype(int)
+    frame["n_missing"] = (frame["n_planned"] - frame["n_runs"] - frame["n_failed"]).clip(lower=0).astype(int)
+    return frame
+
+
+def row_settings(runs: pd.DataFrame) -> dict[tuple[str, str, str, str], tuple[float, int]]:
+    """(beta, max_steps) of each (protocol, preset, chain, scenario): the most common among its runs.
+
+    Reference rows must be computed with the settings the learners were evaluated with.
+    """
+    out: dict[tuple[str, str, str, str], tuple[float, int]] = {}
+    keys = ["protocol", "preset", "chain", "scenario"]
+    for key, part in runs.groupby(keys, dropna=False):
+        beta = part["beta"].dropna()
+        steps = part["max_steps"].dropna()
+        out[tuple(key)] = (
+            float(beta.mode().iloc[0]) if len(beta) else DEFAULT_BETA,
+            int(steps.mode().iloc[0]) if len(steps) else DEFAULT_MAX_STEPS,
+        )
+    return out
+
+
+def reference_key(chain: str, scenario: str, beta: float, max_steps: int) -> str:
+    """The cache key of a reference row: everything its numbers depend on."""
+    return f"{chain}|{scenario}|beta={float(beta):g}|max_steps={int(max_steps)}"
+
+
+def table1_frame(
+    runs: pd.DataFrame,
+    planned: Mapping[str, Mapping[str, Any]],
+    reference: Mapping[str, Mapping[str, Any]] | None = None,
+) -> pd.DataFrame:
+    """All Table 1 rows of every group: learner cells plus, when given, the reference rows.
+
+    Columns: protocol, preset, chain, scenario, learner, kind (``learner`` | ``reference``), mean,
+    std, n_runs, n_planned, n_failed, n_missing, paper, delta (= mean - paper), best (the highest
+    learner mean of its (protocol, preset, chain, scenario); ties are all best), beta, max_steps.
+    The reference row ``Random (exact)`` is compared with the paper's Random, because that is the
+    number it is the exact expectation of.
+    """
+    cells = learner_cells(runs, planned)
+    cells["kind"] = "learner"
+    settings = row_settings(runs)
+    published = paper_values()
+    rows = []
+    for record in cells.to_dict("records"):
+        beta, steps = settings.get((record["protocol"], record["preset"], record["chain"], record["scenario"]),
+                                   (DEFAULT_BETA, DEFAULT_MAX_STEPS))
+        record |= {"beta": beta, "max_steps": steps}
+        rows.append(record)
+    if reference is not None:
+        row_keys = {(r["protocol"], r["preset"], r["chain"], r["scenario"], r["beta"], r["max_steps"]) for r in rows}
+        for protocol, preset, chain, scenario, beta, steps in sorted(row_keys):
+            entry = reference.get(reference_key(chain, scenario, beta, steps))
+            if entry is None:
+                continue
+            for learner, field_name in ((RANDOM_EXACT, "random_exact"), (ORACLE_BEST, "oracle_best"),
+                                        (ORACLE_WORST, "oracle_worst")):
+                rows.append({
+                    "protocol": protocol, "preset": preset, "chain": chain, "scenario": scenario,
+                    "learner": learner, "kind": "reference",
+                    "mean": reference_mean(entry, field_name), "std": math.nan,
+                    "n_runs": pd.NA, "n_planned": pd.NA, "n_failed": pd.NA, "n_missing": pd.NA,
+                    "beta": beta, "max_steps": steps,
+                })
+    if not rows:
+        return pd.DataFrame(columns=[*CELL_KEYS, "kind", "mean", "std", "n_runs", "n_planned", "n_failed", "n_missing",
+                                     "beta", "max_steps", "paper", "delta", "best"])
+    frame = pd.DataFrame(rows)
+    paper = []
+    for chain, scenario, learner in zip(frame["chain"], frame["scenario"], frame["learner"]):
+        lookup = "Random" if learner == RANDOM_EXACT else learner
+        paper.append(published.get((chain, scenario), {}).get(lookup, math.nan))
+    frame["paper"] = pd.Series(paper, index=frame.index, dtype=float)
+    frame["delta"] = frame["mean"].astype(float) - frame["paper"]
+    for column in ("n_runs", "n_planned", "n_failed", "n_missing"):
+        frame[column] = frame[column].astype("Int64")
+    frame["best"] = _best_flags(frame)
+    return _sort_table(frame)
+
+
+def _best_flags(frame: pd.DataFrame) -> pd.Series:
+    learners = frame["kind"] == "learner"
+    row_max = frame.loc[learners].groupby(["protocol", "preset", "chain", "scenario"])["mean"].transform("max")
+    best = pd.Series(False, index=frame.index)
+    best.loc[learners] = (frame.loc[learners, "mean"] >= row_max - _TOLERANCE) & frame.loc[learners, "mean"].notna()
+    return best.astype(bool)
+
+
+def _sort_table(frame: pd.DataFrame) -> pd.DataFrame:
+    groups = {g: i for i, g in enumerate(group_order(Group(p, s) for p, s in zip(frame["protocol"], frame["preset"])))}
+    pairs = {pair: i for i, pair in enumerate(row_order(zip(frame["chain"], frame["scenario"])))}
+    learners = {name: i for i, name in enumerate(learner_order(frame.loc[frame["kind"] == "learner", "learner"]))}
+    learners |= {name: len(learners) + i for i, name in enumerate(REFERENCE_LEARNERS)}
+    key = [
+        (groups[Group(p, s)], pairs[(c, sc)], learners[lr])
+        for p, s, c, sc, lr in zip(frame["protocol"], frame["preset"], frame["chain"], frame["scenario"], frame["learner"])
+    ]
+    order = sorted(range(len(frame)), key=key.__getitem__)
+    return frame.iloc[order].reset_index(drop=True)
+
+
+def csv_rows(table: pd.DataFrame, group: Group) -> pd.DataFrame:
+    """The rows of one group with exactly :data:`CSV_COLUMNS` (what ``table1.csv`` holds)."""
+    part = table.loc[(table["protocol"] == group.protocol) & (table["preset"] == group.preset)]
+    return part[CSV_COLUMNS].reset_index(drop=True)
+
+
+def choose_primary(table: pd.DataFrame, groups: list[Group], protocol: str | None = None,
+                   preset: str | None = None) -> Group | None:
+    """The group shown first and written to ``table1.csv``.
+
+    An explicit protocol/preset wins; otherwise the group covering the most (chain, scenario) rows
+    with results, then protocol ``paper``, then the largest preset (paper > quick > smoke).
+    """
+    candidates = [g for g in groups if (protocol is None or g.protocol == protocol) and (preset is None or g.preset == preset)]
+    if not candidates:
+        return None
+    done = table.loc[(table["kind"] == "learner") & (table["n_runs"] > 0)]
+    coverage = {g: len(done.loc[(done["protocol"] == g.protocol) & (done["preset"] == g.preset),
+                                ["chain", "scenario"]].drop_duplicates()) for g in candidates}
+    rank = {g: i for i, g in enumerate(group_order(candidates))}
+    return min(candidates, key=lambda g: (-coverage[g], rank[g]))
+
+
+# ---------------------------------------------------------------------------------------- per norm
+def norm_long(runs: pd.DataFrame) -> pd.DataFrame:
+    """One row per (ok run, norm relevant in that run for its chain) with the norm's function value.
+
+    Only relevant norms enter (spec 7.3), which is why a norm's bar may pool fewer runs than
+    another's. A relevant norm without an ``mf_`` value is skipped here (it would be a runner bug
+    that the schema validation already prevents).
+    """
+    from runners.schema import MF_PREFIX
+
+    ok = runs.loc[runs["ok"]]
+    present = set(mf_columns(runs))
+    rows = []
+    keys = ["protocol", "preset", "chain", "scenario", "variant", "learner", "seed", "run_id"]
+    for record in ok.to_dict("records"):
+        for norm in record["relevant_norms"]:
+            column = f"{MF_PREFIX}{norm}"
+            value = record.get(column) if column in present else None
+            if value is None or not np.isfinite(value):
+                continue
+            rows.append({k: record[k] for k in keys} | {"norm": norm, "value": float(value)})
+    return pd.DataFrame(rows, columns=keys + ["norm", "value"])
+
+
+def norm_summary(long: pd.DataFrame, by: list[str]) -> pd.DataFrame:
+    """Mean, seed spread and pooled count of the norm values per ``by + [learner, norm]``.
+
+    Columns: ``by``, learner, norm, mean, std, n (pooled rows), rank (the norm's position in its
+    chain, highest force first, for plotting in chain order).
+    """
+    keys = list(by) + ["learner", "norm"]
+    rows = []
+    for key, part in long.groupby(keys, dropna=False):
+        rows.append(dict(zip(keys, key)) | {
+            "mean": float(part["value"].mean()),
+            "std": seed_spread(part["value"], part["seed"]),
+            "n": len(part),
+        })
+    frame = pd.DataFrame(rows, columns=keys + ["mean", "std", "n"])
+    order = {chain: chain_norm_order(chain) for chain in frame["chain"].unique()}
+    frame["rank"] = [order[c].index(n) if n in order[c] else len(order[c]) for c, n in zip(frame["chain"], frame["norm"])]
+    return frame.sort_values(list(by) + ["rank", "norm"]).reset_index(drop=True)
+
+
+# ---------------------------------------------------------------------------------------- per variant
+def variant_frame(runs: pd.DataFrame) -> pd.DataFrame:
+    """Metric per (protocol, preset, chain, scenario, variant, learner): mean and std over seeds.
+
+    Also lists the run ids (ordered by seed) so that pages can link every number to its runs.
+    """
+    keys = ["protocol", "preset", "chain", "scenario", "variant", "learner"]
+    rows = []
+    ordered = runs.sort_values("seed", kind="stable")  # groups keep this order: run ids come out by seed
+    for key, part in ordered.groupby(keys, dropna=False, sort=False):
+        good = part.loc[part["ok"]]
+        rows.append(dict(zip(keys, key)) | {
+            "env_id": str(part["env_id"].dropna().iloc[0]) if part["env_id"].notna().any() else "",
+            "mean": float(good["metric"].mean()) if len(good) else math.nan,
+            "std": float(good["metric"].std(ddof=STD_DDOF)) if len(good) > STD_DDOF else math.nan,
+            "n_runs": len(good),
+            "n_failed": int(len(part) - len(good)),
+            "run_ids": list(part["run_id"]),
+            "seeds": [int(s) for s in part["seed"]],
+        })
+    return pd.DataFrame(rows, columns=keys + ["env_id", "mean", "std", "n_runs", "n_failed", "run_ids", "seeds"])
+
+
+# ---------------------------------------------------------------------------------------- reference rows
+def reference_mean(entry: Mapping[str, Any], field_name: str) -> float:
+    """Mean over the scenario's variants of one reference quantity (as Table 1 averages variants)."""
+    values = [v[field_name] for v in entry["variants"].values()]
+    return float(np.mean(values)) if values else math.nan
+
+
+def reference_requests(table: pd.DataFrame) -> list[tuple[str, str, float, int]]:
+    """The distinct (chain, scenario, beta, max_steps) the learner rows need references for."""
+    learners = table.loc[table["kind"] == "learner"]
+    found = {(c, s, float(b), int(m)) for c, s, b, m in zip(learners["chain"], learners["scenario"],
+                                                             learners["beta"], learners["max_steps"])}
+    order = {pair: i for i, pair in enumerate(row_order((c, s) for c, s, _, _ in found))}
+    return sorted(found, key=lambda r: (order[(r[0], r[1])], r[2], r[3]))
+
+
+def _compute_entry(chain: str, scenario: str, beta: float, max_steps: int) -> dict[str, Any]:
+    from morality_gym.envs.registry import parse_env_id, scenario_named
+    from morality_gym.evaluation.exact import exact_evaluate
+    from morality_gym.evaluation.oracle import oracle
+
+    variants: dict[str, dict[str, Any]] = {}
+    for env_id in scenario_named(scenario).env_ids:
+        exact = exact_evaluate("random", env_id, chain, max_steps=max_steps, beta=beta)
+        extremes = oracle(env_id, chain, beta=beta, max_steps=max_steps)
+        variants[parse_env_id(env_id)[1]] = {
+            "env_id": env_id,
+            "random_exact": float(exact.metric),
+            "random_functions": {k: float(v) for k, v in exact.functions.items()},
+            "oracle_best": float(extremes.best.metric),
+            "oracle_worst": float(extremes.worst.metric),
+            "oracle_best_actions": list(extremes.best.actions),
+            "oracle_worst_actions": list(extremes.worst.actions),
+        }
+    return {"chain": chain, "scenario": scenario, "beta": beta, "max_steps": max_steps,
+            "env_ids": scenario_named(scenario).env_ids, "variants": variants}
+
+
+def load_reference_cache(path: Path) -> dict[str, Any]:
+    """Entries of the reference cache; an unreadable or outdated cache counts as empty."""
+    try:
+        body = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    if not isinstance(body, dict) or body.get("version") != REFERENCE_CACHE_VERSION:
+        return {}
+    entries = body.get("entries")
+    return entries if isinstance(entries, dict) else {}
+
+
+def _write_json_atomic(path: Path, body: Any) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            json.dump(body, fh, indent=1, sort_keys=True)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+@dataclass
+class ReferenceResult:
+    """Reference entries by key, how many came from the cache, and the rows that could not be computed."""
+
+    entries: dict[str, dict[str, Any]] = field(default_factory=dict)
+    cached: int = 0
+    computed: int = 0
+    errors: dict[str, str] = field(default_factory=dict)
+
+
+def compute_reference(
+    requests: list[tuple[str, str, float, int]],
+    cache_path: Path,
+    progress: Callable[[Iterable[Any], str, int], Iterable[Any]] | None = None,
+) -> ReferenceResult:
+    """Exact Random and oracle best/worst of each requested row, per variant, cached on disk.
+
+    The oracle needs ~10 s for all of Table 1, too slow to repeat on every build, and its result
+    depends only on (chain, scenario, beta, max_steps) and the scenario's variants, which is what
+    an entry is keyed and checked by. A row that cannot be computed (an unknown chain, say) is
+    reported in ``errors`` instead of failing the whole build.
+    """
+    from morality_gym.envs.registry import scenario_named
+
+    cache = load_reference_cache(cache_path)
+    result = ReferenceResult()
+    todo = []
+    for chain, scenario, beta, steps in requests:
+        key = reference_key(chain, scenario, beta, steps)
+        entry = cache.get(key)
+        try:
+            env_ids = scenario_named(scenario).env_ids
+        except KeyError as exc:
+            result.errors[key] = str(exc)
+            continue
+        if entry is not None and entry.get("env_ids") == env_ids:
+            result.entries[key] = entry
+            result.cached += 1
+        else:
+            todo.append((key, chain, scenario, beta, steps))
+    iterator: Iterable[Any] = progress(todo, "reference rows (exact Random, oracle)", len(todo)) if progress and todo else todo
+    for key, chain, scenario, beta, steps in iterator:
+        try:
+            result.entries[key] = _compute_entry(chain, scenario, beta, steps)
+            result.computed += 1
+        except Exception as exc:  # noqa: BLE001 - reported per row, the build goes on
+            result.errors[key] = f"{type(exc).__name__}: {exc}"
+    if result.computed:
+        _write_json_atomic(cache_path, {"version": REFERENCE_CACHE_VERSION, "entries": cache | result.entries})
+    return result
+
+
+# ---------------------------------------------------------------------------------------- everything
+@dataclass
+class Leaderboard:
+    """Everything the tables, figures and site are written from."""
+
+    runs: pd.DataFrame
+    planned: dict[str, dict[str, Any]]
+    table: pd.DataFrame
+    problems: pd.DataFrame
+    missing: pd.DataFrame
+    norms_by_chain: pd.DataFrame
+    norms_by_scenario: pd.DataFrame
+    variants: pd.DataFrame
+    groups: list[Group]
+    primary: Group | None
+    reference: dict[str, dict[str, Any]] = field(default_factory=dict)
+    reference_errors: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def learners(self) -> list[str]:
+        return learner_order(self.table.loc[self.table["kind"] == "learner", "learner"])
+
+    def group_table(self, group: Group) -> pd.DataFrame:
+        t = self.table
+        return t.loc[(t["protocol"] == group.protocol) & (t["preset"] == group.preset)].reset_index(drop=True)
+
+    def pairs(self, group: Group | None = None) -> list[tuple[str, str]]:
+        t = self.table if group is None else self.group_table(group)
+        return row_order(zip(t["chain"], t["scenario"]))
+
+    def reference_entry(self, chain: str, scenario: str, group: Group) -> dict[str, Any] | None:
+        rows = self.group_table(group)
+        rows = rows.loc[(rows["chain"] == chain) & (rows["scenario"] == scenario)]
+        if rows.empty:
+            return None
+        return self.reference.get(reference_key(chain, scenario, rows["beta"].iloc[0], rows["max_steps"].iloc[0]))
+
+    @property
+    def n_ok(self) -> int:
+        return int(self.runs["ok"].sum())
+
+
+def with_reference(lb: Leaderboard, reference: Mapping[str, Mapping[str, Any]], errors: Mapping[str, str],
+                   primary_protocol: str | None = None, primary_preset: str | None = None) -> Leaderboard:
+    """The leaderboard with reference rows added to its table (only the table depends on them)."""
+    table = table1_frame(lb.runs, lb.planned, reference)
+    return replace(lb, table=table, reference=dict(reference), reference_errors=dict(errors),
+                   primary=choose_primary(table, lb.groups, primary_protocol, primary_preset))
+
+
+def aggregate(
+    runs: pd.DataFrame,
+    planned: Mapping[str, Mapping[str, Any]],
+    reference: Mapping[str, Mapping[str, Any]] | None = None,
+    primary_protocol: str | None = None,
+    primary_preset: str | None = None,
+) -> Leaderboard:
+    """Aggregate runs (+ planned runs, + optional reference entries) into a :class:`Leaderboard`."""
+    prepared = prepare_runs(runs)
+    planned = {k: dict(v) for k, v in planned.items()}
+    table = table1_frame(prepared, planned, reference)
+    groups = groups_of(prepared, planned)
+    long = norm_long(prepared)
+    return Leaderboard(
+        runs=prepared,
+        planned=planned,
+        table=table,
+        problems=problem_runs(prepared),
+        missing=missing_runs(prepared, planned),
+        norms_by_chain=norm_summary(long, ["protocol", "preset", "chain"]),
+        norms_by_scenario=norm_summary(long, ["protocol", "preset", "chain", "scenario"]),
+        variants=variant_frame(prepared),
+        groups=groups,
+        primary=choose_primary(table, groups, primary_protocol, primary_preset),
+        reference=dict(reference or {}),
+    )

@@ -1,0 +1,308 @@
+"""Table 1 as files: CSV for programs, Markdown for people, LaTeX for the paper.
+
+* ``table1.csv``: the primary group, exactly :data:`~leaderboard.aggregate.CSV_COLUMNS`, learner
+  rows then the reference rows of each (chain, scenario);
+* ``table1_all.csv``: every group, with protocol, preset and the bookkeeping columns;
+* ``table1.md``: one table per group (one row per (chain, scenario), one column per learner with
+  mean ± std, the paper's value and the difference, best in bold, then the exact Random and
+  oracle columns), and the missing and failed runs, so an incomplete sweep can never pass for a
+  complete one;
+* ``table1.tex``: a booktabs tabular laid out like the paper's (primary group);
+* ``table1_protocols.md``: ``paper`` vs ``corrected`` protocol side by side, when both exist.
+"""
+
+from __future__ import annotations
+
+import math
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from leaderboard.aggregate import (
+    CSV_COLUMNS,
+    ORACLE_BEST,
+    ORACLE_WORST,
+    RANDOM_EXACT,
+    REFERENCE_LEARNERS,
+    STD_DDOF,
+    Group,
+    Leaderboard,
+    csv_rows,
+)
+
+#: The paper's abbreviations in Table 1 (its caption); other names are written in full.
+SCENARIO_ABBREVIATIONS = {
+    "Push2OrSwitch": "P2OS",
+    "PushOrSwitch": "POS",
+    "PushStandard": "PStd",
+    "Push3SelfSacrifice": "P3SS",
+    "PushOrSwitchSelfSacrifice": "POSS",
+    "PushSelfSacrifice": "PSS",
+    "Switch2Trolley4Track": "S2T4",
+    "SwitchStandard": "SStd",
+    "SwitchSelfSacrifice": "SSS",
+}
+CHAIN_LABELS_TEX = {"DualProcessAgentHarm": "DPAH", "UtilityAgentHarm": "UAH"}
+DASH = "—"
+
+
+# ---------------------------------------------------------------------------------------- formatting
+def fmt(value: Any, digits: int = 3, signed: bool = False) -> str:
+    """A number with fixed decimals; missing values as a dash (never "nan" in a table)."""
+    if value is None or value is pd.NA:
+        return DASH
+    value = float(value)
+    if math.isnan(value):
+        return DASH
+    return f"{value:+.{digits}f}" if signed else f"{value:.{digits}f}"
+
+
+def md_escape(text: Any) -> str:
+    """Text safe inside a Markdown table cell: no pipes, no line breaks, no stray HTML."""
+    out = str(text).replace("\\", "\\\\").replace("|", "\\|").replace("\r", " ").replace("\n", " ")
+    return out.replace("<", "&lt;").replace(">", "&gt;")
+
+
+def tex_escape(text: Any) -> str:
+    """Text safe in LaTeX (the characters with a special meaning)."""
+    table = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
+             "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}"}
+    return "".join(table.get(ch, ch) for ch in str(text))
+
+
+def _md_table(header: list[str], rows: list[list[str]], align: list[str] | None = None) -> list[str]:
+    align = align or ["---"] * len(header)
+    lines = ["| " + " | ".join(header) + " |", "| " + " | ".join(align) + " |"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return lines
+
+
+def _cell(table: pd.DataFrame, chain: str, scenario: str, learner: str) -> dict[str, Any] | None:
+    part = table.loc[(table["chain"] == chain) & (table["scenario"] == scenario) & (table["learner"] == learner)]
+    return None if part.empty else part.iloc[0].to_dict()
+
+
+def _count_note(cell: dict[str, Any]) -> str:
+    """``n/N runs`` when the cell is incomplete (a mean over fewer runs than planned)."""
+    n, planned = int(cell["n_runs"]), int(cell["n_planned"])
+    if n >= planned:
+        return ""
+    failed = int(cell["n_failed"])
+    extra = f", {failed} failed" if failed else ""
+    return f"<br>⚠ {n}/{planned} runs{extra}"
+
+
+# ---------------------------------------------------------------------------------------- markdown
+def learner_cell_md(cell: dict[str, Any] | None) -> str:
+    """``**mean ± std**<br>paper x · Δ d`` (bold when best), or a dash for an empty cell."""
+    if cell is None:
+        return DASH
+    if math.isnan(float(cell["mean"])):
+        ours = f"no result ({int(cell['n_runs'])}/{int(cell['n_planned'])} runs)"
+    else:
+        ours = f"{fmt(cell['mean'])} ± {fmt(cell['std'])}"
+        if cell["best"]:
+            ours = f"**{ours}**"
+        ours += _count_note(cell)
+    if not math.isnan(float(cell["paper"])):
+        ours += f"<br>paper {fmt(cell['paper'])} · Δ {fmt(cell['delta'], signed=True)}"
+    return ours
+
+
+def group_markdown(lb: Leaderboard, group: Group) -> list[str]:
+    """The Table 1 of one group as Markdown lines."""
+    table = lb.group_table(group)
+    learners = [name for name in lb.learners if name in set(table["learner"])]
+    references = [name for name in REFERENCE_LEARNERS if name in set(table["learner"])]
+    header = ["Chain", "Scenario", *learners, *references]
+    rows = []
+    for chain, scenario in lb.pairs(group):
+        row = [md_escape(chain), md_escape(scenario)]
+        row += [learner_cell_md(_cell(table, chain, scenario, name)) for name in learners]
+        for name in references:
+            cell = _cell(table, chain, scenario, name)
+            row.append(fmt(cell["mean"]) if cell else DASH)
+        rows.append(row)
+    return _md_table(header, rows, ["---", "---"] + ["---:"] * (len(header) - 2))
+
+
+def problems_markdown(lb: Leaderboard) -> list[str]:
+    """The section listing failed and missing runs (every one of them, with its error)."""
+    lines = ["## Missing and failed runs", ""]
+    n_failed, n_missing = len(lb.problems), len(lb.missing)
+    if not n_failed and not n_missing:
+        return lines + ["None: every planned run has a result.", ""]
+    lines += [(f"{n_failed} run(s) failed and {n_missing} planned run(s) have no result. "
+              "Table cells marked ⚠ average fewer runs than planned."), ""]
+    if n_failed:
+        lines += [f"### Failed runs ({n_failed})", ""]
+        rows = [[f"`{md_escape(r['run_id'])}`", md_escape(r["protocol"]), md_escape(r["preset"]), md_escape(r["chain"]),
+                 md_escape(r["scenario"]), md_escape(r["variant"]), md_escape(r["learner"]), _seed(r["seed"]),
+                 md_escape(r["status"]), md_escape(r["error"])] for r in lb.problems.to_dict("records")]
+        lines += _md_table(["Run", "Protocol", "Preset", "Chain", "Scenario", "Variant", "Learner", "Seed", "Status", "Error"], rows)
+        lines.append("")
+    if n_missing:
+        lines += [f"### Missing runs ({n_missing})", "", "Planned in a sweep manifest, but no result file exists.", ""]
+        rows = [[f"`{md_escape(r['run_id'])}`", md_escape(r["protocol"]), md_escape(r["preset"]), md_escape(r["chain"]),
+                 md_escape(r["scenario"]), md_escape(r["variant"]), md_escape(r["learner"]), _seed(r["seed"])]
+                for r in lb.missing.to_dict("records")]
+        lines += _md_table(["Run", "Protocol", "Preset", "Chain", "Scenario", "Variant", "Learner", "Seed"], rows)
+        lines.append("")
+    return lines
+
+
+def _seed(value: Any) -> str:
+    try:
+        return str(int(value))
+    except (TypeError, ValueError):
+        return DASH
+
+
+def explanation_lines() -> list[str]:
+    """How the numbers were made, next to the numbers (so the table can be read on its own)."""
+    return [
+        ("Each learner cell: mean of the final evaluation's morality metric over all variants and seeds of the "
+        f"scenario ± standard deviation over seeds of the per-seed means (ddof={STD_DDOF}); **bold** = best learner "
+        "of the row; then the paper's value and Δ = ours − paper."),
+        (f"{RANDOM_EXACT}: exact expected metric of the uniform random policy, mean over variants (compare with the "
+        f"paper's Random). {ORACLE_BEST} / {ORACLE_WORST}: the highest / lowest metric any policy can reach, mean over "
+        "variants."),
+    ]
+
+
+def table1_markdown(lb: Leaderboard, results_name: str) -> str:
+    """The whole ``table1.md``: the primary group first, every other group, then the problems."""
+    stamp = datetime.now(UTC).isoformat(timespec="seconds")
+    lines = ["# Table 1: average normalised morality metric by morality chain and scenario", "",
+             (f"Results: `{md_escape(results_name)}` · {lb.n_ok} runs with a result · {len(lb.problems)} failed · "
+             f"{len(lb.missing)} missing · built {stamp}"), ""]
+    lines += [*explanation_lines(), ""]
+    ordered = ([lb.primary] if lb.primary else []) + [g for g in lb.groups if g != lb.primary]
+    for group in ordered:
+        suffix = " (primary: table1.csv, table1.tex)" if group == lb.primary else ""
+        lines += [f"## Protocol `{md_escape(group.protocol)}`, preset `{md_escape(group.preset)}`{suffix}", ""]
+        lines += group_markdown(lb, group) + [""]
+    if lb.reference_errors:
+        lines += ["Reference rows that could not be computed:", ""]
+        lines += [f"- `{md_escape(k)}`: {md_escape(v)}" for k, v in lb.reference_errors.items()] + [""]
+    lines += problems_markdown(lb)
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def protocols_markdown(lb: Leaderboard) -> str | None:
+    """``paper`` vs ``corrected`` protocol, per preset present in both; None when there is no pair."""
+    protocols = {g.preset: set() for g in lb.groups}
+    for g in lb.groups:
+        protocols[g.preset].add(g.protocol)
+    presets = [p for p, found in protocols.items() if {"paper", "corrected"} <= found]
+    if not presets:
+        return None
+    lines = ["# Table 1 under the paper's protocol and the corrected protocol", "",
+             ("Same aggregation for both (mean over variants and seeds ± std over seeds of the per-seed means). "
+             "Δ = corrected − paper protocol; the published value is the paper's Table 1."), ""]
+    for preset in presets:
+        paper = lb.group_table(Group("paper", preset))
+        corrected = lb.group_table(Group("corrected", preset))
+        lines += [f"## Preset `{md_escape(preset)}`", ""]
+        rows = []
+        both = set(zip(paper["chain"], paper["scenario"])) & set(zip(corrected["chain"], corrected["scenario"]))
+        pairs = [p for p in lb.pairs() if p in both]  # a row run under one protocol only has nothing to compare
+        for chain, scenario in pairs:
+            for learner in [*lb.learners, *REFERENCE_LEARNERS]:
+                a = _cell(paper, chain, scenario, learner)
+                b = _cell(corrected, chain, scenario, learner)
+                if a is None and b is None:
+                    continue
+                published = (a or b)["paper"]
+                diff = (b["mean"] - a["mean"]) if a is not None and b is not None else math.nan
+                rows.append([md_escape(chain), md_escape(scenario), md_escape(learner), _mean_std(a), _mean_std(b),
+                             fmt(diff, signed=True), fmt(published)])
+        lines += _md_table(["Chain", "Scenario", "Learner", "paper protocol", "corrected protocol", "Δ", "published"], rows,
+                           ["---", "---", "---", "---:", "---:", "---:", "---:"])
+        lines.append("")
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def _mean_std(cell: dict[str, Any] | None) -> str:
+    if cell is None or math.isnan(float(cell["mean"])):
+        return DASH
+    if cell["kind"] == "reference":
+        return fmt(cell["mean"])
+    return f"{fmt(cell['mean'])} ± {fmt(cell['std'])} (n={int(cell['n_runs'])})"
+
+
+# ---------------------------------------------------------------------------------------- latex
+def table1_latex(lb: Leaderboard, group: Group) -> str:
+    """A booktabs tabular in the paper's layout (chain once per block, a rule between chains)."""
+    table = lb.group_table(group)
+    learners = [name for name in lb.learners if name in set(table["learner"])]
+    references = [name for name in REFERENCE_LEARNERS if name in set(table["learner"])]
+    columns = learners + references
+    lines = [
+        f"% Table 1 ({tex_escape(group.label)}), generated by leaderboard.tables; needs \\usepackage{{booktabs}}.",
+        f"% Mean over variants and seeds; \\scriptsize: std over seeds of the per-seed means (ddof={STD_DDOF}).",
+        "\\begin{tabular}{@{} ll " + "r" * len(learners) + ("|" + "r" * len(references) if references else "") + " @{}}",
+        "\\toprule",
+        f" & & \\multicolumn{{{len(learners)}}}{{c}}{{Learner}}"
+        + (f" & \\multicolumn{{{len(references)}}}{{c}}{{Reference}}" if references else "") + " \\\\",
+        f"\\cmidrule(l){{3-{2 + len(learners)}}}"
+        + (f"\\cmidrule(l){{{3 + len(learners)}-{2 + len(columns)}}}" if references else ""),
+        "MC & Scenario & " + " & ".join(tex_escape(c) for c in columns) + " \\\\",
+        "\\midrule",
+    ]
+    previous = None
+    for chain, scenario in lb.pairs(group):
+        if previous is not None and chain != previous:
+            lines.append("\\midrule")
+        label = tex_escape(CHAIN_LABELS_TEX.get(chain, chain)) if chain != previous else ""
+        previous = chain
+        cells = []
+        for name in columns:
+            cell = _cell(table, chain, scenario, name)
+            if cell is None or math.isnan(float(cell["mean"])):
+                cells.append("--")
+                continue
+            text = fmt(cell["mean"])
+            if cell["best"]:
+                text = f"\\textbf{{{text}}}"
+            if cell["kind"] == "learner" and not math.isnan(float(cell["std"])):
+                text += f"\\,{{\\scriptsize$\\pm${fmt(cell['std'])}}}"
+            cells.append(text)
+        scen = tex_escape(SCENARIO_ABBREVIATIONS.get(scenario, scenario))
+        lines.append(f"{label} & {scen} & " + " & ".join(cells) + " \\\\")
+    lines += ["\\bottomrule", "\\end{tabular}"]
+    used = sorted({s for _, s in lb.pairs(group) if s in SCENARIO_ABBREVIATIONS})
+    if used:
+        lines.append("% Abbreviations: " + ", ".join(f"{SCENARIO_ABBREVIATIONS[s]} ({s})" for s in used) + ".")
+    return "\n".join(lines) + "\n"
+
+
+# ---------------------------------------------------------------------------------------- files
+def write_tables(lb: Leaderboard, out_dir: Path, results_name: str | None = None) -> list[Path]:
+    """Write every table file into ``out_dir`` (the results directory); returns the paths written."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    if lb.primary is not None:
+        path = out_dir / "table1.csv"
+        csv_rows(lb.table, lb.primary).to_csv(path, index=False, columns=CSV_COLUMNS, float_format="%.6f")
+        written.append(path)
+    path = out_dir / "table1_all.csv"
+    lb.table.to_csv(path, index=False, float_format="%.6f")
+    written.append(path)
+    path = out_dir / "table1.md"
+    path.write_text(table1_markdown(lb, results_name or out_dir.name), encoding="utf-8")
+    written.append(path)
+    if lb.primary is not None:
+        path = out_dir / "table1.tex"
+        path.write_text(table1_latex(lb, lb.primary), encoding="utf-8")
+        written.append(path)
+    comparison = protocols_markdown(lb)
+    path = out_dir / "table1_protocols.md"
+    if comparison is not None:
+        path.write_text(comparison, encoding="utf-8")
+        written.append(path)
+    else:
+        path.unlink(missing_ok=True)  # a stale comparison from an earlier build would mislead
+    return written

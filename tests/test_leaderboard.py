@@ -1,0 +1,350 @@
+"""The leaderboard: Table 1 numbers, the report of missing and failed runs, the files and the site.
+
+Expected numbers are computed here with plain Python from the rows the synthetic generator wrote
+(never with the leaderboard's own pandas code), and on a tiny frame whose means are worked out
+by hand. The build is run once per module as a user runs it (``python -m leaderboard.build``).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+import statistics
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import pytest
+from PIL import Image
+
+from leaderboard.aggregate import CSV_COLUMNS, aggregate, compute_reference, reference_requests
+from morality_gym.paper import table1
+from runners.manifest import planned_runs, write_manifest
+from runners.schema import read_runs
+from tests.leaderboard_data import BOTH_PROTOCOLS, LEARNERS, ROWS, BuiltSite, run_build, shared_build, snapshot
+
+PAPER = {(r.chain, r.scenario): r.paper for r in table1()}
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory: pytest.TempPathFactory) -> BuiltSite:
+    out = shared_build(tmp_path_factory.getbasetemp() / "leaderboard-shared")
+    assert out.proc.returncode == 0, out.proc.stderr + out.proc.stdout
+    return out
+
+
+def _expected_cells(records: list[dict[str, Any]]) -> dict[tuple[str, ...], tuple[float, float, int]]:
+    """(mean over all runs, stdev over seeds of per-seed means, n) per (protocol, preset, chain, scenario, learner)."""
+    cells: dict[tuple[str, ...], list[tuple[int, float]]] = defaultdict(list)
+    for r in records:
+        if r["status"] == "ok":
+            cells[(r["protocol"], r["preset"], r["chain"], r["scenario"], r["learner"])].append((r["seed"], r["metric"]))
+    out = {}
+    for key, values in cells.items():
+        per_seed: dict[int, list[float]] = defaultdict(list)
+        for seed, metric in values:
+            per_seed[seed].append(metric)
+        seed_means = [sum(v) / len(v) for v in per_seed.values()]
+        out[key] = (sum(m for _, m in values) / len(values), statistics.stdev(seed_means), len(values))
+    return out
+
+
+def _csv(path: Path) -> list[dict[str, str]]:
+    with path.open(newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+# ---------------------------------------------------------------------------------------- numbers
+def test_tiny_frame_worked_out_by_hand() -> None:
+    """Two variants x two seeds: mean 0.55, per-seed means 0.3 and 0.8, so std = 0.5 / sqrt(2)."""
+    base = {"status": "ok", "error": None, "chain": "Utility", "scenario": "SwitchStandard", "protocol": "paper",
+            "preset": "quick", "beta": 0.1, "max_steps": 200}
+    rows = []
+    for i, (learner, variant, seed, metric, mhh, relevant) in enumerate([
+        ("PPO", "HumanA", 41, 0.2, 0.1, ["n_human_harm"]),
+        ("PPO", "HumanB", 41, 0.4, 0.0, ["n_animal_harm"]),  # MHH not relevant here: excluded from the bar
+        ("PPO", "HumanA", 42, 0.6, 0.5, ["n_human_harm"]),
+        ("PPO", "HumanB", 42, 1.0, 0.9, ["n_human_harm"]),
+        ("CPO", "HumanA", 41, 0.5, 0.5, ["n_human_harm"]),
+        ("CPO", "HumanB", 41, 0.7, 0.5, ["n_human_harm"]),
+    ]):
+        rows.append(base | {"run_id": f"r{i}", "learner": learner, "variant": variant, "seed": seed, "metric": metric,
+                            "env_id": f"SwitchStandard-{variant}-v1", "relevant_norms": relevant,
+                            "mf_n_human_harm": mhh, "gif_path": None, "config": "{}", "traceback": None})
+    planned = {"r9": {"run_id": "r9", "env_id": "SwitchStandard-HumanA-v1", "scenario": "SwitchStandard",
+                      "variant": "HumanA", "chain": "Utility", "algo": "cpo", "learner": "CPO", "protocol": "paper",
+                      "preset": "quick", "seed": 42}}
+    lb = aggregate(pd.DataFrame(rows), planned)
+    table = lb.table.set_index("learner")
+    assert table.loc["PPO", "mean"] == pytest.approx(0.55)
+    assert table.loc["PPO", "std"] == pytest.approx(0.5 / math.sqrt(2))
+    assert table.loc["PPO", "n_runs"] == 4
+    assert table.loc["PPO", "paper"] == pytest.approx(0.037)
+    assert table.loc["PPO", "delta"] == pytest.approx(0.55 - 0.037)
+    assert table.loc["CPO", "mean"] == pytest.approx(0.6)
+    assert math.isnan(table.loc["CPO", "std"])  # one seed: no spread, not zero
+    assert (table.loc["CPO", "n_runs"], table.loc["CPO", "n_planned"], table.loc["CPO", "n_missing"]) == (2, 3, 1)
+    assert bool(table.loc["CPO", "best"]) and not bool(table.loc["PPO", "best"])
+    assert list(lb.missing["run_id"]) == ["r9"]
+    norms = lb.norms_by_chain.set_index(["learner", "norm"])
+    # MHH of PPO pools runs r0, r2, r3 only (r1 has it irrelevant): mean 0.5; per-seed 0.1 and 0.7
+    assert norms.loc[("PPO", "n_human_harm"), "mean"] == pytest.approx(0.5)
+    assert norms.loc[("PPO", "n_human_harm"), "n"] == 3
+    assert norms.loc[("PPO", "n_human_harm"), "std"] == pytest.approx(statistics.stdev([0.1, 0.7]))
+    assert ("PPO", "n_animal_harm") not in norms.index  # relevant in r1, but the frame has no mf_n_animal_harm
+
+
+def test_csv_has_exactly_the_contract_columns(built: BuiltSite) -> None:
+    with (built.results / "table1.csv").open() as fh:
+        assert next(csv.reader(fh)) == CSV_COLUMNS == ["chain", "scenario", "learner", "mean", "std", "n_runs", "paper", "delta"]
+
+
+def test_table1_means_and_spreads_match_hand_computation(built: BuiltSite) -> None:
+    expected = _expected_cells(built.data.records)
+    rows = [r for r in _csv(built.results / "table1.csv") if r["learner"] in LEARNERS]
+    assert len(rows) == len(ROWS) * len(LEARNERS)
+    for r in rows:
+        mean, std, n = expected[("paper", "quick", r["chain"], r["scenario"], r["learner"])]
+        assert float(r["mean"]) == pytest.approx(mean, abs=2e-6), r
+        assert float(r["std"]) == pytest.approx(std, abs=2e-6), r
+        assert int(r["n_runs"]) == n, r
+    # the corrected protocol lives in table1_all.csv, with its own numbers
+    everything = _csv(built.results / "table1_all.csv")
+    corrected = [r for r in everything if r["protocol"] == "corrected" and r["kind"] == "learner"]
+    assert {(r["chain"], r["scenario"]) for r in corrected} == {BOTH_PROTOCOLS}
+    for r in corrected:
+        mean, std, _ = expected[("corrected", "quick", r["chain"], r["scenario"], r["learner"])]
+        assert float(r["mean"]) == pytest.approx(mean, abs=2e-6)
+        assert float(r["std"]) == pytest.approx(std, abs=2e-6)
+
+
+def test_incomplete_cells_count_only_their_results(built: BuiltSite) -> None:
+    counts = {r["learner"]: int(r["n_runs"]) for r in _csv(built.results / "table1.csv")
+              if r["scenario"] == "Switch5" and r["learner"] in LEARNERS}
+    assert counts == {"CPO": 20, "PPO": 21, "PPO Lag": 20, "PPO Shaped": 21, "Random": 21}  # 1 missing, 1 failed
+
+
+def test_paper_and_delta_columns(built: BuiltSite) -> None:
+    for r in _csv(built.results / "table1.csv"):
+        published = PAPER[(r["chain"], r["scenario"])]
+        if r["learner"] in LEARNERS:
+            assert float(r["paper"]) == pytest.approx(published[r["learner"]])
+        elif r["learner"] == "Random (exact)":
+            assert float(r["paper"]) == pytest.approx(published["Random"])
+        else:
+            assert r["paper"] == "" and r["delta"] == ""
+            continue
+        assert float(r["delta"]) == pytest.approx(float(r["mean"]) - float(r["paper"]), abs=3e-6)
+
+
+def test_reference_rows_are_exact_and_cached(built: BuiltSite) -> None:
+    from morality_gym.envs.registry import list_envs
+    from morality_gym.evaluation.exact import exact_evaluate
+    from morality_gym.evaluation.oracle import oracle
+
+    rows = {r["learner"]: r for r in _csv(built.results / "table1.csv") if r["scenario"] == "SwitchSelfSacrifice"}
+    ids = list_envs("SwitchSelfSacrifice")
+    random_exact = sum(exact_evaluate("random", e, "UtilityAgentHarm", max_steps=200, beta=0.1).metric for e in ids) / len(ids)
+    extremes = [oracle(e, "UtilityAgentHarm", beta=0.1, max_steps=200) for e in ids]
+    best = sum(o.best.metric for o in extremes) / len(ids)
+    worst = sum(o.worst.metric for o in extremes) / len(ids)
+    assert float(rows["Random (exact)"]["mean"]) == pytest.approx(random_exact, abs=2e-6)
+    assert float(rows["Oracle best"]["mean"]) == pytest.approx(best, abs=2e-6)
+    assert float(rows["Oracle worst"]["mean"]) == pytest.approx(worst, abs=2e-6)
+    assert rows["Random (exact)"]["n_runs"] == ""  # computed, not run
+    cache = built.results / "cache" / "reference_rows.json"
+    assert cache.is_file()
+    lb = aggregate(read_runs(built.results), planned_runs(built.results))
+    again = compute_reference(reference_requests(lb.table), cache)
+    assert (again.computed, again.cached, again.errors) == (0, len(ROWS), {})
+    assert "reference rows: 3 computed, 0 from cache" in built.proc.stdout
+
+
+def test_per_norm_figure_data_pools_only_relevant_runs(built: BuiltSite) -> None:
+    lb = aggregate(read_runs(built.results), planned_runs(built.results))
+    data = lb.norms_by_chain.set_index(["protocol", "preset", "chain", "learner", "norm"])
+    for chain, norm, learner in [("Utility", "n_animal_harm", "CPO"), ("DualProcessAgentHarm", "personal_action_caused_human_harm", "PPO"),
+                                 ("UtilityAgentHarm", "agent_harm", "PPO Shaped")]:
+        values = [(r["seed"], r[f"mf_{norm}"]) for r in built.data.ok_records
+                  if r["protocol"] == "paper" and r["chain"] == chain and r["learner"] == learner and norm in r["relevant_norms"]]
+        everywhere = [r for r in built.data.ok_records if r["protocol"] == "paper" and r["chain"] == chain and r["learner"] == learner]
+        assert 0 < len(values) <= len(everywhere)
+        per_seed: dict[int, list[float]] = defaultdict(list)
+        for seed, v in values:
+            per_seed[seed].append(v)
+        row = data.loc[("paper", "quick", chain, learner, norm)]
+        assert row["n"] == len(values)
+        assert row["mean"] == pytest.approx(sum(v for _, v in values) / len(values))
+        assert row["std"] == pytest.approx(statistics.stdev([sum(v) / len(v) for v in per_seed.values()]))
+    # norms are in chain order (highest force first) for the x axis of Figure 2
+    order = list(lb.norms_by_chain.query("protocol == 'paper' and chain == 'DualProcessAgentHarm' and learner == 'CPO'")["norm"])
+    from morality_gym.norms.chain import get_chain
+
+    assert order == [n for n in get_chain("DualProcessAgentHarm").norm_names if n in order]
+
+
+# ---------------------------------------------------------------------------------------- markdown and latex
+def _md_row(text: str, chain: str, scenario: str) -> list[str]:
+    for line in text.splitlines():
+        if line.startswith(f"| {chain} | {scenario} |"):
+            return [c.strip() for c in line.strip().strip("|").split(" | ")]
+    raise AssertionError(f"no row {chain} / {scenario}")
+
+
+def test_markdown_bolds_the_best_learner_and_shows_paper_and_delta(built: BuiltSite) -> None:
+    text = (built.results / "table1.md").read_text()
+    primary = text.split("## Protocol `corrected`")[0]  # the primary (paper protocol) table comes first
+    header = next(line for line in primary.splitlines() if line.startswith("| Chain |"))
+    columns = [c.strip() for c in header.strip().strip("|").split(" | ")]
+    expected = _expected_cells(built.data.records)
+    for chain, scenario in ROWS:
+        cells = dict(zip(columns, _md_row(primary, chain, scenario)))
+        means = {lr: expected[("paper", "quick", chain, scenario, lr)][0] for lr in LEARNERS}
+        best = max(means, key=means.get)
+        for learner in LEARNERS:
+            assert cells[learner].startswith("**") == (learner == best), (chain, scenario, learner, cells[learner])
+            assert f"{means[learner]:.3f}" in cells[learner]
+            paper = PAPER[(chain, scenario)][learner]
+            assert f"paper {paper:.3f}" in cells[learner]
+            assert f"Δ {means[learner] - paper:+.3f}" in cells[learner]
+        for column in ("Random (exact)", "Oracle best", "Oracle worst"):
+            assert re.fullmatch(r"\d\.\d{3}", cells[column]), cells[column]
+
+
+def test_markdown_reports_missing_and_failed_runs(built: BuiltSite) -> None:
+    text = (built.results / "table1.md").read_text()
+    section = text.split("## Missing and failed runs")[1]
+    assert built.data.failed_run_id in section and built.data.missing_run_id in section
+    assert "policy loss is NaN at &lt;step 4096&gt;" in section
+    assert "1 run(s) failed and 1 planned run(s) have no result" in section
+    assert "⚠ 20/21 runs, 1 failed" in text and "⚠ 20/21 runs<br>" in text
+
+
+def test_latex_is_booktabs_with_one_bold_per_row(built: BuiltSite) -> None:
+    tex = (built.results / "table1.tex").read_text()
+    assert "\\toprule" in tex and "\\midrule" in tex and "\\bottomrule" in tex
+    body = [line for line in tex.splitlines() if line.endswith("\\\\") and ("PSS" in line or "SSS" in line or "Switch5" in line)]
+    assert len(body) == len(ROWS)
+    for line in body:
+        assert line.count("\\textbf{") == 1
+        cells = [c.strip() for c in line.removesuffix("\\\\").split("&")]
+        assert cells[2 + list(LEARNERS).index("PPO Shaped")].startswith("\\textbf{")  # the profile's best learner
+
+
+def test_protocol_comparison(built: BuiltSite) -> None:
+    text = (built.results / "table1_protocols.md").read_text()
+    rows = [line for line in text.splitlines() if line.startswith("| DualProcessAgentHarm | PushSelfSacrifice |")]
+    assert len(rows) == len(LEARNERS) + 3
+    assert "Switch5" not in text  # run under one protocol only: nothing to compare
+    expected = _expected_cells(built.data.records)
+    cpo = next(line for line in rows if "| CPO |" in line)
+    a = expected[("paper", "quick", *BOTH_PROTOCOLS, "CPO")][0]
+    b = expected[("corrected", "quick", *BOTH_PROTOCOLS, "CPO")][0]
+    assert f"{a:.3f} ±" in cpo and f"{b:.3f} ±" in cpo and f"{b - a:+.3f}" in cpo
+
+
+# ---------------------------------------------------------------------------------------- figures and site
+def test_figures_are_written(built: BuiltSite) -> None:
+    figures = built.results / "figures"
+    expected = [f"paper-quick/fig2_{c}.png" for c, _ in ROWS] + [f"paper-quick/radar_{c}_{s}.png" for c, s in ROWS]
+    expected += [f"corrected-quick/fig2_{BOTH_PROTOCOLS[0]}.png"]
+    for name in expected:
+        with Image.open(figures / name) as image:
+            assert image.width > 300 and image.height > 200, name
+    assert sorted(p.stem for p in (figures / "learn").glob("*.png")) == sorted(built.data.learn_runs)
+
+
+def test_site_is_self_contained_with_relative_links(built: BuiltSite) -> None:
+    pages = sorted(built.site.rglob("*.html"))
+    assert len(pages) == 2 + len(ROWS) + len(built.data.records)
+    for page in pages:
+        text = page.read_text()
+        assert "http://" not in text and "https://" not in text, page
+        assert "fetch(" not in text
+        for target in re.findall(r'(?:src|href)="([^"]+)"', text):
+            if target.startswith(("#", "data:")):
+                continue
+            assert not target.startswith("/") and "://" not in target, (page, target)
+            resolved = (page.parent / target.split("#")[0]).resolve()
+            assert resolved.is_file() and built.site.resolve() in resolved.parents, (page, target)
+    for chain, scenario in ROWS:
+        assert (built.site / "scenarios" / f"{scenario}.html").is_file()
+    gifs = sorted(p.stem for p in (built.site / "gifs").glob("*.gif"))
+    assert len(gifs) == len(ROWS) * len(LEARNERS) + len(LEARNERS)  # one per learner per (sweep, chain, scenario)
+    assert set(gifs) <= set(built.data.gif_runs)
+
+
+def test_site_reports_missing_and_failed(built: BuiltSite) -> None:
+    index = (built.site / "index.html").read_text()
+    status = index.split('id="status"')[1].split("</section>")[0]
+    assert built.data.failed_run_id in status and built.data.missing_run_id in status
+    assert "policy loss is NaN at &lt;step 4096&gt; &amp; training diverged" in status
+    assert "<step 4096>" not in index  # escaped everywhere
+    failed_page = (built.site / "runs" / f"{built.data.failed_run_id}.html").read_text()
+    assert "Traceback (most recent call last)" in failed_page and "learner.learn(budget)" in failed_page
+    assert "&lt;step 4096&gt;" in failed_page
+    switch5 = (built.site / "scenarios" / "Switch5.html").read_text()
+    assert "s42?" in switch5 and "s43✗" in switch5
+
+
+def test_site_table_marks_best_and_links_scenarios(built: BuiltSite) -> None:
+    index = (built.site / "index.html").read_text()
+    rows = re.findall(r"<tr data-sweep=\"([^\"]+)\" data-chain=\"([^\"]+)\" data-scenario=\"([^\"]+)\" "
+                      r"data-learner=\"([^\"]+)\" data-best=\"(\d)\">(.*?)</tr>", index)
+    assert len(rows) == len(ROWS) * len(LEARNERS) + len(LEARNERS)
+    expected = _expected_cells(built.data.records)
+    for sweep, chain, scenario, learner, best, html in rows:
+        protocol, preset = sweep.split("-")
+        means = {lr: expected[(protocol, preset, chain, scenario, lr)][0] for lr in LEARNERS}
+        assert (best == "1") == (learner == max(means, key=means.get))
+        assert ("<strong>" in html) == (best == "1")
+        assert f'href="scenarios/{scenario}.html#{sweep}--{chain}"' in html
+
+
+def test_run_pages_show_config_curve_and_tracking(built: BuiltSite) -> None:
+    learn_run = built.data.learn_runs[0]
+    page = (built.site / "runs" / f"{learn_run}.html").read_text()
+    assert f'src="../runs/img/{learn_run}.png"' in page
+    assert built.data.tracked_runs[learn_run] in page
+    assert "&quot;n_steps&quot;: 2048" in page  # the config, pretty-printed and escaped
+    untracked = next(r["run_id"] for r in built.data.ok_records if r["seed"] == 42)
+    other = (built.site / "runs" / f"{untracked}.html").read_text()
+    assert "not synced" in other and "No learn-time evaluations" in other
+
+
+def test_build_leaves_results_runs_untouched(built: BuiltSite) -> None:
+    assert snapshot(built.results / "runs") == built.runs_before
+
+
+# ---------------------------------------------------------------------------------------- cli
+def test_cli_fails_without_results(tmp_path: Path) -> None:
+    proc = run_build(tmp_path / "nowhere", tmp_path / "site")
+    assert proc.returncode != 0 and "does not exist" in proc.stderr
+    (tmp_path / "empty").mkdir()
+    proc = run_build(tmp_path / "empty", tmp_path / "site")
+    assert proc.returncode != 0 and "no runs" in proc.stderr
+    assert not (tmp_path / "site").exists()
+
+
+def test_cli_with_only_planned_runs_succeeds_and_reports_them(tmp_path: Path) -> None:
+    planned = [{"run_id": "abc123", "env_id": "SwitchStandard-HumanA-v1", "scenario": "SwitchStandard", "variant": "HumanA",
+                "chain": "Utility", "algo": "ppo", "learner": "PPO", "protocol": "paper", "preset": "smoke", "seed": 41}]
+    write_manifest(tmp_path / "results", "smoke", planned, preset="smoke", protocol="paper")
+    proc = run_build(tmp_path / "results", tmp_path / "site", "--no-reference")
+    assert proc.returncode == 0, proc.stderr
+    assert "1 missing" in proc.stdout
+    assert "abc123" in (tmp_path / "results" / "table1.md").read_text()
+    assert "abc123" in (tmp_path / "site" / "index.html").read_text()
+
+
+def test_cli_refuses_to_replace_a_foreign_directory(tmp_path: Path, built: BuiltSite) -> None:
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("keep me")
+    tables = snapshot(built.results)
+    proc = run_build(built.results, foreign, "--no-reference")
+    assert proc.returncode != 0 and "refusing" in proc.stderr
+    assert (foreign / "notes.txt").read_text() == "keep me"
+    assert snapshot(built.results) == tables  # checked before anything is written
