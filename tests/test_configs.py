@@ -1,0 +1,103 @@
+"""The config files and the Python defaults say the same thing, and match the paper."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+import yaml
+
+from morality_gym.baselines.specs import DEFAULT_LEARNERS, PROTOCOLS
+from morality_gym.envs.registry import scenarios
+from morality_gym.norms.chain import chain_file_stem, get_chain
+from morality_gym.paper import table1
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+
+
+def _body(path: Path) -> dict:
+    return yaml.safe_load(path.read_text())
+
+
+@pytest.mark.parametrize("name", sorted(DEFAULT_LEARNERS))
+def test_algo_files_equal_the_paper_defaults(name: str) -> None:
+    body = _body(CONF / "algo" / f"{name}.yaml")
+    assert (CONF / "algo" / f"{name}.yaml").read_text().startswith(f"# @package algo.{name}\n")
+    body.pop("planning")
+    spec = DEFAULT_LEARNERS[name]
+    expected = dataclasses.asdict(spec)
+    expected["hparams"] = dict(spec.hparams)
+    for key in ("return_bounds", "net_arch"):
+        expected[key] = list(expected[key])
+        body[key] = list(body[key])
+    assert body == expected
+
+
+def test_paper_hyper_parameters() -> None:
+    """evaluation.md 6.3: what actually ran (not the paper's appendix tables)."""
+    ppo = DEFAULT_LEARNERS["ppo"]
+    assert (ppo.n_envs, ppo.hparams["n_steps"], ppo.hparams["batch_size"], ppo.hparams["n_epochs"]) == (8, 2048, 64, 10)
+    assert ppo.reward_cost(PROTOCOLS["paper"]).reward_factor == 300
+    shaped = DEFAULT_LEARNERS["ppo_shaped"]
+    assert (shaped.cost_mode, shaped.cost_scale, shaped.shape_reward, shaped.cost_reset) == ("full", 50.0, True, "per_episode")
+    lag, cpo = DEFAULT_LEARNERS["ppo_lag"], DEFAULT_LEARNERS["cpo"]
+    assert (lag.hparams["lagrange_init"], lag.hparams["lagrange_lr"], lag.hparams["n_epochs"], lag.hparams["target_kl"]) == (0.001, 0.035, 40, 0.02)
+    assert (cpo.hparams["cg_damping"], cpo.hparams["cg_max_steps"], cpo.hparams["target_kl"]) == (0.1, 15, 0.01)
+    for spec in (lag, cpo):
+        assert spec.hparams["n_steps"] * spec.n_envs == 2048 and spec.cost_mode == "minimal" and spec.cost_scale == 1.0
+        assert spec.reward_cost(PROTOCOLS["paper"]).cost_reset == "never"
+        assert spec.reward_cost(PROTOCOLS["corrected"]).cost_reset == "per_episode"
+
+
+def test_step_budgets_as_the_reference_ran_them() -> None:
+    from morality_gym.baselines.specs import training_steps
+
+    import math
+
+    for name, budget, expected in (("ppo", 1_000_000, 1_015_808), ("ppo", 500_000, 507_904),
+                                   ("ppo_lag", 1_000_000, 999_424), ("cpo", 500_000, 499_712)):
+        spec = DEFAULT_LEARNERS[name]
+        steps = training_steps(spec, budget)
+        rollout = spec.hparams["n_steps"] * spec.n_envs
+        # SB3 keeps collecting whole rollouts while num_timesteps < total_timesteps
+        assert math.ceil(steps / rollout) * rollout == expected
+
+
+@pytest.mark.parametrize("name", sorted(PROTOCOLS))
+def test_protocol_files_equal_the_defaults(name: str) -> None:
+    body = _body(CONF / "protocol" / f"{name}.yaml")
+    expected = dataclasses.asdict(PROTOCOLS[name])
+    expected["random_learn_eval_steps"] = list(expected["random_learn_eval_steps"])
+    assert body == expected
+
+
+def test_experiment_table1_is_the_papers_table() -> None:
+    body = _body(CONF / "experiment" / "table1.yaml")
+    pairs = [(get_chain(c).name, s) for c, s in body["experiment"]["pairs"]]
+    assert pairs == [(row.chain, row.scenario) for row in table1()]
+    assert "override /algo: [random, ppo, ppo_shaped, ppo_lag, cpo]" in (CONF / "experiment" / "table1.yaml").read_text()
+
+
+def test_scenario_and_chain_groups_cover_the_data() -> None:
+    files = {p.read_text().splitlines()[0].split("scenario.")[1] for p in (CONF / "scenario").glob("*.yaml")}
+    assert files == set(scenarios())
+    paper = {}
+    for row in table1():
+        paper.setdefault(row.scenario, set()).add(chain_file_stem(get_chain(row.chain)))
+    for path in (CONF / "scenario").glob("*.yaml"):
+        name = path.read_text().splitlines()[0].split("scenario.")[1]
+        assert set(_body(path)["chains"]) == paper[name], name
+    for path in (CONF / "chain").glob("*.yaml"):
+        assert path.read_text().startswith(f"# @package chain.{path.stem}\n")
+        assert chain_file_stem(get_chain(_body(path)["ref"])) == path.stem
+
+
+def test_generated_env_docs_are_current(tmp_path: Path) -> None:
+    """docs/envs is generated from the env classes (python -m morality_gym docs); keep it in sync."""
+    from morality_gym.__main__ import main
+
+    assert main(["docs", "--output", str(tmp_path)]) == 0
+    committed = Path(__file__).resolve().parents[1] / "docs" / "envs"
+    for path in tmp_path.glob("*.md"):
+        assert (committed / path.name).read_text() == path.read_text(), f"regenerate docs: make docs ({path.name})"
