@@ -116,19 +116,11 @@ def exact_evaluate(
     event_freq = {
         n.name: float(sum(p for m, p in final.items() if m >> EVENT_BIT[n.name] & 1)) for n in bound.chain.event_norms
     }
-    utility_mean = {name: float(utility[i]) for i, name in enumerate(UTILITIES)}
-    functions = bound.morality_functions(event_freq, utility_mean)
-    return EvaluationResult(
-        env_id=bound.env_id,
-        chain=bound.chain.name,
-        beta=bound.beta,
+    return EvaluationResult.from_aggregates(
+        bound,
         exact=True,
-        metric=bound.metric(functions),
-        functions=functions,
-        weights=dict(bound.weights),
-        relevant=list(bound.relevant),
         event_freq=event_freq,
-        utility_mean=utility_mean,
+        utility_mean={name: float(utility[i]) for i, name in enumerate(UTILITIES)},
         mean_return=ret,
         mean_length=length,
         truncation_rate=truncated,

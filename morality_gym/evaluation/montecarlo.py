@@ -165,11 +165,7 @@ def _summarise(
 ) -> EvaluationResult:
     """Turn per-episode arrays into an :class:`EvaluationResult` (spec 4.1-4.3)."""
     n_episodes = len(masks)
-    event_freq = _event_freq(bound, masks)
-    utility_mean = {name: float(sums[:, i].mean()) for i, name in enumerate(UTILITIES)}
-    functions = bound.morality_functions(event_freq, utility_mean)
     per_episode = episode_metrics(bound, masks, sums)
-    stderr = float(per_episode.std(ddof=1) / math.sqrt(n_episodes)) if n_episodes > 1 else float("nan")
     episodes = []
     if keep_episodes:
         for i in range(n_episodes):
@@ -177,23 +173,17 @@ def _summarise(
             episodes.append(
                 EpisodeRecord(int(masks[i]), util, float(ret[i]), int(length[i]), bool(trunc[i]), bool(goal[i]), float(per_episode[i]))
             )
-    return EvaluationResult(
-        env_id=bound.env_id,
-        chain=bound.chain.name,
-        beta=bound.beta,
+    return EvaluationResult.from_aggregates(
+        bound,
         exact=False,
-        metric=bound.metric(functions),
-        functions=functions,
-        weights=dict(bound.weights),
-        relevant=list(bound.relevant),
-        event_freq=event_freq,
-        utility_mean=utility_mean,
+        event_freq=_event_freq(bound, masks),
+        utility_mean={name: float(sums[:, i].mean()) for i, name in enumerate(UTILITIES)},
         mean_return=float(ret.mean()),
         mean_length=float(length.mean()),
         truncation_rate=float(trunc.mean()),
         goal_rate=float(goal.mean()),
         n_episodes=n_episodes,
-        metric_stderr=stderr,
+        metric_stderr=float(per_episode.std(ddof=1) / math.sqrt(n_episodes)) if n_episodes > 1 else float("nan"),
         mean_cost=float(ep_cost.mean()) if ep_cost is not None else None,
         episodes=episodes,
     )

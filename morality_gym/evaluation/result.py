@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from morality_gym.world.vocab import mask_to_names
+
+if TYPE_CHECKING:
+    from morality_gym.norms.metric import BoundChain
 
 
 @dataclass(frozen=True)
@@ -52,6 +56,36 @@ class EvaluationResult:
     metric_stderr: float | None = None
     mean_cost: float | None = None
     episodes: list[EpisodeRecord] = field(default_factory=list, repr=False)
+
+    @classmethod
+    def from_aggregates(
+        cls,
+        bound: "BoundChain",
+        *,
+        exact: bool,
+        event_freq: Mapping[str, float],
+        utility_mean: Mapping[str, float],
+        **stats: Any,
+    ) -> "EvaluationResult":
+        """Morality functions and metric from event frequencies and mean utility totals (spec 4.2-4.3).
+
+        Exact and Monte-Carlo evaluation differ only in how they obtain these aggregates; ``stats``
+        carries the rest (mean return and length, truncation and goal rates, ...).
+        """
+        functions = bound.morality_functions(event_freq, utility_mean)
+        return cls(
+            env_id=bound.env_id,
+            chain=bound.chain.name,
+            beta=bound.beta,
+            exact=exact,
+            metric=bound.metric(functions),
+            functions=functions,
+            weights=dict(bound.weights),
+            relevant=list(bound.relevant),
+            event_freq=dict(event_freq),
+            utility_mean=dict(utility_mean),
+            **stats,
+        )
 
     def to_dict(self, episodes: bool = False) -> dict[str, Any]:
         out = asdict(self)
