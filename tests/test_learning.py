@@ -47,3 +47,42 @@ def test_every_learner_trains_evaluates_saves_and_loads(name: str, tmp_path) -> 
     obs = learner.model.observation_space.sample()[None]
     assert PolicyAdapter(loaded).probabilities(obs) == pytest.approx(PolicyAdapter(learner.model).probabilities(obs))
     assert exact_evaluate(loaded, bound.env_id, bound).metric == pytest.approx(learner.exact_evaluation().metric)
+
+
+@pytest.mark.slow
+def test_cli_evaluates_a_saved_model(tmp_path) -> None:
+    import json
+    import subprocess
+    import sys
+
+    bound = morality_gym.bind_chain("Utility", "SwitchStandard-HumanA-v1")
+    learner = build_learner(learner_spec("cpo", {"hparams": {"n_steps": 64}}), bound, "paper", seed=5)
+    learner.learn(512, eval_every=0)
+    path = learner.save(tmp_path / "model")
+    out = subprocess.run(
+        [sys.executable, "-m", "morality_gym", "eval", "--policy", str(path), "--chain", "Utility",
+         "--scenario", "SwitchStandard", "--variant", "HumanA", "--exact", "--json"],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert out.returncode == 0, out.stderr
+    metric = json.loads(out.stdout)["envs"]["SwitchStandard-HumanA-v1"]["metric"]
+    assert metric == pytest.approx(learner.exact_evaluation().metric)
+    missing = subprocess.run([sys.executable, "-m", "morality_gym", "eval", "--policy", str(tmp_path / "nope.zip"),
+                              "--chain", "Utility", "--scenario", "SwitchStandard"], capture_output=True, text=True, timeout=300)
+    assert missing.returncode == 2 and "does not exist" in missing.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["ppo", "cpo"])
+def test_learn_time_evaluations_do_not_change_training(name: str) -> None:
+    """Evaluating during training draws only from its own generator: the trained weights are identical."""
+    import torch
+
+    bound = morality_gym.bind_chain("DualProcess", "PushOrSwitch-Human-v1")
+    spec = learner_spec(name, {"hparams": {"n_steps": 64}})
+    weights = []
+    for eval_every in (0, 256):
+        learner = build_learner(spec, bound, "paper", seed=11)
+        learner.learn(1536, eval_every=eval_every, eval_episodes=5)
+        weights.append([p.detach().clone() for p in learner.model.policy.parameters()])
+    assert all(torch.equal(a, b) for a, b in zip(*weights))

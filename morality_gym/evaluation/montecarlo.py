@@ -65,7 +65,7 @@ def evaluate(
     beta: float | str = DEFAULT_BETA,
     deterministic: bool = False,
     cost_mode: CostMode | None = "minimal",
-    progress: bool = False,
+    progress: bool | None = None,
     keep_episodes: bool = True,
 ) -> EvaluationResult:
     """Monte-Carlo morality evaluation of ``policy`` (see :class:`PolicyAdapter` for policy kinds).
@@ -73,7 +73,8 @@ def evaluate(
     Returns the metric, per-norm morality functions, mean return/length, the truncation rate, the
     standard error of the metric and (``keep_episodes``) every episode's record. ``cost_mode`` sets
     how ``mean_cost`` (the mean episode cost, scale 1, reset per episode) is measured; ``None``
-    skips it.
+    skips it. ``progress`` shows a bar; by default only for long evaluations (10,000 episodes or
+    more) on a terminal.
     """
     if n_episodes < 1:
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
@@ -82,6 +83,10 @@ def evaluate(
     rng = np.random.default_rng(seed)  # the only randomness used: torch's global RNG is never touched
     masks_all, sums_all, present_all, rets, lens, truncs, goals, costs = [], [], [], [], [], [], [], []
     bar = None
+    if progress is None:
+        import sys
+
+        progress = n_episodes >= 10_000 and sys.stderr.isatty()
     if progress:
         from tqdm.auto import tqdm
 
