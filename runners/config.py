@@ -194,15 +194,43 @@ def _algo(option: str, node: Mapping[str, Any], preset: Preset) -> AlgoChoice:
     except TypeError as exc:
         raise ConfigError(f"{where}: {exc}") from exc
     _check_hparam_types(where, spec, base)
-    # planning.steps_per_s is measured with the file's settings; training is bound by gradient
-    # steps, so more (fewer) update epochs per rollout make it proportionally slower (faster).
-    steps_per_s = float(planning.get("steps_per_s", 2000.0))
+    steps_per_s, overhead = _planning_rate(where, planning, file_values, spec)
+    return AlgoChoice(spec, steps_per_s, overhead)
+
+
+_PLANNING_KEYS = {"steps_per_s", "update_share", "overhead_s"}
+
+
+def _planning_rate(where: str, planning: Mapping[str, Any], file_values: Mapping[str, Any],
+                   spec: LearnerSpec) -> tuple[float, float]:
+    """Training steps per second and fixed seconds per run, for the plan's time estimate.
+
+    ``planning.steps_per_s`` is measured with the algorithm file's own settings. Only part of a
+    training step's time is gradient work (``update_share``); that part scales with the number of
+    update epochs per rollout, the rest (simulation, rollout bookkeeping) does not. Scaling the
+    whole rate by the epoch ratio, as a first version did, made the smoke preset (2 epochs
+    instead of 10-40) look 2.7x slower than it ran. ``overhead_s`` covers what every run pays
+    regardless of its budget: building the envs, the final and exact evaluations, the GIF, writes.
+    """
+    unknown = set(planning) - _PLANNING_KEYS
+    if unknown:
+        raise ConfigError(f"{where}: unknown planning key(s) {sorted(unknown)}; valid: {sorted(_PLANNING_KEYS)}")
+    try:
+        steps_per_s = float(planning.get("steps_per_s", 2000.0))
+        share = float(planning.get("update_share", 1.0))
+        overhead = float(planning.get("overhead_s", 1.0))
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{where}: planning values must be numbers ({exc})") from exc
+    if steps_per_s <= 0 or not 0.0 <= share <= 1.0 or overhead < 0:
+        raise ConfigError(f"{where}: planning needs steps_per_s > 0, 0 <= update_share <= 1, overhead_s >= 0; "
+                          f"got {dict(planning)}")
+    ratio = 1.0
     for key in ("n_epochs", "n_critic_updates"):
         reference, actual = file_values.get("hparams", {}).get(key), spec.hparams.get(key)
         if reference and actual:
-            steps_per_s *= reference / actual
-    overhead = float(planning.get("overhead_s", 5.0))
-    return AlgoChoice(spec, steps_per_s, overhead)
+            ratio *= actual / reference
+    seconds_per_step = ((1.0 - share) + share * ratio) / steps_per_s
+    return 1.0 / seconds_per_step, overhead
 
 
 def _preset(node: Mapping[str, Any]) -> Preset:

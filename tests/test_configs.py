@@ -101,3 +101,23 @@ def test_generated_env_docs_are_current(tmp_path: Path) -> None:
     committed = Path(__file__).resolve().parents[1] / "docs" / "envs"
     for path in tmp_path.glob("*.md"):
         assert (committed / path.name).read_text() == path.read_text(), f"regenerate docs: make docs ({path.name})"
+
+
+def test_plan_estimate_scales_only_the_update_share_with_epochs() -> None:
+    """The plan's estimate: a preset that trains with fewer epochs saves only the gradient part.
+
+    Fitted to measured runs (conf/algo/*.yaml planning); a whole-rate scaling made the smoke plan
+    2.7x too long.
+    """
+    from morality_gym.baselines.specs import learner_spec
+    from runners.config import ConfigError, _planning_rate
+
+    file_values = {"hparams": {"n_epochs": 10}}
+    same = learner_spec("ppo")
+    fewer = same.with_overrides({"hparams": {"n_epochs": 2}})
+    planning = {"steps_per_s": 3000.0, "update_share": 0.5, "overhead_s": 0.5}
+    assert _planning_rate("w", planning, file_values, same) == pytest.approx((3000.0, 0.5))
+    rate, _ = _planning_rate("w", planning, file_values, fewer)
+    assert rate == pytest.approx(3000.0 / (0.5 + 0.5 * 0.2))  # 5000 steps/s, not 15000
+    with pytest.raises(ConfigError, match="update_share"):
+        _planning_rate("w", {**planning, "update_share": 1.5}, file_values, same)

@@ -60,6 +60,7 @@ def mlflow_run_ids(results: Path) -> list[str]:
         (["algo=random", "launcher.workers=0"], "launcher.workers"),
         (["algo=random", "beta=2"], "beta"),
         (["algo=random", "max_steps=many"], "max_steps"),
+        (["algo=ppo", "+algo.ppo.planning.speed=3"], "unknown planning key(s) ['speed']"),
     ],
 )
 def test_bad_input_fails_before_any_run(tmp_path: Path, args: list[str], message: str) -> None:
