@@ -44,6 +44,8 @@ def test_every_learner_trains_evaluates_saves_and_loads(name: str, tmp_path) -> 
     path = learner.save(tmp_path / "model")
     loaded = load_model(path)
     assert type(loaded) is type(learner.model)
+    # The constrained learners restart their envs every epoch as OmniSafe did (spec Q20); it survives save/load.
+    assert getattr(loaded, "reset_envs_each_rollout", False) is (name != "ppo")
     obs = learner.model.observation_space.sample()[None]
     assert PolicyAdapter(loaded).probabilities(obs) == pytest.approx(PolicyAdapter(learner.model).probabilities(obs))
     assert exact_evaluate(loaded, bound.env_id, bound).metric == pytest.approx(learner.exact_evaluation().metric)

@@ -24,7 +24,8 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList, EvalC
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import KVWriter, Logger
 from stable_baselines3.common.monitor import Monitor
-from stable_baselines3.common.vec_env import DummyVecEnv
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 from torch import nn
 
 from morality_gym.baselines.safe import (
@@ -301,6 +302,71 @@ def test_truncation_bootstraps_reward_and_cost_with_their_critics() -> None:
         vc = model.policy.predict_cost_values(th.as_tensor(terminal[None])).item()
     np.testing.assert_allclose(rewards, [1 + 0.9 * v, 1, 1], rtol=1e-6)
     np.testing.assert_allclose(costs, [2 + 0.8 * vc, 2, 2], rtol=1e-6)
+
+
+class ResetCounter(VecEnvWrapper):
+    """Counts ``reset()`` calls of the VecEnv it wraps (a real wrapper, nothing is faked)."""
+
+    def __init__(self, venv: VecEnv) -> None:
+        super().__init__(venv)
+        self.resets = 0
+
+    def reset(self) -> Any:
+        self.resets += 1
+        return self.venv.reset()
+
+    def step_wait(self) -> VecEnvStepReturn:
+        return self.venv.step_wait()
+
+
+class RolloutBoundaries(BaseCallback):
+    """What every rollout starts from, whether it ended mid-episode, and how many episodes ended."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.starts: list[tuple[bool, float]] = []  # (all envs at an episode start, running cost)
+        self.ended_mid_episode: list[bool] = []
+        self.first_steps_are_starts: list[bool] = []
+        self.finished = 0
+
+    def _on_rollout_start(self) -> None:
+        model = self.model
+        self.starts.append((bool(np.all(model._last_episode_starts)), float(np.abs(model._running_ep_cost).sum())))  # type: ignore[attr-defined]
+
+    def _on_step(self) -> bool:
+        self.finished += int(np.sum(self.locals["dones"]))
+        return True
+
+    def _on_rollout_end(self) -> None:
+        self.ended_mid_episode.append(not bool(np.all(self.model._last_episode_starts)))
+        self.first_steps_are_starts.append(bool(np.all(self.model.rollout_buffer.episode_starts[0])))
+
+
+@pytest.mark.parametrize("algorithm", [PPOLag, CPO])
+@pytest.mark.parametrize("reset_each", [True, False])
+def test_reset_envs_each_rollout_cuts_episodes_like_omnisafe_epochs(algorithm: type[BaseAlgorithm], reset_each: bool) -> None:
+    """Spec Q20: with ``reset_envs_each_rollout`` every rollout starts from fresh episodes; the cut
+    episodes are not filed as finished (``J_c`` only averages real episodes). Without it (SB3's
+    way) episodes run on across rollouts and the env is reset once."""
+    env = ResetCounter(toy_vec_env(0, n_envs=2))
+    kwargs: dict[str, Any] = {"n_epochs": 1} if algorithm is PPOLag else {"n_critic_updates": 1}
+    model = algorithm(
+        "MlpPolicy", env, steps_per_rollout=16, ep_cost_window=10_000, reset_envs_each_rollout=reset_each,
+        seed=0, device="cpu", **kwargs,
+    )
+    seen = RolloutBoundaries()
+    model.learn(16 * 12, callback=seen)
+    assert len(seen.starts) == 12
+    cut = sum(seen.ended_mid_episode[:-1])
+    assert cut >= 3, "the test needs rollouts that end mid-episode"
+    assert len(model.ep_cost_buffer) == seen.finished  # every finished episode filed, cut ones not
+    if reset_each:
+        assert all(at_start and running == 0.0 for at_start, running in seen.starts)
+        assert all(seen.first_steps_are_starts)
+        assert env.resets == 1 + cut  # learn()'s reset, then one per rollout that ended mid-episode
+    else:
+        assert env.resets == 1
+        assert not all(at_start for at_start, _ in seen.starts)
 
 
 # ----------------------------------------------------------------------------- learning

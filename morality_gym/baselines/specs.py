@@ -147,6 +147,7 @@ DEFAULT_LEARNERS: dict[str, LearnerSpec] = {
             "ep_cost_window": 50,
             "reward_advantage_normalization": "standardize",
             "cost_advantage_normalization": "standardize",
+            "reset_envs_each_rollout": True,  # OmniSafe resets all envs every epoch (spec Q20)
         },
     ),
     "cpo": LearnerSpec(
@@ -176,6 +177,7 @@ DEFAULT_LEARNERS: dict[str, LearnerSpec] = {
             "ep_cost_window": 50,
             "reward_advantage_normalization": "standardize",
             "cost_advantage_normalization": "standardize",
+            "reset_envs_each_rollout": True,  # OmniSafe resets all envs every epoch (spec Q20)
         },
     ),
 }

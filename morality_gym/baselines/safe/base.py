@@ -78,6 +78,13 @@ class CostOnPolicyAlgorithm(OnPolicyAlgorithm):
     :param reward_advantage_normalization: ``"standardize"``, ``"center"`` or ``"none"``, over the
         whole rollout.
     :param cost_advantage_normalization: the same for cost advantages.
+    :param reset_envs_each_rollout: reset every env at the start of each rollout, cutting the
+        episodes in progress (they are bootstrapped with the critics at the rollout's end, like
+        any unfinished episode, and never count as finished for ``J_c``). This is what OmniSafe,
+        which ran the paper's PPO-Lag and CPO, does at every epoch (spec Q20): with 256 steps per
+        env per epoch and episodes of up to 201 steps, it changes which states training sees, so
+        the paper's settings turn it on. Off by default, as in SB3, where episodes run on across
+        rollouts.
 
     The rest are SB3's ``OnPolicyAlgorithm`` parameters.
     """
@@ -110,6 +117,7 @@ class CostOnPolicyAlgorithm(OnPolicyAlgorithm):
         ep_cost_window: int = 50,
         reward_advantage_normalization: AdvantageNormalization = "standardize",
         cost_advantage_normalization: AdvantageNormalization = "standardize",
+        reset_envs_each_rollout: bool = False,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         monitor_wrapper: bool = True,
@@ -163,6 +171,7 @@ class CostOnPolicyAlgorithm(OnPolicyAlgorithm):
         self.ep_cost_window = ep_cost_window
         self.reward_advantage_normalization = reward_advantage_normalization
         self.cost_advantage_normalization = cost_advantage_normalization
+        self.reset_envs_each_rollout = reset_envs_each_rollout
         # Costs of finished episodes (for J_c) and of the episodes in progress, one per env.
         self.ep_cost_buffer: deque[float] = deque(maxlen=ep_cost_window)
         self._running_ep_cost = np.zeros(self.n_envs if self.env is not None else 1, dtype=np.float64)
@@ -270,6 +279,8 @@ class CostOnPolicyAlgorithm(OnPolicyAlgorithm):
         plus ``costs``) and may stop the rollout by returning ``False``.
         """
         assert self._last_obs is not None, "No previous observation was provided"
+        if self.reset_envs_each_rollout:
+            self._reset_envs_for_rollout(env)
         self.policy.set_training_mode(False)
         rollout_buffer.reset()
         callback.on_rollout_start()
@@ -313,6 +324,19 @@ class CostOnPolicyAlgorithm(OnPolicyAlgorithm):
         callback.update_locals(locals())
         callback.on_rollout_end()
         return True
+
+    def _reset_envs_for_rollout(self, env: VecEnv) -> None:
+        """Cut the episodes in progress and start every env afresh (``reset_envs_each_rollout``).
+
+        Skipped when every env has just started an episode (right after ``learn()``'s own reset,
+        or when all episodes ended on the last step): a reset would change nothing there. The cut
+        episodes' partial costs are dropped, not filed as finished episodes.
+        """
+        if self._last_episode_starts is not None and np.all(self._last_episode_starts):
+            return
+        self._last_obs = env.reset()  # type: ignore[assignment]
+        self._last_episode_starts = np.ones((env.num_envs,), dtype=bool)
+        self._running_ep_cost[:] = 0.0
 
     def mean_episode_cost(self) -> float:
         """``J_c``: the mean undiscounted cost of the last ``ep_cost_window`` finished episodes.
