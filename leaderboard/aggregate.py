@@ -15,6 +15,12 @@ evaluation spec, section 7:
 A results directory may hold several sweeps, so every number is grouped by ``(protocol, preset)``.
 Nothing is ever dropped silently: a planned run without a result is *missing*, a run whose status
 is not ``ok`` (or that has no metric) is a *problem*, and both are returned for the report.
+
+A results directory also outlives configurations: rerun a sweep after changing a hyper-parameter
+and the old runs (other config, so other run ids) stay on disk beside the new ones. Averaging both
+into one cell would mix two algorithms under one label, so each *slot* (protocol, preset, chain,
+env id, learner, seed, beta, max_steps) counts one run: the one a current sweep manifest plans,
+else an ``ok`` one, else the newest. The others are *superseded*: reported, never counted.
 """
 
 from __future__ import annotations
@@ -169,8 +175,41 @@ def groups_of(runs: pd.DataFrame, planned: Mapping[str, Mapping[str, Any]]) -> l
     return group_order(found)
 
 
-# ---------------------------------------------------------------------------------------- problems
+# ---------------------------------------------------------------------------------------- superseded
+#: What makes two runs compete for one place in the tables (see the module docstring).
+SLOT_KEYS = ["protocol", "preset", "chain", "env_id", "learner", "seed", "beta", "max_steps"]
+#: The columns that identify a run in every report (failed, missing, superseded).
 REPORT_COLUMNS = ["run_id", "protocol", "preset", "chain", "scenario", "variant", "env_id", "learner", "seed"]
+
+
+def split_superseded(runs: pd.DataFrame, planned: Mapping[str, Any]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """``(counted, superseded)``: one run per slot is counted, the rest are returned with the id of
+    the run that replaces them (``superseded_by``) and their ``finished_at``.
+
+    Preference within a slot: planned by a current sweep manifest (manifests are rewritten by every
+    sweep, so they name the configuration that is meant now), then a usable result (``ok``), then
+    the latest ``finished_at``, then the run id (so the choice never depends on file order).
+    """
+    if runs.empty:
+        return runs, runs.assign(superseded_by=pd.Series(dtype=object)).iloc[0:0]
+    df = runs.copy()
+    finished = df["finished_at"] if "finished_at" in df.columns else pd.Series([None] * len(df), index=df.index)
+    df["_planned"] = df["run_id"].isin(set(planned))
+    df["_finished"] = finished.astype(object).where(finished.notna(), "").astype(str)
+    keys = [k for k in SLOT_KEYS if k in df.columns]
+    slot = df[keys].astype(str).agg("\x1f".join, axis=1)
+    df["_slot"] = slot
+    df = df.sort_values(["_slot", "_planned", "ok", "_finished", "run_id"], ascending=[True, False, False, False, True])
+    first = ~df["_slot"].duplicated(keep="first")
+    winner = df.loc[first].set_index("_slot")["run_id"]
+    counted = df.loc[first].drop(columns=["_planned", "_finished", "_slot"])
+    superseded = df.loc[~first].copy()
+    superseded["superseded_by"] = superseded["_slot"].map(winner)
+    superseded = superseded.drop(columns=["_planned", "_finished", "_slot"])
+    return counted.sort_index(), superseded.sort_values(REPORT_COLUMNS[1:] + ["run_id"]).reset_index(drop=True)
+
+
+# ---------------------------------------------------------------------------------------- problems
 
 
 def problem_runs(runs: pd.DataFrame) -> pd.DataFrame:
@@ -573,6 +612,8 @@ class Leaderboard:
     primary: Group | None
     reference: dict[str, dict[str, Any]] = field(default_factory=dict)
     reference_errors: dict[str, str] = field(default_factory=dict)
+    #: Runs on disk that another run of the same slot replaces (not counted; see split_superseded).
+    superseded: pd.DataFrame = field(default_factory=pd.DataFrame)
 
     @property
     def learners(self) -> list[str]:
@@ -614,8 +655,11 @@ def aggregate(
     primary_preset: str | None = None,
 ) -> Leaderboard:
     """Aggregate runs (+ planned runs, + optional reference entries) into a :class:`Leaderboard`."""
-    prepared = prepare_runs(runs)
+    everything = prepare_runs(runs)
     planned = {k: dict(v) for k, v in planned.items()}
+    prepared, superseded = split_superseded(everything, planned)
+    gone = set(superseded["run_id"])
+    planned = {k: v for k, v in planned.items() if k not in gone}
     table = table1_frame(prepared, planned, reference)
     groups = groups_of(prepared, planned)
     long = norm_long(prepared)
@@ -625,6 +669,7 @@ def aggregate(
         table=table,
         problems=problem_runs(prepared),
         missing=missing_runs(prepared, planned),
+        superseded=superseded,
         norms_by_chain=norm_summary(long, ["protocol", "preset", "chain"]),
         norms_by_scenario=norm_summary(long, ["protocol", "preset", "chain", "scenario"]),
         variants=variant_frame(prepared),

@@ -93,7 +93,9 @@ def summary(lb: Leaderboard, out: dict[str, Any], args: argparse.Namespace) -> s
         (f"Table 1: {len(lb.pairs())} (chain, scenario) row(s), {len(learner_rows)} learner cell(s) "
         f"in {len(lb.groups)} sweep(s); primary: {lb.primary.label if lb.primary else 'none'}"),
         (f"runs: {lb.n_ok} with a result, {len(lb.problems)} failed, {len(lb.missing)} missing "
-        f"(of {len(set(lb.planned) | set(lb.runs['run_id']))} planned or produced)"),
+        f"(of {len(set(lb.planned) | set(lb.runs['run_id']))} planned or produced)"
+        + (f"; {len(lb.superseded)} superseded by a newer run of the same slot, not counted (see table1.md)"
+           if len(lb.superseded) else "")),
     ]
     ref = out["reference"]
     if ref is None:

@@ -411,6 +411,7 @@ def status_section(sb: SiteBuild, root: str) -> str:
         ("good", lb.n_ok, "runs with a result"),
         ("bad" if n_failed else "", n_failed, "failed"),
         ("warn" if n_missing else "", n_missing, f"missing of {n_planned} planned"),
+        *([("", len(lb.superseded), "superseded, not counted")] if len(lb.superseded) else []),
         ("", len(lb.pairs()), "(chain, scenario) rows"),
         ("", len(lb.groups), "sweeps (protocol · preset)"),
     ]
@@ -446,6 +447,17 @@ def status_section(sb: SiteBuild, root: str) -> str:
                      '</thead><tbody>' + "".join(rows) + "</tbody></table></div></details>")
     if not n_failed and not n_missing:
         parts.append('<p>Every planned run has a result.</p>')
+    if len(lb.superseded):
+        rows = [f'<tr><td class="mono">{h(r["run_id"])}</td><td>{h(r["protocol"])} · {h(r["preset"])}</td>'
+                f'<td>{h(r["chain"])}</td><td>{h(r["scenario"])}</td><td>{h(r["variant"])}</td>'
+                f'<td>{h(r["learner"])}</td><td class="num">{h(_int(r["seed"]))}</td>'
+                f'<td><a class="mono" href="{h(run_href(str(r["superseded_by"]), root))}">{h(r["superseded_by"])}</a></td></tr>'
+                for r in lb.superseded.to_dict("records")]
+        parts.append(f'<details id="superseded"><summary>Superseded runs ({len(lb.superseded)}): another run of the same '
+                     'slot counts instead (typically these ran with an earlier configuration)</summary>'
+                     '<div class="table-wrap"><table><thead><tr><th>Run</th><th>Sweep</th><th>Chain</th><th>Scenario</th>'
+                     '<th>Variant</th><th>Learner</th><th class="num">Seed</th><th>Counted instead</th></tr></thead><tbody>'
+                     + "".join(rows) + "</tbody></table></div></details>")
     if lb.reference_errors:
         items = "".join(f"<li><code>{h(k)}</code>: {h(v)}</li>" for k, v in lb.reference_errors.items())
         parts.append(f'<p class="error">Reference rows that could not be computed:</p><ul>{items}</ul>')

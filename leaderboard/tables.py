@@ -132,8 +132,9 @@ def problems_markdown(lb: Leaderboard) -> list[str]:
     """The section listing failed and missing runs (every one of them, with its error)."""
     lines = ["## Missing and failed runs", ""]
     n_failed, n_missing = len(lb.problems), len(lb.missing)
+    superseded = superseded_markdown(lb)
     if not n_failed and not n_missing:
-        return lines + ["None: every planned run has a result.", ""]
+        return lines + ["None: every planned run has a result.", ""] + superseded
     lines += [(f"{n_failed} run(s) failed and {n_missing} planned run(s) have no result. "
               "Table cells marked ⚠ average fewer runs than planned."), ""]
     if n_failed:
@@ -150,6 +151,23 @@ def problems_markdown(lb: Leaderboard) -> list[str]:
                 for r in lb.missing.to_dict("records")]
         lines += _md_table(["Run", "Protocol", "Preset", "Chain", "Scenario", "Variant", "Learner", "Seed"], rows)
         lines.append("")
+    return lines + superseded
+
+
+def superseded_markdown(lb: Leaderboard) -> list[str]:
+    """Runs left out because another run of the same slot counts (e.g. from before a config change)."""
+    sup = lb.superseded
+    if sup is None or sup.empty:
+        return []
+    lines = [f"### Superseded runs ({len(sup)}), not counted", "",
+             ("Another run of the same chain, env, learner, seed, protocol and preset counts instead: the one the "
+              "current sweep manifest plans, else the newest usable one. Typically these ran with an earlier "
+              "configuration; delete their files from `runs/` to drop them for good."), ""]
+    rows = [[f"`{md_escape(r['run_id'])}`", md_escape(r["protocol"]), md_escape(r["preset"]), md_escape(r["chain"]),
+             md_escape(r["scenario"]), md_escape(r["variant"]), md_escape(r["learner"]), _seed(r["seed"]),
+             f"`{md_escape(r['superseded_by'])}`"] for r in sup.to_dict("records")]
+    lines += _md_table(["Run", "Protocol", "Preset", "Chain", "Scenario", "Variant", "Learner", "Seed", "Counted instead"], rows)
+    lines.append("")
     return lines
 
 
@@ -177,7 +195,7 @@ def table1_markdown(lb: Leaderboard, results_name: str) -> str:
     stamp = datetime.now(UTC).isoformat(timespec="seconds")
     lines = ["# Table 1: average normalised morality metric by morality chain and scenario", "",
              (f"Results: `{md_escape(results_name)}` · {lb.n_ok} runs with a result · {len(lb.problems)} failed · "
-             f"{len(lb.missing)} missing · built {stamp}"), ""]
+             f"{len(lb.missing)} missing · {len(lb.superseded)} superseded · built {stamp}"), ""]
     lines += [*explanation_lines(), ""]
     ordered = ([lb.primary] if lb.primary else []) + [g for g in lb.groups if g != lb.primary]
     for group in ordered:

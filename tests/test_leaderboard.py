@@ -96,6 +96,44 @@ def test_tiny_frame_worked_out_by_hand() -> None:
     assert ("PPO", "n_animal_harm") not in norms.index  # relevant in r1, but the frame has no mf_n_animal_harm
 
 
+def test_runs_of_an_earlier_configuration_are_superseded_not_averaged() -> None:
+    """A rerun after a config change leaves the old runs (other ids) on disk: each slot counts one run.
+
+    Slot HumanA/41 has an old run (o1, finished first, no longer planned) and the current one (n1):
+    n1 counts. Slot HumanB/41 has two runs that no manifest plans: the newer ok one counts, even
+    though the older one is listed first. HumanA/42 has only an old run: it still counts.
+    """
+    from leaderboard.tables import superseded_markdown
+
+    base = {"status": "ok", "error": None, "chain": "Utility", "scenario": "SwitchStandard", "protocol": "paper",
+            "preset": "quick", "beta": 0.1, "max_steps": 200, "learner": "CPO", "relevant_norms": ["n_human_harm"],
+            "gif_path": None, "config": "{}", "traceback": None}
+    rows = []
+    for run_id, variant, seed, metric, finished in [
+        ("o1", "HumanA", 41, 0.9, "2026-11-20T10:00:00+00:00"),
+        ("n1", "HumanA", 41, 0.1, "2026-11-21T10:00:00+00:00"),
+        ("o2", "HumanB", 41, 0.8, "2026-11-20T10:00:00+00:00"),
+        ("n2", "HumanB", 41, 0.3, "2026-11-21T10:00:00+00:00"),
+        ("o3", "HumanA", 42, 0.5, "2026-11-20T10:00:00+00:00"),
+    ]:
+        rows.append(base | {"run_id": run_id, "variant": variant, "seed": seed, "metric": metric, "finished_at": finished,
+                            "env_id": f"SwitchStandard-{variant}-v1", "mf_n_human_harm": metric})
+    rows[2], rows[3] = rows[3], rows[2]  # file order must not matter
+    planned = {"n1": {"run_id": "n1", "env_id": "SwitchStandard-HumanA-v1", "scenario": "SwitchStandard",
+                      "variant": "HumanA", "chain": "Utility", "algo": "cpo", "learner": "CPO", "protocol": "paper",
+                      "preset": "quick", "seed": 41}}
+    lb = aggregate(pd.DataFrame(rows), planned)
+    assert sorted(lb.runs["run_id"]) == ["n1", "n2", "o3"]
+    assert dict(zip(lb.superseded["run_id"], lb.superseded["superseded_by"])) == {"o1": "n1", "o2": "n2"}
+    cell = lb.table.set_index("learner").loc["CPO"]
+    assert cell["mean"] == pytest.approx((0.1 + 0.3 + 0.5) / 3) and cell["n_runs"] == 3 and cell["n_missing"] == 0
+    text = "\n".join(superseded_markdown(lb))
+    assert "Superseded runs (2)" in text and "`o1`" in text and "`n2`" in text
+    # A different beta is a different slot, not a replacement.
+    other = pd.DataFrame(rows + [rows[0] | {"run_id": "b1", "beta": 0.2}])
+    assert "b1" in set(aggregate(other, planned).runs["run_id"])
+
+
 def test_csv_has_exactly_the_contract_columns(built: BuiltSite) -> None:
     with (built.results / "table1.csv").open() as fh:
         assert next(csv.reader(fh)) == CSV_COLUMNS == ["chain", "scenario", "learner", "mean", "std", "n_runs", "paper", "delta"]
