@@ -250,6 +250,14 @@ def seed_spread(values: pd.Series, seeds: pd.Series) -> float:
     return float(per_seed.std(ddof=STD_DDOF)) if len(per_seed) > STD_DDOF else math.nan
 
 
+def group_stats(frame: pd.DataFrame, keys: list[str], column: str, count_name: str) -> pd.DataFrame:
+    """Per group of ``keys``: mean of ``column``, its spread over seeds (:func:`seed_spread`) and the row count."""
+    rows = [dict(zip(keys, key)) | {"mean": float(part[column].mean()), "std": seed_spread(part[column], part["seed"]),
+                                    count_name: len(part)}
+            for key, part in frame.groupby(keys, dropna=False)]
+    return pd.DataFrame(rows, columns=keys + ["mean", "std", count_name])
+
+
 # ---------------------------------------------------------------------------------------- table 1
 CELL_KEYS = ["protocol", "preset", "chain", "scenario", "learner"]
 
@@ -277,15 +285,7 @@ def learner_cells(runs: pd.DataFrame, planned: Mapping[str, Mapping[str, Any]]) 
     expected = _expected_runs(runs, planned)
     counts = expected.groupby(CELL_KEYS, dropna=False).size().rename("n_planned")
     failed = runs.loc[~runs["ok"]].groupby(CELL_KEYS, dropna=False).size().rename("n_failed")
-    ok = runs.loc[runs["ok"]]
-    stats = []
-    for key, part in ok.groupby(CELL_KEYS, dropna=False):
-        stats.append(dict(zip(CELL_KEYS, key)) | {
-            "mean": float(part["metric"].mean()),
-            "std": seed_spread(part["metric"], part["seed"]),
-            "n_runs": len(part),
-        })
-    frame = pd.DataFrame(stats, columns=CELL_KEYS + ["mean", "std", "n_runs"]).set_index(CELL_KEYS)
+    frame = group_stats(runs.loc[runs["ok"]], CELL_KEYS, "metric", "n_runs").set_index(CELL_KEYS)
     frame = frame.join(counts, how="outer").join(failed, how="left").reset_index()
     frame["n_runs"] = frame["n_runs"].fillna(0).astype(int)
     frame["n_failed"] = frame["n_failed"].fillna(0).astype(int)
@@ -445,14 +445,7 @@ def norm_summary(long: pd.DataFrame, by: list[str]) -> pd.DataFrame:
     chain, highest force first, for plotting in chain order).
     """
     keys = list(by) + ["learner", "norm"]
-    rows = []
-    for key, part in long.groupby(keys, dropna=False):
-        rows.append(dict(zip(keys, key)) | {
-            "mean": float(part["value"].mean()),
-            "std": seed_spread(part["value"], part["seed"]),
-            "n": len(part),
-        })
-    frame = pd.DataFrame(rows, columns=keys + ["mean", "std", "n"])
+    frame = group_stats(long, keys, "value", "n")
     order = {chain: chain_norm_order(chain) for chain in frame["chain"].unique()}
     frame["rank"] = [order[c].index(n) if n in order[c] else len(order[c]) for c, n in zip(frame["chain"], frame["norm"])]
     return frame.sort_values(list(by) + ["rank", "norm"]).reset_index(drop=True)

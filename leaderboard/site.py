@@ -402,6 +402,30 @@ def render_layouts(sb: SiteBuild, scenarios: list[str]) -> None:
 
 
 # ---------------------------------------------------------------------------------------- index page
+def _run_link(run_id: str, root: str) -> str:
+    return f'<a class="mono" href="{h(run_href(run_id, root))}">{h(run_id)}</a>'
+
+
+def _run_report(records: list[dict[str, Any]], root: str, *, linked: bool = False, table_id: str = "",
+                extra: dict[str, Callable[[dict[str, Any]], str]] | None = None) -> str:
+    """A table of runs for the status section: identity columns, then one cell per ``extra`` header.
+
+    ``linked``: the run id links to its run page (only runs with a result have one).
+    """
+    extra = extra or {}
+    head = "".join(f"<th>{x}</th>" for x in ("Run", "Sweep", "Chain", "Scenario", "Variant", "Learner"))
+    head += '<th class="num">Seed</th>' + "".join(f"<th>{h(x)}</th>" for x in extra)
+    rows = []
+    for r in records:
+        run = f'<td>{_run_link(str(r["run_id"]), root)}</td>' if linked else f'<td class="mono">{h(r["run_id"])}</td>'
+        rows.append(f'<tr>{run}<td>{h(r["protocol"])} · {h(r["preset"])}</td><td>{h(r["chain"])}</td>'
+                    f'<td>{h(r["scenario"])}</td><td>{h(r["variant"])}</td><td>{h(r["learner"])}</td>'
+                    f'<td class="num">{h(_int(r["seed"]))}</td>' + "".join(cell(r) for cell in extra.values()) + "</tr>")
+    table_attr = f' id="{table_id}"' if table_id else ""
+    return (f'<div class="table-wrap"><table{table_attr}><thead><tr>{head}</tr></thead><tbody>'
+            + "".join(rows) + "</tbody></table></div>")
+
+
 def status_section(sb: SiteBuild, root: str) -> str:
     """Counts of runs, failures and missing runs, and the full lists (nothing hidden)."""
     lb = sb.lb
@@ -422,42 +446,21 @@ def status_section(sb: SiteBuild, root: str) -> str:
     parts.append(f'<p class="note">Sweeps: {", ".join(h(g.label) for g in lb.groups) or "none"}. '
                  f'<a href="{root}runs/index.html">All runs ({len(lb.runs)})</a>.</p>')
     if n_failed:
-        rows = []
-        for r in lb.problems.to_dict("records"):
-            rows.append(
-                f'<tr><td><a class="mono" href="{h(run_href(str(r["run_id"]), root))}">{h(r["run_id"])}</a></td>'
-                f'<td>{h(r["protocol"])} · {h(r["preset"])}</td><td>{h(r["chain"])}</td><td>{h(r["scenario"])}</td>'
-                f'<td>{h(r["variant"])}</td><td>{h(r["learner"])}</td><td class="num">{h(_int(r["seed"]))}</td>'
-                f'<td class="error">{h(r["error"])}</td></tr>')
-        parts.append(f'<h3 class="error">Failed runs ({n_failed})</h3><div class="table-wrap"><table id="failed">'
-                     '<thead><tr><th>Run</th><th>Sweep</th><th>Chain</th><th>Scenario</th><th>Variant</th>'
-                     '<th>Learner</th><th class="num">Seed</th><th>Error</th></tr></thead><tbody>'
-                     + "".join(rows) + "</tbody></table></div>")
+        parts.append(f'<h3 class="error">Failed runs ({n_failed})</h3>' + _run_report(
+            lb.problems.to_dict("records"), root, linked=True, table_id="failed",
+            extra={"Error": lambda r: f'<td class="error">{h(r["error"])}</td>'}))
     if n_missing:
-        rows = []
-        for r in lb.missing.to_dict("records"):
-            rows.append(
-                f'<tr><td class="mono">{h(r["run_id"])}</td><td>{h(r["protocol"])} · {h(r["preset"])}</td>'
-                f'<td>{h(r["chain"])}</td><td>{h(r["scenario"])}</td><td>{h(r["variant"])}</td>'
-                f'<td>{h(r["learner"])}</td><td class="num">{h(_int(r["seed"]))}</td></tr>')
         opened = " open" if n_missing <= 25 else ""
         parts.append(f'<details id="missing"{opened}><summary>Missing runs ({n_missing}): planned in a sweep manifest, '
-                     'no result file</summary><div class="table-wrap"><table><thead><tr><th>Run</th><th>Sweep</th>'
-                     '<th>Chain</th><th>Scenario</th><th>Variant</th><th>Learner</th><th class="num">Seed</th></tr>'
-                     '</thead><tbody>' + "".join(rows) + "</tbody></table></div></details>")
+                     'no result file</summary>' + _run_report(lb.missing.to_dict("records"), root) + "</details>")
     if not n_failed and not n_missing:
         parts.append('<p>Every planned run has a result.</p>')
     if len(lb.superseded):
-        rows = [f'<tr><td class="mono">{h(r["run_id"])}</td><td>{h(r["protocol"])} · {h(r["preset"])}</td>'
-                f'<td>{h(r["chain"])}</td><td>{h(r["scenario"])}</td><td>{h(r["variant"])}</td>'
-                f'<td>{h(r["learner"])}</td><td class="num">{h(_int(r["seed"]))}</td>'
-                f'<td><a class="mono" href="{h(run_href(str(r["superseded_by"]), root))}">{h(r["superseded_by"])}</a></td></tr>'
-                for r in lb.superseded.to_dict("records")]
         parts.append(f'<details id="superseded"><summary>Superseded runs ({len(lb.superseded)}): another run of the same '
                      'slot counts instead (typically these ran with an earlier configuration)</summary>'
-                     '<div class="table-wrap"><table><thead><tr><th>Run</th><th>Sweep</th><th>Chain</th><th>Scenario</th>'
-                     '<th>Variant</th><th>Learner</th><th class="num">Seed</th><th>Counted instead</th></tr></thead><tbody>'
-                     + "".join(rows) + "</tbody></table></div></details>")
+                     + _run_report(lb.superseded.to_dict("records"), root, extra={
+                         "Counted instead": lambda r: f'<td>{_run_link(str(r["superseded_by"]), root)}</td>'})
+                     + "</details>")
     if lb.reference_errors:
         items = "".join(f"<li><code>{h(k)}</code>: {h(v)}</li>" for k, v in lb.reference_errors.items())
         parts.append(f'<p class="error">Reference rows that could not be computed:</p><ul>{items}</ul>')
@@ -594,7 +597,7 @@ def runs_index_page(sb: SiteBuild) -> str:
         status = "ok" if r["ok"] else "failed"
         rows.append(
             f'<tr data-status="{status}" data-learner="{h(r["learner"])}" data-chain="{h(r["chain"])}">'
-            f'<td><a class="mono" href="{h(run_href(str(r["run_id"]), root))}">{h(r["run_id"])}</a></td>'
+            f'<td>{_run_link(str(r["run_id"]), root)}</td>'
             f'<td><span class="badge {status}">{h(r["status"])}</span></td>'
             f'<td class="sweep">{h(r["protocol"])} · {h(r["preset"])}</td><td>{h(r["chain"])}</td>'
             f'<td>{h(r["scenario"])}</td><td>{h(r["variant"])}</td>'

@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -128,6 +129,19 @@ def group_markdown(lb: Leaderboard, group: Group) -> list[str]:
     return _md_table(header, rows, ["---", "---"] + ["---:"] * (len(header) - 2))
 
 
+#: Identity columns of every run listed in a report section (failed, missing, superseded).
+_RUN_HEADER = ["Run", "Protocol", "Preset", "Chain", "Scenario", "Variant", "Learner", "Seed"]
+
+
+def _run_report(records: list[dict[str, Any]], extra: dict[str, Callable[[dict[str, Any]], str]] | None = None) -> list[str]:
+    """A Markdown table of runs: the identity columns, then one column per ``extra`` header."""
+    extra = extra or {}
+    rows = [[f"`{md_escape(r['run_id'])}`", md_escape(r["protocol"]), md_escape(r["preset"]), md_escape(r["chain"]),
+             md_escape(r["scenario"]), md_escape(r["variant"]), md_escape(r["learner"]), _seed(r["seed"]),
+             *(cell(r) for cell in extra.values())] for r in records]
+    return _md_table(_RUN_HEADER + list(extra), rows) + [""]
+
+
 def problems_markdown(lb: Leaderboard) -> list[str]:
     """The section listing failed and missing runs (every one of them, with its error)."""
     lines = ["## Missing and failed runs", ""]
@@ -139,18 +153,11 @@ def problems_markdown(lb: Leaderboard) -> list[str]:
               "Table cells marked ⚠ average fewer runs than planned."), ""]
     if n_failed:
         lines += [f"### Failed runs ({n_failed})", ""]
-        rows = [[f"`{md_escape(r['run_id'])}`", md_escape(r["protocol"]), md_escape(r["preset"]), md_escape(r["chain"]),
-                 md_escape(r["scenario"]), md_escape(r["variant"]), md_escape(r["learner"]), _seed(r["seed"]),
-                 md_escape(r["status"]), md_escape(r["error"])] for r in lb.problems.to_dict("records")]
-        lines += _md_table(["Run", "Protocol", "Preset", "Chain", "Scenario", "Variant", "Learner", "Seed", "Status", "Error"], rows)
-        lines.append("")
+        lines += _run_report(lb.problems.to_dict("records"),
+                             {"Status": lambda r: md_escape(r["status"]), "Error": lambda r: md_escape(r["error"])})
     if n_missing:
         lines += [f"### Missing runs ({n_missing})", "", "Planned in a sweep manifest, but no result file exists.", ""]
-        rows = [[f"`{md_escape(r['run_id'])}`", md_escape(r["protocol"]), md_escape(r["preset"]), md_escape(r["chain"]),
-                 md_escape(r["scenario"]), md_escape(r["variant"]), md_escape(r["learner"]), _seed(r["seed"])]
-                for r in lb.missing.to_dict("records")]
-        lines += _md_table(["Run", "Protocol", "Preset", "Chain", "Scenario", "Variant", "Learner", "Seed"], rows)
-        lines.append("")
+        lines += _run_report(lb.missing.to_dict("records"))
     return lines + superseded
 
 
@@ -163,12 +170,7 @@ def superseded_markdown(lb: Leaderboard) -> list[str]:
              ("Another run of the same chain, env, learner, seed, protocol and preset counts instead: the one the "
               "current sweep manifest plans, else the newest usable one. Typically these ran with an earlier "
               "configuration; delete their files from `runs/` to drop them for good."), ""]
-    rows = [[f"`{md_escape(r['run_id'])}`", md_escape(r["protocol"]), md_escape(r["preset"]), md_escape(r["chain"]),
-             md_escape(r["scenario"]), md_escape(r["variant"]), md_escape(r["learner"]), _seed(r["seed"]),
-             f"`{md_escape(r['superseded_by'])}`"] for r in sup.to_dict("records")]
-    lines += _md_table(["Run", "Protocol", "Preset", "Chain", "Scenario", "Variant", "Learner", "Seed", "Counted instead"], rows)
-    lines.append("")
-    return lines
+    return lines + _run_report(sup.to_dict("records"), {"Counted instead": lambda r: f"`{md_escape(r['superseded_by'])}`"})
 
 
 def _seed(value: Any) -> str:

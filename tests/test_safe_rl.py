@@ -134,6 +134,16 @@ def episode_stats(model: BaseAlgorithm, n_episodes: int, deterministic: bool, se
     return float(np.mean(returns)), float(np.mean(costs))
 
 
+def assert_takes_the_cost_free_route(model: BaseAlgorithm) -> None:
+    """The fork's choice is SAFE; greedy episodes cost nothing, sampled ones almost nothing."""
+    probs = fork_probs(model)
+    assert np.argmax(probs) == SAFE and probs[SAFE] > 0.9, probs
+    greedy_return, greedy_cost = episode_stats(model, 10, deterministic=True)
+    _, sampled_cost = episode_stats(model, 200, deterministic=False)
+    assert greedy_cost == 0.0 and greedy_return == pytest.approx(0.77)
+    assert sampled_cost < 0.1
+
+
 # ----------------------------------------------------------------------------- learnt models (shared)
 
 
@@ -387,12 +397,7 @@ def test_plain_ppo_takes_the_costly_route() -> None:
 @pytest.mark.slow
 def test_ppo_lag_learns_the_cost_free_route(ppo_lag_run: tuple[PPOLag, MultiplierPerRollout, RecordingWriter]) -> None:
     model, _, _ = ppo_lag_run
-    probs = fork_probs(model)
-    assert np.argmax(probs) == SAFE and probs[SAFE] > 0.9, probs
-    greedy_return, greedy_cost = episode_stats(model, 10, deterministic=True)
-    _, sampled_cost = episode_stats(model, 200, deterministic=False)
-    assert greedy_cost == 0.0 and greedy_return == pytest.approx(0.77)
-    assert sampled_cost < 0.1
+    assert_takes_the_cost_free_route(model)
 
 
 @pytest.mark.slow
@@ -428,12 +433,7 @@ def test_ppo_lag_multiplier_with_the_paper_settings() -> None:
 @pytest.mark.slow
 def test_cpo_learns_the_cost_free_route(cpo_run: tuple[CPO, RecordingWriter]) -> None:
     model, writer = cpo_run
-    probs = fork_probs(model)
-    assert np.argmax(probs) == SAFE and probs[SAFE] > 0.9, probs
-    greedy_return, greedy_cost = episode_stats(model, 10, deterministic=True)
-    _, sampled_cost = episode_stats(model, 200, deterministic=False)
-    assert greedy_cost == 0.0 and greedy_return == pytest.approx(0.77)
-    assert sampled_cost < 0.1
+    assert_takes_the_cost_free_route(model)
     cases = set(writer.values("train/cpo_case"))
     assert int(CPOCase.INFEASIBLE) in cases or int(CPOCase.FEASIBLE_VIOLATED) in cases  # it had to cut the cost
 

@@ -114,6 +114,25 @@ _SB3_PPO = {
     "max_grad_norm": 0.5,
 }
 
+#: What the paper's OmniSafe runs of PPO-Lag and CPO shared (evaluation spec 6.3 and Q3, Q20).
+_OMNISAFE_COMMON = {
+    "n_steps": 256,  # 2048 steps per epoch over 8 envs, as OmniSafe's steps_per_epoch
+    "batch_size": 64,
+    "learning_rate": 3e-4,
+    "anneal_lr": True,
+    "gamma": 0.99,
+    "gae_lambda": 0.95,
+    "cost_gamma": 0.99,
+    "cost_gae_lambda": 0.95,
+    "max_grad_norm": 40.0,
+    "critic_l2_coef": 0.001,
+    "cost_limit": 0.0,
+    "ep_cost_window": 50,
+    "reward_advantage_normalization": "standardize",
+    "cost_advantage_normalization": "standardize",
+    "reset_envs_each_rollout": True,  # OmniSafe resets all envs every epoch (spec Q20)
+}
+
 DEFAULT_LEARNERS: dict[str, LearnerSpec] = {
     "random": LearnerSpec("random", "Random", "random", n_envs=1, normalise_reward=False),
     "ppo": LearnerSpec("ppo", "PPO", "ppo", hparams=dict(_SB3_PPO)),
@@ -127,27 +146,13 @@ DEFAULT_LEARNERS: dict[str, LearnerSpec] = {
         cost_reset="protocol",
         step_accounting="floor",
         hparams={
-            "n_steps": 256,  # 2048 steps per epoch over 8 envs, as OmniSafe's steps_per_epoch
-            "batch_size": 64,
+            **_OMNISAFE_COMMON,
             "n_epochs": 40,
             "target_kl": 0.02,
-            "learning_rate": 3e-4,
-            "anneal_lr": True,
-            "gamma": 0.99,
-            "gae_lambda": 0.95,
-            "cost_gamma": 0.99,
-            "cost_gae_lambda": 0.95,
             "clip_range": 0.2,
             "ent_coef": 0.0,
-            "max_grad_norm": 40.0,
-            "critic_l2_coef": 0.001,
-            "cost_limit": 0.0,
             "lagrange_init": 0.001,
             "lagrange_lr": 0.035,
-            "ep_cost_window": 50,
-            "reward_advantage_normalization": "standardize",
-            "cost_advantage_normalization": "standardize",
-            "reset_envs_each_rollout": True,  # OmniSafe resets all envs every epoch (spec Q20)
         },
     ),
     "cpo": LearnerSpec(
@@ -157,27 +162,13 @@ DEFAULT_LEARNERS: dict[str, LearnerSpec] = {
         cost_reset="protocol",
         step_accounting="floor",
         hparams={
-            "n_steps": 256,
-            "batch_size": 64,
+            **_OMNISAFE_COMMON,
             "n_critic_updates": 10,
             "target_kl": 0.01,
             "cg_damping": 0.1,
             "cg_max_steps": 15,
             "line_search_max_iter": 15,
             "line_search_shrinking_factor": 0.8,
-            "learning_rate": 3e-4,
-            "anneal_lr": True,
-            "gamma": 0.99,
-            "gae_lambda": 0.95,
-            "cost_gamma": 0.99,
-            "cost_gae_lambda": 0.95,
-            "max_grad_norm": 40.0,
-            "critic_l2_coef": 0.001,
-            "cost_limit": 0.0,
-            "ep_cost_window": 50,
-            "reward_advantage_normalization": "standardize",
-            "cost_advantage_normalization": "standardize",
-            "reset_envs_each_rollout": True,  # OmniSafe resets all envs every epoch (spec Q20)
         },
     ),
 }
