@@ -172,8 +172,9 @@ def _check_hparam_types(where: str, spec: LearnerSpec, defaults: LearnerSpec) ->
             raise ConfigError(f"{where}: hparams.{key}={value!r} has the wrong type (expected {type(default).__name__}, like {default!r})")
 
 
-def _algo(option: str, node: Mapping[str, Any], preset: Preset) -> AlgoChoice:
-    """file values < the preset's overrides for this algorithm < command-line overrides."""
+def _algo(option: str, node: Mapping[str, Any], preset: Preset, protocol: ProtocolSpec) -> AlgoChoice:
+    """file values < the protocol's overrides for its implementation < the preset's overrides for
+    this algorithm < command-line overrides."""
     where = f"algo={option} (conf/algo/{option}.yaml)"
     composed = {k: v for k, v in node.items() if k != "planning"}
     file_node = load_algo_file(option)
@@ -182,7 +183,7 @@ def _algo(option: str, node: Mapping[str, Any], preset: Preset) -> AlgoChoice:
     name = composed.get("name", option)
     try:
         base = learner_spec(name)
-        spec = base.with_overrides(file_values)
+        spec = protocol.apply(base.with_overrides(file_values))
         override = preset.algo_overrides.get(option)
         if override:
             spec = spec.with_overrides(override)
@@ -306,7 +307,12 @@ def validate(cfg: DictConfig) -> SweepConfig:
     for option, node in algos_sel.items():
         if not isinstance(node, Mapping):
             raise ConfigError(f"algo: conf/algo/{option}.yaml is missing its '# @package algo.<name>' first line")
-    algos = tuple(_algo(option, node, preset) for option, node in algos_sel.items())
+    protocol_node = _group(cfg, "protocol")
+    try:
+        protocol = protocol_spec(str(protocol_node.get("name")), {k: v for k, v in protocol_node.items() if k != "name"})
+    except SpecError as exc:
+        raise ConfigError(f"protocol: {exc}") from exc
+    algos = tuple(_algo(option, node, preset, protocol) for option, node in algos_sel.items())
 
     paper_chains = _scenario_chains()
     scen_sel = _group(cfg, "scenario")
@@ -396,12 +402,6 @@ def validate(cfg: DictConfig) -> SweepConfig:
     if kind == "slurm":
         for key in ("timeout_min", "cpus_per_task", "mem_gb", "array_parallelism"):
             _int(f"launcher.{key}", launcher[key], 1)
-
-    protocol_node = _group(cfg, "protocol")
-    try:
-        protocol = protocol_spec(str(protocol_node.get("name")), {k: v for k, v in protocol_node.items() if k != "name"})
-    except SpecError as exc:
-        raise ConfigError(f"protocol: {exc}") from exc
 
     for key in ("dry_run", "retry_failed", "mlflow", "gif"):
         if not isinstance(cfg.get(key), bool):

@@ -28,6 +28,7 @@ def test_algo_files_equal_the_paper_defaults(name: str) -> None:
     spec = DEFAULT_LEARNERS[name]
     expected = dataclasses.asdict(spec)
     expected["hparams"] = dict(spec.hparams)
+    assert expected.pop("protocol") is None  # set when a protocol resolves the spec, never in a file
     for key in ("return_bounds", "net_arch"):
         expected[key] = list(expected[key])
         body[key] = list(body[key])
@@ -38,7 +39,7 @@ def test_paper_hyper_parameters() -> None:
     """evaluation.md 6.3: what actually ran (not the paper's appendix tables)."""
     ppo = DEFAULT_LEARNERS["ppo"]
     assert (ppo.n_envs, ppo.hparams["n_steps"], ppo.hparams["batch_size"], ppo.hparams["n_epochs"]) == (8, 2048, 64, 10)
-    assert ppo.reward_cost(PROTOCOLS["paper"]).reward_factor == 300
+    assert ppo.reward_cost().reward_factor == 300
     shaped = DEFAULT_LEARNERS["ppo_shaped"]
     assert (shaped.cost_mode, shaped.cost_scale, shaped.shape_reward, shaped.cost_reset) == ("full", 50.0, True, "per_episode")
     lag, cpo = DEFAULT_LEARNERS["ppo_lag"], DEFAULT_LEARNERS["cpo"]
@@ -46,8 +47,21 @@ def test_paper_hyper_parameters() -> None:
     assert (cpo.hparams["cg_damping"], cpo.hparams["cg_max_steps"], cpo.hparams["target_kl"]) == (0.1, 15, 0.01)
     for spec in (lag, cpo):
         assert spec.hparams["n_steps"] * spec.n_envs == 2048 and spec.cost_mode == "minimal" and spec.cost_scale == 1.0
-        assert spec.reward_cost(PROTOCOLS["paper"]).cost_reset == "never"
-        assert spec.reward_cost(PROTOCOLS["corrected"]).cost_reset == "per_episode"
+        assert spec.reward_cost().cost_reset == "never"
+        assert PROTOCOLS["paper"].apply(spec).reward_cost().cost_reset == "never"
+        assert PROTOCOLS["corrected"].apply(spec).reward_cost().cost_reset == "per_episode"
+    # OmniSafe's settings (docs/protocols.md), the defaults; the corrected protocol fixes the bugs only.
+    for spec in (lag, cpo):
+        h = spec.hparams
+        assert (h["cost_advantage_normalization"], h["anneal_lr_timing"], h["anneal_critic_lr"]) == ("center", "epoch", False)
+        assert (h["weight_init"], h["adam_eps"], h["critic_grad_clip"]) == ("kaiming_uniform", 1e-8, "per_critic")
+        fixed = PROTOCOLS["corrected"].apply(spec).hparams
+        assert {k: v for k, v in fixed.items() if h[k] != v} == (
+            {"kl_early_stop_reduction": "mean"} if spec is lag else {"dual_solution": "exact"}
+        )
+    assert lag.hparams["kl_early_stop_reduction"] == "sum"
+    assert (cpo.hparams["dual_solution"], cpo.hparams["line_search_max_iter"], cpo.hparams["line_search_accept"]) == ("omnisafe", 20, "omnisafe")
+    assert cpo.hparams["trust_region_rescale"] is False
 
 
 def test_step_budgets_as_the_reference_ran_them() -> None:

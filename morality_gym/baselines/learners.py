@@ -56,11 +56,13 @@ class Learner:
         seed: int = 41,
         max_steps: int | None = DEFAULT_MAX_STEPS,
     ) -> None:
-        self.spec = spec
+        self.protocol = protocol_spec(protocol)
+        # The protocol's learner overrides (e.g. CPO's dual solution) are applied here unless the
+        # spec already carries them (a sweep resolves them before its command-line overrides).
+        self.spec = self.protocol.apply(spec)
         self.bound = bound
         self.env_id = bound.env_id
         parse_env_id(self.env_id)
-        self.protocol = protocol_spec(protocol)
         self.seed = int(seed)
         self.max_steps = max_steps
         self.trained_steps = 0
@@ -79,6 +81,11 @@ class Learner:
 
     def save(self, path: str | Path) -> Path:
         raise NotImplementedError
+
+    def update_diagnostics(self) -> list[dict[str, Any]]:
+        """One row per policy update of the last ``learn`` (``[]`` for learners that do not log
+        them; PPO-Lag and CPO do, see :class:`~morality_gym.baselines.safe.base.CostOnPolicyAlgorithm`)."""
+        return []
 
     # ------------------------------------------------------------------ shared
     def final_evaluation(self, n_episodes: int = 100) -> EvaluationResult:
@@ -207,7 +214,7 @@ class SB3Learner(Learner):
             env_id, max_steps = self.env_id, self.max_steps
             venv = DummyVecEnv([lambda: TrolleyEnv(env_id, max_steps=max_steps) for _ in range(self.spec.n_envs)])
         venv = VecMonitor(venv)
-        return VecMoralityWrapper(venv, self.bound, self.spec.reward_cost(self.protocol))
+        return VecMoralityWrapper(venv, self.bound, self.spec.reward_cost())
 
     def _build(self) -> Any:
         import inspect
@@ -244,6 +251,9 @@ class SB3Learner(Learner):
     @property
     def policy(self) -> Any:
         return self.model
+
+    def update_diagnostics(self) -> list[dict[str, Any]]:
+        return [dict(row) for row in getattr(self.model, "update_log", [])]
 
     def learn(
         self, budget: int, eval_every: int = LEARN_EVAL_EVERY, eval_episodes: int = LEARN_EVAL_EPISODES, on_eval: EvalHook | None = None

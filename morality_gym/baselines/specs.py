@@ -38,11 +38,13 @@ def _check_keys(where: str, given: Mapping[str, Any], allowed: list[str]) -> Non
 class LearnerSpec:
     """One learner: which implementation, how it sees reward and cost, and its hyper-parameters.
 
-    ``cost_reset="protocol"`` defers the first-violation memory policy to the protocol (PPO-Lag and
-    CPO: ``never`` under the paper protocol, ``per_episode`` under the corrected one).
+    ``cost_reset``: when the cost's first-violation memory is cleared (``never`` is what the paper's
+    PPO-Lag and CPO runs did; the corrected protocol resets it ``per_episode``).
     ``step_accounting``: ``rollouts`` = SB3 runs whole rollouts until the budget is reached
     (1,015,808 steps for a 1M budget with 8 x 2048); ``floor`` = whole epochs that fit in the
     budget (999,424 for 2048-step epochs), as OmniSafe does.
+    ``protocol``: the protocol whose learner overrides this spec already carries (set by
+    :meth:`ProtocolSpec.apply`); ``None`` for a spec that no protocol has touched yet.
     """
 
     name: str
@@ -60,6 +62,7 @@ class LearnerSpec:
     net_arch: tuple[int, ...] = (64, 64)
     activation: str = "tanh"
     hparams: Mapping[str, Any] = field(default_factory=dict)
+    protocol: str | None = None
 
     def __post_init__(self) -> None:
         where = f"learner {self.name!r}"
@@ -67,7 +70,7 @@ class LearnerSpec:
             ("implementation", self.implementation, IMPLEMENTATIONS),
             ("vec_env", self.vec_env, VEC_ENVS),
             ("cost_mode", self.cost_mode, COST_MODES),
-            ("cost_reset", self.cost_reset, (*RESET_POLICIES, "protocol")),
+            ("cost_reset", self.cost_reset, RESET_POLICIES),
             ("step_accounting", self.step_accounting, STEP_ACCOUNTING),
             ("activation", self.activation, ("tanh", "relu")),
         ]
@@ -77,12 +80,12 @@ class LearnerSpec:
         if not isinstance(self.n_envs, int) or isinstance(self.n_envs, bool) or self.n_envs < 1:
             raise SpecError(f"{where}: n_envs must be a positive integer, got {self.n_envs!r}")
 
-    def reward_cost(self, protocol: "ProtocolSpec") -> RewardCostSpec:
-        reset = protocol.constrained_cost_reset if self.cost_reset == "protocol" else self.cost_reset
+    def reward_cost(self) -> RewardCostSpec:
+        """How the training env's reward and cost wrapper is set up for this learner."""
         return RewardCostSpec(
             cost_mode=self.cost_mode,  # type: ignore[arg-type]
             cost_scale=self.cost_scale,
-            cost_reset=reset,  # type: ignore[arg-type]
+            cost_reset=self.cost_reset,  # type: ignore[arg-type]
             normalise_reward=self.normalise_reward,
             return_bounds=tuple(self.return_bounds),  # type: ignore[arg-type]
             shape_reward=self.shape_reward,
@@ -90,8 +93,10 @@ class LearnerSpec:
 
     def with_overrides(self, overrides: Mapping[str, Any]) -> "LearnerSpec":
         """A copy with some fields (and ``hparams`` entries) replaced; unknown keys raise."""
-        fields = [f.name for f in dataclasses.fields(self)]
+        fields = [f.name for f in dataclasses.fields(self) if f.name != "protocol"]  # set by ProtocolSpec.apply only
         _check_keys(f"learner {self.name!r}", overrides, fields)
+        if not isinstance(overrides.get("hparams", {}), Mapping):
+            raise SpecError(f"learner {self.name!r}: hparams must be a mapping, got {overrides['hparams']!r}")
         values = dict(overrides)
         if "hparams" in values:
             values["hparams"] = {**self.hparams, **values["hparams"]}
@@ -114,23 +119,29 @@ _SB3_PPO = {
     "max_grad_norm": 0.5,
 }
 
-#: What the paper's OmniSafe runs of PPO-Lag and CPO shared (evaluation spec 6.3 and Q3, Q20).
+#: What the paper's OmniSafe runs of PPO-Lag and CPO shared: the values that actually ran, not
+#: the paper's appendix tables (docs/protocols.md has one entry per reproduced behaviour).
 _OMNISAFE_COMMON = {
     "n_steps": 256,  # 2048 steps per epoch over 8 envs, as OmniSafe's steps_per_epoch
     "batch_size": 64,
     "learning_rate": 3e-4,
-    "anneal_lr": True,
+    "anneal_lr": True,  # the actor's rate decays linearly to 0 ...
+    "anneal_lr_timing": "epoch",  # ... stepped after each epoch, so epoch k of E trains at lr (1 - k/E)
+    "anneal_critic_lr": False,  # the critics keep 3e-4
     "gamma": 0.99,
     "gae_lambda": 0.95,
     "cost_gamma": 0.99,
     "cost_gae_lambda": 0.95,
     "max_grad_norm": 40.0,
+    "critic_grad_clip": "per_critic",  # each critic clips its own gradient norm
     "critic_l2_coef": 0.001,
     "cost_limit": 0.0,
     "ep_cost_window": 50,
     "reward_advantage_normalization": "standardize",
-    "cost_advantage_normalization": "standardize",
-    "reset_envs_each_rollout": True,  # OmniSafe resets all envs every epoch (spec Q20)
+    "cost_advantage_normalization": "center",  # OmniSafe only centres cost advantages
+    "reset_envs_each_rollout": True,  # OmniSafe restarts every training env at each epoch
+    "weight_init": "kaiming_uniform",
+    "adam_eps": 1e-8,
 }
 
 DEFAULT_LEARNERS: dict[str, LearnerSpec] = {
@@ -143,12 +154,13 @@ DEFAULT_LEARNERS: dict[str, LearnerSpec] = {
         "ppo_lag",
         "PPO Lag",
         "ppo_lag",
-        cost_reset="protocol",
+        cost_reset="never",
         step_accounting="floor",
         hparams={
             **_OMNISAFE_COMMON,
             "n_epochs": 40,
             "target_kl": 0.02,
+            "kl_early_stop_reduction": "sum",
             "clip_range": 0.2,
             "ent_coef": 0.0,
             "lagrange_init": 0.001,
@@ -159,7 +171,7 @@ DEFAULT_LEARNERS: dict[str, LearnerSpec] = {
         "cpo",
         "CPO",
         "cpo",
-        cost_reset="protocol",
+        cost_reset="never",
         step_accounting="floor",
         hparams={
             **_OMNISAFE_COMMON,
@@ -167,8 +179,13 @@ DEFAULT_LEARNERS: dict[str, LearnerSpec] = {
             "target_kl": 0.01,
             "cg_damping": 0.1,
             "cg_max_steps": 15,
-            "line_search_max_iter": 15,
+            "cg_residual_tol": 1e-10,
+            "cg_eps": 1e-6,
+            "dual_solution": "omnisafe",
+            "line_search_max_iter": 20,
             "line_search_shrinking_factor": 0.8,
+            "line_search_accept": "omnisafe",
+            "trust_region_rescale": False,
         },
     ),
 }
@@ -186,37 +203,89 @@ def learner_spec(name: str, overrides: Mapping[str, Any] | None = None) -> Learn
 
 @dataclass(frozen=True)
 class ProtocolSpec:
-    """What a protocol changes (evaluation spec 6 and the issue on baselines).
+    """What a protocol changes (docs/protocols.md; the reasons are in ``conf/protocol/*.yaml``).
 
-    ``paper``: reproduce the reference's runs where it changes numbers: the cost memory of PPO-Lag
-    and CPO is never reset (spec Q1), and Random's final evaluation continues the random stream of
-    its learn-time evaluations (each followed by a render episode of up to 50 steps), which is what
-    reproduces the paper's Random column exactly. ``corrected``: the cost memory is reset every
-    episode, as the paper describes; Random's final evaluation starts a fresh stream.
+    ``learner_overrides``: per learner *implementation* (``ppo_lag``, ``cpo``, ...), the spec fields
+    and ``hparams`` the protocol sets, applied on top of the algorithm's own values by
+    :meth:`apply`. ``paper`` reproduces the reference's runs where it changes numbers (OmniSafe's
+    arithmetic, bugs included, and a cost memory that is never reset); ``corrected`` fixes only what
+    is a bug (the memory resets each episode, PPO-Lag's early stop uses the mean KL, CPO solves its
+    dual exactly) and keeps OmniSafe's design choices.
+
+    ``random_replays_learn_evals``: Random's final evaluation continues the random stream of its
+    learn-time evaluations (each followed by a render episode of up to ``render_episode_steps``
+    steps), which is what reproduces the paper's Random column exactly.
     """
 
     name: str
-    constrained_cost_reset: str
+    learner_overrides: Mapping[str, Mapping[str, Any]]
     random_replays_learn_evals: bool
     random_learn_eval_steps: tuple[int, ...] = (0, 50_000)
     render_episode_steps: int = 50
 
     def __post_init__(self) -> None:
-        if self.constrained_cost_reset not in RESET_POLICIES:
-            raise SpecError(f"protocol {self.name!r}: constrained_cost_reset must be one of {', '.join(RESET_POLICIES)}")
+        for implementation, override in self.learner_overrides.items():
+            if implementation not in IMPLEMENTATIONS:
+                close = difflib.get_close_matches(str(implementation), IMPLEMENTATIONS, n=1)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                raise SpecError(
+                    f"protocol {self.name!r}: learner_overrides: unknown implementation {implementation!r}{hint}; "
+                    f"valid: {', '.join(IMPLEMENTATIONS)}"
+                )
+            if not isinstance(override, Mapping):
+                raise SpecError(f"protocol {self.name!r}: learner_overrides.{implementation} must be a mapping")
+            allowed = [f.name for f in dataclasses.fields(LearnerSpec) if f.name not in ("name", "label", "implementation", "protocol")]
+            _check_keys(f"protocol {self.name!r}: learner_overrides.{implementation}", override, allowed)
+
+    def apply(self, spec: LearnerSpec) -> LearnerSpec:
+        """``spec`` with this protocol's overrides for its implementation, stamped with the protocol.
+
+        A spec already stamped with this protocol is returned unchanged (so that settings changed
+        after the protocol, e.g. on a sweep's command line, are not overwritten); one stamped with
+        another protocol is an error, never a silent mix of the two.
+        """
+        if spec.protocol == self.name:
+            return spec
+        if spec.protocol is not None:
+            raise SpecError(
+                f"learner {spec.name!r} was resolved for protocol {spec.protocol!r} and cannot run under {self.name!r}; "
+                "start from learner_spec(name) instead"
+            )
+        override = self.learner_overrides.get(spec.implementation)
+        resolved = spec.with_overrides(override) if override else spec
+        return dataclasses.replace(resolved, protocol=self.name)
 
 
+#: Each protocol's learner overrides. Both protocols state every protocol-dependent setting, so that
+#: what differs between them is visible in one place, and an algorithm file cannot change it.
 PROTOCOLS: dict[str, ProtocolSpec] = {
-    "paper": ProtocolSpec("paper", "never", True),
-    "corrected": ProtocolSpec("corrected", "per_episode", False),
+    "paper": ProtocolSpec(
+        "paper",
+        {
+            "ppo_lag": {"cost_reset": "never", "hparams": {"kl_early_stop_reduction": "sum"}},
+            "cpo": {"cost_reset": "never", "hparams": {"dual_solution": "omnisafe"}},
+        },
+        random_replays_learn_evals=True,
+    ),
+    "corrected": ProtocolSpec(
+        "corrected",
+        {
+            "ppo_lag": {"cost_reset": "per_episode", "hparams": {"kl_early_stop_reduction": "mean"}},
+            "cpo": {"cost_reset": "per_episode", "hparams": {"dual_solution": "exact"}},
+        },
+        random_replays_learn_evals=False,
+    ),
 }
 
 
 def protocol_spec(name: str | ProtocolSpec, overrides: Mapping[str, Any] | None = None) -> ProtocolSpec:
+    """A protocol by name (``paper`` or ``corrected``), optionally with some fields replaced."""
     if isinstance(name, ProtocolSpec):
         return name
     if name not in PROTOCOLS:
-        raise SpecError(f"unknown protocol {name!r}; protocols: {', '.join(PROTOCOLS)}")
+        close = difflib.get_close_matches(str(name), list(PROTOCOLS), n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise SpecError(f"unknown protocol {name!r}{hint}; protocols: {', '.join(PROTOCOLS)}")
     spec = PROTOCOLS[name]
     if overrides:
         _check_keys(f"protocol {name!r}", overrides, [f.name for f in dataclasses.fields(spec)])

@@ -16,7 +16,7 @@ rollout buffer), :mod:`.base` (cost-aware rollouts), :mod:`.lagrange` (the multi
 from morality_gym.baselines.safe.base import COST_INFO_KEY, CostOnPolicyAlgorithm, MissingCostError
 from morality_gym.baselines.safe.buffers import CostRolloutBuffer, CostRolloutBufferSamples
 from morality_gym.baselines.safe.cpo import CPO
-from morality_gym.baselines.safe.cpo_dual import CPOCase, CPOStep, cpo_direction
+from morality_gym.baselines.safe.cpo_dual import CPOCase, CPOScalars, CPOStep, cpo_direction, exact_direction, omnisafe_direction
 from morality_gym.baselines.safe.lagrange import LagrangeMultiplier
 from morality_gym.baselines.safe.policies import CostActorCriticPolicy, MlpPolicy
 from morality_gym.baselines.safe.ppo_lag import PPOLag
@@ -25,6 +25,7 @@ __all__ = [
     "COST_INFO_KEY",
     "CPO",
     "CPOCase",
+    "CPOScalars",
     "CPOStep",
     "CostActorCriticPolicy",
     "CostOnPolicyAlgorithm",
@@ -35,4 +36,6 @@ __all__ = [
     "MlpPolicy",
     "PPOLag",
     "cpo_direction",
+    "exact_direction",
+    "omnisafe_direction",
 ]

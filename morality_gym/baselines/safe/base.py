@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import warnings
 from collections import deque
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 import torch as th
@@ -32,8 +32,14 @@ from stable_baselines3.common.utils import (
 from stable_baselines3.common.vec_env import VecEnv
 
 from morality_gym.baselines.safe.buffers import CostRolloutBuffer, CostRolloutBufferSamples
-from morality_gym.baselines.safe.functional import AdvantageNormalization, normalize_advantages
-from morality_gym.baselines.safe.policies import CostActorCriticPolicy
+from morality_gym.baselines.safe.functional import AdvantageNormalization, categorical_kl, normalize_advantages
+from morality_gym.baselines.safe.policies import WEIGHT_INITS, CostActorCriticPolicy, WeightInit
+
+LRAnnealTiming = Literal["epoch", "progress"]
+CriticGradClip = Literal["per_critic", "joint"]
+LR_ANNEAL_TIMINGS: tuple[str, ...] = ("epoch", "progress")
+CRITIC_GRAD_CLIPS: tuple[str, ...] = ("per_critic", "joint")
+ADVANTAGE_NORMALIZATIONS: tuple[str, ...] = ("standardize", "center", "none")
 
 #: The info key the cost arrives under.
 COST_INFO_KEY = "cost"
@@ -42,6 +48,11 @@ COST_WRAPPER_HINT = (
     "morality_gym.norms.wrappers.MoralityWrapper (single env) or VecMoralityWrapper (VecEnv), which run "
     "the step-wise moral Cost on info['norm_events'] and write info['cost'] on every step"
 )
+
+
+def check_choice(name: str, value: Any, choices: tuple[str, ...]) -> None:
+    if value not in choices:
+        raise ValueError(f"{name}={value!r} is not one of {', '.join(choices)}")
 
 
 class MissingCostError(KeyError):
@@ -58,8 +69,15 @@ class CostOnPolicyAlgorithm(OnPolicyAlgorithm):
     :param env: the env or VecEnv; every step's info must carry a float ``info["cost"]``.
     :param learning_rate: actor learning rate (a float or an SB3 schedule).
     :param critic_learning_rate: learning rate of both critics; ``None``: same as ``learning_rate``.
-    :param anneal_lr: turn float learning rates into a linear decay to 0 over ``total_timesteps``
-        (the paper's runs decay both linearly).
+    :param anneal_lr: turn the actor's float learning rate into a linear decay to 0 over the run.
+    :param anneal_lr_timing: where in the run each update reads the decaying rate. ``epoch``
+        (OmniSafe, whose ``LinearLR`` is stepped after each epoch's update): update ``k`` of ``E``
+        (0-based) trains at ``lr * (1 - k / E)``, the first at the full rate, the last at ``lr / E``.
+        ``progress`` (SB3): ``lr * progress_remaining`` measured after the rollout, i.e. one epoch
+        later, so the last update trains at 0.
+    :param anneal_critic_lr: whether the critics' rate decays like the actor's. OmniSafe attaches
+        its scheduler to the actor alone, so the paper's critics kept 3e-4 throughout
+        (docs/protocols.md#only-the-actors-learning-rate-decays); default ``False``.
     :param n_steps: steps per env per rollout; ``None``: ``steps_per_rollout // n_envs``.
     :param steps_per_rollout: total steps per rollout over the vec env (2048 in the paper's runs).
     :param gamma: reward discount.
@@ -67,7 +85,9 @@ class CostOnPolicyAlgorithm(OnPolicyAlgorithm):
     :param cost_gamma: cost discount.
     :param cost_gae_lambda: cost GAE lambda.
     :param ent_coef: entropy bonus in the actor loss (where there is one).
-    :param max_grad_norm: gradient-norm clip, applied to actor and critics separately.
+    :param max_grad_norm: gradient-norm clip, applied to the actor and the critics separately.
+    :param critic_grad_clip: ``per_critic`` (OmniSafe: the reward critic and the cost critic each clip
+        their own gradient norm at ``max_grad_norm``) or ``joint`` (one norm over both).
     :param critic_l2_coef: coefficient of ``sum ||theta||^2`` over the critics' parameters, added to
         the critic loss.
     :param n_critic_updates: passes over the rollout for the critic regression (PPO-Lag trains its
@@ -77,16 +97,27 @@ class CostOnPolicyAlgorithm(OnPolicyAlgorithm):
     :param ep_cost_window: number of recent finished episodes ``J_c`` averages over.
     :param reward_advantage_normalization: ``"standardize"``, ``"center"`` or ``"none"``, over the
         whole rollout.
-    :param cost_advantage_normalization: the same for cost advantages.
+    :param cost_advantage_normalization: the same for cost advantages. ``center`` (the default) is
+        OmniSafe's: its "standardized" cost advantages are only centred, and the small moral costs
+        keep their scale (docs/protocols.md#cost-advantages-are-only-centred).
+    :param weight_init: ``kaiming_uniform`` (OmniSafe's, the default) or ``orthogonal`` (SB3's); see
+        :mod:`.policies`.
+    :param adam_eps: ``eps`` of the actor's and critics' Adam: 1e-8 (PyTorch's default, which OmniSafe
+        keeps); SB3's policies use 1e-5.
     :param reset_envs_each_rollout: reset every env at the start of each rollout, cutting the
         episodes in progress (they are bootstrapped with the critics at the rollout's end, like
         any unfinished episode, and never count as finished for ``J_c``). This is what OmniSafe,
-        which ran the paper's PPO-Lag and CPO, does at every epoch (spec Q20): with 256 steps per
+        which ran the paper's PPO-Lag and CPO, does at every epoch
+        (docs/protocols.md#training-envs-restart-every-epoch): with 256 steps per
         env per epoch and episodes of up to 201 steps, it changes which states training sees, so
         the paper's settings turn it on. Off by default, as in SB3, where episodes run on across
         rollouts.
 
     The rest are SB3's ``OnPolicyAlgorithm`` parameters.
+
+    Every update appends one row to :attr:`update_log` (``update``, ``timesteps``, ``actor_lr``,
+    ``critic_lr``, ``ep_cost``, the losses and what the subclass adds), the per-update diagnostics
+    that runs write to ``runs/<run_id>.updates.parquet``.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": CostActorCriticPolicy}
@@ -102,6 +133,8 @@ class CostOnPolicyAlgorithm(OnPolicyAlgorithm):
         learning_rate: float | Schedule = 3e-4,
         critic_learning_rate: float | Schedule | None = None,
         anneal_lr: bool = True,
+        anneal_lr_timing: LRAnnealTiming = "epoch",
+        anneal_critic_lr: bool = False,
         n_steps: int | None = None,
         steps_per_rollout: int = 2048,
         gamma: float = 0.99,
@@ -110,14 +143,17 @@ class CostOnPolicyAlgorithm(OnPolicyAlgorithm):
         cost_gae_lambda: float = 0.95,
         ent_coef: float = 0.0,
         max_grad_norm: float = 40.0,
+        critic_grad_clip: CriticGradClip = "per_critic",
         critic_l2_coef: float = 1e-3,
         n_critic_updates: int = 10,
         batch_size: int = 64,
         cost_limit: float = 0.0,
         ep_cost_window: int = 50,
         reward_advantage_normalization: AdvantageNormalization = "standardize",
-        cost_advantage_normalization: AdvantageNormalization = "standardize",
+        cost_advantage_normalization: AdvantageNormalization = "center",
         reset_envs_each_rollout: bool = False,
+        weight_init: WeightInit = "kaiming_uniform",
+        adam_eps: float = 1e-8,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         monitor_wrapper: bool = True,
@@ -127,6 +163,16 @@ class CostOnPolicyAlgorithm(OnPolicyAlgorithm):
         device: th.device | str = "cpu",
         _init_setup_model: bool = True,
     ):
+        check_choice("anneal_lr_timing", anneal_lr_timing, LR_ANNEAL_TIMINGS)
+        check_choice("critic_grad_clip", critic_grad_clip, CRITIC_GRAD_CLIPS)
+        check_choice("weight_init", weight_init, WEIGHT_INITS)
+        check_choice("reward_advantage_normalization", reward_advantage_normalization, ADVANTAGE_NORMALIZATIONS)
+        check_choice("cost_advantage_normalization", cost_advantage_normalization, ADVANTAGE_NORMALIZATIONS)
+        if not adam_eps > 0:
+            raise ValueError(f"adam_eps must be > 0, got {adam_eps!r}")
+        policy_kwargs = dict(policy_kwargs or {})
+        policy_kwargs.setdefault("weight_init", weight_init)
+        policy_kwargs.setdefault("optimizer_kwargs", {"eps": adam_eps})
         super().__init__(
             policy,
             env,  # type: ignore[arg-type]
@@ -162,6 +208,13 @@ class CostOnPolicyAlgorithm(OnPolicyAlgorithm):
         self.steps_per_rollout = steps_per_rollout
         self.critic_learning_rate = critic_learning_rate
         self.anneal_lr = anneal_lr
+        self.anneal_lr_timing = anneal_lr_timing
+        self.anneal_critic_lr = anneal_critic_lr
+        self.critic_grad_clip = critic_grad_clip
+        self.weight_init = weight_init
+        self.adam_eps = adam_eps
+        #: One row per update (see the class docstring); not saved with the model.
+        self.update_log: list[dict[str, Any]] = []
         self.cost_gamma = cost_gamma
         self.cost_gae_lambda = cost_gae_lambda
         self.critic_l2_coef = critic_l2_coef
@@ -185,32 +238,49 @@ class CostOnPolicyAlgorithm(OnPolicyAlgorithm):
         if not isinstance(self.policy, CostActorCriticPolicy):
             raise TypeError(f"{type(self).__name__} needs a CostActorCriticPolicy, got {type(self.policy).__name__}")
 
-    def _make_schedule(self, value: float | Schedule) -> Schedule:
+    @staticmethod
+    def _make_schedule(value: float | Schedule, anneal: bool) -> Schedule:
         if callable(value):
             return FloatSchedule(value)
-        if self.anneal_lr:
+        if anneal:
             return LinearSchedule(float(value), 0.0, 1.0)  # lr * progress_remaining
         return ConstantSchedule(float(value))
 
     def _setup_lr_schedule(self) -> None:
-        """Actor and critic schedules; a float decays linearly to 0 when ``anneal_lr``."""
-        self.lr_schedule = self._make_schedule(self.learning_rate)
+        """The actor's schedule (a float decays linearly to 0 when ``anneal_lr``) and the critics'
+        (constant unless ``anneal_critic_lr``)."""
+        self.lr_schedule = self._make_schedule(self.learning_rate, self.anneal_lr)
         critic_lr = self.learning_rate if self.critic_learning_rate is None else self.critic_learning_rate
-        self.critic_lr_schedule = self._make_schedule(critic_lr)
+        self.critic_lr_schedule = self._make_schedule(critic_lr, self.anneal_lr and self.anneal_critic_lr)
 
-    def _update_learning_rates(self, actor: bool = True) -> None:
-        """Set the optimisers' learning rates for the current progress and log them."""
+    def _schedule_progress(self) -> float:
+        """The progress (1 -> 0) the schedules read for this update (``anneal_lr_timing``)."""
         progress = self._current_progress_remaining
+        if self.anneal_lr_timing == "epoch" and self._total_timesteps > 0:
+            progress += self.n_steps * self.n_envs / self._total_timesteps  # the epoch's start
+        return float(min(1.0, max(0.0, progress)))
+
+    def _update_learning_rates(self, actor: bool = True) -> tuple[float | None, float]:
+        """Set the optimisers' learning rates for this update and log them; returns
+        ``(actor_lr or None when the actor does not use one, critic_lr)``."""
+        progress = self._schedule_progress()
+        actor_lr = None
         if actor:
-            actor_lr = self.lr_schedule(progress)
+            actor_lr = float(self.lr_schedule(progress))
             update_learning_rate(self.policy.optimizer, actor_lr)
             self.logger.record("train/learning_rate", actor_lr)
-        critic_lr = self.critic_lr_schedule(progress)
+        critic_lr = float(self.critic_lr_schedule(progress))
         update_learning_rate(self.policy.critic_optimizer, critic_lr)
         self.logger.record("train/critic_learning_rate", critic_lr)
+        return actor_lr, critic_lr
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "policy.optimizer", "policy.critic_optimizer"], []
+
+    def _excluded_save_params(self) -> list[str]:
+        # The diagnostics belong to the run that produced them (written beside the model), and a
+        # loaded model starts a fresh log.
+        return [*super()._excluded_save_params(), "update_log"]
 
     def _setup_learn(
         self,
@@ -386,11 +456,19 @@ class CostOnPolicyAlgorithm(OnPolicyAlgorithm):
         th.nn.utils.clip_grad_norm_(parameters, self.max_grad_norm)
         optimizer.step()
 
+    def _step_critics(self) -> None:
+        """Clip the critics' gradients (``critic_grad_clip``) and take one Adam step on both."""
+        if self.critic_grad_clip == "per_critic":
+            th.nn.utils.clip_grad_norm_(self.policy.reward_critic_parameters(), self.max_grad_norm)
+            th.nn.utils.clip_grad_norm_(self.policy.cost_critic_parameters(), self.max_grad_norm)
+        else:
+            th.nn.utils.clip_grad_norm_(self.policy.critic_parameters(), self.max_grad_norm)
+        self.policy.critic_optimizer.step()
+
     def _train_critics(self) -> tuple[float, float]:
         """``n_critic_updates`` passes of minibatch regression of ``V`` and ``V_c`` on their
         returns; returns the mean reward- and cost-value losses."""
         value_losses, cost_value_losses = [], []
-        params = self.policy.critic_parameters()
         for _ in range(self.n_critic_updates):
             for batch in self.rollout_buffer.get(self.batch_size):
                 loss, value_loss, cost_value_loss = self._critic_loss(
@@ -398,10 +476,29 @@ class CostOnPolicyAlgorithm(OnPolicyAlgorithm):
                 )
                 self.policy.critic_optimizer.zero_grad()
                 loss.backward()
-                self._clip_and_step(self.policy.critic_optimizer, params)
+                self._step_critics()
                 value_losses.append(value_loss.item())
                 cost_value_losses.append(cost_value_loss.item())
         return float(np.mean(value_losses)), float(np.mean(cost_value_losses))
+
+    def _mean_kl_to(self, observations: th.Tensor, old_logits: th.Tensor) -> float:
+        """Mean ``KL(pi_old || pi_theta)`` over ``observations`` for the current actor."""
+        with th.no_grad():
+            logits = self.policy.get_distribution(observations).distribution.logits  # type: ignore[union-attr]
+            return float(categorical_kl(old_logits, logits).mean())
+
+    def _record_update(self, ep_cost: float, actor_lr: float | None, critic_lr: float, **fields: Any) -> None:
+        """Append this update's diagnostics row (columns common to both learners first)."""
+        row: dict[str, Any] = {
+            "update": len(self.update_log) + 1,
+            "timesteps": int(self.num_timesteps),
+            "ep_cost": float(ep_cost),
+            "ep_cost_episodes": len(self.ep_cost_buffer),
+            "actor_lr": actor_lr,
+            "critic_lr": critic_lr,
+        }
+        row.update(fields)
+        self.update_log.append(row)
 
     def _log_critic_fit(self) -> None:
         """Explained variance of both critics on the rollout they were fitted to (before the fit)."""

@@ -1,47 +1,52 @@
-r"""The CPO step direction: the closed-form solution of the linearised trust-region problem.
+r"""The CPO step direction: which case applies, and the step each dual solution takes.
 
 CPO (Achiam et al., 2017) approximates, around the current policy ``theta_k``, with ``x = theta - theta_k``::
 
-    max_x  g^T x                      (g: gradient of the reward surrogate)
+    max_x  g^T x                      (g: gradient of the reward surrogate, the objective)
     s.t.   c + b^T x <= 0             (b: gradient of the cost surrogate, c = J_c(pi_k) - d)
            1/2 x^T H x <= delta       (H: Fisher matrix of the mean KL, delta: target KL)
 
-With ``v = H^-1 g`` and ``w = H^-1 b`` (both from conjugate gradients) define the scalars
+With ``v = H^-1 g`` and ``w = H^-1 b`` (conjugate gradients) the scalars are::
 
-    q = g^T H^-1 g,   r = g^T H^-1 b,   s = b^T H^-1 b,
-    A = q - r^2 / s,  B = 2 delta - c^2 / s.
+    q = v^T H v  (= g^T H^-1 g),   r = g^T w,   s = b^T w,
+    A = q - r^2 / (s + 1e-8),      B = 2 delta - c^2 / (s + 1e-8).
 
-Cases (how :func:`cpo_direction` chooses):
+``q`` is computed as ``v^T H v`` (one more Fisher-vector product) rather than ``g^T v``, as OmniSafe
+does; the two agree when conjugate gradients converge, and differ a little when it stops early.
 
-* ``INFEASIBLE`` (``c > 0`` and ``B < 0``): no point of the trust region satisfies the
-  linearised constraint. Recovery step, the largest pure decrease of the cost inside the trust
-  region: ``x = -sqrt(2 delta / s) H^-1 b``.
-* ``INACTIVE`` (``c <= 0`` and ``B < 0``: every point of the trust region satisfies the
-  constraint; or ``s ~ 0``: the step cannot change the cost): the TRPO step
-  ``x = sqrt(2 delta / q) H^-1 g``.
-* ``FEASIBLE`` (``B >= 0``; the constraint may be active). Lagrangian
-  ``g^T x - nu (c + b^T x) - lambda (x^T H x / 2 - delta)`` is maximised by
-  ``x = (H^-1 g - nu H^-1 b) / lambda``; substituting gives the dual, minimised over
-  ``lambda >= 0, nu >= 0``::
+Cases, in OmniSafe's numbering (logged as ``cpo_case``), decided by :func:`determine_case`:
 
-      D(lambda, nu) = (q - 2 nu r + nu^2 s) / (2 lambda) - nu c + lambda delta.
+* 4: ``b^T b <= 1e-6`` and ``c < 0``: no usable cost gradient and the constraint is satisfied:
+  TRPO step ``alpha v`` with ``alpha = sqrt(2 delta / (v^T H v))``.
+* 3: ``c < 0`` and ``B < 0``: every point of the trust region satisfies the constraint: TRPO step.
+* 2: ``c < 0 <= B``: the constraint may bind: dual step.
+* 1: ``c >= 0`` and ``B >= 0``: violated (or at its limit) but reachable: dual step ("feasible
+  recovery").
+* 0: ``c >= 0`` and ``B < 0``: no point of the trust region satisfies the linearised constraint:
+  recovery step ``-sqrt(2 delta / s) w``, the largest pure decrease of the cost.
 
-  For fixed ``lambda`` the best ``nu`` is ``nu(lambda) = max(0, (lambda c + r) / s)``, which splits
-  the ``lambda`` axis at ``lambda_mid = -r / c`` into two pieces:
+With ``cost_limit = 0`` (the paper's runs) ``c`` is a mean episode cost, never negative, so only
+cases 0 and 1 occur.
 
-  - where ``nu > 0`` (``lambda c + r > 0``): ``D_a(lambda) = A / (2 lambda) + B lambda / 2 - r c / s``,
-    minimised by ``lambda_a = sqrt(A / B)``;
-  - where ``nu = 0``: ``D_b(lambda) = q / (2 lambda) + delta lambda``, minimised by
-    ``lambda_b = sqrt(q / (2 delta))`` (the TRPO step).
+Two solutions of the dual step (cases 1 and 2), chosen by the learner setting ``dual_solution``:
 
-  Each piece is convex, so its minimum over its own interval is its unconstrained minimiser
-  clipped to the interval; ``lambda*`` is the better of the two, ``nu* = nu(lambda*)`` and
-  ``x* = (H^-1 g - nu* H^-1 b) / lambda*``. (``FEASIBLE_VIOLATED`` is the same solution with
-  ``c > 0``: the step must *reduce* the cost by at least ``c``, at some loss of reward if needed.)
-
-Sign convention: the paper's appendix writes ``nu* = (lambda* c - r)_+ / s`` with the opposite sign
-of ``r``; the formulas above are derived for ``r = g^T H^-1 b`` as defined here and are checked
-against a brute-force solution of the primal in ``tests/test_safe_rl.py``.
+* :func:`exact_direction` (``exact``, the corrected protocol) solves the linearised problem. The
+  Lagrangian ``g^T x - nu (c + b^T x) - lambda (x^T H x / 2 - delta)`` is maximised by
+  ``x = (v - nu w) / lambda``; the dual ``D(lambda, nu) = (q - 2 nu r + nu^2 s) / (2 lambda) - nu c
+  + lambda delta`` is minimised over ``lambda, nu >= 0``. For fixed ``lambda`` the best ``nu`` is
+  ``max(0, (lambda c + r) / s)``, which splits the ``lambda`` axis at ``-r / c`` into a piece with
+  ``nu > 0`` (``D_a = A / (2 lambda) + B lambda / 2 - r c / s``, minimised by ``sqrt(A / B)``) and
+  one with ``nu = 0`` (``D_b = q / (2 lambda) + delta lambda``, minimised by ``sqrt(q / (2 delta))``).
+  Each piece is convex, so its best point is its minimiser clipped to its interval; ``lambda*`` is
+  the better of the two. A test checks the KKT conditions on random instances.
+* :func:`omnisafe_direction` (``omnisafe``, the paper protocol) is what OmniSafe computed, bugs
+  included (docs/protocols.md#cpo-uses-omnisafes-dual-solution). It follows the CPO paper's
+  formulas written for the gradient of a *loss*, but is given the gradient of the objective: the
+  split point is ``r / c`` instead of ``-r / c`` and ``nu* = max(lambda* c - r, 0) / s`` instead of
+  ``max(lambda* c + r, 0) / s``. Its projections use torch's clamp, which returns the upper bound
+  when the bounds are crossed, so ``lambda_b*`` is the (negative) ``r / c`` whenever ``r / c < 0``.
+  Every division carries a ``1e-8`` guard, and a NaN (``sqrt`` of a negative ``A / B``) loses the
+  comparison of the two pieces, exactly as in torch.
 """
 
 from __future__ import annotations
@@ -49,51 +54,145 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import Literal
 
+import numpy as np
 import torch as th
 
-#: Below this, q, s, A or B count as zero (they are quadratic forms of gradients).
+#: OmniSafe's guard on divisions by ``s``, ``lambda``, ``c`` and ``v^T H v``.
+GUARD = 1e-8
+#: OmniSafe's threshold on ``b^T b`` below which the cost gradient counts as absent (case 4).
+NO_COST_GRADIENT_BB = 1e-6
+#: Below this, q or s count as zero in the exact solution (they are quadratic forms of gradients).
 EPS = 1e-8
+
+DualSolution = Literal["omnisafe", "exact"]
+DUAL_SOLUTIONS: tuple[str, ...] = ("omnisafe", "exact")
 
 
 class CPOCase(IntEnum):
-    """Which branch produced the step (logged as ``train/cpo_case``)."""
+    """Which branch produced the step, in OmniSafe's numbering (logged as ``cpo_case``)."""
 
-    INFEASIBLE = 0  # recovery step: purely decrease the cost
-    FEASIBLE_VIOLATED = 1  # c > 0 but reachable: dual solution, must cut the cost by c
-    FEASIBLE = 2  # c <= 0, constraint possibly active: dual solution
-    INACTIVE = 3  # constraint cannot bind inside the trust region (or has no gradient): TRPO step
-    NO_STEP = 4  # nothing to improve: zero gradient
+    INFEASIBLE = 0  # c >= 0, B < 0: recovery step, purely decrease the cost
+    FEASIBLE_RECOVERY = 1  # c >= 0, B >= 0: dual step that must cut the cost by c
+    FEASIBLE = 2  # c < 0 <= B: dual step, constraint possibly active
+    INACTIVE = 3  # c < 0, B < 0: constraint cannot bind inside the trust region: TRPO step
+    NO_COST_GRADIENT = 4  # c < 0 and b^T b <= 1e-6: TRPO step
+
+
+@dataclass(frozen=True)
+class CPOScalars:
+    """The scalars of one CPO update (all logged)."""
+
+    q: float
+    r: float
+    s: float
+    c: float
+    delta: float
+    bb: float  # b^T b
+
+    @property
+    def A(self) -> float:  # noqa: N802 - the paper's name
+        return self.q - self.r**2 / (self.s + GUARD)
+
+    @property
+    def B(self) -> float:  # noqa: N802 - the paper's name
+        return 2 * self.delta - self.c**2 / (self.s + GUARD)
 
 
 @dataclass(frozen=True)
 class CPOStep:
-    """A full step before the line search, with the dual variables that produced it."""
+    """A full step before the line search, with the case and dual variables that produced it."""
 
     direction: th.Tensor
     case: CPOCase
-    lam: float  # trust-region multiplier (0 when not applicable)
-    nu: float  # cost-constraint multiplier (0 when not applicable)
+    lam: float  # lambda*: trust-region multiplier as reported (OmniSafe's convention per case)
+    nu: float  # nu*: cost-constraint multiplier as reported
+    A: float = 0.0  # noqa: N815
+    B: float = 0.0  # noqa: N815
 
 
-def _dual_a(lam: float, a: float, b: float, r: float, c: float, s: float) -> float:
-    return a / (2 * lam) + b * lam / 2 - r * c / s
+def determine_case(sc: CPOScalars) -> tuple[CPOCase, float, float]:
+    """``(case, A, B)`` as OmniSafe decides them (``A = B = 0`` in case 4, as it logs them)."""
+    if sc.bb <= NO_COST_GRADIENT_BB and sc.c < 0:
+        return CPOCase.NO_COST_GRADIENT, 0.0, 0.0
+    a, b = sc.A, sc.B
+    if sc.c < 0 and b < 0:
+        return CPOCase.INACTIVE, a, b
+    if sc.c < 0 <= b:
+        return CPOCase.FEASIBLE, a, b
+    if sc.c >= 0 and b >= 0:
+        return CPOCase.FEASIBLE_RECOVERY, a, b
+    return CPOCase.INFEASIBLE, a, b
 
 
-def _dual_b(lam: float, q: float, delta: float) -> float:
-    return q / (2 * lam) + delta * lam
+def _trpo_step(v: th.Tensor, vhv: float, delta: float) -> tuple[th.Tensor, float, float]:
+    """Cases 3 and 4: ``alpha v`` with ``alpha = sqrt(2 delta / (v^T H v))``; reports lambda = 1/alpha."""
+    alpha = math.sqrt(2 * delta / (vhv + GUARD))
+    return alpha * v, 1.0 / (alpha + GUARD), 0.0
+
+
+def _recovery_step(w: th.Tensor, s: float, delta: float) -> tuple[th.Tensor, float, float]:
+    """Case 0: ``-sqrt(2 delta / s) w``; reports lambda = 0 and nu = sqrt(2 delta / s)."""
+    nu = math.sqrt(2 * delta / (s + GUARD))
+    return -nu * w, 0.0, nu
+
+
+def _f64(value: float) -> np.float64:
+    return np.float64(value)
+
+
+def omnisafe_dual(sc: CPOScalars) -> tuple[float, float]:
+    """``(lambda*, nu*)`` of OmniSafe's cases 1 and 2 (see the module docstring), in float64 with
+    IEEE semantics (``sqrt`` of a negative is NaN, ``x / 0`` is inf), like torch."""
+    with np.errstate(all="ignore"):
+        q, r, s, c, delta = map(_f64, (sc.q, sc.r, sc.s, sc.c, sc.delta))
+        a, b = _f64(sc.A), _f64(sc.B)
+        lam_a = np.sqrt(a / b)
+        lam_b = np.sqrt(q / (2 * delta))
+        split = r / (c + GUARD)
+        inf = np.float64(np.inf)
+
+        def clamp(value: np.float64, lo: np.float64, hi: np.float64) -> np.float64:
+            # torch.clamp(x, lo, hi) = min(max(x, lo), hi): NaN stays NaN, crossed bounds give hi.
+            return np.minimum(np.maximum(value, lo), hi)
+
+        if c < 0:
+            lam_a_star, lam_b_star = clamp(lam_a, _f64(0.0), split), clamp(lam_b, split, inf)
+        else:
+            lam_a_star, lam_b_star = clamp(lam_a, split, inf), clamp(lam_b, _f64(0.0), split)
+        f_a = -0.5 * (a / (lam_a_star + GUARD) + b * lam_a_star) - r * c / (s + GUARD)
+        f_b = -0.5 * (q / (lam_b_star + GUARD) + 2 * delta * lam_b_star)
+        lam = lam_a_star if f_a >= f_b else lam_b_star  # a NaN comparison is False: piece b wins
+        nu = np.maximum(lam * c - r, 0.0) / (s + GUARD)
+    return float(lam), float(nu)
+
+
+def omnisafe_direction(v: th.Tensor, w: th.Tensor, sc: CPOScalars, vhv: float) -> CPOStep:
+    """OmniSafe's step for every case (the paper protocol)."""
+    case, a, b = determine_case(sc)
+    if case in (CPOCase.INACTIVE, CPOCase.NO_COST_GRADIENT):
+        direction, lam, nu = _trpo_step(v, vhv, sc.delta)
+    elif case == CPOCase.INFEASIBLE:
+        direction, lam, nu = _recovery_step(w, sc.s, sc.delta)
+    else:
+        lam, nu = omnisafe_dual(sc)
+        direction = (v - nu * w) / (lam + GUARD)
+    return CPOStep(direction, case, lam, nu, a, b)
 
 
 def _clip(value: float, lo: float, hi: float) -> float:
     return max(max(lo, EPS), min(value, hi))
 
 
-def _solve_dual(q: float, r: float, s: float, c: float, delta: float) -> tuple[float, float]:
-    """``(lambda*, nu*)`` of the feasible case (see the module docstring)."""
+def exact_dual(q: float, r: float, s: float, c: float, delta: float) -> tuple[float, float]:
+    """``(lambda*, nu*)`` minimising the dual of the linearised problem (module docstring)."""
     a = max(q - r * r / s, EPS)
     b = max(2 * delta - c * c / s, EPS)
     inf = math.inf
     # Intervals of lambda on which nu(lambda) > 0 (piece a) or nu(lambda) = 0 (piece b).
+    interval_a: tuple[float, float] | None
+    interval_b: tuple[float, float] | None
     if c > 0:
         mid = max(-r / c, 0.0)
         interval_a, interval_b = (mid, inf), (0.0, mid)
@@ -108,39 +207,62 @@ def _solve_dual(q: float, r: float, s: float, c: float, delta: float) -> tuple[f
     candidates: list[tuple[float, float]] = []  # (dual value, lambda)
     if interval_a is not None:
         lam_a = _clip(math.sqrt(a / b), *interval_a)
-        candidates.append((_dual_a(lam_a, a, b, r, c, s), lam_a))
+        candidates.append((a / (2 * lam_a) + b * lam_a / 2 - r * c / s, lam_a))
     if interval_b is not None:
         lam_b = _clip(math.sqrt(q / (2 * delta)), *interval_b)
-        candidates.append((_dual_b(lam_b, q, delta), lam_b))
+        candidates.append((q / (2 * lam_b) + delta * lam_b, lam_b))
     lam = min(candidates)[1]
     nu = max(0.0, (lam * c + r) / s)
     return lam, nu
 
 
-def cpo_direction(v: th.Tensor, w: th.Tensor, q: float, r: float, s: float, c: float, delta: float) -> CPOStep:
-    """The CPO full step ``x`` from ``v = H^-1 g``, ``w = H^-1 b`` and the scalars of the module
-    docstring (``delta`` is the target KL)."""
-    zero = th.zeros_like(v)
-    if s <= EPS:  # the step cannot move the cost (linearly): constraint irrelevant
-        if q <= EPS:
-            return CPOStep(zero, CPOCase.NO_STEP, 0.0, 0.0)
-        lam = math.sqrt(q / (2 * delta))
-        return CPOStep(v / lam, CPOCase.INACTIVE, lam, 0.0)
+def exact_direction(v: th.Tensor, w: th.Tensor, sc: CPOScalars, vhv: float) -> CPOStep:
+    """The exact solution of the linearised problem (the corrected protocol).
 
-    b = 2 * delta - c * c / s
-    if c > 0 and b < 0:
-        return CPOStep(-math.sqrt(2 * delta / s) * w, CPOCase.INFEASIBLE, 0.0, 0.0)
-    if c <= 0 and b < 0:
-        if q <= EPS:
-            return CPOStep(zero, CPOCase.NO_STEP, 0.0, 0.0)
-        lam = math.sqrt(q / (2 * delta))
-        return CPOStep(v / lam, CPOCase.INACTIVE, lam, 0.0)
+    Cases 0, 3 and 4 take the same steps as OmniSafe (those are right); cases 1 and 2 solve the
+    dual exactly. Degenerate inputs: with ``s ~ 0`` the step cannot change the cost, so the
+    constraint is ignored (TRPO step); with ``q ~ 0`` there is no reward direction, so the step is
+    the smallest one that satisfies the linearised constraint (``-(c / s) w``), or none.
+    """
+    case, a, b = determine_case(sc)
+    if case in (CPOCase.INACTIVE, CPOCase.NO_COST_GRADIENT):
+        direction, lam, nu = _trpo_step(v, vhv, sc.delta)
+    elif case == CPOCase.INFEASIBLE:
+        direction, lam, nu = _recovery_step(w, sc.s, sc.delta)
+    elif sc.s <= EPS:
+        direction, lam, nu = _trpo_step(v, vhv, sc.delta) if sc.q > EPS else (th.zeros_like(v), 0.0, 0.0)
+    elif sc.q <= EPS:
+        direction = -(sc.c / sc.s) * w if sc.c > 0 else th.zeros_like(v)
+        lam, nu = 0.0, max(sc.c, 0.0) / sc.s
+    else:
+        lam, nu = exact_dual(sc.q, sc.r, sc.s, sc.c, sc.delta)
+        direction = (v - nu * w) / lam
+    return CPOStep(direction, case, lam, nu, a, b)
 
-    case = CPOCase.FEASIBLE_VIOLATED if c > 0 else CPOCase.FEASIBLE
-    if q <= EPS:
-        # No reward direction: the smallest step that satisfies the linear constraint, if needed.
-        if c > 0:
-            return CPOStep(-(c / s) * w, case, 0.0, 0.0)
-        return CPOStep(zero, CPOCase.NO_STEP, 0.0, 0.0)
-    lam, nu = _solve_dual(q, r, s, c, delta)
-    return CPOStep((v - nu * w) / lam, case, lam, nu)
+
+def cpo_direction(
+    v: th.Tensor,
+    w: th.Tensor,
+    q: float,
+    r: float,
+    s: float,
+    c: float,
+    delta: float,
+    *,
+    bb: float | None = None,
+    solution: DualSolution = "exact",
+    vhv: float | None = None,
+) -> CPOStep:
+    """The CPO full step from ``v = H^-1 g``, ``w = H^-1 b`` and the scalars of the module docstring.
+
+    :param bb: ``b^T b`` (case 4's test); ``None`` treats the cost gradient as present.
+    :param solution: ``exact`` or ``omnisafe`` (see the module docstring).
+    :param vhv: ``v^T H v`` for the TRPO steps; ``None`` uses ``q``.
+    """
+    sc = CPOScalars(q=q, r=r, s=s, c=c, delta=delta, bb=math.inf if bb is None else bb)
+    vhv = q if vhv is None else vhv
+    if solution == "omnisafe":
+        return omnisafe_direction(v, w, sc, vhv)
+    if solution == "exact":
+        return exact_direction(v, w, sc, vhv)
+    raise ValueError(f"unknown CPO dual solution {solution!r}; use one of {', '.join(DUAL_SOLUTIONS)}")

@@ -6,12 +6,14 @@ on its own (the GAE recursion here is the one used for *both* the reward and the
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Literal
 
 import numpy as np
 import torch as th
 
 AdvantageNormalization = Literal["standardize", "center", "none"]
+KLReduction = Literal["sum", "mean"]
 
 #: Guards divisions by a standard deviation that can be (close to) zero, e.g. a cost stream
 #: that is zero everywhere in a rollout.
@@ -62,8 +64,9 @@ def normalize_advantages(advantages: np.ndarray, mode: AdvantageNormalization) -
     """Normalise a *whole rollout's* advantages (not per minibatch), so every minibatch and every
     epoch sees the same scaling.
 
-    ``standardize``: ``(A - mean) / (std + eps)``; ``center``: ``A - mean`` (keeps the scale of the
-    signal; OmniSafe, which the paper's runs used, does this to cost advantages); ``none``: unchanged.
+    ``standardize``: ``(A - mean) / (std + eps)`` with the population std; ``center``: ``A - mean``
+    (keeps the scale of the signal; OmniSafe, which ran the paper's PPO-Lag and CPO, does this to
+    cost advantages, see docs/protocols.md#cost-advantages-are-only-centred); ``none``: unchanged.
     """
     if mode == "none":
         return advantages
@@ -85,3 +88,54 @@ def categorical_kl(old_logits: th.Tensor, new_logits: th.Tensor) -> th.Tensor:
     old_log_p = th.log_softmax(old_logits, dim=-1)
     new_log_p = th.log_softmax(new_logits, dim=-1)
     return (old_log_p.exp() * (old_log_p - new_log_p)).sum(dim=-1)
+
+
+def reduce_kl(per_state: th.Tensor, reduction: KLReduction) -> th.Tensor:
+    """One number from per-state KLs, as a KL early-stop rule compares it with ``target_kl``.
+
+    ``mean``: the mean over states, the quantity a KL target is meant for. ``sum``: the sum over
+    states. The second is what OmniSafe's PPO-Lag computed for categorical policies: its
+    ``kl.sum(-1).mean()`` was written for Gaussian policies, where the last axis holds action
+    dimensions, but a categorical distribution's KL has the batch of states there, so it sums over
+    the epoch's 2,048 states and stops once the *mean* KL exceeds target/2,048
+    (docs/protocols.md#ppo-lag-kl-early-stop-sums-over-states).
+    """
+    if reduction == "sum":
+        return per_state.sum()
+    if reduction == "mean":
+        return per_state.mean()
+    raise ValueError(f"unknown KL reduction {reduction!r}; use 'sum' or 'mean'")
+
+
+def conjugate_gradient(
+    matrix_vector_product: Callable[[th.Tensor], th.Tensor],
+    b: th.Tensor,
+    max_iter: int,
+    residual_tol: float = 1e-10,
+    eps: float = 1e-6,
+) -> th.Tensor:
+    """Approximately solve ``H x = b`` by conjugate gradients, starting from ``x = 0``.
+
+    The arithmetic is OmniSafe's, which produced the paper's CPO numbers: it stops when the
+    residual's *norm* falls below ``residual_tol`` and adds ``eps`` to the denominators of the step
+    and direction coefficients. ``eps`` matters here: the cost gradients of these tasks are small
+    (cost advantages are only centred), so ``p^T H p`` can be comparable to 1e-6, and the guard then
+    shortens the solution. sb3-contrib's solver differs in both respects and, worse, starts from a
+    random ``1e-4 * randn`` point (consuming torch's RNG) and returns it as is when ``|b|^2`` is
+    below the tolerance, which for a tiny cost gradient is noise rather than ``H^-1 b``.
+    """
+    x = th.zeros_like(b)
+    residual = b.clone()  # b - H @ 0
+    direction = residual.clone()
+    rdotr = residual @ residual
+    for _ in range(max_iter):
+        h_direction = matrix_vector_product(direction)
+        alpha = rdotr / (direction @ h_direction + eps)
+        x = x + alpha * direction
+        residual = residual - alpha * h_direction
+        new_rdotr = residual @ residual
+        if th.sqrt(new_rdotr) < residual_tol:
+            break
+        direction = residual + (new_rdotr / (rdotr + eps)) * direction
+        rdotr = new_rdotr
+    return x

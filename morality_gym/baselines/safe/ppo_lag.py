@@ -8,8 +8,8 @@ dual (see :mod:`.lagrange`)::
     lambda <- max(0, Adam step on  -lambda * (J_c - d))
 
 where ``J_c`` is the mean undiscounted cost of the last ``ep_cost_window`` (50) finished episodes.
-Then ``n_epochs`` passes of minibatch PPO maximise the clipped surrogate with the combined,
-rescaled advantage (``A_r``, ``A_c`` each normalised over the rollout)::
+Then up to ``n_epochs`` passes of minibatch PPO maximise the clipped surrogate with the combined,
+rescaled advantage (``A_r`` standardised, ``A_c`` centred over the rollout, by default)::
 
     A_t       = (A_r,t - lambda * A_c,t) / (1 + lambda)
     rho_t     = pi_theta(a_t | s_t) / pi_old(a_t | s_t)
@@ -17,9 +17,15 @@ rescaled advantage (``A_r``, ``A_c`` each normalised over the rollout)::
     actor loss  = -L^CLIP - ent_coef * E_t[H(pi_theta(.|s_t))]
     critic loss = E_t[(V(s_t) - R_t)^2] + E_t[(V_c(s_t) - R^c_t)^2] + critic_l2_coef * sum ||theta_V, theta_Vc||^2
 
+Each minibatch steps both critics and the actor (disjoint parameters, separate clipping), so the
+critics get exactly as many passes as the actor. After each pass the exact per-state
+``KL(pi_old || pi_theta)`` over the rollout is reduced (``kl_early_stop_reduction``: ``sum`` over
+states as OmniSafe did, or ``mean``) and the loop stops once it exceeds ``target_kl``. With
+``sum`` that happens after the first pass on almost every update
+(docs/protocols.md#ppo-lag-kl-early-stop-sums-over-states).
+
 Dividing by ``1 + lambda`` keeps the advantage's scale bounded as ``lambda`` grows, so the PPO
-step size does not blow up. After each epoch the exact mean ``KL(pi_old || pi_theta)`` over the
-rollout is computed, and the update stops early once it exceeds ``target_kl``.
+step size does not blow up.
 """
 
 from __future__ import annotations
@@ -30,10 +36,12 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 
-from morality_gym.baselines.safe.base import CostOnPolicyAlgorithm
-from morality_gym.baselines.safe.functional import AdvantageNormalization, categorical_kl
+from morality_gym.baselines.safe.base import CostOnPolicyAlgorithm, CriticGradClip, LRAnnealTiming, check_choice
+from morality_gym.baselines.safe.functional import AdvantageNormalization, KLReduction, categorical_kl, reduce_kl
 from morality_gym.baselines.safe.lagrange import LagrangeMultiplier
-from morality_gym.baselines.safe.policies import CostActorCriticPolicy
+from morality_gym.baselines.safe.policies import CostActorCriticPolicy, WeightInit
+
+KL_REDUCTIONS: tuple[str, ...] = ("sum", "mean")
 
 
 class PPOLag(CostOnPolicyAlgorithm):
@@ -42,15 +50,18 @@ class PPOLag(CostOnPolicyAlgorithm):
     :param n_epochs: maximum passes over the rollout per update (40), cut short by ``target_kl``.
     :param batch_size: minibatch size (64).
     :param clip_range: PPO clip ``eps`` (0.2).
-    :param target_kl: stop the epochs once the mean KL to the rollout policy exceeds it (0.02);
+    :param target_kl: stop the passes once the reduced KL to the rollout policy exceeds it (0.02);
         ``None`` disables early stopping.
+    :param kl_early_stop_reduction: how the per-state KLs are reduced for that test: ``sum``
+        (OmniSafe's, the default: in effect one pass per update) or ``mean``.
     :param lagrange_init: ``lambda`` before the first update (0.001).
     :param lagrange_lr: Adam learning rate of ``lambda`` (0.035).
     :param lagrange_upper_bound: optional cap on ``lambda`` (``None``).
 
     The other parameters are :class:`.CostOnPolicyAlgorithm`'s: rollouts of ``steps_per_rollout``
-    (2048) steps over the vec env, gamma/GAE 0.99/0.95 for both streams, ``max_grad_norm`` 40,
-    ``critic_l2_coef`` 0.001, actor and critic lr 3e-4 decaying linearly to 0, ``cost_limit`` 0.
+    (2048) steps over the vec env, gamma/GAE 0.99/0.95 for both streams, ``max_grad_norm`` 40 per
+    critic and for the actor, ``critic_l2_coef`` 0.001, actor lr 3e-4 decaying linearly to 0 over the
+    epochs, critics' lr constant, ``cost_limit`` 0, Kaiming-uniform initialisation, Adam eps 1e-8.
     """
 
     def __init__(
@@ -60,6 +71,8 @@ class PPOLag(CostOnPolicyAlgorithm):
         learning_rate: float | Schedule = 3e-4,
         critic_learning_rate: float | Schedule | None = None,
         anneal_lr: bool = True,
+        anneal_lr_timing: LRAnnealTiming = "epoch",
+        anneal_critic_lr: bool = False,
         n_steps: int | None = None,
         steps_per_rollout: int = 2048,
         batch_size: int = 64,
@@ -71,16 +84,20 @@ class PPOLag(CostOnPolicyAlgorithm):
         clip_range: float = 0.2,
         ent_coef: float = 0.0,
         max_grad_norm: float = 40.0,
+        critic_grad_clip: CriticGradClip = "per_critic",
         critic_l2_coef: float = 1e-3,
         target_kl: float | None = 0.02,
+        kl_early_stop_reduction: KLReduction = "sum",
         cost_limit: float = 0.0,
         lagrange_init: float = 0.001,
         lagrange_lr: float = 0.035,
         lagrange_upper_bound: float | None = None,
         ep_cost_window: int = 50,
         reward_advantage_normalization: AdvantageNormalization = "standardize",
-        cost_advantage_normalization: AdvantageNormalization = "standardize",
+        cost_advantage_normalization: AdvantageNormalization = "center",
         reset_envs_each_rollout: bool = False,
+        weight_init: WeightInit = "kaiming_uniform",
+        adam_eps: float = 1e-8,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         monitor_wrapper: bool = True,
@@ -96,6 +113,8 @@ class PPOLag(CostOnPolicyAlgorithm):
             learning_rate=learning_rate,
             critic_learning_rate=critic_learning_rate,
             anneal_lr=anneal_lr,
+            anneal_lr_timing=anneal_lr_timing,
+            anneal_critic_lr=anneal_critic_lr,
             n_steps=n_steps,
             steps_per_rollout=steps_per_rollout,
             gamma=gamma,
@@ -104,6 +123,7 @@ class PPOLag(CostOnPolicyAlgorithm):
             cost_gae_lambda=cost_gae_lambda,
             ent_coef=ent_coef,
             max_grad_norm=max_grad_norm,
+            critic_grad_clip=critic_grad_clip,
             critic_l2_coef=critic_l2_coef,
             n_critic_updates=n_epochs,
             batch_size=batch_size,
@@ -112,6 +132,8 @@ class PPOLag(CostOnPolicyAlgorithm):
             reward_advantage_normalization=reward_advantage_normalization,
             cost_advantage_normalization=cost_advantage_normalization,
             reset_envs_each_rollout=reset_envs_each_rollout,
+            weight_init=weight_init,
+            adam_eps=adam_eps,
             stats_window_size=stats_window_size,
             tensorboard_log=tensorboard_log,
             monitor_wrapper=monitor_wrapper,
@@ -121,9 +143,11 @@ class PPOLag(CostOnPolicyAlgorithm):
             device=device,
             _init_setup_model=False,
         )
+        check_choice("kl_early_stop_reduction", kl_early_stop_reduction, KL_REDUCTIONS)
         self.n_epochs = n_epochs
         self.clip_range = clip_range
         self.target_kl = target_kl
+        self.kl_early_stop_reduction = kl_early_stop_reduction
         self.lagrange_init = lagrange_init
         self.lagrange_lr = lagrange_lr
         self.lagrange_upper_bound = lagrange_upper_bound
@@ -145,9 +169,9 @@ class PPOLag(CostOnPolicyAlgorithm):
         return self.lagrange.value
 
     def train(self) -> None:
-        """Multiplier step, then up to ``n_epochs`` of clipped-surrogate minibatch updates."""
+        """Multiplier step, then up to ``n_epochs`` passes of clipped-surrogate minibatch updates."""
         self.policy.set_training_mode(True)
-        self._update_learning_rates(actor=True)
+        actor_lr, critic_lr = self._update_learning_rates(actor=True)
         mean_ep_cost = self.mean_episode_cost()
         lam = self.lagrange.update(mean_ep_cost, self.cost_limit)
         self._log_critic_fit()
@@ -156,9 +180,9 @@ class PPOLag(CostOnPolicyAlgorithm):
         full = self._full_batch()
         with th.no_grad():
             old_logits = self.policy.get_distribution(full.observations).distribution.logits  # type: ignore[union-attr]
-        actor_params, critic_params = self.policy.actor_parameters(), self.policy.critic_parameters()
+        actor_params = self.policy.actor_parameters()
         stats: dict[str, list[float]] = {k: [] for k in ("policy", "value", "cost_value", "entropy", "clip_fraction")}
-        kl, epochs_done, early_stopped = 0.0, 0, False
+        kl_tested, kl_mean, passes, early_stopped = 0.0, 0.0, 0, False
         for _ in range(self.n_epochs):
             for batch in self.rollout_buffer.get(self.batch_size):
                 dist = self.policy.get_distribution(batch.observations)
@@ -174,36 +198,56 @@ class PPOLag(CostOnPolicyAlgorithm):
                 )
                 self.policy.optimizer.zero_grad()
                 self.policy.critic_optimizer.zero_grad()
-                # Disjoint parameters: one backward yields each side's own gradient.
+                # Disjoint parameters: one backward yields each network's own gradient, exactly as
+                # OmniSafe's three separate steps (reward critic, cost critic, actor) per minibatch.
                 (policy_loss - self.ent_coef * entropy_mean + critic_loss).backward()
+                self._step_critics()
                 self._clip_and_step(self.policy.optimizer, actor_params)
-                self._clip_and_step(self.policy.critic_optimizer, critic_params)
 
                 stats["policy"].append(policy_loss.item())
                 stats["value"].append(value_loss.item())
                 stats["cost_value"].append(cost_value_loss.item())
                 stats["entropy"].append(entropy_mean.item())
                 stats["clip_fraction"].append(((ratio - 1.0).abs() > self.clip_range).float().mean().item())
-            epochs_done += 1
+            passes += 1
             with th.no_grad():
                 new_logits = self.policy.get_distribution(full.observations).distribution.logits  # type: ignore[union-attr]
-                kl = categorical_kl(old_logits, new_logits).mean().item()
-            if self.target_kl is not None and kl > self.target_kl:
+                per_state = categorical_kl(old_logits, new_logits)
+                kl_tested = reduce_kl(per_state, self.kl_early_stop_reduction).item()
+                kl_mean = per_state.mean().item()
+            if self.target_kl is not None and kl_tested > self.target_kl:
                 early_stopped = True
                 break
-        self._n_updates += epochs_done
+        self._n_updates += passes
 
+        means = {key: float(np.mean(values)) for key, values in stats.items()}
+        self._record_update(
+            mean_ep_cost,
+            actor_lr,
+            critic_lr,
+            passes=passes,
+            kl=kl_tested,
+            kl_mean=kl_mean,
+            early_stopped=early_stopped,
+            lagrange_multiplier=lam,
+            policy_loss=means["policy"],
+            value_loss=means["value"],
+            cost_value_loss=means["cost_value"],
+            entropy=means["entropy"],
+            clip_fraction=means["clip_fraction"],
+        )
         self.logger.record("train/lagrange_multiplier", lam)
         self.logger.record("train/mean_ep_cost", mean_ep_cost)
-        self.logger.record("train/kl", kl)
-        self.logger.record("train/approx_kl", kl)
-        self.logger.record("train/epochs", epochs_done)
+        self.logger.record("train/kl", kl_tested)
+        self.logger.record("train/kl_mean", kl_mean)
+        self.logger.record("train/approx_kl", kl_mean)
+        self.logger.record("train/epochs", passes)
         self.logger.record("train/early_stopped", int(early_stopped))
-        self.logger.record("train/policy_gradient_loss", float(np.mean(stats["policy"])))
-        self.logger.record("train/value_loss", float(np.mean(stats["value"])))
-        self.logger.record("train/cost_value_loss", float(np.mean(stats["cost_value"])))
-        self.logger.record("train/entropy_loss", -float(np.mean(stats["entropy"])))
-        self.logger.record("train/clip_fraction", float(np.mean(stats["clip_fraction"])))
+        self.logger.record("train/policy_gradient_loss", means["policy"])
+        self.logger.record("train/value_loss", means["value"])
+        self.logger.record("train/cost_value_loss", means["cost_value"])
+        self.logger.record("train/entropy_loss", -means["entropy"])
+        self.logger.record("train/clip_fraction", means["clip_fraction"])
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
 
     def learn(
