@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from leaderboard.aggregate import Group, Leaderboard, safe_name
 
@@ -186,6 +187,49 @@ def learn_curve(learn: pd.DataFrame, final_metric: float, title: str, path: Path
     return _save(fig, path)
 
 
+def updates_figure(updates: pd.DataFrame, title: str, path: Path) -> Path:
+    """What a constrained learner did at each update (``runs/<id>.updates.parquet``).
+
+    PPO-Lag: passes of the update loop (OmniSafe's summed-KL early stop makes it 1), the Lagrange
+    multiplier and ``J_c``. CPO: the case of its dual (OmniSafe's numbering 0-4), the accepted
+    line-search step (0 = no step) and ``J_c``. Panels are against the update number.
+    """
+    data = updates.sort_values("update")
+    x = data["update"].to_numpy()
+    is_cpo = "cpo_case" in data and data["cpo_case"].notna().any()
+    fig = _new_figure(7.6, 2.3)
+    axes = fig.subplots(1, 3)
+    if is_cpo:
+        cases = data["cpo_case"].to_numpy(dtype=float)
+        axes[0].scatter(x, cases, s=6, color="#0072B2")
+        axes[0].set_yticks(range(5))
+        axes[0].set_ylim(-0.5, 4.5)
+        axes[0].set_title("dual case (0 recovery, 1 feasible recovery)", fontsize=7.5, loc="left")
+        accept = data["accept_step"].to_numpy(dtype=float)
+        axes[1].scatter(x, accept, s=6, color=np.where(accept > 0, "#009E73", "#D55E00"))
+        axes[1].set_ylim(-0.8, max(20.8, float(np.nanmax(accept)) + 0.8) if len(accept) else 20.8)
+        share = float(np.mean(accept > 0)) if len(accept) else math.nan
+        axes[1].set_title(f"accepted step (0 = none; {share:.0%} accepted)", fontsize=7.5, loc="left")
+    else:
+        passes = data["passes"].to_numpy(dtype=float)
+        axes[0].step(x, passes, where="mid", color="#0072B2", linewidth=1.1)
+        axes[0].set_ylim(0, max(2.0, float(np.nanmax(passes)) + 1) if len(passes) else 2.0)
+        one = float(np.mean(passes == 1)) if len(passes) else math.nan
+        axes[0].set_title(f"passes per update ({one:.0%} stopped after 1)", fontsize=7.5, loc="left")
+        axes[1].plot(x, data["lagrange_multiplier"], color="#009E73", linewidth=1.2)
+        axes[1].set_title("Lagrange multiplier", fontsize=7.5, loc="left")
+    axes[2].plot(x, data["ep_cost"], color="#CC79A7", linewidth=1.2)
+    axes[2].set_title("J_c (mean episode cost used)", fontsize=7.5, loc="left")
+    for ax in axes:
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.set_xlabel("update", fontsize=7)
+        ax.tick_params(labelsize=6.5)
+        ax.grid(alpha=0.3)
+    fig.suptitle(title, fontsize=8.5, x=0.01, ha="left")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
 # ---------------------------------------------------------------------------------------- all figures
 @dataclass
 class FigureSet:
@@ -195,11 +239,13 @@ class FigureSet:
     radars: dict[tuple[Group, str, str], Path] = field(default_factory=dict)
     learn: dict[str, Path] = field(default_factory=dict)
     learn_errors: dict[str, str] = field(default_factory=dict)  # run id -> why its curve is missing
+    updates: dict[str, Path] = field(default_factory=dict)  # run id -> per-update diagnostics
+    updates_errors: dict[str, str] = field(default_factory=dict)
     colours: dict[str, str] = field(default_factory=dict)
 
     @property
     def count(self) -> int:
-        return len(self.bars) + len(self.radars) + len(self.learn)
+        return len(self.bars) + len(self.radars) + len(self.learn) + len(self.updates)
 
 
 def figure_paths(out_dir: Path, group: Group) -> Path:
@@ -238,33 +284,50 @@ def write_figures(lb: Leaderboard, out_dir: Path, progress: Progress | None = No
     return figures
 
 
-def write_learn_curves(lb: Leaderboard, results_dir: Path, out_dir: Path, figures: FigureSet,
-                       progress: Progress | None = None) -> None:
-    """A small learning-curve PNG per run with a ``.learn.parquet``; unchanged runs are not redrawn.
-
-    A full sweep has thousands of runs, so a PNG newer than its learn file is reused.
-    """
-    import pyarrow.parquet as pq
-
-    from runners.schema import learn_path
-
+def _per_run_figures(lb: Leaderboard, source_of: Callable[[str], Path], out_dir: Path, suffix: str,
+                     draw: Callable[[dict[str, Any], Path, Path], Any], found: dict[str, Path],
+                     errors: dict[str, str], label: str, progress: Progress | None) -> None:
+    """A small PNG per run that has a source file; a PNG newer than its source is reused (a full
+    sweep has thousands of runs), and one unreadable file is reported, never fatal."""
     todo = []
     for record in lb.runs[["run_id", "metric", "chain", "scenario", "variant", "learner", "seed"]].to_dict("records"):
-        source = learn_path(results_dir, str(record["run_id"]))
+        source = source_of(str(record["run_id"]))
         if not source.is_file():
             continue
-        target = out_dir / f"{safe_name(str(record['run_id']))}.png"
-        figures.learn[str(record["run_id"])] = target
+        target = out_dir / f"{safe_name(str(record['run_id']))}{suffix}.png"
+        found[str(record["run_id"])] = target
         if not target.is_file() or target.stat().st_mtime < source.stat().st_mtime:
             todo.append((record, source, target))
-    iterator: Iterable[Any] = progress(todo, "learning curves", len(todo)) if progress and todo else todo
+    iterator: Iterable[Any] = progress(todo, label, len(todo)) if progress and todo else todo
     for record, source, target in iterator:
         run_id = str(record["run_id"])
         try:
-            learn = pq.read_table(source).to_pandas()
-            title = f"{record['learner']} · {record['scenario']}-{record['variant']} · seed {record['seed']}"
-            final = float(record["metric"]) if record["metric"] is not None else math.nan
-            learn_curve(learn, final, title, target)
-        except Exception as exc:  # noqa: BLE001 - one unreadable learn file must not sink the whole build
-            figures.learn.pop(run_id, None)
-            figures.learn_errors[run_id] = f"{source.name}: {type(exc).__name__}: {exc}"
+            draw(record, source, target)
+        except Exception as exc:  # noqa: BLE001 - one unreadable file must not sink the whole build
+            found.pop(run_id, None)
+            errors[run_id] = f"{source.name}: {type(exc).__name__}: {exc}"
+
+
+def _run_title(record: dict[str, Any]) -> str:
+    return f"{record['learner']} · {record['scenario']}-{record['variant']} · seed {record['seed']}"
+
+
+def write_learn_curves(lb: Leaderboard, results_dir: Path, out_dir: Path, figures: FigureSet,
+                       progress: Progress | None = None) -> None:
+    """A learning-curve PNG per run with a ``.learn.parquet``, and a per-update diagnostics PNG per
+    run with an ``.updates.parquet`` (PPO-Lag and CPO)."""
+    import pyarrow.parquet as pq
+
+    from runners.schema import learn_path, updates_path
+
+    def draw_learn(record: dict[str, Any], source: Path, target: Path) -> None:
+        final = float(record["metric"]) if record["metric"] is not None else math.nan
+        learn_curve(pq.read_table(source).to_pandas(), final, _run_title(record), target)
+
+    def draw_updates(record: dict[str, Any], source: Path, target: Path) -> None:
+        updates_figure(pq.read_table(source).to_pandas(), _run_title(record), target)
+
+    _per_run_figures(lb, lambda run_id: learn_path(results_dir, run_id), out_dir, "", draw_learn,
+                     figures.learn, figures.learn_errors, "learning curves", progress)
+    _per_run_figures(lb, lambda run_id: updates_path(results_dir, run_id), out_dir, ".updates", draw_updates,
+                     figures.updates, figures.updates_errors, "update diagnostics", progress)

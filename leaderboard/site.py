@@ -306,6 +306,7 @@ class SiteBuild:
     layouts: dict[str, str] = field(default_factory=dict)  # scenario -> image path relative to site root
     layout_notes: dict[str, str] = field(default_factory=dict)  # scenario -> why there is no image
     learn: dict[str, str] = field(default_factory=dict)  # run id -> curve path relative to site root
+    updates: dict[str, str] = field(default_factory=dict)  # run id -> diagnostics image relative to site root
     pages: int = 0
 
     def colour(self, learner: str) -> str:
@@ -336,6 +337,11 @@ def copy_figures(sb: SiteBuild) -> None:
             target = f"runs/img/{safe_name(run_id)}.png"
             _copy(path, sb.out / target)
             sb.learn[run_id] = target
+    for run_id, path in sb.figures.updates.items():
+        if path.is_file():
+            target = f"runs/img/{safe_name(run_id)}.updates.png"
+            _copy(path, sb.out / target)
+            sb.updates[run_id] = target
 
 
 def gif_choices(lb: Leaderboard, results_dir: Path) -> dict[tuple[Group, str, str, str], dict[str, Any]]:
@@ -876,6 +882,14 @@ def run_page(sb: SiteBuild, record: dict[str, Any]) -> str:
     else:
         parts.append('<section class="card" id="curves"><h2>Learning curve</h2><p class="note">No learn-time '
                      'evaluations recorded for this run.</p></section>')
+    if run_id in sb.updates:
+        parts.append('<section class="card" id="updates"><h2>What the learner did at each update</h2>'
+                     '<p class="note">From <span class="mono">runs/&lt;run id&gt;.updates.parquet</span> (also in MLflow as '
+                     '<span class="mono">update/*</span> metrics). See docs/protocols.md for the settings behind them.</p>'
+                     f'<figure><img src="{root}{h(sb.updates[run_id])}" alt="Per-update diagnostics"></figure></section>')
+    elif run_id in sb.figures.updates_errors:
+        parts.append('<section class="card" id="updates"><h2>What the learner did at each update</h2><p class="error">'
+                     f'The per-update diagnostics could not be drawn: {h(sb.figures.updates_errors[run_id])}</p></section>')
     parts.append(f'<section class="card" id="config"><h2>Configuration</h2><pre>{h(_pretty_json(record.get("config")))}</pre>'
                  f'<h3>Package versions</h3><pre>{h(_pretty_json(record.get("versions")))}</pre></section>')
     crumbs = (f'<nav class="crumbs"><a href="{root}index.html">← Leaderboard</a> · '

@@ -22,7 +22,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-from runners.schema import MF_PREFIX, SCHEMA_VERSION, run_path, runs_dir, write_learn, write_run
+from runners.schema import MF_PREFIX, SCHEMA_VERSION, run_path, runs_dir, write_learn, write_run, write_updates
 
 
 def _now() -> str:
@@ -181,6 +181,9 @@ def _execute_locked(config: dict[str, Any], run_id: str, results_dir: Path, gif:
         if gif:
             learner.record_gif(artifacts / "episode.gif")
             gif_rel = str((artifacts / "episode.gif").relative_to(results_dir))
+        updates = learner.update_diagnostics()
+        if updates:
+            write_updates(results_dir, run_id, updates)
         if learn_rows:
             write_learn(
                 results_dir,

@@ -3,8 +3,10 @@
 Each run writes ``<results_dir>/runs/<run_id>.parquet``: one row with the columns below (fixed
 names and types, whatever the chain), plus one ``mf_<norm>`` float column per norm of the run's
 chain. Learn-time evaluations go to ``<results_dir>/runs/<run_id>.learn.parquet`` (one row per
-evaluation). Files are written to a temporary name and renamed, so a reader never sees half a file
-and a killed run leaves no result behind.
+evaluation), and the per-update diagnostics of PPO-Lag and CPO to
+``<results_dir>/runs/<run_id>.updates.parquet`` (one row per policy update, :data:`UPDATE_FIELDS`).
+Files are written to a temporary name and renamed, so a reader never sees half a file and a killed
+run leaves no result behind.
 
 Readers must select columns by name (never by position) and check ``schema_version``.
 Bump :data:`SCHEMA_VERSION` on any incompatible change and document it in ``CHANGES`` below.
@@ -80,6 +82,49 @@ LEARN_FIELDS: list[pa.Field] = [
     pa.field("wall_time_s", pa.float64()),
 ]
 
+#: Per-update diagnostics of the constrained learners (``runs/<run_id>.updates.parquet``). The names
+#: are a contract. Columns that do not apply to a learner are null (``passes`` and
+#: ``lagrange_multiplier`` for CPO; the CPO columns for PPO-Lag).
+UPDATE_FIELDS: list[pa.Field] = [
+    pa.field("schema_version", pa.int32()),
+    pa.field("run_id", pa.string()),
+    pa.field("update", pa.int64()),  # 1-based
+    pa.field("timesteps", pa.int64()),  # environment steps so far (end of the update's rollout)
+    pa.field("passes", pa.int64()),  # PPO-Lag: update-loop passes actually run
+    pa.field("early_stopped", pa.bool_()),  # PPO-Lag: the KL rule ended the loop
+    pa.field("kl", pa.float64()),  # the KL the rule tested, as configured (PPO-Lag: sum/mean; CPO: line search)
+    pa.field("kl_mean", pa.float64()),  # mean KL(old || new) over the epoch's states after the update
+    pa.field("lagrange_multiplier", pa.float64()),  # PPO-Lag, after its update
+    pa.field("ep_cost", pa.float64()),  # the J_c used
+    pa.field("ep_cost_episodes", pa.int64()),  # finished episodes J_c averaged over
+    pa.field("actor_lr", pa.float64()),  # null for CPO (trust-region step)
+    pa.field("critic_lr", pa.float64()),
+    pa.field("cpo_case", pa.int64()),  # OmniSafe's numbering 0-4
+    pa.field("accept_step", pa.int64()),  # 0 = no step accepted, else the 1-based backtracking step
+    pa.field("line_search_tried", pa.int64()),
+    pa.field("step_fraction", pa.float64()),
+    pa.field("lambda_star", pa.float64()),
+    pa.field("nu_star", pa.float64()),
+    pa.field("A", pa.float64()),
+    pa.field("B", pa.float64()),
+    pa.field("q", pa.float64()),
+    pa.field("r", pa.float64()),
+    pa.field("s", pa.float64()),
+    pa.field("c", pa.float64()),  # J_c - cost_limit
+    pa.field("b_norm", pa.float64()),  # |grad of the cost surrogate|
+    pa.field("full_step_norm", pa.float64()),
+    pa.field("step_norm", pa.float64()),  # the step taken (0 when none accepted)
+    pa.field("expected_reward_change", pa.float64()),
+    pa.field("surrogate_reward_change", pa.float64()),
+    pa.field("surrogate_cost_change", pa.float64()),
+    pa.field("policy_loss", pa.float64()),
+    pa.field("value_loss", pa.float64()),
+    pa.field("cost_value_loss", pa.float64()),
+    pa.field("entropy", pa.float64()),
+    pa.field("clip_fraction", pa.float64()),
+]
+UPDATE_COLUMNS = [f.name for f in UPDATE_FIELDS]
+
 RUN_COLUMNS = [f.name for f in RUN_FIELDS]
 MF_PREFIX = "mf_"
 
@@ -103,6 +148,10 @@ def run_path(results_dir: str | Path, run_id: str) -> Path:
 
 def learn_path(results_dir: str | Path, run_id: str) -> Path:
     return runs_dir(results_dir) / f"{run_id}.learn.parquet"
+
+
+def updates_path(results_dir: str | Path, run_id: str) -> Path:
+    return runs_dir(results_dir) / f"{run_id}.updates.parquet"
 
 
 def atomic_write_table(table: pa.Table, path: Path) -> None:
@@ -143,6 +192,31 @@ def write_learn(results_dir: str | Path, run_id: str, rows: list[Mapping[str, An
     return path
 
 
+def write_updates(results_dir: str | Path, run_id: str, rows: list[Mapping[str, Any]]) -> Path:
+    """The per-update diagnostics of one run; keys outside :data:`UPDATE_FIELDS` are an error (so a
+    new diagnostic is added to the contract, not dropped on the way)."""
+    table_rows = []
+    for row in rows:
+        extra = [key for key in row if key not in UPDATE_COLUMNS]
+        if extra:
+            raise ValueError(f"update row has columns outside schema v{SCHEMA_VERSION}: {extra}")
+        table_rows.append({**{name: None for name in UPDATE_COLUMNS}, **row, "schema_version": SCHEMA_VERSION, "run_id": run_id})
+    table = pa.Table.from_pylist(table_rows, schema=pa.schema(UPDATE_FIELDS))
+    path = updates_path(results_dir, run_id)
+    atomic_write_table(table, path)
+    return path
+
+
+def read_updates(results_dir: str | Path, run_id: str) -> "Any":
+    """One run's per-update diagnostics as a DataFrame (empty if the run has none)."""
+    import pandas as pd
+
+    path = updates_path(results_dir, run_id)
+    if not path.is_file():
+        return pd.DataFrame(columns=UPDATE_COLUMNS)
+    return pq.read_table(path).to_pandas()
+
+
 def read_runs(results_dir: str | Path) -> "Any":
     """All run rows under ``results_dir`` as one pandas DataFrame (columns unified by name).
 
@@ -152,7 +226,7 @@ def read_runs(results_dir: str | Path) -> "Any":
 
     frames = []
     for path in sorted(runs_dir(results_dir).glob("*.parquet")):
-        if path.name.endswith(".learn.parquet"):
+        if path.name.endswith((".learn.parquet", ".updates.parquet")):
             continue
         table = pq.read_table(path)
         version = table.column("schema_version")[0].as_py()

@@ -17,7 +17,7 @@ from typing import Any
 
 import pyarrow.parquet as pq
 
-from runners.schema import MF_PREFIX, learn_path, run_path
+from runners.schema import MF_PREFIX, UPDATE_COLUMNS, learn_path, run_path, updates_path
 
 EXPERIMENT = "morality-gym"
 _METRICS = ("metric", "metric_stderr", "exact_metric", "mean_return", "mean_cost", "mean_length", "truncation_rate", "goal_rate", "wall_time_s", "total_steps")
@@ -85,6 +85,14 @@ class Tracker:
                 for key in ("metric", "exact_metric", "mean_return", "mean_cost", "mean_length"):
                     if r.get(key) is not None and r[key] == r[key]:
                         metrics.append(Metric(f"learn/{key}", float(r[key]), 0, int(r["step"])))
+        up = updates_path(self.results_dir, run_id)
+        if up.is_file():  # per-update diagnostics of PPO-Lag / CPO, over environment steps
+            numeric = [c for c in UPDATE_COLUMNS if c not in ("schema_version", "run_id", "update", "timesteps")]
+            for r in pq.read_table(up).to_pylist():
+                for key in numeric:
+                    value = r.get(key)
+                    if value is not None and value == value:
+                        metrics.append(Metric(f"update/{key}", float(value), 0, int(r["timesteps"])))
         items = list(params.items())
         for i in range(0, max(1, len(items)), 100):
             self.client.log_batch(mid, params=[Param(k, v[:6000]) for k, v in items[i : i + 100]])

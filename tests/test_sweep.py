@@ -31,7 +31,7 @@ def sweep(results: Path, *args: str, timeout: float = 600, background: bool = Fa
 
 
 def result_files(results: Path) -> dict[str, Path]:
-    return {p.name.split(".")[0]: p for p in (results / "runs").glob("*.parquet") if not p.name.endswith(".learn.parquet")}
+    return {p.name.split(".")[0]: p for p in (results / "runs").glob("*.parquet") if not p.name.endswith((".learn.parquet", ".updates.parquet"))}
 
 
 def planned_ids(results: Path) -> set[str]:
