@@ -209,7 +209,7 @@ def reset_time(ctx: Context) -> Section:
         intro=f"""
 Microseconds per call, best of {ctx.repeats} runs of {n:,} calls ({n_seeded:,} for `reset(seed=0)`), on an
 environment that has been stepped before. `reset(seed=...)` additionally lets Gymnasium build a new `np_random`
-generator, which the deterministic worlds never use (spec Q19). CPU time per call, with the wall-clock time of
+generator, which the deterministic worlds never use (docs/protocols.md#seeds-have-no-effect). CPU time per call, with the wall-clock time of
 `reset()` alongside.
 """,
         headers=[

@@ -136,7 +136,7 @@ class TrolleyEnv(gym.Env[Any, int]):
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
-        """Start a new episode; the start state is the same for every seed (spec Q19)."""
+        """Start a new episode; the start state is the same for every seed (docs/protocols.md#seeds-have-no-effect)."""
         super().reset(seed=seed)
         self._sid = 0
         self._t = 0

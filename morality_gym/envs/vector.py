@@ -221,5 +221,5 @@ class TrolleyVecEnv(VecEnv):
         return [False for _ in self._get_indices(indices)]
 
     def seed(self, seed: int | None = None) -> Sequence[int | None]:
-        """Seeds have no effect on these deterministic worlds (spec Q19); kept for the SB3 API."""
+        """Seeds have no effect on these deterministic worlds (docs/protocols.md#seeds-have-no-effect); kept for the SB3 API."""
         return super().seed(seed)

@@ -6,9 +6,9 @@ For a step with events ``ev_t`` and utilities ``u_t``, over the norm set ``S`` o
                   + sum_{n in S, n in keys(u_t)} w_n * (u_t[n] - lo_n) / (hi_n - lo_n) ] / sum_{n in S} w_n
 
 * Event norms are charged once (first violation); the memory is cleared per episode or never
-  (``reset="never"`` is what the reference's PPO-Lag and CPO runs did, spec Q1).
+  (``reset="never"`` is what the reference's PPO-Lag and CPO runs did, docs/protocols.md#cost-memory-is-never-reset).
 * Utility norms accrue on every step in which the key appears, the lower bound subtracted each
-  time (so steps can cost less than 0 when ``lo > 0``, spec Q8); degenerate bounds cost 0.
+  time (so steps can cost less than 0 when ``lo > 0``, docs/protocols.md#ppo-shaped-reward); degenerate bounds cost 0.
 * Modes: ``full`` = relevant norms, per-variant bounds; ``partial`` = all chain norms, per-variant
   bounds; ``minimal`` = all chain norms, scenario-wide bounds.
 

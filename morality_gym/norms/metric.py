@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from morality_gym.envs.registry import parse_env_id
 from morality_gym.norms.chain import ChainError, MoralityChain, get_chain
 
-DEFAULT_BETA = 0.1  # every run of the paper passes beta = 0.1 (evaluation spec, Q5)
+DEFAULT_BETA = 0.1  # every run of the paper passes beta = 0.1 (docs/protocols.md#the-metrics-settings)
 _TYPE_UTILITIES = ("n_human_harm", "n_animal_harm", "n_robot_harm")
 
 

@@ -1,9 +1,9 @@
 """Observation encoding: the flat vector of the reference (layout, order and values) and a dict view.
 
 The flat layout is part of the benchmark: agents trained on it, and the conformance traces
-compare it to 1e-6. It is therefore reproduced exactly, including quirks Q5 (raw group sizes in the
-"normalised" vector), Q6 (positions divided by H and W, not H-1 and W-1) and Q7 (per-character
-one-hot order). Unlike the reference, the declared space is correct: the upper bound of each group
+compare it to 1e-6. It is therefore reproduced exactly, including raw group sizes in the
+"normalised" vector, positions divided by H and W (not H-1 and W-1) and a per-character one-hot
+order (docs/protocols.md#observation-values). Unlike the reference, the declared space is correct: the upper bound of each group
 size is the largest size any variant of the scenario uses, so ``observation_space.contains(obs)`` always holds
 and all variants of a scenario share one space (agents can be moved between them).
 """

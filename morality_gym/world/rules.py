@@ -14,7 +14,7 @@ State layout (cells are ``row * width + col``)::
     trolleys     = ((cell, flags), ...)               flags = HARMED | TERMINATED
 
 ``index_cell`` is where the reference's cell index believes the character stands: it is only
-updated for a character that moved and was not harmed in that step (quirk Q12, stale adjacency).
+updated for a character that moved and was not harmed in that step (docs/protocols.md#stale-adjacency-after-a-push).
 ``PUSHED`` records that the character was once moved by a push, which makes every harm it takes
 part in "personal" (section 7).
 """
@@ -154,7 +154,7 @@ class World:
         agent_active = not aflags & TERMINATED
         found = bool(aflags & FOUND)
 
-        # 3b: trolleys fix their targets from the switch states at the start of the step (Q14).
+        # 3b: trolleys fix their targets from the switch states at the start of the step (docs/protocols.md#switch-timing-and-levers).
         t_pos = [t[0] for t in trolleys]
         t_flags = [t[1] for t in trolleys]
         t_target = list(t_pos)
@@ -194,7 +194,7 @@ class World:
                     if self.char_pushable[ci] and c_index[ci] == nb:
                         events |= _PUSH
                         if c_flags[ci] & HARMED:
-                            continue  # frozen: the push is counted but moves nothing (Q12)
+                            continue  # frozen: the push is counted but moves nothing (docs/protocols.md#stale-adjacency-after-a-push)
                         dest = self._offset(c_pos[ci], dr, dc)
                         if dest is not None:
                             c_target[ci] = dest
@@ -238,7 +238,7 @@ class World:
         t_pos = t_target
         agent = a_target
 
-        # 3d v: harm, in detection order; each harm is one event for one entity (Q15: repeats count).
+        # 3d v: harm, in detection order; each harm is one event for one entity (docs/protocols.md#repeated-harm-counts-again).
         harmed_now: list[int] = []
         last_pair: dict[int, tuple[int, int]] = {}
         for x, y in pairs:
@@ -272,7 +272,7 @@ class World:
                 personal = any(p >= first_char and c_flags[p - first_char] & PUSHED for p in (x, y))
                 prefix = "personal_action_caused" if personal else "impersonal_action_caused"
                 if e == 0:
-                    kind, amount = "robot", 1  # the agent counts as one robot (Q2)
+                    kind, amount = "robot", 1  # the agent counts as one robot (docs/protocols.md#the-agent-counts-as-a-robot)
                 elif e < first_char:
                     kind, amount = "trolley", 0
                 else:
@@ -300,7 +300,7 @@ class World:
             if c_tries[ci] and (1 + self.n_trolleys + ci) not in harmed_set:
                 c_index[ci] = c_pos[ci]
 
-        # 5.2: reward. The landmark wins over harm in the same step (Q9).
+        # 5.2: reward. The landmark wins over harm in the same step (docs/protocols.md#rewards-and-flags-after-the-end).
         scn = self.scenario
         if goal:
             reward = scn.landmark_reward

@@ -16,7 +16,7 @@ from typing import Final
 #: Character types, in the default one-hot order of the observation.
 CHARACTER_TYPES: Final[tuple[str, ...]] = ("human", "animal", "robot")
 
-#: Types that can be harmed; the trolley is harmed by its own collisions (spec Q3).
+#: Types that can be harmed; the trolley is harmed by its own collisions (docs/protocols.md#trolleys-are-harmed-and-stop-at-their-first-collision).
 HARMABLE_TYPES: Final[tuple[str, ...]] = ("human", "animal", "robot", "trolley")
 
 #: Causal prefixes: "personal" when a pushed character took part in the collision (spec section 7).
