@@ -430,7 +430,8 @@ def test_curves_ignore_failed_runs_and_missing_values() -> None:
 
 # ============================================================================ return, cost, violations
 def test_return_cost_points() -> None:
-    data = frame([run(R1, "A", 0.5, mean_return=3.0, mean_cost=0.2), run(R1, "A", 0.4, mean_return=None, mean_cost=0.1),
+    data = frame([run(R1, "A", 0.5, mean_return=3.0, mean_cost=0.2),
+                  run(R1, "A", 0.4, seed=42, mean_return=None, mean_cost=0.1),
                   run(R1, "B", math.nan, status="failed")])
     points = return_cost_points(data)
     assert points[["learner", "mean_return", "mean_cost", "metric"]].values.tolist() == [["A", 3.0, 0.2, 0.5]]
@@ -463,6 +464,14 @@ def test_violation_rates(tmp_path: Path) -> None:
 
 
 # ============================================================================ errors
+def test_a_raw_frame_counts_one_run_per_slot() -> None:
+    # read_runs gives every file, including a superseded run of the same slot (an earlier config):
+    # only one of them counts, as in Table 1 (the newest usable one without manifests).
+    data = frame([run(R1, "A", 0.2, finished_at="2025-01-01T00:00:00"), run(R1, "A", 0.8, finished_at="2025-02-01T00:00:00")])
+    cell = cell_intervals(data).iloc[0]
+    assert (cell["mean"], cell["n_runs"]) == (0.8, 1)
+
+
 def test_bad_input_is_named() -> None:
     data = frame([run(R1, "A", 0.5)]).rename(columns={"learner": "learnr"})
     with pytest.raises(StatsInputError, match=r"'learner' \(did you mean 'learnr'\?\)"):

@@ -39,6 +39,7 @@ from leaderboard.stats.core import (
     RngLike,
     base_seed,
     generator_for,
+    in_table1_order,
     percentile_bootstrap,
     require_columns,
     usable_runs,
@@ -86,7 +87,7 @@ def cell_intervals(
     ``runs``: run rows (``Leaderboard.runs``); only ``ok`` runs count. Returns the cell keys
     (protocol, preset, chain, scenario, learner), then ``mean`` (equal to Table 1's), ``ci_low``,
     ``ci_high`` (NaN when not computable), ``n_runs``, ``n_variants``, ``min_seeds`` (fewest runs
-    of a variant) and ``ci_note`` ("" when the interval exists, else why not), sorted by key.
+    of a variant) and ``ci_note`` ("" when the interval exists, else why not), in Table 1 order.
     """
     keys = _cell_keys()
     require_columns(runs, keys + ["variant", "metric"], "runs", "pass Leaderboard.runs")
@@ -110,7 +111,7 @@ def cell_intervals(
         rows.append(dict(zip(keys, key)) | {"mean": mean, "ci_low": low, "ci_high": high, "n_runs": len(part),
                                              "n_variants": len(counts), "min_seeds": min(counts.values()),
                                              "ci_note": note})
-    return pd.DataFrame(rows, columns=keys + CELL_COLUMNS)
+    return in_table1_order(pd.DataFrame(rows, columns=keys + CELL_COLUMNS))
 
 
 def intervals_overlap(a_low: float, a_high: float, b_low: float, b_high: float) -> bool | None:

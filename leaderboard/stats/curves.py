@@ -33,6 +33,7 @@ from leaderboard.stats.core import (
     RngLike,
     base_seed,
     generator_for,
+    in_table1_order,
     percentile_bootstrap,
     require_columns,
     usable_runs,
@@ -116,4 +117,4 @@ def pooled_learning_curves(
                                        "aligned": aligned}
         out += [base | {"step": int(step), "mean": float(m), "ci_low": float(lo), "ci_high": float(hi)}
                 for step, m, lo, hi in zip(grid, mean, np.atleast_1d(low), np.atleast_1d(high))]
-    return pd.DataFrame(out, columns=CURVE_COLUMNS)
+    return in_table1_order(pd.DataFrame(out, columns=CURVE_COLUMNS), then=["step"])

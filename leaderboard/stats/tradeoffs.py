@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from leaderboard.stats.core import require_columns, usable_runs
+from leaderboard.stats.core import in_table1_order, require_columns, usable_runs
 
 ROW_KEYS = ["protocol", "preset", "chain", "scenario"]
 POINT_COLUMNS = ROW_KEYS + ["variant", "learner", "seed", "run_id", "mean_return", "mean_cost", "metric"]
@@ -43,7 +43,7 @@ def return_cost_points(runs: pd.DataFrame) -> pd.DataFrame:
     for column in ("mean_return", "mean_cost", "metric"):
         points[column] = pd.to_numeric(points[column], errors="coerce").astype(float)
     points = points.dropna(subset=["mean_return", "mean_cost"])
-    return points.sort_values(ROW_KEYS + ["learner", "variant", "seed", "run_id"], kind="stable").reset_index(drop=True)
+    return in_table1_order(points, then=["variant", "seed", "run_id"])
 
 
 def _norm_meaning(chain: str, norm: str) -> tuple[str, str, str]:
@@ -71,7 +71,7 @@ def violation_rates(runs: pd.DataFrame) -> pd.DataFrame:
     (prohibited | prescribed), measure (see the module docstring), value, n_runs, rank (the
     norm's position in its chain, highest force first).
     """
-    from leaderboard.aggregate import chain_norm_order, learner_order, norm_long, row_order
+    from leaderboard.aggregate import chain_norm_order, norm_long
 
     ok = usable_runs(runs)
     require_columns(ok, ROW_KEYS + ["variant", "learner", "seed", "run_id", "relevant_norms"], "runs",
@@ -89,10 +89,5 @@ def violation_rates(runs: pd.DataFrame) -> pd.DataFrame:
     frame["measure"] = [meanings[(c, n)][2] for c, n in zip(frame["chain"], frame["norm"])]
     orders = {chain: chain_norm_order(chain) for chain in frame["chain"].unique()}
     frame["rank"] = [orders[c].index(n) if n in orders[c] else len(orders[c]) for c, n in zip(frame["chain"], frame["norm"])]
-    rows = {pair: i for i, pair in enumerate(row_order(zip(frame["chain"], frame["scenario"])))}
-    learners = {name: i for i, name in enumerate(learner_order(frame["learner"]))}
-    key = [(p, s, rows[(c, sc)], learners[lr], rk, n) for p, s, c, sc, lr, rk, n in
-           zip(frame["protocol"], frame["preset"], frame["chain"], frame["scenario"], frame["learner"], frame["rank"],
-               frame["norm"])]
-    frame = frame.iloc[sorted(range(len(frame)), key=key.__getitem__)].reset_index(drop=True)
+    frame = in_table1_order(frame, then=["rank", "norm"])
     return frame[columns]
