@@ -13,7 +13,7 @@ import pytest
 from PIL import Image
 
 from leaderboard.figures import LEARNER_COLOURS
-from leaderboard.stats import LeaderboardStats, compute_stats
+from leaderboard.stats import LeaderboardStats, StatsInputError, compute_stats
 from leaderboard.stats import figures as F
 from tests.stats_data import reference_frame, synthetic_runs
 
@@ -79,6 +79,15 @@ def test_nothing_to_draw_writes_nothing(stats: LeaderboardStats, tmp_path: Path)
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(ValueError, match="use .png, .pdf or .svg"):
         F.save_figure(F.new_figure(1, 1), tmp_path / "x.jpg")
+
+
+def test_mixed_sweeps_or_measures_are_refused(stats: LeaderboardStats, tmp_path: Path) -> None:
+    with pytest.raises(StatsInputError, match="spans several protocol, preset, measure"):
+        F.aggregate_figure(stats.aggregates, tmp_path / "a.png")  # both measures
+    two = pd.concat([stats.points, stats.points.assign(protocol="corrected")])
+    with pytest.raises(StatsInputError, match="paper/paper, corrected/paper"):
+        F.return_cost_figure(two, tmp_path / "b.png")
+    assert not list(tmp_path.iterdir())
 
 
 def test_frames_are_tidy(stats: LeaderboardStats) -> None:

@@ -120,7 +120,7 @@ def intervals_overlap(a_low: float, a_high: float, b_low: float, b_high: float) 
     Touching intervals overlap: a bold must not hinge on the last digit of a bootstrap quantile.
     """
     bounds = (a_low, a_high, b_low, b_high)
-    if any(b is None or (isinstance(b, float) and math.isnan(b)) for b in bounds):
+    if any(pd.isna(b) for b in bounds):
         return None
     return not (float(a_low) > float(b_high) or float(b_low) > float(a_high))
 

@@ -1,9 +1,11 @@
 """Figures of the statistics: performance profiles, aggregate intervals, probability of improvement,
 pooled learning curves, return versus cost.
 
-Each function draws one figure from the tidy frames of :mod:`leaderboard.stats` (already filtered
-to one protocol and preset by the caller), writes it to ``path`` and returns the path, or returns
-``None`` and writes nothing when the frame has nothing to draw (the page then says so).
+Each function draws one figure from the tidy frames of :mod:`leaderboard.stats`, filtered by the
+caller to one protocol and preset (and one measure; data spanning several raises
+:class:`~leaderboard.stats.core.StatsInputError` rather than pooling them), writes it to ``path``
+and returns the path, or returns ``None`` and writes nothing when the frame has nothing to draw
+(the page then says so).
 
 As in :mod:`leaderboard.figures`: matplotlib ``Figure`` objects on the Agg canvas, never
 ``pyplot`` (no global state, no GUI backend); one colour per learner everywhere (pass
@@ -63,6 +65,16 @@ def save_figure(fig: Figure, path: Path, tight: bool = True) -> Path:
     with matplotlib.rc_context({"svg.hashsalt": "morality-gym", "svg.fonttype": "path"}):
         fig.savefig(path, dpi=DPI, facecolor="white", metadata=_METADATA[suffix], **box)
     return path
+
+
+def _single(frame: pd.DataFrame, what: str, columns: Sequence[str]) -> None:
+    """Refuse data that mixes sweeps (or measures): one figure would silently pool them."""
+    from leaderboard.stats.core import StatsInputError
+
+    present = [c for c in columns if c in frame.columns]
+    if present and len(frame[present].drop_duplicates()) > 1:
+        found = ", ".join("/".join(map(str, k)) for k in frame[present].drop_duplicates().itertuples(index=False))
+        raise StatsInputError(f"{what} data spans several {', '.join(present)} ({found}); filter it to one first")
 
 
 def _colours(learners: Sequence[str], colours: Mapping[str, str] | None) -> dict[str, str]:
@@ -138,6 +150,7 @@ def performance_profile_figure(profiles: pd.DataFrame, path: Path, title: str = 
     """Share of runs above each threshold per learner, with the 95 % pointwise band (one measure)."""
     if profiles.empty:
         return None
+    _single(profiles, "performance profile", ["protocol", "preset", "measure"])
     learners = _learners(profiles)
     palette = _colours(learners, colours)
     measure = str(profiles["measure"].iloc[0])
@@ -165,6 +178,7 @@ def aggregate_figure(aggregates: pd.DataFrame, path: Path, title: str = "",
     """One panel per statistic (mean, IQM, optimality gap), one line per learner: point and 95 % interval."""
     if aggregates.empty:
         return None
+    _single(aggregates, "aggregate", ["protocol", "preset", "measure"])
     learners = _learners(aggregates)
     palette = _colours(learners, colours)
     measure = str(aggregates["measure"].iloc[0])
@@ -196,6 +210,7 @@ def improvement_figure(improvement: pd.DataFrame, path: Path, title: str = "",
     """``P(X > Y)`` with its interval for each pair of learners (each pair once, X before Y in learner order)."""
     if improvement.empty:
         return None
+    _single(improvement, "probability-of-improvement", ["protocol", "preset"])
     learners = _learners(improvement, "learner_x")
     palette = _colours(learners, colours)
     rank = {name: i for i, name in enumerate(learners)}
@@ -231,6 +246,7 @@ def learning_curves_figure(curves: pd.DataFrame, path: Path, rows: Sequence[tupl
 
     if curves.empty:
         return None
+    _single(curves, "learning-curve", ["protocol", "preset", "measure"])
     rows = list(rows) if rows is not None else row_order(zip(curves["chain"], curves["scenario"]))
     learners = _learners(curves)
     palette = _colours(learners, colours)
@@ -270,6 +286,7 @@ def return_cost_figure(points: pd.DataFrame, path: Path, rows: Sequence[tuple[st
 
     if points.empty:
         return None
+    _single(points, "return-cost", ["protocol", "preset"])
     rows = list(rows) if rows is not None else row_order(zip(points["chain"], points["scenario"]))
     learners = _learners(points)
     palette = _colours(learners, colours)
