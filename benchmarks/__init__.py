@@ -96,6 +96,8 @@ class Section:
     rows: list[list[str]]
     notes: list[str] = field(default_factory=list)
     title: str = ""  # filled in from the registry
+    #: The columns a ``--baseline`` comparison sets beside an older revision's (default: all but the first).
+    compare: list[str] | None = None
 
     def markdown(self) -> str:
         lines = [f"## {self.title}", "", self.intro.strip(), ""]

@@ -488,6 +488,23 @@ def _pin_cpu(requested: int | None) -> int | None:
     return cpu
 
 
+def keep_other_sections(markdown: str, replaced: set[str]) -> list[tuple[str, str]]:
+    """(title, text) of every ``## `` section of an earlier report that this run does not replace.
+
+    A before/after section belongs to the section it compares, so it goes when that one is re-run.
+    """
+    out: list[tuple[str, str]] = []
+    title, chunk = None, []
+    for line in markdown.splitlines() + ["## "]:
+        if line.startswith("## ") or line.startswith("Total benchmark time"):
+            if title is not None and title.split(": before (")[0] not in replaced:
+                out.append((title, "\n".join(chunk).rstrip() + "\n"))
+            title, chunk = (line[3:].strip(), [line]) if line.startswith("## ") and line[3:].strip() else (None, [])
+        elif title is not None:
+            chunk.append(line)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.run", description=__doc__.splitlines()[0])
     parser.add_argument("--output", type=Path, default=Path("BENCHMARKS.md"), help="Markdown file to write")
@@ -502,6 +519,12 @@ def main(argv: list[str] | None = None) -> int:
         "--cpu", type=int, default=None, help="CPU to pin to (default: the first allowed; -1: no pinning)"
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    parser.add_argument(
+        "--baseline",
+        metavar="REV",
+        default=None,
+        help="also run the selected sections at git revision REV and set its figures beside these (before/after)",
+    )
     args = parser.parse_args(argv)
 
     _discover_extensions()
@@ -551,6 +574,17 @@ def main(argv: list[str] | None = None) -> int:
             section.title = bench.title
             sections.append(section)
             progress.advance(overall)
+    baseline_commit = None
+    if args.baseline:
+        from benchmarks.baseline import comparison, measure_at
+
+        console.print(f"measuring the same sections at {args.baseline} (temporary worktree)...")
+        baseline_commit, before = measure_at(
+            args.baseline, [b.key for b in selected], repeats, cpu, args.quick
+        )
+        sections = [
+            part for section in sections for part in (section, comparison(section, before.get(section.title), baseline_commit))
+        ]
     elapsed = time.perf_counter() - started
 
     facts = machine_facts(cpu)
@@ -573,8 +607,25 @@ def main(argv: list[str] | None = None) -> int:
         *[f"| {k} | {v} |" for k, v in facts],
         "",
     ]
-    for section in sections:
-        lines.append(section.markdown())
+    if args.only and args.output.exists():
+        # A partial run refreshes its own sections and keeps the others' figures (from an earlier
+        # run, which the note says), instead of throwing the rest of the report away.
+        kept = keep_other_sections(args.output.read_text(), {s.title for s in sections})
+        if kept:
+            lines.append(
+                "Sections not re-run by this invocation keep the figures of an earlier run (their machine facts are in "
+                "this file's git history): " + ", ".join(f"*{t}*" for t, _ in kept) + "."
+            )
+            lines.append("")
+        body = {title: text for title, text in kept}
+        order = [b.title for b in ordered()]
+        new = {s.title: s.markdown() for s in sections}
+        body.update(new)
+        titles = sorted(body, key=lambda t: (order.index(t.split(": before (")[0]) if t.split(": before (")[0] in order else len(order), t))
+        lines += [body[t] for t in titles]
+    else:
+        for section in sections:
+            lines.append(section.markdown())
     lines.append(f"Total benchmark time: {elapsed:,.0f} s.")
     lines.append("")
     args.output.write_text("\n".join(lines))
