@@ -496,7 +496,7 @@ def keep_other_sections(markdown: str, replaced: set[str]) -> list[tuple[str, st
     out: list[tuple[str, str]] = []
     title, chunk = None, []
     for line in markdown.splitlines() + ["## "]:
-        if line.startswith("## ") or line.startswith("Total benchmark time"):
+        if line.startswith(("## ", "Total benchmark time")):
             if title is not None and title.split(": before (")[0] not in replaced:
                 out.append((title, "\n".join(chunk).rstrip() + "\n"))
             title, chunk = (line[3:].strip(), [line]) if line.startswith("## ") and line[3:].strip() else (None, [])

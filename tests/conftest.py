@@ -19,4 +19,18 @@ def shared_dir() -> Path:
     return SHARED
 
 
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """Small networks: one torch thread is fastest and keeps runs reproducible on a 2-core machine.
+
+    Modules that train use it with ``pytestmark = pytest.mark.usefixtures("one_torch_thread")``.
+    """
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
 from tests.slurm_cluster import slurm_cluster  # noqa: E402,F401 - session fixture for the SLURM tests

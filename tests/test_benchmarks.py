@@ -71,15 +71,15 @@ def test_baseline_run_measures_another_revision_and_partial_runs_keep_other_sect
     )
     cmd = [sys.executable, "-m", "benchmarks.run", "--quick", "--repeats", "1", "--only", "reset", "--no-progress",
            "--baseline", "HEAD", "--output", str(out)]
-    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
     assert done.returncode == 0, done.stderr[-2000:]
     text = out.read_text()
     assert "## reset() time" in text
     assert "## reset() time: before (" in text
     assert "## Oracle search" in text and "| Switch5 | 1 | 1 |" in text, "a partial run must keep the other sections"
     assert "keep the figures of an earlier run" in text
-    worktrees = subprocess.run(["git", "worktree", "list"], cwd=ROOT, capture_output=True, text=True).stdout
+    worktrees = subprocess.run(["git", "worktree", "list"], cwd=ROOT, capture_output=True, text=True, check=False).stdout
     assert "morality-gym-baseline-" not in worktrees, "the temporary worktree must be removed"
     bad = subprocess.run([*cmd[:-2], "--output", str(tmp_path / "x.md"), "--baseline", "no-such-rev"],
-                         cwd=ROOT, capture_output=True, text=True, timeout=600)
+                         cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
     assert bad.returncode != 0 and "is not a commit" in bad.stderr

@@ -9,7 +9,6 @@ evaluation spec (Q26), in torch with torch's own clamp, and compared with
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -25,12 +24,7 @@ from morality_gym.baselines.safe.functional import conjugate_gradient, normalize
 from tests.cmdp_toy import TwoRouteCMDP
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread() -> Iterator[None]:
-    before = th.get_num_threads()
-    th.set_num_threads(1)
-    yield
-    th.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def toy_env(n_envs: int = 4, seed: int = 0) -> Any:
