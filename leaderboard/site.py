@@ -586,7 +586,7 @@ def table1_section(sb: SiteBuild, root: str) -> str:
         f'scenario; ± = standard deviation over seeds of the per-seed means (ddof={STD_DDOF}). The best learner of '
         f'each (sweep, chain, scenario) is <strong>bold</strong>. Δ = ours − paper, highlighted from '
         f'|Δ| ≥ {NOTABLE_DELTA}. ⚠ incomplete (orange): fewer results than the scenario\'s variants times the preset\'s seeds; such a cell '
-        'is never bold and not compared with the paper (no Δ). {h(RANDOM_EXACT)}: exact expectation of '
+        f'is never bold and not compared with the paper (no Δ). {h(RANDOM_EXACT)}: exact expectation of '
         'the uniform random policy; oracle best/worst: the range any policy can reach (means over variants). '
         'Click a column header to sort; click a scenario for its page.</p>'
         + "".join(controls)

@@ -14,16 +14,15 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from morality_gym.clitools import OneLineParser, add_debug_flag, positive_int, run_cli
+from morality_gym.clitools import OneLineParser, add_debug_flag, console, positive_int, run_cli
 from morality_gym.envs.registry import UnknownEnvError, list_envs, scenario_named
 from morality_gym.norms.chain import ChainError, builtin_chains, chain_file_stem, get_chain
 
 
 def _console() -> Any:
-    """A rich console; when output is piped, wide enough that tables are never cut."""
-    from rich.console import Console
-
-    return Console(width=None if sys.stdout.isatty() else 200)
+    """A rich console; when output is piped, wide enough that tables are never cut (and a closed
+    pipe ends the command quietly, :func:`morality_gym.clitools.console`)."""
+    return console(width=None if sys.stdout.isatty() else 200)
 
 
 class CliError(Exception):

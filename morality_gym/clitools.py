@@ -23,7 +23,7 @@ import argparse
 import os
 import sys
 from collections.abc import Callable, Sequence
-from typing import NoReturn
+from typing import Any, NoReturn
 
 EXIT_USAGE = 2
 EXIT_BROKEN_PIPE = 141
@@ -80,6 +80,22 @@ def run_cli(body: Callable[[], int | None], user_errors: tuple[type[BaseExceptio
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+
+
+def console(**kwargs: Any) -> Any:
+    """A ``rich`` console whose closed pipe raises :class:`BrokenPipeError` for :func:`run_cli`.
+
+    Rich's own answer to a closed pipe is ``SystemExit(1)``: ``... | head`` would then report a
+    failure (exit 1) for output that was simply not read to the end.
+    """
+    from rich.console import Console
+
+    class _PipeSafeConsole(Console):
+        def on_broken_pipe(self) -> None:
+            self.quiet = True
+            raise BrokenPipeError("output pipe closed")
+
+    return _PipeSafeConsole(**kwargs)
 
 
 class OneLineParser(argparse.ArgumentParser):

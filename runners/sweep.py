@@ -25,8 +25,9 @@ from typing import Any
 
 import hydra
 from omegaconf import DictConfig
+from rich.markup import escape
 
-from morality_gym.clitools import DEBUG_ENV, debug_enabled, run_cli
+from morality_gym.clitools import DEBUG_ENV, debug_enabled, one_line, run_cli
 from runners.config import ConfigError, SweepConfig, validate
 from runners.execute import finished_status, record_failure
 from runners.manifest import manifest_name, write_manifest
@@ -59,7 +60,7 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
     runs = plan(sweep)
     sweep.results_dir.mkdir(parents=True, exist_ok=True)
     for moved in check_run_files(sweep.results_dir, [r.run_id for r in runs]):
-        console.print(f"[yellow]{moved.describe(sweep.results_dir)}[/yellow]", markup=True, highlight=False)
+        console.print(f"[yellow]{escape(moved.describe(sweep.results_dir))}[/yellow]", markup=True, highlight=False, soft_wrap=True)
     status = {r.run_id: finished_status(sweep.results_dir, r.run_id) for r in runs}
     done = {rid for rid, s in status.items() if s == "ok" or (s == "failed" and not sweep.retry_failed)}
     workers = _workers(sweep)
@@ -93,7 +94,7 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
         dry_run=sweep.dry_run,
     )
     console.print(f"plan recorded in {sweep.results_dir / 'manifests' / (name + '.json')}"
-                  + (" (dry run: not counted as planned by the leaderboard)" if sweep.dry_run else ""))
+                  + (" (dry run: not counted as planned by the leaderboard)" if sweep.dry_run else ""), soft_wrap=True)
     if sweep.dry_run:
         listing = Table(title="planned runs")
         for col in ("run id", "env id", "chain", "learner", "seed", "budget", "status"):
@@ -181,7 +182,7 @@ def _app(cfg: DictConfig) -> None:
     except ConfigError as exc:
         if debug_enabled():
             raise
-        console.print(f"[red]configuration error:[/red] {exc}", markup=True, highlight=False)
+        console.print(f"[red]configuration error:[/red] {escape(one_line(exc))}", markup=True, highlight=False, soft_wrap=True)
         _EXIT["code"] = 2
         return
     try:
@@ -189,9 +190,7 @@ def _app(cfg: DictConfig) -> None:
     except user_errors() as exc:  # Hydra would print these with a traceback
         if debug_enabled():
             raise
-        from morality_gym.clitools import one_line
-
-        console.print(f"[red]error:[/red] {one_line(exc)}", markup=True, highlight=False)
+        console.print(f"[red]error:[/red] {escape(one_line(exc))}", markup=True, highlight=False, soft_wrap=True)
         _EXIT["code"] = 2
 
 
