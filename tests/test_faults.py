@@ -237,7 +237,7 @@ def test_04_a_truncated_run_file_is_moved_aside_and_run_again(tmp_path: Path) ->
 @pytest.mark.slow
 def test_05_two_sweeps_started_together_share_a_fresh_directory(tmp_path: Path) -> None:
     results = tmp_path / "r"
-    args = [*SMOKE, "scenario=[switch_standard]", "variant=[HumanA,HumanB,HumanC,HumanD]", "gif=false",
+    args = [*SMOKE, "scenario=[switch_standard]", "variant=[HumanA,HumanB,AnimalA,AnimalB]", "gif=false",
             "launcher.workers=1"]
     procs = [sweep_background(results, *args) for _ in range(2)]
     outputs = [p.communicate(timeout=900)[0] for p in procs]
