@@ -517,3 +517,16 @@ def test_12_a_dry_run_plans_nothing_the_leaderboard_counts(tmp_path: Path) -> No
     assert out.returncode == 0, out.stderr
     assert "0 run(s) failed and 0 planned run(s)" not in (results / "table1.md").read_text()
     assert "None: every planned run has a result." in (results / "table1.md").read_text()
+
+
+# ---------------------------------------------------------------------------------------- --debug
+def test_debug_shows_the_traceback_of_a_user_error(tmp_path: Path) -> None:
+    """Every entry point: one line by default; ``--debug`` (or MORALITY_GYM_DEBUG=1) shows the traceback."""
+    ask = ["eval", "--chain", "Utility", "--scenario", "NoSuchScenario"]
+    one_line_error(mg(*ask), "Unknown scenario 'NoSuchScenario'")
+    for out in (mg("--debug", *ask), mg(*ask, env={"MORALITY_GYM_DEBUG": "1"})):
+        assert out.returncode != 0 and "Traceback" in out.stderr and "UnknownEnvError" in out.stderr
+    out = run(["-m", "leaderboard.build", "--results", str(tmp_path / "missing"), "--debug"])
+    assert out.returncode != 0 and "Traceback" in out.stderr and "UserError" in out.stderr
+    out = sweep(tmp_path / "r", *SMOKE, "scenario=[switch_standard]", "beta=2", env={"MORALITY_GYM_DEBUG": "1"})
+    assert out.returncode != 0 and "Traceback" in out.stderr and "ConfigError" in out.stderr
