@@ -288,6 +288,7 @@ def test_07_a_bad_user_scenario_file_never_breaks_the_builtins(tmp_path: Path) -
     assert len(warnings) == 2, out.stderr
     broken = next(w for w in warnings if "broken.yaml" in w)
     assert "switches[0].lever" in broken and "Fix: " in broken
+    assert "name: BrokenTiny" not in out.stderr  # one line each: not followed by the file's first line
     assert "SwitchStandard" in out.stdout and "GoodTiny" in out.stdout and "BrokenTiny" not in out.stdout
 
     out = mg("eval", "--scenario", "SwitchStandard", "--variant", "HumanA", "--chain", "Utility", "--exact", "--json", env=env)

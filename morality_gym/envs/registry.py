@@ -108,6 +108,22 @@ def _skip(path: Path, error: str) -> None:
     warnings.warn_explicit(f"skipped this scenario file: {message}", ScenarioFileWarning, str(path), 1)
 
 
+_format_warning = warnings.formatwarning
+
+
+def _one_line_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                      line: str | None = None) -> str:
+    """Python shows a warning with the source line it points at; a skipped scenario file's first
+    line says nothing, so its warning is the one line ``<file>: ScenarioFileWarning: <why, fix>``.
+    Every other warning is formatted as before."""
+    if isinstance(category, type) and issubclass(category, ScenarioFileWarning):
+        return f"{filename}: {category.__name__}: {message}\n"
+    return _format_warning(message, category, filename, lineno, line)
+
+
+warnings.formatwarning = _one_line_warning
+
+
 def _load_env_dirs(known: dict[str, Scenario]) -> None:
     """Load ``MORALITY_GYM_SCENARIOS`` file by file, skipping (and reporting) each bad one."""
     for entry in [p for p in os.environ.get(SCENARIOS_ENV, "").split(os.pathsep) if p]:
