@@ -18,9 +18,21 @@ is not ``ok`` (or that has no metric) is a *problem*, and both are returned for 
 
 A results directory also outlives configurations: rerun a sweep after changing a hyper-parameter
 and the old runs (other config, so other run ids) stay on disk beside the new ones. Averaging both
-into one cell would mix two algorithms under one label, so each *slot* (protocol, preset, chain,
-env id, learner, seed, beta, max_steps) counts one run: the one a current sweep manifest plans,
-else an ``ok`` one, else the newest. The others are *superseded*: reported, never counted.
+into one cell would mix two algorithms under one label, so a cell counts the runs of **one
+configuration** only (:func:`select_configurations`; the configuration key is the run config's
+hash without env and seed, :func:`runners.identity.config_key`): the one planned by the most recently
+launched sweep manifest, else the one with the newest result. Within it each *slot* (protocol,
+preset, chain, env id, learner, seed, beta, max_steps) counts one run. All other runs are
+*superseded*: reported, never counted. Chains are told apart by what they are (their norms, order
+and modalities), not by their name: runs of a chain that takes a built-in chain's name for other
+norms are labelled ``<name>~<fingerprint>`` and never pass for the built-in chain.
+
+Every learner cell says how **complete** it is (:func:`learner_cells`): results present out of
+the expected grid of (variant, seed), where the variants are all of the scenario's and the seeds
+the preset's (as recorded by the sweep manifests, else ``conf/preset``), plus any seed a sweep
+planned or ran for the cell. An incomplete cell keeps its mean (so the table shows what exists)
+but is never the best of its row and is never compared with the paper (no delta); the reason is
+in ``incomplete_reason``.
 """
 
 from __future__ import annotations
@@ -41,7 +53,14 @@ import pandas as pd
 #: "Standard deviation over three seeds": the sample standard deviation (n - 1 in the denominator).
 STD_DDOF = 1
 #: Exactly the columns of ``results/table1.csv`` (readers select by name; this is the contract).
-CSV_COLUMNS = ["chain", "scenario", "learner", "mean", "std", "n_runs", "paper", "delta"]
+#: ``n_variants``/``n_seeds``: distinct variants/seeds among the cell's results, out of
+#: ``n_variants_expected``/``n_seeds_expected``; ``complete``: every expected (variant, seed) has a
+#: result; ``incomplete_reason``: what is lacking (empty when complete). Reference rows are exact
+#: over all variants (``complete`` true, seed columns empty).
+CSV_COLUMNS = ["chain", "scenario", "learner", "mean", "std", "n_runs", "paper", "delta",
+               "n_variants", "n_variants_expected", "n_seeds", "n_seeds_expected", "complete", "incomplete_reason"]
+COMPLETENESS_COLUMNS = ["n_variants", "n_variants_expected", "n_seeds", "n_seeds_expected", "n_expected", "complete",
+                        "incomplete_reason"]
 #: Rows computed from the environments rather than from runs (see :func:`compute_reference`).
 RANDOM_EXACT, ORACLE_BEST, ORACLE_WORST = "Random (exact)", "Oracle best", "Oracle worst"
 REFERENCE_LEARNERS = (RANDOM_EXACT, ORACLE_BEST, ORACLE_WORST)
@@ -149,10 +168,51 @@ def prepare_runs(runs: pd.DataFrame) -> pd.DataFrame:
     df["protocol"] = df["protocol"].astype(object).where(df["protocol"].notna(), _UNKNOWN)
     df["preset"] = df["preset"].astype(object).where(df["preset"].notna(), _UNKNOWN)
     df["relevant_norms"] = [_as_tuple(value) for value in df["relevant_norms"]]
+    facts = [_config_facts(config, run_id) for config, run_id in zip(df["config"], df["run_id"])]
+    df["config_key"] = [key for key, _ in facts]
+    df["chain_key"] = [fingerprint for _, fingerprint in facts]
+    df["chain"] = [chain_label(name, fingerprint) for name, fingerprint in zip(df["chain"], df["chain_key"])]
     metric = pd.to_numeric(df["metric"], errors="coerce")
     df["metric"] = metric
     df["ok"] = (df["status"].astype(object) == "ok") & np.isfinite(metric.to_numpy(dtype=float, na_value=np.nan))
     return df
+
+
+def _config_facts(config: Any, run_id: Any) -> tuple[str, str | None]:
+    """(configuration key, chain fingerprint) of a run from its recorded config JSON.
+
+    A run without a readable config is its own configuration (it is never merged with others).
+    """
+    from morality_gym.norms.chain import chain_fingerprint
+    from runners.identity import config_key
+
+    try:
+        data = json.loads(config) if isinstance(config, str) else None
+    except ValueError:
+        data = None
+    if not isinstance(data, dict):
+        return f"run:{run_id}", None
+    chain = data.get("chain")
+    fingerprint = None
+    if isinstance(chain, dict) and isinstance(chain.get("norms"), list):
+        try:
+            fingerprint = chain_fingerprint(chain["norms"])
+        except (TypeError, ValueError):
+            fingerprint = None
+    return config_key(data), fingerprint
+
+
+def chain_label(name: Any, fingerprint: str | None) -> Any:
+    """The name a chain is shown and grouped under: its own, unless it takes a built-in chain's
+    name for other norms; then ``<name>~<fingerprint>``, so it never passes for the built-in one."""
+    if fingerprint is None or not isinstance(name, str):
+        return name
+    from morality_gym.norms.chain import builtin_chains
+
+    builtin = builtin_chains().get(name)
+    if builtin is not None and builtin.fingerprint != fingerprint:
+        return f"{name}~{fingerprint[:8]}"
+    return name
 
 
 def _as_tuple(value: Any) -> tuple[str, ...]:
@@ -209,6 +269,91 @@ def split_superseded(runs: pd.DataFrame, planned: Mapping[str, Any]) -> tuple[pd
     return counted.sort_index(), superseded.sort_values(REPORT_COLUMNS[1:] + ["run_id"]).reset_index(drop=True)
 
 
+# ---------------------------------------------------------------------------------------- configurations
+CELL_KEYS = ["protocol", "preset", "chain", "scenario", "learner"]
+
+
+def _cell_of(record: Mapping[str, Any]) -> tuple[str, ...]:
+    return tuple(str(record.get(k) if record.get(k) is not None else _UNKNOWN) for k in CELL_KEYS)
+
+
+def label_planned(planned: Mapping[str, Mapping[str, Any]], runs: pd.DataFrame) -> dict[str, dict[str, Any]]:
+    """Planned runs with the chain label and configuration key the aggregation groups by.
+
+    A manifest of this version records both; for an older one, a planned run with a result takes
+    its result's, and one without takes those of its manifest's other runs in the same cell (a
+    sweep plans one configuration per cell), else none: such a plan does not choose the cell's
+    configuration, it is counted with whichever is chosen.
+    """
+    by_run = {str(r): (c, k) for r, c, k in zip(runs["run_id"], runs["chain"], runs["config_key"])}
+    out: dict[str, dict[str, Any]] = {}
+    for run_id, entry in planned.items():
+        item = dict(entry)
+        for column in ("protocol", "preset"):
+            item[column] = item.get(column) or _UNKNOWN
+        known = by_run.get(str(run_id))
+        if item.get("chain_key"):
+            item["chain"] = chain_label(item.get("chain"), str(item["chain_key"]))
+        elif known is not None:
+            item["chain"] = known[0]
+        if not item.get("config_key") and known is not None:
+            item["config_key"] = known[1]
+        out[str(run_id)] = item
+    shared: dict[tuple[Any, ...], set[str]] = {}
+    for item in out.values():
+        if item.get("config_key"):
+            shared.setdefault((item.get("manifest"), _cell_of(item)), set()).add(str(item["config_key"]))
+    for item in out.values():
+        if not item.get("config_key"):
+            keys = shared.get((item.get("manifest"), _cell_of(item)), set())
+            item["config_key"] = next(iter(keys)) if len(keys) == 1 else None  # unknown: joins the cell's choice
+    return out
+
+
+def select_configurations(runs: pd.DataFrame, planned: Mapping[str, Mapping[str, Any]]
+                          ) -> tuple[pd.DataFrame, pd.DataFrame, dict[str, dict[str, Any]]]:
+    """``(counted, superseded, planned)``: per cell, only the runs and plans of one configuration.
+
+    The configuration of a cell is the one planned by the most recently launched manifest that
+    plans anything in the cell; a cell no manifest plans takes the configuration of its newest
+    ``ok`` result (then of its newest result). Runs of every other configuration are returned as
+    superseded (``superseded_by``: the counted run of the same env and seed, if any), and the plans
+    of other configurations are dropped (their runs are not *missing*: they are no longer wanted).
+    """
+    if runs.empty and not planned:
+        return runs, runs.assign(superseded_by=pd.Series(dtype=object)).iloc[0:0], {}
+    finished = runs["finished_at"] if "finished_at" in runs.columns else pd.Series([None] * len(runs), index=runs.index)
+    finished = finished.astype(object).where(finished.notna(), "").astype(str)
+    scores: dict[tuple[str, ...], dict[str, list[str]]] = {}
+
+    def score(cell: tuple[str, ...], key: str) -> list[str]:
+        return scores.setdefault(cell, {}).setdefault(key, ["", "", ""])  # planned_at, newest ok, newest any
+
+    cells = [_cell_of(r) for r in runs[CELL_KEYS].to_dict("records")]
+    for cell, key, ok, when in zip(cells, runs["config_key"], runs["ok"], finished):
+        entry = score(cell, str(key))
+        entry[2] = max(entry[2], when)
+        if ok:
+            entry[1] = max(entry[1], when)
+    for item in planned.values():
+        if item.get("config_key") is None:
+            continue
+        entry = score(_cell_of(item), str(item["config_key"]))
+        entry[0] = max(entry[0], str(item.get("planned_at") or ""))
+    winner = {cell: max(options.items(), key=lambda kv: (kv[1], kv[0]))[0] for cell, options in scores.items()}
+    keep = pd.Series([str(k) == winner[c] for c, k in zip(cells, runs["config_key"])], index=runs.index, dtype=bool)
+    counted = runs.loc[keep]
+    superseded = runs.loc[~keep].copy()
+    by_slot = {(str(e), str(sd), c): r for e, sd, c, r in zip(counted["env_id"], counted["seed"],
+                                                              [_cell_of(x) for x in counted[CELL_KEYS].to_dict("records")],
+                                                              counted["run_id"])}
+    superseded["superseded_by"] = [by_slot.get((str(e), str(sd), c)) for e, sd, c in zip(
+        superseded["env_id"], superseded["seed"], [_cell_of(x) for x in superseded[CELL_KEYS].to_dict("records")])]
+    kept_plans = {rid: item for rid, item in planned.items()
+                  if item.get("config_key") is None or str(item["config_key"]) == winner.get(_cell_of(item))}
+    return counted, superseded, kept_plans
+
+
 # ---------------------------------------------------------------------------------------- problems
 
 
@@ -259,7 +404,6 @@ def group_stats(frame: pd.DataFrame, keys: list[str], column: str, count_name: s
 
 
 # ---------------------------------------------------------------------------------------- table 1
-CELL_KEYS = ["protocol", "preset", "chain", "scenario", "learner"]
 
 
 def _expected_runs(runs: pd.DataFrame, planned: Mapping[str, Mapping[str, Any]]) -> pd.DataFrame:
@@ -291,7 +435,94 @@ def learner_cells(runs: pd.DataFrame, planned: Mapping[str, Mapping[str, Any]]) 
     frame["n_failed"] = frame["n_failed"].fillna(0).astype(int)
     frame["n_planned"] = frame["n_planned"].fillna(frame["n_runs"]).astype(int)
     frame["n_missing"] = (frame["n_planned"] - frame["n_runs"] - frame["n_failed"]).clip(lower=0).astype(int)
+    facts = completeness(runs, planned)
+    records = [facts.get(_cell_of(r), _no_facts()) for r in frame[CELL_KEYS].to_dict("records")]
+    for column in COMPLETENESS_COLUMNS:
+        frame[column] = [r[column] for r in records]
+    frame["complete"] = frame["complete"].astype(bool)
     return frame
+
+
+def _seed(value: Any) -> int | None:
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return None
+    return int(number) if math.isfinite(number) else None
+
+
+def _no_facts() -> dict[str, Any]:
+    return {"n_variants": 0, "n_variants_expected": 0, "n_seeds": 0, "n_seeds_expected": 0, "n_expected": 0,
+            "complete": False, "incomplete_reason": "no run planned or produced"}
+
+
+def scenario_variants(scenario: str) -> list[str] | None:
+    """The variants of a registered scenario, in table order (None if it is not registered here)."""
+    from morality_gym.envs.registry import UnknownEnvError, scenario_named
+
+    try:
+        return list(scenario_named(scenario).variants)
+    except (UnknownEnvError, KeyError):
+        return None
+
+
+def expected_seeds(preset: str, planned: Iterable[Mapping[str, Any]]) -> set[int]:
+    """The preset's seeds: as the manifests of this preset record them, else ``conf/preset/<preset>.yaml``."""
+    from runners.paths import preset_seeds
+
+    recorded: set[int] = set()
+    for item in planned:
+        if str(item.get("preset")) == preset and isinstance(item.get("preset_seeds"), list):
+            recorded |= {s for s in map(_seed, item["preset_seeds"]) if s is not None}
+    return recorded or set(preset_seeds(preset) or ())
+
+
+def completeness(runs: pd.DataFrame, planned: Mapping[str, Mapping[str, Any]]) -> dict[tuple[str, ...], dict[str, Any]]:
+    """How complete each learner cell is (see the module docstring), keyed like :func:`_cell_of`.
+
+    Expected grid = every variant of the scenario x (the preset's seeds + the seeds the cell's
+    sweeps planned + the seeds of its runs). ``complete``: a usable result for every point of it.
+    """
+    plans: dict[tuple[str, ...], list[Mapping[str, Any]]] = {}
+    for item in planned.values():
+        plans.setdefault(_cell_of(item), []).append(item)
+    records: dict[tuple[str, ...], list[Mapping[str, Any]]] = {}
+    for record in runs[CELL_KEYS + ["variant", "seed", "ok", "run_id"]].to_dict("records"):
+        records.setdefault(_cell_of(record), []).append(record)
+    seeds_of_preset: dict[str, set[int]] = {}
+    out: dict[tuple[str, ...], dict[str, Any]] = {}
+    for cell in set(plans) | set(records):
+        preset, scenario = cell[1], cell[3]
+        if preset not in seeds_of_preset:
+            seeds_of_preset[preset] = expected_seeds(preset, planned.values())
+        cell_runs, cell_plans = records.get(cell, []), plans.get(cell, [])
+        variants = scenario_variants(scenario)
+        if variants is None:
+            variants = sorted({str(x["variant"]) for x in [*cell_runs, *cell_plans] if x.get("variant") is not None})
+        seeds = set(seeds_of_preset[preset])
+        seeds |= {s for s in (_seed(x.get("seed")) for x in [*cell_runs, *cell_plans]) if s is not None}
+        expected = {(v, s) for v in variants for s in seeds}
+        ok = {(str(r["variant"]), _seed(r["seed"])) for r in cell_runs if r["ok"]}
+        failed = {(str(r["variant"]), _seed(r["seed"])) for r in cell_runs if not r["ok"]} - ok
+        produced = {str(r["run_id"]) for r in cell_runs}
+        missing = {(str(p.get("variant")), _seed(p.get("seed"))) for p in cell_plans
+                   if str(p.get("run_id")) not in produced} - ok - failed
+        have = len(ok & expected)
+        complete = bool(expected) and have == len(expected)
+        n_variants = len({v for v, _ in ok})
+        n_seeds = len({s for _, s in ok})
+        reason = ""
+        if not complete:
+            lacking = [f"{len(failed & expected)} failed" if failed & expected else "",
+                       f"{len(missing & expected)} missing" if missing & expected else "",
+                       (f"{len(expected - ok - failed - missing)} never planned" if expected - ok - failed - missing else "")]
+            detail = "; ".join(x for x in lacking if x)
+            reason = (f"{have} of {len(expected)} runs ({n_variants}/{len(variants)} variants, "
+                      f"{n_seeds}/{len(seeds)} seeds{'; ' + detail if detail else ''})")
+        out[cell] = {"n_variants": n_variants, "n_variants_expected": len(variants), "n_seeds": n_seeds,
+                     "n_seeds_expected": len(seeds), "n_expected": len(expected), "complete": complete,
+                     "incomplete_reason": reason}
+    return out
 
 
 def row_settings(runs: pd.DataFrame) -> dict[tuple[str, str, str, str], tuple[float, int]]:
@@ -324,8 +555,9 @@ def table1_frame(
     """All Table 1 rows of every group: learner cells plus, when given, the reference rows.
 
     Columns: protocol, preset, chain, scenario, learner, kind (``learner`` | ``reference``), mean,
-    std, n_runs, n_planned, n_failed, n_missing, paper, delta (= mean - paper), best (the highest
-    learner mean of its (protocol, preset, chain, scenario); ties are all best), beta, max_steps.
+    std, n_runs, n_planned, n_failed, n_missing, the :data:`COMPLETENESS_COLUMNS`, paper, delta
+    (= mean - paper, for complete cells only), best (the highest mean among the complete learner
+    cells of its (protocol, preset, chain, scenario); ties are all best), beta, max_steps.
     The reference row ``Random (exact)`` is compared with the paper's Random, because that is the
     number it is the exact expectation of.
     """
@@ -347,33 +579,43 @@ def table1_frame(
                 continue
             for learner, field_name in ((RANDOM_EXACT, "random_exact"), (ORACLE_BEST, "oracle_best"),
                                         (ORACLE_WORST, "oracle_worst")):
+                n_variants = len(entry.get("variants", {}))
                 rows.append({
                     "protocol": protocol, "preset": preset, "chain": chain, "scenario": scenario,
                     "learner": learner, "kind": "reference",
                     "mean": reference_mean(entry, field_name), "std": math.nan,
                     "n_runs": pd.NA, "n_planned": pd.NA, "n_failed": pd.NA, "n_missing": pd.NA,
                     "beta": beta, "max_steps": steps,
+                    "n_variants": n_variants, "n_variants_expected": n_variants, "n_seeds": pd.NA,
+                    "n_seeds_expected": pd.NA, "n_expected": pd.NA, "complete": True, "incomplete_reason": "",
                 })
     if not rows:
         return pd.DataFrame(columns=[*CELL_KEYS, "kind", "mean", "std", "n_runs", "n_planned", "n_failed", "n_missing",
-                                     "beta", "max_steps", "paper", "delta", "best"])
+                                     "beta", "max_steps", *COMPLETENESS_COLUMNS, "paper", "delta", "best"])
     frame = pd.DataFrame(rows)
     paper = []
     for chain, scenario, learner in zip(frame["chain"], frame["scenario"], frame["learner"]):
         lookup = "Random" if learner == RANDOM_EXACT else learner
         paper.append(published.get((chain, scenario), {}).get(lookup, math.nan))
     frame["paper"] = pd.Series(paper, index=frame.index, dtype=float)
-    frame["delta"] = frame["mean"].astype(float) - frame["paper"]
-    for column in ("n_runs", "n_planned", "n_failed", "n_missing"):
+    frame["complete"] = frame["complete"].astype(bool)
+    # An incomplete cell is never compared with the paper: its mean is over other runs than the paper's.
+    frame["delta"] = (frame["mean"].astype(float) - frame["paper"]).where(frame["complete"], math.nan)
+    for column in ("n_runs", "n_planned", "n_failed", "n_missing", "n_variants", "n_variants_expected", "n_seeds",
+                   "n_seeds_expected", "n_expected"):
         frame[column] = frame[column].astype("Int64")
+    frame["incomplete_reason"] = frame["incomplete_reason"].fillna("").astype(str)
     frame["best"] = _best_flags(frame)
     return _sort_table(frame)
 
 
 def _best_flags(frame: pd.DataFrame) -> pd.Series:
-    learners = frame["kind"] == "learner"
-    row_max = frame.loc[learners].groupby(["protocol", "preset", "chain", "scenario"])["mean"].transform("max")
+    """The highest mean among the row's *complete* learner cells (ties all best; incomplete: never)."""
+    learners = (frame["kind"] == "learner") & frame["complete"]
     best = pd.Series(False, index=frame.index)
+    if not learners.any():
+        return best
+    row_max = frame.loc[learners].groupby(["protocol", "preset", "chain", "scenario"])["mean"].transform("max")
     best.loc[learners] = (frame.loc[learners, "mean"] >= row_max - _TOLERANCE) & frame.loc[learners, "mean"].notna()
     return best.astype(bool)
 
@@ -607,6 +849,10 @@ class Leaderboard:
     reference_errors: dict[str, str] = field(default_factory=dict)
     #: Runs on disk that another run of the same slot replaces (not counted; see split_superseded).
     superseded: pd.DataFrame = field(default_factory=pd.DataFrame)
+    #: Files the build could not read and left out (``{"file", "reason"}``), and files sweeps moved
+    #: to ``runs/.quarantine`` (``{"file", "moved_to", "reason", "at"}``).
+    skipped: list[dict[str, str]] = field(default_factory=list)
+    quarantined: list[dict[str, str]] = field(default_factory=list)
 
     @property
     def learners(self) -> list[str]:
@@ -649,8 +895,12 @@ def aggregate(
 ) -> Leaderboard:
     """Aggregate runs (+ planned runs, + optional reference entries) into a :class:`Leaderboard`."""
     everything = prepare_runs(runs)
-    planned = {k: dict(v) for k, v in planned.items()}
-    prepared, superseded = split_superseded(everything, planned)
+    planned = label_planned(planned, everything)
+    chosen, other_config, planned = select_configurations(everything, planned)
+    prepared, same_slot = split_superseded(chosen, planned)
+    superseded = pd.concat([other_config, same_slot], ignore_index=True, sort=False) if len(other_config) else same_slot
+    if len(superseded):
+        superseded = superseded.sort_values(REPORT_COLUMNS[1:] + ["run_id"]).reset_index(drop=True)
     gone = set(superseded["run_id"])
     planned = {k: v for k, v in planned.items() if k not in gone}
     table = table1_frame(prepared, planned, reference)

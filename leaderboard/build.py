@@ -1,26 +1,32 @@
 """``python -m leaderboard.build --results results``: aggregate -> tables -> figures -> site.
 
 Missing or failed runs do not fail the build (they are the report's point: a partial sweep must
-still be inspectable), but a results directory that does not exist, or holds neither runs nor
-manifests, does: that is almost always a wrong path, and an empty leaderboard would hide it.
-The build only reads ``<results>/runs``; it writes ``table1.*``, ``figures/`` and ``cache/`` next
-to it and the site wherever ``--site`` points.
+still be inspectable), and neither does a damaged file: a run file or manifest that cannot be read
+is left out and listed (``table1.md``, the site's status, the summary), as are the files sweeps
+moved to ``runs/.quarantine``. But a results directory that does not exist, or holds neither runs
+nor manifests, fails the build: that is almost always a wrong path, and an empty leaderboard would
+hide it. The build only reads ``<results>/runs``; it writes ``table1.*``, ``figures/`` and
+``cache/`` into ``--out`` (default: the results directory; a read-only results directory needs
+``--out``) and the site wherever ``--site`` points. User errors print one line and exit 2
+(``--debug`` shows the traceback).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
 from leaderboard.aggregate import Leaderboard, aggregate, compute_reference, reference_requests, with_reference
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
 
 DEFAULT_SITE = Path(__file__).resolve().parent / "site"
 REFERENCE_CACHE = Path("cache") / "reference_rows.json"
-EXIT_OK, EXIT_ERROR, EXIT_NO_RESULTS = 0, 1, 2
+EXIT_OK = 0
 T = TypeVar("T")
 
 
@@ -37,47 +43,74 @@ def progress(items: Iterable[T], description: str, total: int) -> Iterable[T]:
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m leaderboard.build", description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="python -m leaderboard.build", description=__doc__.splitlines()[0])
     parser.add_argument("--results", type=Path, default=Path("results"), help="results directory (default: results)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="where table1.*, figures/ and cache/ go (default: the results directory)")
     parser.add_argument("--site", type=Path, default=DEFAULT_SITE, help=f"site output directory (default: {DEFAULT_SITE})")
     parser.add_argument("--no-reference", action="store_true",
                         help="skip the exact Random and oracle reference rows (they are cached once computed)")
     parser.add_argument("--protocol", help="protocol of the primary table (table1.csv/.tex); default: automatic")
     parser.add_argument("--preset", help="preset of the primary table; default: automatic")
-    return parser.parse_args(argv)
+    add_debug_flag(parser)
+    args = parser.parse_args(argv)
+    if args.out is None:
+        args.out = args.results
+    return args
 
 
-def load(results: Path) -> tuple[Any, dict[str, dict[str, Any]]]:
-    """All run rows and all planned runs of a results directory."""
+def check_writable(directory: Path, what: str, fix: str) -> None:
+    """Raise :class:`UserError` unless ``directory`` (or the nearest existing parent) can be written."""
+    probe = directory
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    try:
+        if not probe.is_dir():
+            raise OSError(f"{probe} is not a directory")
+        with tempfile.NamedTemporaryFile(dir=probe, prefix=".write-probe-"):
+            pass
+    except OSError as exc:
+        raise UserError(f"{what} {directory} is not writable ({exc.strerror or exc}); {fix}") from exc
+
+
+def load(results: Path) -> tuple[Any, dict[str, dict[str, Any]], list[dict[str, str]]]:
+    """All readable run rows, all planned runs of a results directory, and what could not be read."""
     from runners.manifest import planned_runs
     from runners.schema import read_runs
 
-    return read_runs(results), planned_runs(results)
+    skipped: list[dict[str, str]] = []
+    runs = read_runs(results, skipped=skipped)
+    planned = planned_runs(results, skipped=skipped)
+    return runs, planned, skipped
 
 
-def build(args: argparse.Namespace, runs: Any, planned: dict[str, dict[str, Any]]) -> tuple[Leaderboard, dict[str, Any]]:
+def build(args: argparse.Namespace, runs: Any, planned: dict[str, dict[str, Any]],
+          skipped: list[dict[str, str]] | None = None, quarantined: list[dict[str, str]] | None = None,
+          ) -> tuple[Leaderboard, dict[str, Any]]:
     """Run every stage on loaded runs; returns the leaderboard and what was written (for the summary)."""
     from leaderboard.figures import write_figures, write_learn_curves
     from leaderboard.site import build_site
     from leaderboard.tables import write_tables
 
     results: Path = args.results
+    out_dir: Path = args.out
     timings: dict[str, float] = {}
     start = time.perf_counter()
     lb = aggregate(runs, planned, primary_protocol=args.protocol, primary_preset=args.preset)
     reference = None
     if not args.no_reference:
-        reference = compute_reference(reference_requests(lb.table), results / REFERENCE_CACHE, progress)
+        reference = compute_reference(reference_requests(lb.table), out_dir / REFERENCE_CACHE, progress)
         lb = with_reference(lb, reference.entries, reference.errors, args.protocol, args.preset)
+    lb.skipped, lb.quarantined = list(skipped or []), list(quarantined or [])
     timings["aggregate"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    tables = write_tables(lb, results, str(results))
+    tables = write_tables(lb, out_dir, str(results))
     timings["tables"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    figures = write_figures(lb, results / "figures", progress)
-    write_learn_curves(lb, results, results / "figures" / "learn", figures, progress)
+    figures = write_figures(lb, out_dir / "figures", progress)
+    write_learn_curves(lb, results, out_dir / "figures" / "learn", figures, progress)
     timings["figures"] = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -103,46 +136,61 @@ def summary(lb: Leaderboard, out: dict[str, Any], args: argparse.Namespace) -> s
     else:
         lines.append(f"reference rows: {ref.computed} computed, {ref.cached} from cache"
                      + (f", {len(ref.errors)} failed" if ref.errors else ""))
+    if lb.skipped:
+        lines.append(f"unreadable files left out: {len(lb.skipped)} (listed in table1.md and on the site)")
+        lines += [f"  SKIPPED {item['file']}: {item['reason']}" for item in lb.skipped[:5]]
+    if lb.quarantined:
+        lines.append(f"files moved aside by sweeps: {len(lb.quarantined)} in {args.results / 'runs' / '.quarantine'}")
+    incomplete = learner_rows.loc[~learner_rows["complete"].astype(bool)] if len(learner_rows) else learner_rows
+    if len(incomplete):
+        lines.append(f"incomplete cells: {len(incomplete)} of {len(learner_rows)} (marked; no bold, no paper delta)")
     for row in lb.problems.head(5).to_dict("records"):
         lines.append(f"  FAILED {row['run_id']} {row['chain']}/{row['env_id']} {row['learner']} seed {row['seed']}: {row['error']}")
     if len(lb.problems) > 5:
         lines.append(f"  ... and {len(lb.problems) - 5} more failed run(s), see table1.md")
     lines += [f"wrote {path}" for path in out["tables"]]
-    lines.append(f"figures: {out['figures'].count} under {args.results / 'figures'}")
+    lines.append(f"figures: {out['figures'].count} under {args.out / 'figures'}")
     lines.append(f"site: {out['site'].pages} page(s) in {args.site} (open {args.site / 'index.html'})")
     lines.append("time: " + ", ".join(f"{k} {v:.1f}s" for k, v in out["timings"].items()))
     return "\n".join(lines)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    args = parse_args(argv)
+def run(args: argparse.Namespace) -> int:
+    """The build, with every user error raised as :class:`UserError` (one line, exit 2)."""
+    from leaderboard.site import SiteError, check_target
+    from runners.quarantine import quarantined_files
+
     results: Path = args.results
     if not results.is_dir():
-        print(f"error: results directory {results} does not exist (pass --results DIR)", file=sys.stderr)
-        return EXIT_NO_RESULTS
-    from leaderboard.site import SiteError, check_target
-
+        raise UserError(f"results directory {results} does not exist (pass --results DIR)")
     try:
         check_target(args.site)  # a wrong --site must fail before anything is written
     except SiteError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_ERROR
-    try:
-        runs, planned = load(results)
-    except Exception as exc:  # noqa: BLE001 - a broken results file must stop the build with its name
-        print(f"error: cannot read the results in {results}: {type(exc).__name__}: {exc}", file=sys.stderr)
-        return EXIT_ERROR
+        raise UserError(str(exc)) from exc
+    check_writable(args.out, "output directory", "pass --out DIR to write the tables, figures and cache elsewhere")
+    check_writable(args.site.parent if not args.site.exists() else args.site, "site directory",
+                   "pass --site DIR to write the site elsewhere")
+    runs, planned, skipped = load(results)
     if len(runs) == 0 and not planned:
-        print(f"error: {results} holds no runs ({results / 'runs'}/*.parquet) and no sweep manifests "
-              f"({results / 'manifests'}/*.json): nothing to build", file=sys.stderr)
-        return EXIT_NO_RESULTS
+        if skipped:
+            raise UserError(f"{results}: no readable run and no readable manifest ({len(skipped)} file(s) unreadable, "
+                            f"first: {skipped[0]['file']}: {skipped[0]['reason']})")
+        raise UserError(f"{results} holds no runs ({results / 'runs'}/*.parquet) and no sweep manifests "
+                        f"({results / 'manifests'}/*.json): nothing to build")
     try:
-        lb, out = build(args, runs, planned)
+        lb, out = build(args, runs, planned, skipped, quarantined_files(results))
     except SiteError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_ERROR
+        raise UserError(str(exc)) from exc
+    except PermissionError as exc:
+        raise UserError(f"cannot write {exc.filename or exc} ({exc.strerror}); pass --out DIR / --site DIR "
+                        "to write elsewhere") from exc
     print(summary(lb, out, args))
     return EXIT_OK
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    return run_cli(lambda: run(parse_args(argv)), (), argv)
 
 
 if __name__ == "__main__":

@@ -13,6 +13,8 @@ import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
+
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = [
     "--headless",
@@ -64,19 +66,24 @@ def screenshot(site: Path, out: Path, page_name: str = "index.html", full_page: 
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m leaderboard.screenshot", description=__doc__.splitlines()[0])
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = OneLineParser(prog="python -m leaderboard.screenshot", description=__doc__.splitlines()[0])
     parser.add_argument("--site", type=Path, default=DEFAULT_SITE, help=f"built site (default: {DEFAULT_SITE})")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"PNG to write (default: {DEFAULT_OUT})")
     parser.add_argument("--page", default="index.html", help="page relative to the site root (default: index.html)")
     parser.add_argument("--viewport-only", action="store_true", help="only the first screen, not the full page")
-    args = parser.parse_args(argv)
-    try:
-        path = screenshot(args.site, args.out, args.page, full_page=not args.viewport_only)
-    except FileNotFoundError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    print(f"wrote {path}")
-    return 0
+    add_debug_flag(parser)
+
+    def body() -> int:
+        args = parser.parse_args(argv)
+        try:
+            path = screenshot(args.site, args.out, args.page, full_page=not args.viewport_only)
+        except PermissionError as exc:
+            raise UserError(f"cannot write {exc.filename or args.out} ({exc.strerror}); pass --out PNG elsewhere") from exc
+        print(f"wrote {path}")
+        return 0
+
+    return run_cli(body, (FileNotFoundError,), argv)
 
 
 if __name__ == "__main__":

@@ -120,6 +120,7 @@ td.incomplete, span.incomplete { color:var(--warn); }
 td.learner { white-space:nowrap; }
 .badge { display:inline-block; padding:1px 8px; border-radius:10px; font-size:12px; font-weight:600; }
 .badge.ok { background:#e3f4e8; color:#157f3b; } .badge.failed { background:var(--badbg); color:var(--bad); }
+.badge.incomplete { background:var(--warnbg); color:var(--warn); font-weight:600; white-space:nowrap; }
 .error { color:var(--bad); }
 pre { background:#f6f8fa; border:1px solid var(--line); border-radius:6px; padding:10px 12px; overflow:auto;
       max-height:460px; margin:6px 0; }
@@ -258,15 +259,32 @@ def page(title: str, body: str, root: str, subtitle: str = "", crumbs: str = "")
 """
 
 
-def num_td(value: Any, digits: int = 3, signed: bool = False, classes: str = "", bold: bool = False) -> str:
-    """A numeric cell with its exact value in ``data-sort`` (blank when missing: sorts last)."""
+def num_td(value: Any, digits: int = 3, signed: bool = False, classes: str = "", bold: bool = False,
+           suffix: str = "") -> str:
+    """A numeric cell with its exact value in ``data-sort`` (blank when missing: sorts last).
+
+    ``suffix``: HTML appended after the number (e.g. the incomplete badge).
+    """
     missing = value is None or value is pd.NA or (isinstance(value, float) and math.isnan(value))
     sort = "" if missing else repr(float(value))
     text = h(fmt(value, digits, signed))
     if bold and not missing:
         text = f"<strong>{text}</strong>"
     cls = f"num {classes}".strip()
-    return f'<td class="{cls}" data-sort="{sort}">{text}</td>'
+    return f'<td class="{cls}" data-sort="{sort}">{text}{suffix}</td>'
+
+
+def incomplete_badge(reason: str) -> str:
+    """The mark of an incomplete cell: a ⚠ whose tooltip says what is lacking."""
+    return f' <span class="badge incomplete" title="incomplete: {h(reason)}">⚠ incomplete</span>'
+
+
+def _expected_count(record: dict[str, Any]) -> int:
+    """The cell's expected number of runs (variants x seeds), or its planned count if unknown."""
+    value = record.get("n_expected")
+    if value is None or value is pd.NA or (isinstance(value, float) and math.isnan(value)) or int(value) == 0:
+        return int(record["n_planned"])
+    return int(value)
 
 
 def sort_th(label: str, kind: str = "text", title: str = "") -> str:
@@ -437,11 +455,15 @@ def status_section(sb: SiteBuild, root: str) -> str:
     lb = sb.lb
     n_failed, n_missing = len(lb.problems), len(lb.missing)
     n_planned = len(set(lb.planned) | set(lb.runs["run_id"]))
+    learner_rows = lb.table.loc[lb.table["kind"] == "learner"]
+    n_incomplete = int((~learner_rows["complete"].astype(bool)).sum()) if len(learner_rows) else 0
     stats = [
         ("good", lb.n_ok, "runs with a result"),
         ("bad" if n_failed else "", n_failed, "failed"),
         ("warn" if n_missing else "", n_missing, f"missing of {n_planned} planned"),
         *([("", len(lb.superseded), "superseded, not counted")] if len(lb.superseded) else []),
+        *([("warn", n_incomplete, "incomplete cells (marked ⚠)")] if n_incomplete else []),
+        *([("bad", len(lb.skipped), "unreadable files, left out")] if lb.skipped else []),
         ("", len(lb.pairs()), "(chain, scenario) rows"),
         ("", len(lb.groups), "sweeps (protocol · preset)"),
     ]
@@ -462,16 +484,35 @@ def status_section(sb: SiteBuild, root: str) -> str:
     if not n_failed and not n_missing:
         parts.append('<p>Every planned run has a result.</p>')
     if len(lb.superseded):
-        parts.append(f'<details id="superseded"><summary>Superseded runs ({len(lb.superseded)}): another run of the same '
-                     'slot counts instead (typically these ran with an earlier configuration)</summary>'
+        parts.append(f'<details id="superseded"><summary>Superseded runs ({len(lb.superseded)}): another configuration, '
+                     'or another run of the same slot, counts instead (typically these ran with an earlier '
+                     'configuration)</summary>'
                      + _run_report(lb.superseded.to_dict("records"), root, extra={
-                         "Counted instead": lambda r: f'<td>{_run_link(str(r["superseded_by"]), root)}</td>'})
+                         "Counted instead": lambda r: _counted_instead_td(r, root)})
                      + "</details>")
+    if lb.skipped:
+        items = "".join(f"<li><code>{h(i['file'])}</code>: {h(i['reason'])}</li>" for i in lb.skipped)
+        parts.append(f'<div id="skipped"><h3 class="error">Unreadable files, left out ({len(lb.skipped)})</h3>'
+                     '<p class="note">Their runs count as missing where planned; a sweep over the same runs moves such '
+                     f'files to <code>runs/.quarantine/</code> and runs them again.</p><ul>{items}</ul></div>')
+    if lb.quarantined:
+        items = "".join(f"<li><code>{h(i.get('file'))}</code> → <code>{h(i.get('moved_to'))}</code> "
+                        f"({h(i.get('reason'))}, {h(i.get('at'))})</li>" for i in lb.quarantined)
+        parts.append(f'<details id="quarantined"><summary>Files moved aside by sweeps ({len(lb.quarantined)}): '
+                     'unreadable when found, kept in runs/.quarantine/ and run again</summary>'
+                     f'<ul>{items}</ul></details>')
     if lb.reference_errors:
         items = "".join(f"<li><code>{h(k)}</code>: {h(v)}</li>" for k, v in lb.reference_errors.items())
         parts.append(f'<p class="error">Reference rows that could not be computed:</p><ul>{items}</ul>')
     parts.append("</section>")
     return "".join(parts)
+
+
+def _counted_instead_td(record: dict[str, Any], root: str) -> str:
+    other = record.get("superseded_by")
+    if other is None or (isinstance(other, float) and math.isnan(other)):
+        return '<td class="muted">— (another configuration is the cell\'s; no run of it for this slot yet)</td>'
+    return f'<td>{_run_link(str(other), root)}</td>'
 
 
 def _int(value: Any) -> str:
@@ -509,7 +550,7 @@ def table1_section(sb: SiteBuild, root: str) -> str:
         sort_th("Sweep"), sort_th("Chain"), sort_th("Scenario"), sort_th("Learner"),
         sort_th("Ours", "num", "mean metric over all variants and seeds"),
         sort_th("± std", "num", "std over seeds of the per-seed means"),
-        sort_th("Runs", "num", "runs with a result / planned"),
+        sort_th("Runs", "num", "runs with a result / expected (variants × seeds)"),
         sort_th("Paper", "num", "the paper's Table 1"), sort_th("Δ", "num", "ours − paper"),
         sort_th(RANDOM_EXACT, "num", "exact expected metric of the uniform random policy"),
         sort_th(ORACLE_BEST, "num", "best metric any policy can reach"),
@@ -520,21 +561,23 @@ def table1_section(sb: SiteBuild, root: str) -> str:
         group = Group(r["protocol"], r["preset"])
         ref = [reference.get((r["protocol"], r["preset"], r["chain"], r["scenario"], name)) for name in
                (RANDOM_EXACT, ORACLE_BEST, ORACLE_WORST)]
-        n, planned = int(r["n_runs"]), int(r["n_planned"])
-        runs_cls = "incomplete" if n < planned else ""
-        runs_title = f' title="{int(r["n_failed"])} failed, {int(r["n_missing"])} missing"' if n < planned else ""
+        n, expected = int(r["n_runs"]), _expected_count(r)
+        complete = bool(r["complete"])
+        runs_cls = "" if complete else "incomplete"
+        runs_title = "" if complete else f' title="incomplete: {h(r["incomplete_reason"])}"'
         delta = r["delta"]
         off = "off" if delta is not None and not math.isnan(delta) and abs(delta) >= NOTABLE_DELTA else ""
         href = scenario_href(r["scenario"], root, section_id(group, r["chain"]))
+        mark = "" if complete else incomplete_badge(str(r["incomplete_reason"]))
         body.append(
             f'<tr data-sweep="{h(group.slug)}" data-chain="{h(r["chain"])}" data-scenario="{h(r["scenario"])}" '
-            f'data-learner="{h(r["learner"])}" data-best="{int(bool(r["best"]))}">'
+            f'data-learner="{h(r["learner"])}" data-best="{int(bool(r["best"]))}" data-complete="{int(complete)}">'
             f'<td class="sweep">{h(r["protocol"])} · {h(r["preset"])}</td><td>{h(r["chain"])}</td>'
             f'<td><a href="{h(href)}">{h(r["scenario"])}</a></td>'
             f'<td class="learner">{dot(sb.colour(r["learner"]))}{h(r["learner"])}</td>'
-            + num_td(r["mean"], classes="best" if r["best"] else "", bold=bool(r["best"]))
+            + num_td(r["mean"], classes="best" if r["best"] else runs_cls, bold=bool(r["best"]), suffix=mark)
             + num_td(r["std"])
-            + f'<td class="num {runs_cls}" data-sort="{n}"{runs_title}>{n}/{planned}</td>'
+            + f'<td class="num {runs_cls}" data-sort="{n}"{runs_title}>{n}/{expected}</td>'
             + num_td(r["paper"]) + num_td(delta, signed=True, classes=off)
             + "".join(num_td(v, classes="ref") for v in ref) + "</tr>")
     return (
@@ -542,7 +585,8 @@ def table1_section(sb: SiteBuild, root: str) -> str:
         f'<p class="note">Ours = mean of the final evaluation\'s morality metric over all variants and seeds of the '
         f'scenario; ± = standard deviation over seeds of the per-seed means (ddof={STD_DDOF}). The best learner of '
         f'each (sweep, chain, scenario) is <strong>bold</strong>. Δ = ours − paper, highlighted from '
-        f'|Δ| ≥ {NOTABLE_DELTA}. Runs in orange: fewer results than planned. {h(RANDOM_EXACT)}: exact expectation of '
+        f'|Δ| ≥ {NOTABLE_DELTA}. ⚠ incomplete (orange): fewer results than the scenario\'s variants times the preset\'s seeds; such a cell '
+        f'is never bold and not compared with the paper (no Δ). {h(RANDOM_EXACT)}: exact expectation of '
         'the uniform random policy; oracle best/worst: the range any policy can reach (means over variants). '
         'Click a column header to sort; click a scenario for its page.</p>'
         + "".join(controls)
@@ -673,13 +717,17 @@ def _summary_table(sb: SiteBuild, group: Group, chain: str, scenario: str) -> st
     t = t.loc[(t["chain"] == chain) & (t["scenario"] == scenario)]
     rows = []
     for r in t.to_dict("records"):
+        mark = ""
         if r["kind"] == "learner":
-            runs = f'{int(r["n_runs"])}/{int(r["n_planned"])}'
-            cls = ' class="num incomplete"' if int(r["n_runs"]) < int(r["n_planned"]) else ' class="num"'
+            runs = f'{int(r["n_runs"])}/{_expected_count(r)}'
+            complete = bool(r["complete"])
+            cls = ' class="num"' if complete else f' class="num incomplete" title="incomplete: {h(r["incomplete_reason"])}"'
             label = f'{dot(sb.colour(r["learner"]))}{h(r["learner"])}'
+            mark = "" if complete else incomplete_badge(str(r["incomplete_reason"]))
         else:
             runs, cls, label = "exact", ' class="num muted"', f'<span class="muted">{h(r["learner"])}</span>'
-        rows.append(f"<tr><td>{label}</td>" + num_td(r["mean"], classes="best" if r["best"] else "", bold=bool(r["best"]))
+        rows.append(f"<tr><td>{label}</td>"
+                    + num_td(r["mean"], classes="best" if r["best"] else "", bold=bool(r["best"]), suffix=mark)
                     + num_td(r["std"]) + f"<td{cls}>{runs}</td>" + num_td(r["paper"]) + num_td(r["delta"], signed=True)
                     + "</tr>")
     return ('<table class="summary"><thead><tr><th>Learner</th><th class="num">Mean</th><th class="num">± std</th>'

@@ -6,8 +6,10 @@
 * ``table1.md``: one table per group (one row per (chain, scenario), one column per learner with
   mean ± std, the paper's value and the difference, best in bold, then the exact Random and
   oracle columns), and the missing and failed runs, so an incomplete sweep can never pass for a
-  complete one;
-* ``table1.tex``: a booktabs tabular laid out like the paper's (primary group);
+  complete one: an incomplete cell is marked ``⚠ incomplete: <reason>``, is never bold and gets no
+  difference from the paper; files that could not be read are listed too;
+* ``table1.tex``: a booktabs tabular laid out like the paper's (primary group); an incomplete cell
+  carries a dagger, explained in a note under the table;
 * ``table1_protocols.md``: ``paper`` vs ``corrected`` protocol side by side, when both exist.
 """
 
@@ -85,30 +87,41 @@ def _cell(table: pd.DataFrame, chain: str, scenario: str, learner: str) -> dict[
     return None if part.empty else part.iloc[0].to_dict()
 
 
+INCOMPLETE = "⚠ incomplete"
+
+
+def is_incomplete(cell: dict[str, Any]) -> bool:
+    """A learner cell that lacks results of its expected (variant, seed) grid."""
+    return cell.get("kind", "learner") == "learner" and not bool(cell.get("complete", True))
+
+
 def _count_note(cell: dict[str, Any]) -> str:
-    """``n/N runs`` when the cell is incomplete (a mean over fewer runs than planned)."""
-    n, planned = int(cell["n_runs"]), int(cell["n_planned"])
-    if n >= planned:
+    """``⚠ incomplete: <what is lacking>`` for an incomplete cell (rendered from the cell's data)."""
+    if not is_incomplete(cell):
         return ""
-    failed = int(cell["n_failed"])
-    extra = f", {failed} failed" if failed else ""
-    return f"<br>⚠ {n}/{planned} runs{extra}"
+    return f"<br>{INCOMPLETE}: {md_escape(cell.get('incomplete_reason') or 'fewer results than expected')}"
 
 
 # ---------------------------------------------------------------------------------------- markdown
 def learner_cell_md(cell: dict[str, Any] | None) -> str:
-    """``**mean ± std**<br>paper x · Δ d`` (bold when best), or a dash for an empty cell."""
+    """``**mean ± std**<br>paper x · Δ d`` (bold when best), or a dash for an empty cell.
+
+    An incomplete cell shows its mean with the ⚠ mark and the reason, and no difference from the
+    paper (its mean is over other runs than the paper's).
+    """
     if cell is None:
         return DASH
-    if math.isnan(float(cell["mean"])):
-        ours = f"no result ({int(cell['n_runs'])}/{int(cell['n_planned'])} runs)"
+    empty = math.isnan(float(cell["mean"]))
+    if empty:
+        ours = f"no result: {md_escape(cell.get('incomplete_reason') or '0 runs')}"
     else:
         ours = f"{fmt(cell['mean'])} ± {fmt(cell['std'])}"
         if cell["best"]:
             ours = f"**{ours}**"
         ours += _count_note(cell)
     if not math.isnan(float(cell["paper"])):
-        ours += f"<br>paper {fmt(cell['paper'])} · Δ {fmt(cell['delta'], signed=True)}"
+        delta = fmt(cell["delta"], signed=True) if empty or not is_incomplete(cell) else f"{DASH} (not compared: incomplete)"
+        ours += f"<br>paper {fmt(cell['paper'])} · Δ {delta}"
     return ours
 
 
@@ -150,7 +163,8 @@ def problems_markdown(lb: Leaderboard) -> list[str]:
     if not n_failed and not n_missing:
         return lines + ["None: every planned run has a result.", ""] + superseded
     lines += [(f"{n_failed} run(s) failed and {n_missing} planned run(s) have no result. "
-              "Table cells marked ⚠ average fewer runs than planned."), ""]
+              f"Table cells marked {INCOMPLETE} average fewer runs than their scenario's variants times the preset's "
+              "seeds; they are never bold and not compared with the paper."), ""]
     if n_failed:
         lines += [f"### Failed runs ({n_failed})", ""]
         lines += _run_report(lb.problems.to_dict("records"),
@@ -162,15 +176,42 @@ def problems_markdown(lb: Leaderboard) -> list[str]:
 
 
 def superseded_markdown(lb: Leaderboard) -> list[str]:
-    """Runs left out because another run of the same slot counts (e.g. from before a config change)."""
+    """Runs left out because another configuration, or another run of the same slot, counts instead."""
     sup = lb.superseded
     if sup is None or sup.empty:
         return []
     lines = [f"### Superseded runs ({len(sup)}), not counted", "",
-             ("Another run of the same chain, env, learner, seed, protocol and preset counts instead: the one the "
-              "current sweep manifest plans, else the newest usable one. Typically these ran with an earlier "
-              "configuration; delete their files from `runs/` to drop them for good."), ""]
-    return lines + _run_report(sup.to_dict("records"), {"Counted instead": lambda r: f"`{md_escape(r['superseded_by'])}`"})
+             ("Each cell counts the runs of one configuration: the one the most recently launched sweep planned "
+              "(else the one with the newest result), and one run per chain, env, learner, seed, protocol and preset. "
+              "These ran with another configuration, or another run of their slot counts; delete their files from "
+              "`runs/` to drop them for good."), ""]
+    return lines + _run_report(sup.to_dict("records"), {"Counted instead": lambda r: _counted_instead(r)})
+
+
+def _counted_instead(record: dict[str, Any]) -> str:
+    other = record.get("superseded_by")
+    if other is None or (isinstance(other, float) and math.isnan(other)):
+        return "— (its configuration is not the cell's; no run of the cell's for this slot yet)"
+    return f"`{md_escape(other)}`"
+
+
+def damaged_markdown(lb: Leaderboard) -> list[str]:
+    """Files left out because they could not be read, and files sweeps moved aside."""
+    lines: list[str] = []
+    if lb.skipped:
+        lines += [f"## Unreadable files, left out ({len(lb.skipped)})", "",
+                  ("The build could not read these; their runs count as missing where planned. A sweep over the same "
+                   "runs moves such files to `runs/.quarantine/` and runs them again."), ""]
+        lines += _md_table(["File", "Reason"], [[f"`{md_escape(i['file'])}`", md_escape(i["reason"])] for i in lb.skipped])
+        lines.append("")
+    if lb.quarantined:
+        lines += [f"## Files moved aside by sweeps ({len(lb.quarantined)})", "",
+                  "Unreadable when a sweep found them: moved to `runs/.quarantine/` (kept for rescue) and run again.", ""]
+        lines += _md_table(["File", "Moved to", "Reason", "When"],
+                           [[f"`{md_escape(i.get('file', ''))}`", f"`{md_escape(i.get('moved_to', ''))}`",
+                             md_escape(i.get("reason", "")), md_escape(i.get("at", ""))] for i in lb.quarantined])
+        lines.append("")
+    return lines
 
 
 def _seed(value: Any) -> str:
@@ -185,7 +226,9 @@ def explanation_lines() -> list[str]:
     return [
         ("Each learner cell: mean of the final evaluation's morality metric over all variants and seeds of the "
         f"scenario ± standard deviation over seeds of the per-seed means (ddof={STD_DDOF}); **bold** = best learner "
-        "of the row; then the paper's value and Δ = ours − paper."),
+        "of the row; then the paper's value and Δ = ours − paper. A cell marked ⚠ incomplete lacks results for some "
+        "of its (variant, seed) pairs (the scenario's variants times the preset's seeds): it is shown, but never bold "
+        "and not compared with the paper."),
         (f"{RANDOM_EXACT}: exact expected metric of the uniform random policy, mean over variants (compare with the "
         f"paper's Random). {ORACLE_BEST} / {ORACLE_WORST}: the highest / lowest metric any policy can reach, mean over "
         "variants."),
@@ -208,6 +251,7 @@ def table1_markdown(lb: Leaderboard, results_name: str) -> str:
         lines += ["Reference rows that could not be computed:", ""]
         lines += [f"- `{md_escape(k)}`: {md_escape(v)}" for k, v in lb.reference_errors.items()] + [""]
     lines += problems_markdown(lb)
+    lines += damaged_markdown(lb)
     return "\n".join(lines).rstrip() + "\n"
 
 
@@ -250,7 +294,8 @@ def _mean_std(cell: dict[str, Any] | None) -> str:
         return DASH
     if cell["kind"] == "reference":
         return fmt(cell["mean"])
-    return f"{fmt(cell['mean'])} ± {fmt(cell['std'])} (n={int(cell['n_runs'])})"
+    mark = f" {INCOMPLETE}" if is_incomplete(cell) else ""
+    return f"{fmt(cell['mean'])} ± {fmt(cell['std'])} (n={int(cell['n_runs'])}){mark}"
 
 
 # ---------------------------------------------------------------------------------------- latex
@@ -273,6 +318,7 @@ def table1_latex(lb: Leaderboard, group: Group) -> str:
         "\\midrule",
     ]
     previous = None
+    incomplete: list[str] = []
     for chain, scenario in lb.pairs(group):
         if previous is not None and chain != previous:
             lines.append("\\midrule")
@@ -289,10 +335,17 @@ def table1_latex(lb: Leaderboard, group: Group) -> str:
                 text = f"\\textbf{{{text}}}"
             if cell["kind"] == "learner" and not math.isnan(float(cell["std"])):
                 text += f"\\,{{\\scriptsize$\\pm${fmt(cell['std'])}}}"
+            if is_incomplete(cell):
+                text += "$^\\dagger$"
+                incomplete.append(f"{chain} / {scenario} / {cell['learner']}: {cell.get('incomplete_reason', '')}")
             cells.append(text)
         scen = tex_escape(SCENARIO_ABBREVIATIONS.get(scenario, scenario))
         lines.append(f"{label} & {scen} & " + " & ".join(cells) + " \\\\")
     lines += ["\\bottomrule", "\\end{tabular}"]
+    if incomplete:
+        lines.append("\\par\\smallskip{\\footnotesize $^\\dagger$ incomplete: fewer results than the scenario's "
+                     "variants times the preset's seeds; not comparable with the paper.}")
+        lines += [f"% incomplete: {tex_escape(item)}" for item in incomplete]
     used = sorted({s for _, s in lb.pairs(group) if s in SCENARIO_ABBREVIATIONS})
     if used:
         lines.append("% Abbreviations: " + ", ".join(f"{SCENARIO_ABBREVIATIONS[s]} ({s})" for s in used) + ".")

@@ -18,11 +18,12 @@ from typing import Any
 import yaml
 from omegaconf import DictConfig, OmegaConf
 
+from morality_gym.baselines.hparams import validate_learner
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError, learner_spec, protocol_spec
 from morality_gym.envs.registry import scenarios as all_scenarios
-from morality_gym.norms.chain import ChainError, MoralityChain, get_chain, parse_chain
+from morality_gym.norms.chain import ChainError, MoralityChain, check_name_collision, get_chain, parse_chain
+from runners.paths import CONF_DIR  # re-exported: CONF_DIR is defined once, there
 
-CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 _TOP_KEYS = {
     "scenario", "chain", "algo", "protocol", "preset", "launcher", "experiment", "variant", "seed", "beta",
     "max_steps", "results_dir", "dry_run", "retry_failed", "mlflow", "gif", "name",
@@ -107,9 +108,22 @@ def _load_chain(option: str, node: Any) -> MoralityChain:
         except ChainError as exc:
             raise ConfigError(f"{where}: {exc}") from exc
     try:
-        return parse_chain(dict(node), source=where)
+        chain = parse_chain(dict(node), source=where)
+        check_name_collision(chain)
+        return chain
     except ChainError as exc:
         raise ConfigError(str(exc)) from exc
+
+
+def _check_distinct_chains(chains: Mapping[str, MoralityChain]) -> None:
+    """Two selected chains with one name must be one chain (results are labelled by the name)."""
+    seen: dict[str, tuple[str, MoralityChain]] = {}
+    for option, chain in chains.items():
+        other = seen.get(chain.name)
+        if other is not None and other[1].content != chain.content:
+            raise ConfigError(f"chain={other[0]} and chain={option} are both named {chain.name!r} but have different norms; "
+                              "give one of them another name")
+        seen.setdefault(chain.name, (option, chain))
 
 
 def _group(cfg: DictConfig, key: str) -> dict[str, Any]:
@@ -195,6 +209,10 @@ def _algo(option: str, node: Mapping[str, Any], preset: Preset, protocol: Protoc
     except TypeError as exc:
         raise ConfigError(f"{where}: {exc}") from exc
     _check_hparam_types(where, spec, base)
+    try:
+        validate_learner(spec)  # keys against the algorithm class, values against sane ranges
+    except SpecError as exc:
+        raise ConfigError(f"{where}: {exc}") from exc
     steps_per_s, overhead = _planning_rate(where, planning, file_values, spec)
     return AlgoChoice(spec, steps_per_s, overhead)
 
@@ -300,6 +318,7 @@ def validate(cfg: DictConfig) -> SweepConfig:
         if isinstance(node, Mapping) and ("ref" in node or "norms" in node) and option in ("ref", "norms", "name"):
             raise ConfigError("chain: a chain file is missing its '# @package chain.<file name>' first line")
         chains[option] = _load_chain(option, node)
+    _check_distinct_chains(chains)
 
     algos_sel = _group(cfg, "algo")
     if not algos_sel:
@@ -406,6 +425,20 @@ def validate(cfg: DictConfig) -> SweepConfig:
     for key in ("dry_run", "retry_failed", "mlflow", "gif"):
         if not isinstance(cfg.get(key), bool):
             raise ConfigError(f"{key}: expected true or false, got {cfg.get(key)!r}")
+    if cfg.get("mlflow") and not cfg.get("dry_run"):
+        from runners.tracking import TrackingError, check_reachable
+
+        try:
+            check_reachable(_results_dir(cfg.get("results_dir")))
+        except TrackingError as exc:
+            raise ConfigError(str(exc)) from exc
+    if kind == "slurm" and not cfg.get("dry_run"):
+        from runners.slurm_launcher import SlurmUnavailable, check_controller
+
+        try:
+            check_controller()
+        except SlurmUnavailable as exc:
+            raise ConfigError(str(exc)) from exc
     name = cfg.get("name") or (
         (experiment.get("name") if experiment else "-".join(a.spec.name for a in algos) + "_" + "-".join(chains))
         + f"_{protocol.name}_{preset.name}"

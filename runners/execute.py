@@ -92,13 +92,12 @@ class RunLock:
 
 
 def finished_status(results_dir: Path, run_id: str) -> str | None:
-    """``ok`` / ``failed`` if the run has a result file, else None."""
-    path = run_path(results_dir, run_id)
-    if not path.is_file():
-        return None
-    import pyarrow.parquet as pq
+    """``ok`` / ``failed`` if the run has a readable result file, else None (an unreadable one is
+    moved aside by :mod:`runners.quarantine`, so the run is done again)."""
+    from runners.quarantine import read_table_or_quarantine
 
-    return str(pq.read_table(path, columns=["status"]).column("status")[0].as_py())
+    table = read_table_or_quarantine(results_dir, run_path(results_dir, run_id), columns=["status"])
+    return None if table is None else str(table.column("status")[0].as_py())
 
 
 def _base_row(config: dict[str, Any], run_id: str) -> dict[str, Any]:

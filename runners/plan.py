@@ -5,20 +5,22 @@ full definition, the learner's complete spec, the protocol, the preset's budget 
 settings, seed, beta, max_steps, results-schema version). The same configuration always gets the
 same id, so re-running a sweep finds finished runs by file name, and any change that could change
 the numbers gives a new id. Launch settings (workers, SLURM partition, results_dir) are not part
-of it.
+of it. The *configuration key* (:func:`runners.identity.config_key`) is the same hash without the env and the seed:
+all runs of one Table 1 cell that belong to one configuration share it, which is how the
+leaderboard keeps runs of different configurations out of one cell.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 from dataclasses import dataclass
 from typing import Any
 
 from morality_gym.baselines.specs import training_steps
 from morality_gym.envs.registry import scenario_named
+from morality_gym.norms.chain import chain_fingerprint
 from runners.config import SweepConfig
+from runners.identity import PER_RUN_KEYS, config_key, run_id_of  # noqa: F401 - re-exported
 from runners.schema import SCHEMA_VERSION
 
 
@@ -42,13 +44,9 @@ class PlannedRun:
             "protocol": c["protocol"]["name"],
             "preset": c["preset"],
             "seed": c["seed"],
+            "config_key": config_key(c),
+            "chain_key": chain_fingerprint(c["chain"]["norms"]),
         }
-
-
-def run_id_of(config: dict[str, Any]) -> str:
-    """The content hash identifying a run (16 hex digits of SHA-256 over canonical JSON)."""
-    canonical = json.dumps(config, sort_keys=True, separators=(",", ":"), default=str)
-    return hashlib.sha256(canonical.encode()).hexdigest()[:16]
 
 
 def _spec_dict(spec: Any) -> dict[str, Any]:

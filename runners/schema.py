@@ -217,21 +217,33 @@ def read_updates(results_dir: str | Path, run_id: str) -> "Any":
     return pq.read_table(path).to_pandas()
 
 
-def read_runs(results_dir: str | Path) -> "Any":
+def run_files(results_dir: str | Path) -> list[Path]:
+    """The main run files ``runs/<run_id>.parquet`` (not ``<run_id>.<kind>.parquet`` side files)."""
+    return [p for p in sorted(runs_dir(results_dir).glob("*.parquet")) if "." not in p.stem]
+
+
+def read_runs(results_dir: str | Path, skipped: list[dict[str, str]] | None = None) -> "Any":
     """All run rows under ``results_dir`` as one pandas DataFrame (columns unified by name).
 
-    Files of another schema version raise; a file that cannot be read is reported, not skipped.
+    A file that cannot be read, or is of another schema version, raises, unless ``skipped`` is
+    given: then it is left out and reported there as ``{"file", "reason"}`` (the leaderboard builds
+    from what is readable and lists the rest; it never moves files, see :mod:`runners.quarantine`).
     """
     import pandas as pd
 
     frames = []
-    for path in sorted(runs_dir(results_dir).glob("*.parquet")):
-        if path.name.endswith((".learn.parquet", ".updates.parquet")):
+    for path in run_files(results_dir):
+        try:
+            table = pq.read_table(path)
+            version = table.column("schema_version")[0].as_py()
+            if version != SCHEMA_VERSION:
+                raise ValueError(f"schema version {version}, this code reads version {SCHEMA_VERSION}")
+        except (pa.ArrowException, OSError, ValueError, KeyError, IndexError) as exc:
+            if skipped is None:
+                raise ValueError(f"{path}: {exc}") from exc
+            first = (str(exc).strip().splitlines() or [""])[0][:200]
+            skipped.append({"file": str(path), "reason": f"{type(exc).__name__}: {first}"})
             continue
-        table = pq.read_table(path)
-        version = table.column("schema_version")[0].as_py()
-        if version != SCHEMA_VERSION:
-            raise ValueError(f"{path}: schema version {version}, this code reads version {SCHEMA_VERSION}")
         frames.append(table.to_pandas())
     if not frames:
         return pd.DataFrame(columns=RUN_COLUMNS)

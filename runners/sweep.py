@@ -8,8 +8,11 @@
 4. Each finished run is mirrored into MLflow by this process; anything left unmirrored by an
    earlier, interrupted sweep is mirrored at the end.
 Exit status: 0 if every planned run is ``ok``, 1 if some failed (they are listed), 2 for an
-invalid configuration. Killing the sweep at any point and running it again finishes it with no
-lost and no duplicated results.
+invalid configuration or another user error (one line; ``--debug`` or ``MORALITY_GYM_DEBUG=1``
+shows the traceback). Killing the sweep at any point and running it again finishes it with no
+lost and no duplicated results; an unreadable result file is moved aside and its run done again
+(:mod:`runners.quarantine`); two sweeps on one directory share it safely (per-run locks, and one
+MLflow writer at a time).
 """
 
 from __future__ import annotations
@@ -22,13 +25,16 @@ from typing import Any
 
 import hydra
 from omegaconf import DictConfig
+from rich.markup import escape
 
+from morality_gym.clitools import DEBUG_ENV, debug_enabled, one_line, run_cli
 from runners.config import ConfigError, SweepConfig, validate
 from runners.execute import finished_status, record_failure
-from runners.manifest import write_manifest
+from runners.manifest import manifest_name, write_manifest
 from runners.plan import PlannedRun, describe, plan
+from runners.quarantine import check_run_files, read_table_or_quarantine
 
-_EXIT = {"code": 0}
+_EXIT = {"code": 0, "entered": 0}
 
 
 def _fmt_duration(seconds: float) -> str:
@@ -53,6 +59,8 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
     console = console or Console(stderr=True)
     runs = plan(sweep)
     sweep.results_dir.mkdir(parents=True, exist_ok=True)
+    for moved in check_run_files(sweep.results_dir, [r.run_id for r in runs]):
+        console.print(f"[yellow]{escape(moved.describe(sweep.results_dir))}[/yellow]", markup=True, highlight=False, soft_wrap=True)
     status = {r.run_id: finished_status(sweep.results_dir, r.run_id) for r in runs}
     done = {rid for rid, s in status.items() if s == "ok" or (s == "failed" and not sweep.retry_failed)}
     workers = _workers(sweep)
@@ -69,14 +77,24 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
         f"launcher [bold]{sweep.launcher['name']}[/bold] ({workers} parallel), results in {sweep.results_dir}; "
         f"estimated time for what remains: [bold]{_fmt_duration(info['est_seconds'])}[/bold]"
     )
+    tracker = None
+    if sweep.mlflow and not sweep.dry_run:
+        from runners.tracking import Tracker
+
+        tracker = Tracker(sweep.results_dir)  # before the manifest: a broken store stops nothing half-way
+    name = manifest_name(sweep.name, [r.run_id for r in runs])
     write_manifest(
         sweep.results_dir,
-        sweep.name,
+        name,
         [r.identity for r in runs],
         command=" ".join(sys.argv),
         preset=sweep.preset.name,
         protocol=sweep.protocol.name,
+        preset_seeds=list(sweep.preset.seeds),
+        dry_run=sweep.dry_run,
     )
+    console.print(f"plan recorded in {sweep.results_dir / 'manifests' / (name + '.json')}"
+                  + (" (dry run: not counted as planned by the leaderboard)" if sweep.dry_run else ""), soft_wrap=True)
     if sweep.dry_run:
         listing = Table(title="planned runs")
         for col in ("run id", "env id", "chain", "learner", "seed", "budget", "status"):
@@ -88,11 +106,6 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
         return 0
 
     todo = [r for r in runs if r.run_id not in done]
-    tracker = None
-    if sweep.mlflow:
-        from runners.tracking import Tracker
-
-        tracker = Tracker(sweep.results_dir)
     failures: dict[str, str] = {}
     started = time.perf_counter()
     with Progress(
@@ -147,13 +160,12 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
         f"{len(failed)} failed, {len(missing)} missing (of {len(runs)})"
     )
     if failed:
-        import pyarrow.parquet as pq
-
         from runners.schema import run_path
 
         console.print("[red]failed runs:[/red]")
         for r in failed:
-            err = pq.read_table(run_path(sweep.results_dir, r.run_id), columns=["error"]).column("error")[0].as_py()
+            table = read_table_or_quarantine(sweep.results_dir, run_path(sweep.results_dir, r.run_id), columns=["error"])
+            err = table.column("error")[0].as_py() if table is not None else "(result file unreadable)"
             c = r.config
             console.print(f"  {r.run_id} {c['algo']['label']} {c['env_id']} {c['chain']['name']} seed {c['seed']}: {err}")
     return 0 if not failed and not missing else 1
@@ -163,22 +175,63 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
 def _app(cfg: DictConfig) -> None:
     from rich.console import Console
 
+    _EXIT["entered"] = 1  # past Hydra's composition: a SystemExit from here on is a crash, not a config error
     console = Console(stderr=True, width=None if sys.stderr.isatty() else 160)
     try:
         sweep = validate(cfg)
     except ConfigError as exc:
-        console.print(f"[red]configuration error:[/red] {exc}")
+        if debug_enabled():
+            raise
+        console.print(f"[red]configuration error:[/red] {escape(one_line(exc))}", markup=True, highlight=False, soft_wrap=True)
         _EXIT["code"] = 2
         return
-    _EXIT["code"] = run_sweep(sweep, console)
+    try:
+        _EXIT["code"] = run_sweep(sweep, console)
+    except user_errors() as exc:  # Hydra would print these with a traceback
+        if debug_enabled():
+            raise
+        console.print(f"[red]error:[/red] {escape(one_line(exc))}", markup=True, highlight=False, soft_wrap=True)
+        _EXIT["code"] = 2
 
 
 _GROUPS = ("scenario", "chain", "algo", "protocol", "preset", "launcher", "experiment")
 
 
+def _hparam_override(key: str, value: str) -> str | None:
+    """An ``[+]algo.<option>.hparams.<name>=...`` override whose name the algorithm does not take.
+
+    Hydra would answer a name without ``+`` with "Key ... is not in struct" and advise adding
+    ``+``; the real problem is usually a typo, so it is named here, with the closest names.
+    """
+    from morality_gym.baselines.hparams import HyperParameterError, accepted_hparams
+    from morality_gym.baselines.specs import SpecError
+    from runners.config import CONF_DIR
+
+    parts = key.lstrip("+~").split(".")
+    if len(parts) != 4 or parts[0] != "algo" or parts[2] != "hparams" or key.startswith("~"):
+        return None
+    path = CONF_DIR / "algo" / f"{parts[1]}.yaml"
+    if not path.is_file():
+        return None
+    import yaml
+
+    implementation = (yaml.safe_load(path.read_text()) or {}).get("implementation")
+    try:
+        accepted = accepted_hparams(str(implementation))
+    except (SpecError, HyperParameterError):
+        return None
+    if parts[3] in accepted:
+        return None
+    import difflib
+
+    close = difflib.get_close_matches(parts[3], list(accepted), n=1)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    return f"{key}={value}: {parts[3]!r} is not a hyper-parameter of algo {parts[1]}{hint}; valid: {', '.join(sorted(accepted))}"
+
+
 def precheck(argv: list[str]) -> str | None:
-    """Check config-group selections on the command line (Hydra's own message for a list
-    selection does not say what the valid options are). Returns an error message or None."""
+    """Check config-group selections and hyper-parameter names on the command line, before Hydra
+    (whose messages for these do not say what the valid options are). Returns an error or None."""
     import difflib
 
     from runners.config import CONF_DIR
@@ -188,6 +241,9 @@ def precheck(argv: list[str]) -> str | None:
         if "=" not in arg or arg.startswith("-"):
             continue
         key, value = arg.split("=", 1)
+        problem = _hparam_override(key, value)
+        if problem:
+            return problem
         group = key.lstrip("+~")
         if group not in _GROUPS:
             continue
@@ -202,17 +258,34 @@ def precheck(argv: list[str]) -> str | None:
     return None
 
 
+def user_errors() -> tuple[type[BaseException], ...]:
+    """Errors that are the user's or the environment's to fix (one line, exit 2), not bugs."""
+    from runners.slurm_launcher import SlurmUnavailable
+    from runners.tracking import TrackingError
+
+    return (ConfigError, TrackingError, SlurmUnavailable)
+
+
 def main() -> int:
     os.environ.setdefault("MORALITY_GYM_ORIGINAL_CWD", os.getcwd())
-    problem = precheck(sys.argv[1:])
-    if problem:
-        print(f"configuration error: {problem}", file=sys.stderr)
-        return 2
-    try:
-        _app()
-    except SystemExit as exc:  # Hydra could not compose the configuration
-        return 2 if exc.code else 0
-    return _EXIT["code"]
+    if "--debug" in sys.argv[1:]:  # ours, not Hydra's: strip it before Hydra parses the line
+        sys.argv = [a for a in sys.argv if a != "--debug"]
+        os.environ[DEBUG_ENV] = "1"
+
+    def body() -> int:
+        problem = precheck(sys.argv[1:])
+        if problem:
+            print(f"configuration error: {problem}", file=sys.stderr)
+            return 2
+        try:
+            _app()
+        except SystemExit as exc:  # Hydra could not compose the configuration, or the sweep crashed (a bug)
+            if not exc.code:
+                return 0
+            return 1 if _EXIT.get("entered") else 2
+        return _EXIT["code"]
+
+    return run_cli(body, user_errors())
 
 
 if __name__ == "__main__":

@@ -15,6 +15,8 @@ AFFECTED_BY_PROTOCOL = "[random,ppo_lag,cpo]"
 
 
 def main(argv: list[str]) -> int:
+    """Each protocol's sweep in turn (a configuration error stops at once, exit 2). ``--debug`` is
+    passed on to the sweeps."""
     protocols = ["paper"]
     rest = []
     for arg in argv:
@@ -40,4 +42,6 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    from morality_gym.clitools import run_cli
+
+    sys.exit(run_cli(lambda: main(sys.argv[1:]), (), sys.argv[1:]))

@@ -1,21 +1,31 @@
 """Mirror finished runs into MLflow, idempotently, from their Parquet files.
 
-The Parquet files are the source of truth; MLflow is a browsable mirror. Only the sweep's parent
-process logs (one writer, so the default embedded SQLite store never sees concurrent writers),
-after each run finishes and again at the end of every sweep for anything not yet mirrored (runs
-finished while the parent was killed, runs that came back from SLURM). A marker file
-``<results>/tracking/<run_id>.json`` records the MLflow run id; MLflow runs carry the run id as a
-tag, so a mirror interrupted half-way is found and replaced rather than duplicated.
+The Parquet files are the source of truth; MLflow is a browsable mirror. Only a sweep's parent
+process logs, after each run finishes and again at the end of every sweep for anything not yet
+mirrored (runs finished while the parent was killed, runs that came back from SLURM). A marker
+file ``<results>/tracking/<run_id>.json`` records the MLflow run id; MLflow runs carry the run id
+as a tag, so a mirror interrupted half-way is found and replaced rather than duplicated.
+
+Two sweeps may share a results directory (started at the same time by accident, or one per
+protocol). Their parents then both write to MLflow, so every write (opening the store, which
+creates the SQLite schema on first use, and each run's mirror, from the marker check to the
+marker write) holds an exclusive lock on ``<results>/tracking/.lock``: MLflow's schema set-up
+never races and a run is never mirrored twice. A tracking server that does not answer is found
+before the sweep starts (:func:`check_reachable`), in seconds, instead of after minutes of retries.
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
+import socket
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlparse
 
-import pyarrow.parquet as pq
 
 from runners.schema import MF_PREFIX, UPDATE_COLUMNS, learn_path, run_path, updates_path
 
@@ -30,6 +40,58 @@ def tracking_uri(results_dir: str | Path) -> str:
 
 def marker_path(results_dir: str | Path, run_id: str) -> Path:
     return Path(results_dir) / "tracking" / f"{run_id}.json"
+
+
+class TrackingError(RuntimeError):
+    """The MLflow store cannot be used; the message says which and how to fix or avoid it."""
+
+
+#: How long the up-front check waits for a tracking server.
+CONNECT_TIMEOUT_S = 5.0
+#: MLflow's HTTP client retries for minutes by default; a mirror that fails is retried by the next
+#: sweep anyway, so a sweep waits less (a user's own setting of these variables wins).
+HTTP_DEFAULTS = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2", "MLFLOW_HTTP_REQUEST_TIMEOUT": "30"}
+_FIX = "start the server or correct MLFLOW_TRACKING_URI, or run the sweep without MLflow: mlflow=false"
+
+
+def check_reachable(results_dir: str | Path, timeout: float = CONNECT_TIMEOUT_S) -> None:
+    """Raise :class:`TrackingError` unless the tracking store can be reached/written, in seconds."""
+    uri = tracking_uri(results_dir)
+    parsed = urlparse(uri)
+    if parsed.scheme in ("http", "https"):
+        host = parsed.hostname
+        port = parsed.port or (443 if parsed.scheme == "https" else 80)
+        if not host:
+            raise TrackingError(f"MLFLOW_TRACKING_URI={uri}: no host in the URI; {_FIX}")
+        try:
+            with socket.create_connection((host, port), timeout=timeout):
+                pass
+        except OSError as exc:
+            reason = exc.strerror or type(exc).__name__
+            raise TrackingError(f"MLFLOW_TRACKING_URI={uri}: no tracking server answers at {host}:{port} "
+                                f"({reason}); {_FIX}") from exc
+    elif parsed.scheme in ("sqlite", "file", ""):
+        raw = parsed.path if parsed.scheme else uri
+        target = Path(raw)
+        directory = target.parent if parsed.scheme == "sqlite" else target
+        probe = directory
+        while not probe.exists() and probe != probe.parent:
+            probe = probe.parent
+        if not os.access(probe, os.W_OK):
+            raise TrackingError(f"MLflow store {uri}: {probe} is not writable; {_FIX}")
+
+
+@contextlib.contextmanager
+def tracking_lock(results_dir: str | Path) -> Iterator[None]:
+    """Exclusive access to the MLflow mirror of one results directory (see the module docstring)."""
+    directory = Path(results_dir) / "tracking"
+    directory.mkdir(parents=True, exist_ok=True)
+    with open(directory / ".lock", "a+") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
 
 
 def _flatten(prefix: str, value: Any, out: dict[str, str]) -> None:
@@ -50,26 +112,42 @@ class Tracker:
 
         logging.getLogger("mlflow").setLevel(logging.WARNING)
         logging.getLogger("alembic").setLevel(logging.WARNING)
+        for key, value in HTTP_DEFAULTS.items():
+            os.environ.setdefault(key, value)
         self.results_dir = Path(results_dir).resolve()
         self.results_dir.mkdir(parents=True, exist_ok=True)
-        self.client = MlflowClient(tracking_uri(self.results_dir))
-        exp = self.client.get_experiment_by_name(EXPERIMENT)
-        if exp is None:
-            self.experiment_id = self.client.create_experiment(EXPERIMENT, artifact_location=(self.results_dir / "mlartifacts").as_uri())
-        else:
-            self.experiment_id = exp.experiment_id
+        uri = tracking_uri(self.results_dir)
+        try:
+            with tracking_lock(self.results_dir):
+                self.client = MlflowClient(uri)
+                exp = self.client.get_experiment_by_name(EXPERIMENT)
+                if exp is None:
+                    self.experiment_id = self.client.create_experiment(
+                        EXPERIMENT, artifact_location=(self.results_dir / "mlartifacts").as_uri())
+                else:
+                    self.experiment_id = exp.experiment_id
+        except Exception as exc:  # noqa: BLE001 - SQLAlchemy, HTTP and MLflow errors alike
+            first = str(exc).strip().splitlines()[0][:300] if str(exc).strip() else ""
+            raise TrackingError(f"cannot open the MLflow store {uri} ({type(exc).__name__}: {first}); {_FIX}") from exc
 
     def sync(self, run_id: str) -> str | None:
         """Mirror one finished run (no-op if already mirrored); returns the MLflow run id."""
+        with tracking_lock(self.results_dir):
+            return self._sync_locked(run_id)
+
+    def _sync_locked(self, run_id: str) -> str | None:
         from mlflow.entities import Metric, Param, RunTag
+
+        from runners.quarantine import read_table_or_quarantine
 
         marker = marker_path(self.results_dir, run_id)
         if marker.is_file():
             return json.loads(marker.read_text())["mlflow_run_id"]
         path = run_path(self.results_dir, run_id)
-        if not path.is_file():
+        table = read_table_or_quarantine(self.results_dir, path)
+        if table is None:
             return None
-        row = pq.read_table(path).to_pylist()[0]
+        row = table.to_pylist()[0]
         for old in self.client.search_runs([self.experiment_id], filter_string=f"tags.run_id = '{run_id}'"):
             self.client.delete_run(old.info.run_id)  # an interrupted earlier mirror
         tags = {k: str(row[k]) for k in ("run_id", "env_id", "scenario", "variant", "chain", "algo", "learner", "protocol", "preset", "seed", "status")}
@@ -79,16 +157,16 @@ class Tracker:
         _flatten("", json.loads(row["config"]), params)
         metrics = [Metric(k, float(row[k]), 0, int(row.get("total_steps") or 0)) for k in _METRICS if row.get(k) is not None]
         metrics += [Metric(k, float(v), 0, int(row.get("total_steps") or 0)) for k, v in row.items() if k.startswith(MF_PREFIX) and v is not None]
-        lp = learn_path(self.results_dir, run_id)
-        if lp.is_file():
-            for r in pq.read_table(lp).to_pylist():
+        learn = read_table_or_quarantine(self.results_dir, learn_path(self.results_dir, run_id))
+        if learn is not None:
+            for r in learn.to_pylist():
                 for key in ("metric", "exact_metric", "mean_return", "mean_cost", "mean_length"):
                     if r.get(key) is not None and r[key] == r[key]:
                         metrics.append(Metric(f"learn/{key}", float(r[key]), 0, int(r["step"])))
-        up = updates_path(self.results_dir, run_id)
-        if up.is_file():  # per-update diagnostics of PPO-Lag / CPO, over environment steps
+        updates = read_table_or_quarantine(self.results_dir, updates_path(self.results_dir, run_id))
+        if updates is not None:  # per-update diagnostics of PPO-Lag / CPO, over environment steps
             numeric = [c for c in UPDATE_COLUMNS if c not in ("schema_version", "run_id", "update", "timesteps")]
-            for r in pq.read_table(up).to_pylist():
+            for r in updates.to_pylist():
                 for key in numeric:
                     value = r.get(key)
                     if value is not None and value == value:

@@ -1,8 +1,13 @@
-"""Loading saved learners: a model file plus its JSON sidecar naming the algorithm.
+"""Loading saved learners: a model file plus its JSON sidecar naming the algorithm and the env.
 
 ``Learner.save`` writes ``<name>.zip`` (SB3's format) and ``<name>.json`` (what it is: algorithm,
 env id, chain, seed, spec). Loading reads the sidecar to pick the right class, so a PPO-Lag model
-is never silently loaded as plain PPO.
+is never silently loaded as plain PPO, and to know which env the model was trained on: a policy
+evaluated on another env than its own gives a number about nothing in particular, so
+:func:`check_model_env` refuses that unless the caller explicitly allows it *and* the observation
+sizes agree (a different size could not even be fed to the network). Every way a model file can
+be unusable (sidecar missing or unreadable, zip damaged, wrong env) raises :class:`ModelError`
+with the file and the fix.
 """
 
 from __future__ import annotations
@@ -11,33 +16,105 @@ import json
 from pathlib import Path
 from typing import Any
 
+IMPLEMENTATIONS = ("random", "ppo", "ppo_lag", "cpo")
+
+
+class ModelError(ValueError):
+    """A saved model cannot be used as asked; the message names the file and the fix."""
+
+
+def _paths(path: str | Path) -> tuple[Path, Path]:
+    """(``.zip``, ``.json``) of a model given by either file or by the name without suffix."""
+    path = Path(path)
+    base = path.with_suffix("") if path.suffix in (".zip", ".json") else path
+    return base.with_suffix(".zip"), base.with_suffix(".json")
+
 
 def read_metadata(path: str | Path) -> dict[str, Any]:
-    path = Path(path)
-    sidecar = path.with_suffix(".json")
+    """The sidecar of a saved model (``model.json`` next to ``model.zip``)."""
+    zip_path, sidecar = _paths(path)
     if not sidecar.is_file():
-        raise FileNotFoundError(f"{path}: no metadata file {sidecar.name} next to it (saved by Learner.save)")
-    return json.loads(sidecar.read_text())
+        raise ModelError(
+            f"{path}: no metadata file {sidecar.name} next to it; a model is saved by Learner.save as "
+            f"{zip_path.name} + {sidecar.name}: copy both files (the .json says which algorithm and env it was trained on)"
+        )
+    try:
+        meta = json.loads(sidecar.read_text())
+    except (OSError, ValueError) as exc:
+        raise ModelError(f"{sidecar}: unreadable model metadata ({type(exc).__name__}: {exc}); "
+                         "restore the file saved by Learner.save or retrain the run") from exc
+    if not isinstance(meta, dict) or meta.get("implementation") not in IMPLEMENTATIONS:
+        found = meta.get("implementation") if isinstance(meta, dict) else None
+        raise ModelError(f"{sidecar}: 'implementation' is {found!r}, expected one of {', '.join(IMPLEMENTATIONS)}; "
+                         "this is not a sidecar written by Learner.save")
+    return meta
+
+
+def _model_class(implementation: str) -> type:
+    if implementation == "ppo":
+        from stable_baselines3 import PPO
+
+        return PPO
+    if implementation == "ppo_lag":
+        from morality_gym.baselines.safe import PPOLag
+
+        return PPOLag
+    from morality_gym.baselines.safe import CPO
+
+    return CPO
 
 
 def load_model(path: str | Path) -> Any:
     """The policy saved at ``path``: ``"random"`` or an SB3 model of the right class."""
-    path = Path(path)
     meta = read_metadata(path)
-    impl = meta.get("implementation")
+    impl = meta["implementation"]
     if impl == "random":
         return "random"
-    zip_path = path.with_suffix(".zip")
-    if impl == "ppo":
-        from stable_baselines3 import PPO
+    zip_path, _ = _paths(path)
+    if not zip_path.is_file():
+        raise ModelError(f"{zip_path}: missing, but {zip_path.with_suffix('.json').name} says it is a {impl} model; "
+                         "restore the .zip saved with it or retrain the run")
+    cls = _model_class(impl)
+    try:
+        return cls.load(zip_path, device="cpu")
+    except Exception as exc:  # noqa: BLE001 - zipfile, torch and pickle each raise their own kinds
+        raise ModelError(f"{zip_path}: cannot be loaded as a {cls.__name__} model ({type(exc).__name__}: {exc}); "
+                         "the file is damaged or was not saved by Learner.save: restore it or retrain the run") from exc
 
-        return PPO.load(zip_path, device="cpu")
-    if impl == "ppo_lag":
-        from morality_gym.baselines.safe import PPOLag
 
-        return PPOLag.load(zip_path, device="cpu")
-    if impl == "cpo":
-        from morality_gym.baselines.safe import CPO
+def observation_size(policy: Any) -> int | None:
+    """The flat observation size an SB3 model expects (None for ``"random"`` and other policies)."""
+    space = getattr(policy, "observation_space", None)
+    shape = getattr(space, "shape", None)
+    return int(shape[0]) if shape else None
 
-        return CPO.load(zip_path, device="cpu")
-    raise ValueError(f"{path}: unknown implementation {impl!r} in its metadata")
+
+def check_model_env(path: str | Path, policy: Any, env_id: str, allow_other_env: bool = False) -> None:
+    """Refuse to evaluate a model on another env than the one it was trained on.
+
+    ``allow_other_env`` lets a model trained on one variant be evaluated on another (a
+    generalisation test), but only when the observation sizes agree; a random "model" fits any env.
+    """
+    meta = read_metadata(path)
+    if meta["implementation"] == "random":
+        return
+    from morality_gym.envs.registry import parse_env_id, state_graph
+
+    trained = str(meta.get("env_id", ""))
+    wanted = parse_env_id(env_id)[0].env_id(parse_env_id(env_id)[1])
+    try:
+        scenario, variant = parse_env_id(trained)
+        trained = scenario.env_id(variant)
+    except (KeyError, TypeError):
+        pass  # an env this installation does not know: compared by name below
+    if trained == wanted:
+        return
+    expected = observation_size(policy)
+    actual = int(state_graph(wanted).obs[0].shape[0])
+    if expected is not None and expected != actual:
+        raise ModelError(f"{path}: trained on {trained} (observation size {expected}); {wanted} has observation size "
+                         f"{actual}, so the model cannot be evaluated there: evaluate it on {trained}")
+    if not allow_other_env:
+        raise ModelError(f"{path}: trained on {trained}, not on {wanted}; evaluate it on its own env (e.g. --scenario "
+                         f"{trained.split('-')[0]} --variant {trained.split('-')[1] if trained.count('-') >= 2 else '?'}), "
+                         "or pass --allow-other-env to evaluate it on another variant on purpose")

@@ -188,18 +188,9 @@ class SB3Learner(Learner):
         self.model = model if model is not None else self._build()
 
     def _algorithm_class(self) -> type:
-        impl = self.spec.implementation
-        if impl == "ppo":
-            from stable_baselines3 import PPO
+        from morality_gym.baselines.hparams import algorithm_class
 
-            return PPO
-        if impl == "ppo_lag":
-            from morality_gym.baselines.safe import PPOLag
-
-            return PPOLag
-        from morality_gym.baselines.safe import CPO
-
-        return CPO
+        return algorithm_class(self.spec.implementation)
 
     def make_vec_env(self) -> Any:
         """The training VecEnv: batched simulator (or SB3 DummyVecEnv) -> VecMonitor -> cost/reward wrapper."""
@@ -217,20 +208,12 @@ class SB3Learner(Learner):
         return VecMoralityWrapper(venv, self.bound, self.spec.reward_cost())
 
     def _build(self) -> Any:
-        import inspect
-
         import torch
 
-        from morality_gym.baselines.specs import SpecError
+        from morality_gym.baselines.hparams import validate_learner
 
+        validate_learner(self.spec)  # sweeps check this before planning; library users get the same messages
         cls = self._algorithm_class()
-        accepted = set(inspect.signature(cls.__init__).parameters) - {"self", "policy", "env"}
-        unknown = [k for k in self.spec.hparams if k not in accepted]
-        if unknown:
-            raise SpecError(
-                f"learner {self.spec.name!r}: hyper-parameter(s) {unknown} are not accepted by {cls.__name__}; "
-                f"valid: {', '.join(sorted(accepted))}"
-            )
         activation = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}[self.spec.activation]
         arch = list(self.spec.net_arch)
         policy_kwargs = {"activation_fn": activation}

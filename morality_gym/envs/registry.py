@@ -5,6 +5,15 @@ without touching code: put YAML files in a directory and either call
 :func:`add_scenario_dir` or list the directory in the ``MORALITY_GYM_SCENARIOS`` environment
 variable (``os.pathsep``-separated). Every variant of every scenario is registered with Gymnasium
 as ``MoralityGym/{Scenario}-{Variant}-v1``.
+
+A user's file is checked more thoroughly than a built-in one: its utility bounds are compared
+with what its worlds can produce (:mod:`morality_gym.world.bounds`, ~0.1 s per variant; the
+built-in files pass the same check in the test suite, so ``import morality_gym`` does not pay
+for it). A bad file found through ``MORALITY_GYM_SCENARIOS`` must not break the built-in envs
+nor every command: it is skipped with a one-line :class:`ScenarioFileWarning` (file, field, fix)
+and remembered, so that asking for the scenario it would have defined explains why it is not
+there (:func:`skipped_scenario_files`). :func:`add_scenario_dir` is an explicit request, so it
+raises instead.
 """
 
 from __future__ import annotations
@@ -12,20 +21,26 @@ from __future__ import annotations
 import difflib
 import os
 import threading
+import warnings
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
+import yaml
+
 from morality_gym.world.graph import StateGraph
-from morality_gym.world.layout import Scenario, load_scenario
+from morality_gym.world.layout import Scenario, ScenarioError, load_scenario
 from morality_gym.world.observe import ObservationCodec
 from morality_gym.world.rules import Overrides, World
 
 NAMESPACE = "MoralityGym"
 VERSION = "v1"
 BUILTIN_DIR = Path(__file__).resolve().parent.parent / "data" / "scenarios"
+SCENARIOS_ENV = "MORALITY_GYM_SCENARIOS"
 
 _scenarios: dict[str, Scenario] = {}
 _extra_dirs: list[Path] = []
+_skipped: list["SkippedScenario"] = []
 _lock = threading.Lock()
 
 
@@ -36,41 +51,143 @@ class UnknownEnvError(KeyError):
         return str(self.args[0])
 
 
-def _load_dir(directory: Path) -> dict[str, Scenario]:
+class ScenarioFileWarning(UserWarning):
+    """A user's scenario file was skipped; the message says why and how to fix it."""
+
+
+@dataclass(frozen=True)
+class SkippedScenario:
+    """A user's scenario file that was not loaded, the scenario name it declares (if readable), why."""
+
+    path: Path
+    name: str | None
+    error: str
+
+
+def _declared_name(path: Path) -> str | None:
+    """The ``name:`` a scenario file declares, if the file is readable YAML with one."""
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError):
+        return None
+    name = raw.get("name") if isinstance(raw, dict) else None
+    return name if isinstance(name, str) else None
+
+
+def _horizon() -> int:
+    from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
+
+    return DEFAULT_MAX_STEPS + 1
+
+
+def _load_user_file(path: Path) -> Scenario:
+    from morality_gym.world.bounds import check_bounds
+
+    scenario = load_scenario(path)
+    check_bounds(scenario, _horizon())
+    return scenario
+
+
+def _load_dir(directory: Path, user: bool = False) -> dict[str, Scenario]:
+    """Every scenario file of ``directory``; raises on the first bad one (built-ins, explicit requests)."""
     found: dict[str, Scenario] = {}
     for path in sorted(directory.glob("*.yaml")):
-        scenario = load_scenario(path)
+        scenario = _load_user_file(path) if user else load_scenario(path)
         if scenario.name in found:
-            raise ValueError(f"{path}: scenario name {scenario.name!r} is already defined by {found[scenario.name].source}")
+            raise ScenarioError(f"{path}: name: scenario name {scenario.name!r} is already defined by "
+                                f"{found[scenario.name].source}. Fix: rename one of them")
         found[scenario.name] = scenario
     return found
+
+
+def _skip(path: Path, error: str) -> None:
+    """Remember a skipped user file and say so on one line (the warning's location is the file)."""
+    prefix = f"{path}: "
+    message = error[len(prefix):] if error.startswith(prefix) else error
+    _skipped.append(SkippedScenario(path, _declared_name(path) if path.is_file() else None, error))
+    warnings.warn_explicit(f"skipped this scenario file: {message}", ScenarioFileWarning, str(path), 1)
+
+
+_format_warning = warnings.formatwarning
+
+
+def _one_line_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                      line: str | None = None) -> str:
+    """Python shows a warning with the source line it points at; a skipped scenario file's first
+    line says nothing, so its warning is the one line ``<file>: ScenarioFileWarning: <why, fix>``.
+    Every other warning is formatted as before."""
+    if isinstance(category, type) and issubclass(category, ScenarioFileWarning):
+        return f"{filename}: {category.__name__}: {message}\n"
+    return _format_warning(message, category, filename, lineno, line)
+
+
+warnings.formatwarning = _one_line_warning
+
+
+def _load_env_dirs(known: dict[str, Scenario]) -> None:
+    """Load ``MORALITY_GYM_SCENARIOS`` file by file, skipping (and reporting) each bad one."""
+    for entry in [p for p in os.environ.get(SCENARIOS_ENV, "").split(os.pathsep) if p]:
+        directory = Path(entry)
+        if not directory.is_dir():
+            _skip(directory, f"{directory}: {SCENARIOS_ENV} lists it, but it is not a directory. "
+                             f"Fix: correct or remove the entry in {SCENARIOS_ENV}")
+            continue
+        for path in sorted(directory.glob("*.yaml")):
+            try:
+                scenario = _load_user_file(path)
+            except ScenarioError as exc:
+                _skip(path, str(exc))
+                continue
+            if scenario.name in known:
+                _skip(path, f"{path}: name: scenario {scenario.name!r} is already defined by {known[scenario.name].source}. "
+                            "Fix: give this scenario another name")
+                continue
+            known[scenario.name] = scenario
 
 
 def scenarios() -> dict[str, Scenario]:
     """All known scenarios by name (built-in first, then user directories), loaded once."""
     with _lock:
         if not _scenarios:
-            _scenarios.update(_load_dir(BUILTIN_DIR))
-            env_dirs = [Path(p) for p in os.environ.get("MORALITY_GYM_SCENARIOS", "").split(os.pathsep) if p]
-            for directory in env_dirs + _extra_dirs:
-                for name, scenario in _load_dir(directory).items():
-                    if name in _scenarios:
-                        raise ValueError(f"{scenario.source}: scenario {name!r} is already defined by {_scenarios[name].source}")
-                    _scenarios[name] = scenario
+            loaded = _load_dir(BUILTIN_DIR)
+            _load_env_dirs(loaded)
+            for directory in _extra_dirs:
+                for name, scenario in _load_dir(directory, user=True).items():
+                    if name not in loaded:
+                        loaded[name] = scenario
+            _scenarios.update(loaded)
         return _scenarios
 
 
+def skipped_scenario_files() -> list[SkippedScenario]:
+    """The user scenario files that were skipped, with the reason (see the module docstring)."""
+    scenarios()
+    return list(_skipped)
+
+
+def _skipped_hint(name: str) -> str:
+    """Why a scenario of this name is missing, if a skipped file declared it (else '')."""
+    for item in skipped_scenario_files():
+        if item.name == name or item.path.stem.lower() == name.lower():
+            return f"Scenario {name!r} is defined by {item.path}, which was skipped because it is invalid: {item.error}"
+    return ""
+
+
 def add_scenario_dir(directory: str | Path) -> list[str]:
-    """Load every scenario YAML in ``directory``, register its env ids and return them."""
+    """Load every scenario YAML in ``directory``, register its env ids and return them.
+
+    An explicit request: a bad file raises :class:`ScenarioError` and nothing of the directory is added.
+    """
     directory = Path(directory)
     if not directory.is_dir():
         raise NotADirectoryError(f"scenario directory {directory} does not exist")
-    new = _load_dir(directory)
+    new = _load_dir(directory, user=True)
     known = scenarios()
     with _lock:
         for name, scenario in new.items():
             if name in known:
-                raise ValueError(f"{scenario.source}: scenario {name!r} is already defined by {known[name].source}")
+                raise ScenarioError(f"{scenario.source}: name: scenario {name!r} is already defined by "
+                                    f"{known[name].source}. Fix: give this scenario another name")
         _extra_dirs.append(directory)
         known.update(new)
     from morality_gym.envs.registration import register_all
@@ -91,6 +208,9 @@ def scenario_named(name: str) -> Scenario:
     known = scenarios()
     if name in known:
         return known[name]
+    skipped = _skipped_hint(name)
+    if skipped:
+        raise UnknownEnvError(skipped)
     close = difflib.get_close_matches(name, list(known), n=3, cutoff=0.5)
     hint = f" Did you mean {', '.join(close)}?" if close else ""
     raise UnknownEnvError(f"Unknown scenario {name!r}.{hint} Scenarios: {', '.join(known)}.")
@@ -112,6 +232,9 @@ def parse_env_id(env_id: str) -> tuple[Scenario, str]:
     known = scenarios()
     if len(parts) == 3 and parts[2] == VERSION and parts[0] in known and parts[1] in known[parts[0]].variants:
         return known[parts[0]], parts[1]
+    skipped = _skipped_hint(parts[0]) if parts else ""
+    if skipped:
+        raise UnknownEnvError(skipped)
     all_ids = list_envs()
     lowered = {eid.lower(): eid for eid in all_ids}
     candidate = "-".join(parts)

@@ -57,7 +57,7 @@ class PolicyAdapter:
             # run's random stream whenever an evaluation happens during learning.
             return sample_actions(self.probabilities(obs, state_ids), rng)
         if callable(p):
-            return np.array([int(p(o)) for o in obs], dtype=np.int64)
+            return np.array([_as_action(p(o)) for o in obs], dtype=np.int64)
         raise TypeError(f"cannot use {type(p).__name__} as a policy")
 
     def probabilities(self, obs: np.ndarray, state_ids: np.ndarray | None = None) -> np.ndarray:
@@ -93,11 +93,30 @@ def sample_actions(probs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.minimum((rng.random((len(probs), 1)) * cum[:, -1:] > cum).sum(axis=1), N_ACTIONS - 1)
 
 
+def _as_action(value: Any) -> int:
+    """A policy's action as an int in ``0..5``; anything else is the policy's bug, named clearly.
+
+    Without this check an action of 9 surfaces as an ``IndexError`` deep in the evaluators (or,
+    worse, a negative one silently indexes from the end of a table).
+    """
+    arr = np.asarray(value)
+    scalar = arr.reshape(()) if arr.size == 1 else None
+    ok = scalar is not None and np.issubdtype(arr.dtype, np.number) and not np.issubdtype(arr.dtype, np.complexfloating)
+    if ok and float(scalar) == int(scalar) and 0 <= int(scalar) < N_ACTIONS:
+        return int(scalar)
+    from morality_gym.envs.trolley import InvalidActionError
+    from morality_gym.world.rules import ACTION_NAMES
+
+    valid = ", ".join(f"{i} {name}" for i, name in enumerate(ACTION_NAMES))
+    raise InvalidActionError(f"the policy returned action {value!r}; valid actions are the integers 0-{N_ACTIONS - 1} "
+                             f"({valid}), or (exact evaluation) {N_ACTIONS} probabilities")
+
+
 def _as_probs(value: Any) -> np.ndarray:
     arr = np.asarray(value)
     if arr.shape == () or arr.shape == (1,):
         out = np.zeros(N_ACTIONS)
-        out[int(arr.reshape(()))] = 1.0
+        out[_as_action(value)] = 1.0
         return out
     return arr.astype(np.float64)
 
@@ -105,6 +124,10 @@ def _as_probs(value: Any) -> np.ndarray:
 def _sb3_probabilities(policy: Any, obs: np.ndarray, deterministic: bool) -> np.ndarray:
     import torch
 
+    expected = getattr(getattr(policy, "observation_space", None), "shape", None)
+    if expected and obs.ndim == 2 and tuple(expected) != tuple(obs.shape[1:]):
+        raise ValueError(f"the policy expects observations of shape {tuple(expected)}, but this env's are "
+                         f"{tuple(obs.shape[1:])}: it was trained on another scenario")
     with torch.no_grad():
         tensor, _ = policy.obs_to_tensor(obs.astype(np.float32))
         dist = policy.get_distribution(tensor)

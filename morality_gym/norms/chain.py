@@ -10,6 +10,8 @@ internal id, or a path to a YAML file. Every mistake is reported with the file a
 from __future__ import annotations
 
 import difflib
+import hashlib
+import json
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -70,12 +72,28 @@ class MoralityChain:
         raise KeyError(f"chain {self.name} has no norm {name!r}; norms: {', '.join(self.norm_names)}")
 
     @property
+    def content(self) -> tuple[tuple[str, str], ...]:
+        """What the chain *is*: its norms in order of force, each with its modality (not its name)."""
+        return tuple((n.name, n.modality) for n in self.norms)
+
+    @property
+    def fingerprint(self) -> str:
+        """A short hash of :attr:`content`: equal for two chains exactly when they score alike."""
+        return chain_fingerprint(self.content)
+
+    @property
     def event_norms(self) -> list[Norm]:
         return [n for n in self.norms if n.kind == "event"]
 
     @property
     def utility_norms(self) -> list[Norm]:
         return [n for n in self.norms if n.kind == "utility"]
+
+
+def chain_fingerprint(content: Any) -> str:
+    """12 hex digits of SHA-256 over the canonical JSON of ``[[norm, modality], ...]``."""
+    canonical = json.dumps([[str(n), str(m)] for n, m in content], separators=(",", ":"))
+    return hashlib.sha256(canonical.encode()).hexdigest()[:12]
 
 
 def _fail(source: str, where: str, problem: str, fix: str) -> ChainError:
@@ -156,8 +174,39 @@ def builtin_chains() -> dict[str, MoralityChain]:
     return {chain.name: chain for chain in _builtin_index().values()}
 
 
+def builtin_named(name: str) -> MoralityChain | None:
+    """The built-in chain that ``name`` refers to (name, file name, abbreviation or alias), if any."""
+    wanted = name.strip().lower()
+    for stem, chain in _builtin_index().items():
+        if wanted in {chain.name.lower(), stem, chain.abbreviation.lower(), *(a.lower() for a in chain.aliases)} - {""}:
+            return chain
+    return None
+
+
+def check_name_collision(chain: MoralityChain) -> None:
+    """Refuse a user chain that takes a built-in chain's name but is not that chain.
+
+    Results are labelled by the chain's name; a reordered "Utility" would be reported (and compared
+    with the paper, and given the built-in's exact and oracle columns) as the real Utility. Scenario
+    names are protected the same way. Same content under the same name is the same chain: accepted.
+    """
+    builtin = builtin_named(chain.name)
+    if builtin is None or builtin.content == chain.content:
+        return
+    ours = " > ".join(f"{n}" + ("" if m == "prohibited" else f" ({m})") for n, m in chain.content)
+    theirs = " > ".join(f"{n}" + ("" if m == "prohibited" else f" ({m})") for n, m in builtin.content)
+    raise _fail(chain.source or "<chain>", "name",
+                f"{chain.name!r} names the built-in chain {builtin.name} ({theirs}), but this chain is {ours}; "
+                "results are keyed by what a chain is and labelled by its name, so it would pass for the built-in one",
+                f"give it a name of its own (e.g. name: {chain.name}Custom), or use the built-in chain (ref: {builtin.name})")
+
+
 def get_chain(ref: str | Path | MoralityChain) -> MoralityChain:
-    """Resolve a chain reference: name, file name, abbreviation, reference id, or path to a YAML file."""
+    """Resolve a chain reference: name, file name, abbreviation, reference id, or path to a YAML file.
+
+    A chain file that takes a built-in chain's name for other norms is refused
+    (:func:`check_name_collision`).
+    """
     if isinstance(ref, MoralityChain):
         return ref
     text = str(ref)
@@ -165,7 +214,10 @@ def get_chain(ref: str | Path | MoralityChain) -> MoralityChain:
     if text.endswith((".yaml", ".yml")) or path.is_file():
         if not path.is_file():
             raise ChainError(f"chain file {text} does not exist")
-        return load_chain_file(path)
+        chain = load_chain_file(path)
+        if path.resolve().parent != BUILTIN_DIR.resolve():
+            check_name_collision(chain)
+        return chain
     wanted = text.lower()
     for stem, chain in _builtin_index().items():
         keys = {chain.name.lower(), stem, chain.abbreviation.lower(), *(a.lower() for a in chain.aliases)} - {""}

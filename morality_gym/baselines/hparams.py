@@ -1,0 +1,236 @@
+"""Check a learner's hyper-parameters before anything runs.
+
+A typo or an impossible value in a sweep's configuration used to pass validation and fail every
+run of the sweep at model construction (on SLURM: a whole job array burnt). Here every
+hyper-parameter is checked against what will consume it, without building an environment:
+
+* the key must be a parameter of the algorithm class's constructor (``inspect.signature``, so a
+  parameter added to a class is accepted without touching this module), and not one the runner
+  sets itself (``seed``, ``device``, ``policy_kwargs``, ...); an unknown key gets a did-you-mean;
+* the value must have the type the constructor's annotation asks for (``Literal`` choices
+  included) and lie in the range that makes sense for it (:data:`RANGES`, by parameter name:
+  ``learning_rate > 0``, ``batch_size >= 2``, ``0 <= gamma <= 1``, ...);
+* the spec fields outside ``hparams`` (``net_arch``, ``n_envs``, ``cost_scale``, ``return_bounds``)
+  are checked by :func:`validate_learner`.
+
+Left to the algorithm (it raises when the model is built): constraints between several values,
+e.g. SB3's ``n_steps * n_envs > 1``. Entry point for configuration layers:
+:func:`validate_hparams` (one algorithm's ``hparams`` mapping) and :func:`validate_learner`.
+"""
+
+from __future__ import annotations
+
+import difflib
+import inspect
+import math
+import types
+import typing
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Any
+
+from morality_gym.baselines.specs import LearnerSpec, SpecError
+
+
+class HyperParameterError(SpecError):
+    """A hyper-parameter that cannot work; the message names the learner, the key and the fix."""
+
+
+#: Constructor parameters the runner sets itself (a value in ``hparams`` would clash or be ignored).
+RESERVED = frozenset({"policy", "env", "seed", "device", "verbose", "policy_kwargs", "tensorboard_log",
+                      "_init_setup_model", "rollout_buffer_class", "rollout_buffer_kwargs", "monitor_wrapper"})
+
+
+@dataclass(frozen=True)
+class Range:
+    """``low <= value <= high`` (``*_open``: strict), with the reason a user reads when it fails."""
+
+    low: float = -math.inf
+    high: float = math.inf
+    low_open: bool = False
+    high_open: bool = False
+
+    def holds(self, value: float) -> bool:
+        above = value > self.low if self.low_open else value >= self.low
+        below = value < self.high if self.high_open else value <= self.high
+        return above and below
+
+    def describe(self) -> str:
+        parts = []
+        if self.low != -math.inf:
+            parts.append(f"{'>' if self.low_open else '>='} {self.low:g}")
+        if self.high != math.inf:
+            parts.append(f"{'<' if self.high_open else '<='} {self.high:g}")
+        return " and ".join(parts)
+
+
+_POSITIVE = Range(0.0, low_open=True)
+_NON_NEGATIVE = Range(0.0)
+_AT_LEAST_ONE = Range(1.0)
+_UNIT = Range(0.0, 1.0)
+
+#: Sane values by parameter name (any algorithm that has the parameter).
+RANGES: dict[str, Range] = {
+    "n_steps": _AT_LEAST_ONE,
+    "steps_per_rollout": _AT_LEAST_ONE,
+    "batch_size": Range(2.0),  # advantages are normalised per minibatch: one sample has no spread
+    "n_epochs": _AT_LEAST_ONE,
+    "n_critic_updates": _AT_LEAST_ONE,
+    "cg_max_steps": _AT_LEAST_ONE,
+    "line_search_max_iter": _AT_LEAST_ONE,
+    "ep_cost_window": _AT_LEAST_ONE,
+    "stats_window_size": _AT_LEAST_ONE,
+    "sde_sample_freq": Range(-1.0),
+    "learning_rate": _POSITIVE,
+    "critic_learning_rate": _POSITIVE,
+    "clip_range": _POSITIVE,
+    "clip_range_vf": _POSITIVE,
+    "max_grad_norm": _POSITIVE,
+    "target_kl": _POSITIVE,
+    "lagrange_lr": _POSITIVE,
+    "cg_damping": _NON_NEGATIVE,
+    "ent_coef": _NON_NEGATIVE,
+    "vf_coef": _NON_NEGATIVE,
+    "critic_l2_coef": _NON_NEGATIVE,
+    "cost_limit": _NON_NEGATIVE,
+    "lagrange_init": _NON_NEGATIVE,
+    "lagrange_upper_bound": _POSITIVE,
+    "gamma": _UNIT,
+    "gae_lambda": _UNIT,
+    "cost_gamma": _UNIT,
+    "cost_gae_lambda": _UNIT,
+    "line_search_shrinking_factor": Range(0.0, 1.0, low_open=True, high_open=True),
+}
+
+
+def algorithm_class(implementation: str) -> type:
+    """The class that trains an implementation (``ppo``: SB3's PPO; ``ppo_lag``, ``cpo``: ours)."""
+    if implementation == "ppo":
+        from stable_baselines3 import PPO
+
+        return PPO
+    if implementation == "ppo_lag":
+        from morality_gym.baselines.safe import PPOLag
+
+        return PPOLag
+    if implementation == "cpo":
+        from morality_gym.baselines.safe import CPO
+
+        return CPO
+    raise SpecError(f"implementation {implementation!r} has no algorithm class")
+
+
+@lru_cache(maxsize=None)
+def accepted_hparams(implementation: str) -> dict[str, inspect.Parameter]:
+    """The constructor parameters a sweep may set for an implementation (``{}`` for ``random``)."""
+    if implementation == "random":
+        return {}
+    init = algorithm_class(implementation).__init__
+    try:
+        signature = inspect.signature(init, eval_str=True)
+    except (NameError, TypeError):  # an annotation that cannot be evaluated: keep them as strings
+        signature = inspect.signature(init)
+    return {name: p for name, p in signature.parameters.items()
+            if name not in RESERVED and name != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _kinds(annotation: Any) -> tuple[set[str], tuple[Any, ...]]:
+    """What an annotation accepts: a set of kinds among bool/int/float/str/none/other, and Literal choices."""
+    if annotation is inspect.Parameter.empty or isinstance(annotation, str):
+        return {"other"}, ()
+    origin = typing.get_origin(annotation)
+    if origin is typing.Literal:
+        return {"literal"}, typing.get_args(annotation)
+    if origin in (typing.Union, types.UnionType):
+        kinds: set[str] = set()
+        choices: tuple[Any, ...] = ()
+        for arg in typing.get_args(annotation):
+            k, c = _kinds(arg)
+            kinds |= k
+            choices += c
+        return kinds, choices
+    if annotation is type(None):
+        return {"none"}, ()
+    if annotation in (bool, int, float, str):
+        return {annotation.__name__}, ()
+    if origin is not None and getattr(origin, "__name__", "") == "Callable" or annotation is Callable:
+        return {"callable"}, ()
+    return {"other"}, ()
+
+
+def _type_problem(value: Any, parameter: inspect.Parameter) -> str | None:
+    """Why ``value`` does not fit the parameter's annotation (None if it fits or cannot be judged)."""
+    kinds, choices = _kinds(parameter.annotation)
+    if "other" in kinds:
+        return None
+    if value is None:
+        return None if "none" in kinds else "must not be null"
+    if "literal" in kinds and value in choices:
+        return None
+    if isinstance(value, bool):
+        return None if "bool" in kinds else "expected a number, got true/false"
+    if isinstance(value, int) and kinds & {"int", "float"}:
+        return None
+    if isinstance(value, float) and "float" in kinds:
+        return None if math.isfinite(value) else "must be a finite number"
+    if isinstance(value, str) and "str" in kinds:
+        return None
+    expected = [k for k in ("bool", "int", "float", "str") if k in kinds]
+    if "literal" in kinds:
+        expected.append("one of " + ", ".join(repr(c) for c in choices))
+    return f"expected {' or '.join(expected) or 'another value'}, got {value!r}"
+
+
+def validate_hparams(algo_name: str, implementation: str, hparams: Mapping[str, Any]) -> None:
+    """Raise :class:`HyperParameterError` for the first hyper-parameter that cannot work.
+
+    ``algo_name`` is only used in the message (``ppo_shaped``, ``cpo``, ...); ``implementation`` picks
+    the class whose constructor receives ``hparams``.
+    """
+    where = f"learner {algo_name!r}"
+    accepted = accepted_hparams(implementation)
+    for key, value in hparams.items():
+        if key in RESERVED:
+            raise HyperParameterError(f"{where}: hparams.{key} is set by the runner, not by the configuration; remove it")
+        if key not in accepted:
+            if not accepted:
+                raise HyperParameterError(f"{where}: hparams.{key}: the {implementation} learner takes no hyper-parameters; "
+                                          "remove it")
+            close = difflib.get_close_matches(str(key), list(accepted), n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            cls = algorithm_class(implementation).__name__
+            raise HyperParameterError(f"{where}: hparams.{key} is not a hyper-parameter of {cls}{hint}; "
+                                      f"valid: {', '.join(sorted(accepted))}")
+        problem = _type_problem(value, accepted[key])
+        if problem is None and _is_number(value) and key in RANGES:
+            if not math.isfinite(float(value)):
+                problem = "must be a finite number"
+            elif not RANGES[key].holds(float(value)):
+                problem = f"must be {RANGES[key].describe()}"
+        if problem is not None:
+            default = accepted[key].default
+            like = f" (default {default!r})" if default is not inspect.Parameter.empty else ""
+            raise HyperParameterError(f"{where}: hparams.{key}={value!r}: {problem}{like}")
+
+
+def validate_learner(spec: LearnerSpec) -> None:
+    """Check the spec's own fields (network, envs, reward and cost settings), then its ``hparams``."""
+    where = f"learner {spec.name!r}"
+    arch = spec.net_arch
+    if not isinstance(arch, (tuple, list)) or not arch or not all(
+            isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in arch):
+        raise HyperParameterError(f"{where}: net_arch={list(arch) if isinstance(arch, (tuple, list)) else arch!r}: "
+                                  "expected a non-empty list of layer sizes, each an integer >= 1 (e.g. [64, 64])")
+    if not _is_number(spec.cost_scale) or not math.isfinite(spec.cost_scale) or spec.cost_scale < 0:
+        raise HyperParameterError(f"{where}: cost_scale={spec.cost_scale!r}: must be a finite number >= 0")
+    bounds = spec.return_bounds
+    if (not isinstance(bounds, (tuple, list)) or len(bounds) != 2 or not all(_is_number(b) and math.isfinite(b) for b in bounds)
+            or not bounds[0] < bounds[1]):
+        raise HyperParameterError(f"{where}: return_bounds={list(bounds) if isinstance(bounds, (tuple, list)) else bounds!r}: "
+                                  "expected [low, high] with low < high")
+    validate_hparams(spec.name, spec.implementation, spec.hparams)
