@@ -47,7 +47,7 @@ def _fmt_duration(seconds: float) -> str:
 def _workers(sweep: SweepConfig) -> int:
     if sweep.launcher["name"] == "slurm":
         return int(sweep.launcher["array_parallelism"])
-    return int(sweep.launcher.get("workers") or os.cpu_count() or 1)
+    return int(sweep.launcher.get("workers") or len(os.sched_getaffinity(0)) or 1)
 
 
 def run_sweep(sweep: SweepConfig, console: Any = None) -> int:

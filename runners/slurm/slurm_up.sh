@@ -112,7 +112,10 @@ mkdir -p "$CONF_DIR" "$LOG_DIR" /var/spool/slurmctld /var/spool/slurmd
 # 1. Configuration. Written every time (so that a changed CPU/memory size is picked up) but
 #    replaced only when its content differs, so a second call does not disturb running daemons.
 # ---------------------------------------------------------------------------------------------
-ncpu=$(nproc)
+# The CPUs this process may run on. GNU nproc also honours OMP_NUM_THREADS / OMP_THREAD_LIMIT, which a
+# caller that pinned its own thread pools (the benchmarks, a sweep worker) has set to 1: that would
+# declare a 1-CPU node, so ignore them here.
+ncpu=$(env -u OMP_NUM_THREADS -u OMP_THREAD_LIMIT nproc)
 # 90% of MemTotal: slurmd drains a node whose RealMemory is above the memory it detects, so leave
 # a margin (and room for the daemons). Jobs asking for more than this are rejected at submit time.
 mem_mb=$(awk '/^MemTotal:/ {print int($2 / 1024 * 0.9)}' /proc/meminfo)
