@@ -1,0 +1,183 @@
+"""The fleet engine trains each of its runs exactly as the single-run learner would.
+
+* A fleet of one run and the single learner, from the same seed (hence the same initial weights,
+  action draws and minibatch order), end a few updates at the same parameters, optimiser moments
+  and per-update diagnostics, to float tolerance (batched matrix products may round differently
+  from ``addmm``), for each learner and protocol.
+* Runs of a fleet do not influence each other: in a fleet of three runs on different variants
+  and chains, changing one run's seed leaves the other two *bit for bit* unchanged, and each run
+  matches its own single run.
+* :class:`BatchedAdam` and the per-run clipping are ``torch.optim.Adam`` and ``clip_grad_norm_``
+  slice by slice, bit for bit, with per-run learning rates and masks.
+
+Budgets are tiny (rollouts of 64 steps x 8 envs, few epochs) so the whole file runs in seconds.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+import torch as th
+
+import morality_gym
+from morality_gym.baselines.fleet import FleetRun, build_fleet
+from morality_gym.baselines.fleet.optim import BatchedAdam, clip_grad_norm
+from morality_gym.baselines.learners import SB3Learner, build_learner
+from morality_gym.baselines.specs import LearnerSpec, SpecError, learner_spec
+
+SMALL = {
+    "ppo": {"n_steps": 64, "n_epochs": 2},
+    "ppo_shaped": {"n_steps": 64, "n_epochs": 2},
+    "ppo_lag": {"n_steps": 64, "n_epochs": 3},
+    "cpo": {"n_steps": 64, "n_critic_updates": 2},
+}
+ROLLOUT = 64 * 8
+CASES = [
+    ("ppo", "paper"),
+    ("ppo_shaped", "paper"),
+    ("ppo_lag", "paper"),
+    ("ppo_lag", "corrected"),
+]
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread() -> Iterator[None]:
+    before = th.get_num_threads()
+    th.set_num_threads(1)
+    yield
+    th.set_num_threads(before)
+
+
+def small_spec(name: str, **hparams: Any) -> LearnerSpec:
+    return learner_spec(name, {"hparams": {**SMALL[name], **hparams}})
+
+
+def bound(env_id: str = "PushOrSwitch-Human-v1", chain: str = "DualProcess") -> Any:
+    return morality_gym.bind_chain(chain, env_id)
+
+
+def assert_same_run(single: SB3Learner, fleet: SB3Learner, atol: float = 1e-6) -> None:
+    """Parameters, Adam moments, step counts and diagnostics rows of two runs agree."""
+    for (name, a), (_, b) in zip(single.model.policy.named_parameters(), fleet.model.policy.named_parameters()):
+        np.testing.assert_allclose(b.detach().numpy(), a.detach().numpy(), rtol=0, atol=atol, err_msg=name)
+    for opt in ("optimizer", "critic_optimizer"):
+        if not hasattr(single.model.policy, opt):
+            continue
+        sa, sb = getattr(single.model.policy, opt), getattr(fleet.model.policy, opt)
+        params = [p for group in sa.param_groups for p in group["params"]]
+        params_b = [p for group in sb.param_groups for p in group["params"]]
+        for pa, pb in zip(params, params_b):
+            if pa not in sa.state:
+                assert pb not in sb.state
+                continue
+            assert float(sa.state[pa]["step"]) == float(sb.state[pb]["step"])
+            np.testing.assert_allclose(sb.state[pb]["exp_avg"].numpy(), sa.state[pa]["exp_avg"].numpy(), rtol=0, atol=atol)
+    assert fleet.trained_steps == single.trained_steps
+    rows_a, rows_b = single.update_diagnostics(), fleet.update_diagnostics()
+    assert len(rows_a) == len(rows_b)
+    for ra, rb in zip(rows_a, rows_b):
+        assert ra.keys() == rb.keys()
+        for key, va in ra.items():
+            vb = rb[key]
+            if isinstance(va, (bool, int, np.integer)) or va is None:
+                assert vb == va, (key, va, vb)
+            else:
+                assert vb == pytest.approx(va, rel=1e-3, abs=1e-7), (key, va, vb)
+
+
+@pytest.mark.parametrize(("name", "protocol"), CASES)
+def test_fleet_of_one_trains_as_the_single_run(name: str, protocol: str) -> None:
+    spec = small_spec(name)
+    single = build_learner(spec, bound(), protocol, seed=3)
+    single.learn(3 * ROLLOUT, eval_every=0)
+    fleet = build_fleet(spec, [FleetRun(bound(), 3)], protocol)
+    assert fleet.learn(3 * ROLLOUT) == single.trained_steps
+    assert_same_run(single, fleet.learners()[0])  # type: ignore[arg-type]
+    if name in ("ppo_lag", "cpo"):
+        assert len(single.update_diagnostics()) == 3
+
+
+def test_fleet_learn_time_evaluations_are_the_single_runs() -> None:
+    spec = small_spec("ppo")
+    rows_single: list[dict[str, Any]] = []
+    rows_fleet: list[tuple[int, dict[str, Any]]] = []
+    single = build_learner(spec, bound(), "paper", seed=5)
+    single.learn(3 * ROLLOUT, eval_every=700, eval_episodes=4, on_eval=rows_single.append)
+    fleet = build_fleet(spec, [FleetRun(bound(), 5)], "paper")
+    fleet.learn(3 * ROLLOUT, eval_every=700, eval_episodes=4, on_eval=lambda k, row: rows_fleet.append((k, row)))
+    assert [r["step"] for r in rows_single] == [0, 704, 1400]  # first env step at or past each multiple of 700
+    assert [r["step"] for _, r in rows_fleet] == [r["step"] for r in rows_single]
+    assert {k for k, _ in rows_fleet} == {0}
+    for a, (_, b) in zip(rows_single, rows_fleet):
+        assert b["metric"] == pytest.approx(a["metric"], abs=1e-9)
+        assert b["exact_metric"] == pytest.approx(a["exact_metric"], abs=1e-6)
+    assert [r["step"] for r in fleet.learners()[0].learn_evals] == [0, 704, 1400]
+
+
+MIXED = [("PushOrSwitch-Human-v1", "DualProcess"), ("PushOrSwitch-Animal-v1", "Utility"), ("PushOrSwitch-HumanRobotA-v1", "Outcome")]
+
+
+@pytest.mark.parametrize(("name", "protocol"), [("ppo_shaped", "paper"), ("ppo_lag", "corrected")])
+def test_runs_of_a_fleet_do_not_influence_each_other(name: str, protocol: str) -> None:
+    spec = small_spec(name)
+    seeds_a, seeds_b = (1, 2, 3), (1, 99, 3)
+    fleets = []
+    for seeds in (seeds_a, seeds_b):
+        fleet = build_fleet(spec, [FleetRun(bound(e, c), s) for (e, c), s in zip(MIXED, seeds)], protocol)
+        fleet.learn(2 * ROLLOUT)
+        fleets.append(fleet.learners())
+    for k in (0, 2):
+        for (n, a), (_, b) in zip(fleets[0][k].model.policy.named_parameters(), fleets[1][k].model.policy.named_parameters()):
+            np.testing.assert_array_equal(a.detach().numpy(), b.detach().numpy(), err_msg=f"run {k} {n}")
+        assert fleets[0][k].update_diagnostics() == fleets[1][k].update_diagnostics()
+    moved = [(a - b).abs().max().item() for a, b in zip(fleets[0][1].model.policy.parameters(), fleets[1][1].model.policy.parameters())]
+    assert max(moved) > 1e-3  # the changed run did change
+    # Each run of the mixed fleet is its own single run (its variant, its chain's cost and reward).
+    for k, ((env_id, chain), seed) in enumerate(zip(MIXED, seeds_a)):
+        single = build_learner(spec, bound(env_id, chain), protocol, seed=seed)
+        single.learn(2 * ROLLOUT, eval_every=0)
+        assert_same_run(single, fleets[0][k])
+
+
+def test_batched_adam_and_clipping_are_torch_per_slice() -> None:
+    gen = th.Generator().manual_seed(0)
+    k_runs, shapes = 4, [(31, 64), (1, 64), (64, 6)]
+    stacked = [th.randn(k_runs, *s, generator=gen) for s in shapes]
+    singles = [[th.nn.Parameter(t[k].clone()) for t in stacked] for k in range(k_runs)]
+    torch_adams = [th.optim.Adam(ps, lr=1.0, eps=1e-5) for ps in singles]
+    fleet_adam = BatchedAdam(stacked, k_runs, eps=1e-5)
+    lrs = np.array([3e-4, 1e-3, 2e-4, 5e-5])
+    for it in range(25):
+        grads = [th.randn(k_runs, *s, generator=gen) * (1 + it) for s in shapes]
+        mask = np.array([True, it % 3 != 0, True, it % 2 == 0])
+        clipped, norms = clip_grad_norm(grads, 0.5)
+        fleet_adam.step(clipped, lrs, mask)
+        for k in range(k_runs):
+            for g, p in zip(grads, singles[k]):
+                p.grad = g[k].clone()
+            norm = th.nn.utils.clip_grad_norm_(singles[k], 0.5)
+            assert norm.item() == norms[k].item()
+            if mask[k]:
+                torch_adams[k].param_groups[0]["lr"] = float(lrs[k])
+                torch_adams[k].step()
+    for k in range(k_runs):
+        for t, p in zip(stacked, singles[k]):
+            np.testing.assert_array_equal(t[k].numpy(), p.detach().numpy())
+        for state, p in zip(fleet_adam.state_of(k), singles[k]):
+            torch_state = torch_adams[k].state[p]
+            assert float(state["step"]) == float(torch_state["step"])
+            np.testing.assert_array_equal(state["exp_avg_sq"].numpy(), torch_state["exp_avg_sq"].numpy())
+
+
+def test_fleet_refuses_what_it_does_not_reproduce() -> None:
+    with pytest.raises(SpecError, match="target_kl=0.01 is not reproduced by the fleet engine"):
+        build_fleet(small_spec("ppo", target_kl=0.01), [FleetRun(bound(), 0)])
+    with pytest.raises(SpecError, match="at least one run"):
+        build_fleet(small_spec("ppo"), [])
+    with pytest.raises(SpecError, match="does not train implementation 'random'"):
+        build_fleet(learner_spec("random"), [FleetRun(bound(), 0)])
+    with pytest.raises(ValueError, match="share an observation size"):
+        build_fleet(small_spec("ppo"), [FleetRun(bound(), 0), FleetRun(bound("Switch7-Human-v1"), 0)])
