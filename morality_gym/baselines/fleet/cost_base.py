@@ -99,9 +99,9 @@ class FleetCostTrainer(FleetTrainer):
         size, batch = ro.actions.shape[1], int(self.model.batch_size)
         value_losses, cost_value_losses = [], []
         for _ in range(int(self.model.n_critic_updates)):
-            order = self.permutations(size)
+            shuffled = ro.gather(self.permutations(size), "obs", "returns", "cost_returns")
             for start in range(0, size, batch):
-                obs, returns, cost_returns = ro.gather(order[:, start : start + batch], "obs", "returns", "cost_returns")
+                obs, returns, cost_returns = (f[:, start : start + batch] for f in shuffled)
                 loss, value_loss, cost_value_loss = self._critic_loss(obs, returns, cost_returns)
                 grads = list(th.autograd.grad(loss.sum(), self.critic_params))
                 self._step_critics(grads, critic_lr)

@@ -17,16 +17,12 @@ import numpy as np
 import torch as th
 
 
-def _per_run(values: np.ndarray, like: th.Tensor) -> th.Tensor:
-    """A ``[K]`` array as a tensor that broadcasts against ``like`` (``[K, 1, ...]``), in its dtype."""
-    return th.as_tensor(values, dtype=like.dtype).reshape((-1,) + (1,) * (like.dim() - 1))
-
-
 class BatchedAdam:
     """``torch.optim.Adam`` (no weight decay, no amsgrad) for ``K`` runs at once.
 
-    :param params: stacked tensors ``[K, ...]`` updated in place (leaf tensors; the update runs
-        under ``no_grad``).
+    :param params: stacked leaf tensors ``[K, ...]``. They are moved into one flat buffer (each
+        tensor's ``.data`` becomes a view of it), so a step is a handful of operations over all
+        parameters of all runs instead of a dozen per tensor; the tensors keep their shapes.
     :param eps: Adam's ``eps`` (PyTorch's default 1e-8; SB3's policies pass 1e-5).
     """
 
@@ -36,8 +32,29 @@ class BatchedAdam:
         self.beta1, self.beta2 = float(betas[0]), float(betas[1])
         self.eps = float(eps)
         self.steps = np.zeros(n_runs, dtype=np.int64)
-        self.exp_avg = [th.zeros_like(p) for p in self.params]
-        self.exp_avg_sq = [th.zeros_like(p) for p in self.params]
+        sizes = [p.numel() for p in self.params]
+        self._offsets = np.cumsum([0, *sizes])
+        self.flat = th.empty(int(self._offsets[-1]), dtype=self.params[0].dtype)
+        runs = []
+        with th.no_grad():
+            for p, start, end in zip(self.params, self._offsets[:-1], self._offsets[1:]):
+                if p.shape[0] != n_runs:
+                    raise ValueError(f"stacked parameter of shape {tuple(p.shape)} has no run axis of {n_runs}")
+                view = self.flat[start:end].view(p.shape)
+                view.copy_(p)
+                p.data = view
+                runs.append(th.arange(n_runs).repeat_interleave(p[0].numel()))
+        #: The run each element of the flat buffer belongs to.
+        self._run_of = th.cat(runs)
+        self.exp_avg = th.zeros_like(self.flat)
+        self.exp_avg_sq = th.zeros_like(self.flat)
+
+    def _per_element(self, values: np.ndarray) -> th.Tensor | float:
+        """A per-run ``[K]`` float array as a per-element factor (a plain scalar when all runs agree,
+        which is exact: the kernels round the scalar to float32 as they would the tensor)."""
+        if np.all(values == values[0]):
+            return float(values[0])
+        return th.as_tensor(values, dtype=self.flat.dtype)[self._run_of]
 
     @th.no_grad()
     def step(self, grads: Sequence[th.Tensor], lr: np.ndarray | float, mask: np.ndarray | None = None) -> None:
@@ -51,42 +68,35 @@ class BatchedAdam:
         # size and sqrt(bias_correction2) enter the float32 kernels as scalars, i.e. rounded to float32.
         bc1 = 1.0 - self.beta1 ** np.maximum(steps, 1).astype(np.float64)
         bc2_sqrt = (1.0 - self.beta2 ** np.maximum(steps, 1).astype(np.float64)) ** 0.5
-        step_size = lr / bc1
-        everyone = bool(active.all())
-        for i, (p, g) in enumerate(zip(self.params, grads)):
-            m, v = self.exp_avg[i], self.exp_avg_sq[i]
-            new_m = m.lerp(g, 1 - self.beta1)
-            new_v = (v * self.beta2).addcmul_(g, g, value=1 - self.beta2)
-            denom = (new_v.sqrt() / _per_run(bc2_sqrt, p)).add_(self.eps)
-            new_p = p - _per_run(step_size, p) * new_m / denom
-            if everyone:
-                m.copy_(new_m)
-                v.copy_(new_v)
-                p.copy_(new_p)
-            else:
-                keep = _per_run(active, p).bool()
-                m.copy_(th.where(keep, new_m, m))
-                v.copy_(th.where(keep, new_v, v))
-                p.copy_(th.where(keep, new_p, p))
+        step_size = np.where(active, lr / bc1, lr[active][0] / bc1[active][0])  # masked runs: any value
+        bc2_sqrt = np.where(active, bc2_sqrt, bc2_sqrt[active][0])
+        g = th.cat([x.reshape(-1) for x in grads])
+        m, v, p = self.exp_avg, self.exp_avg_sq, self.flat
+        new_m = m.lerp(g, 1 - self.beta1)
+        new_v = (v * self.beta2).addcmul_(g, g, value=1 - self.beta2)
+        denom = (new_v.sqrt() / self._per_element(bc2_sqrt)).add_(self.eps)
+        new_p = p - self._per_element(step_size) * new_m / denom
+        if active.all():
+            m.copy_(new_m)
+            v.copy_(new_v)
+            p.copy_(new_p)
+        else:
+            keep = th.as_tensor(active)[self._run_of]
+            m.copy_(th.where(keep, new_m, m))
+            v.copy_(th.where(keep, new_v, v))
+            p.copy_(th.where(keep, new_p, p))
         self.steps = steps
+
+    def _slices(self, buffer: th.Tensor, k: int) -> list[th.Tensor]:
+        return [buffer[a:b].view(p.shape)[k].clone() for p, a, b in zip(self.params, self._offsets[:-1], self._offsets[1:])]
 
     def state_of(self, k: int) -> list[dict[str, th.Tensor]]:
         """Run ``k``'s Adam state per parameter, as ``torch.optim.Adam.state`` holds it."""
+        step = th.tensor(float(self.steps[k]))
         return [
-            {"step": th.tensor(float(self.steps[k])), "exp_avg": m[k].clone(), "exp_avg_sq": v[k].clone()}
-            for m, v in zip(self.exp_avg, self.exp_avg_sq)
+            {"step": step.clone(), "exp_avg": m, "exp_avg_sq": v}
+            for m, v in zip(self._slices(self.exp_avg, k), self._slices(self.exp_avg_sq, k))
         ]
-
-    def load_state_of(self, k: int, states: Sequence[dict[str, th.Tensor]]) -> None:
-        """Set run ``k``'s state from ``torch.optim.Adam.state`` entries (same parameter order)."""
-        steps = {int(s["step"]) for s in states if "step" in s}
-        if len(steps) > 1:
-            raise ValueError(f"Adam state of run {k} has differing step counts {sorted(steps)}")
-        self.steps[k] = steps.pop() if steps else 0
-        with th.no_grad():
-            for m, v, s in zip(self.exp_avg, self.exp_avg_sq, states):
-                m[k] = s["exp_avg"] if "exp_avg" in s else 0.0
-                v[k] = s["exp_avg_sq"] if "exp_avg_sq" in s else 0.0
 
 
 def run_norms(grads: Sequence[th.Tensor]) -> th.Tensor:

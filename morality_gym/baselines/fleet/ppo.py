@@ -55,10 +55,10 @@ class FleetPPO(FleetTrainer):
         size = ro.actions.shape[1]
         batch = int(m.batch_size)
         for _ in range(int(m.n_epochs)):
-            order = self.permutations(size)
+            # Each run's rollout in its epoch order, gathered once; minibatches are then slices.
+            shuffled = ro.gather(self.permutations(size), "obs", "actions", "log_probs", "advantages", "returns")
             for start in range(0, size, batch):
-                index = order[:, start : start + batch]
-                obs, actions, old_log_prob, advantages, returns = ro.gather(index, "obs", "actions", "log_probs", "advantages", "returns")
+                obs, actions, old_log_prob, advantages, returns = (f[:, start : start + batch] for f in shuffled)
                 norm, probs = categorical(self.nets("pi", obs))
                 log_prob = norm.gather(-1, actions.unsqueeze(-1))[..., 0]
                 values = self.nets("vf", obs)[..., 0]

@@ -80,11 +80,9 @@ class FleetPPOLag(FleetCostTrainer):
                 break
             mask = None if active.all() else active.copy()
             order = th.from_numpy(np.stack([self.permutation(k, size) if active[k] else identity for k in range(k_runs)]))
+            shuffled = ro.gather(order, "obs", "actions", "log_probs", "advantages", "cost_advantages", "returns", "cost_returns")
             for start in range(0, size, batch):
-                index = order[:, start : start + batch]
-                obs, actions, old_log_prob, adv, cadv, returns, cost_returns = ro.gather(
-                    index, "obs", "actions", "log_probs", "advantages", "cost_advantages", "returns", "cost_returns"
-                )
+                obs, actions, old_log_prob, adv, cadv, returns, cost_returns = (f[:, start : start + batch] for f in shuffled)
                 norm, probs = categorical(self.nets("pi", obs))
                 log_prob = norm.gather(-1, actions.unsqueeze(-1))[..., 0]
                 ent = entropy(norm, probs)
