@@ -64,12 +64,13 @@ class FleetCostTrainer(FleetTrainer):
             runs = [normalize_advantages(np.ascontiguousarray(raw[:, k * e : (k + 1) * e]), mode).T.reshape(-1) for k in range(self.n_runs)]
             setattr(ro, field, th.from_numpy(np.stack(runs)))
 
-    def _full_batch_obs(self) -> th.Tensor:
-        """Each run's rollout observations in the order of its single run's ``_full_batch`` (which
-        draws a permutation; it only changes the order of sums, but the draw must be mirrored)."""
+    def _full_batch(self, *names: str) -> list[th.Tensor]:
+        """Each run's whole rollout (the named fields) in the order of its single run's
+        ``_full_batch``, which draws a permutation: it only changes the order of sums, but the draw
+        must be mirrored to keep the run's random stream."""
         ro = self.rollout
         assert ro is not None
-        return ro.gather(self.permutations(ro.actions.shape[1]), "obs")[0]
+        return ro.gather(self.permutations(ro.actions.shape[1]), *names)
 
     def _critic_loss(self, obs: th.Tensor, returns: th.Tensor, cost_returns: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """Per run ``[K]``: ``MSE(V, R) + MSE(V_c, R_c) + critic_l2_coef * sum ||theta_critic||^2``."""

@@ -59,7 +59,7 @@ class FleetPPOLag(FleetCostTrainer):
         mean_ep_costs = self.mean_episode_costs()
         lam = self._update_multipliers(mean_ep_costs)
         self._normalize_advantages()
-        full_obs = self._full_batch_obs()
+        (full_obs,) = self._full_batch("obs")
         with th.no_grad():
             old_logits = self._logits(full_obs)
         lam32 = th.as_tensor(lam, dtype=th.float32).unsqueeze(1)

@@ -1,0 +1,215 @@
+"""CPO for a fleet: :class:`~morality_gym.baselines.safe.cpo.CPO`'s update, K runs at once.
+
+Per run, as the single learner: the reward and cost surrogate gradients ``g`` and ``b``, conjugate
+gradients on Fisher-vector products for ``v = H^-1 g`` and ``w = H^-1 b``, the case and full step
+of :mod:`~morality_gym.baselines.safe.cpo_dual` (``dual_solution``), the backtracking line search
+with its acceptance rule, then the critics' regression.
+
+Batched: the Fisher-vector products of all runs are one double-backward pass (the runs' mean KLs
+are summed; their parameters are disjoint slices, so each slice of the gradient is its run's own);
+conjugate gradients run for all runs together and each run stops on its own residual (a stopped
+run's solution is frozen); every line-search candidate is evaluated for all runs still searching in
+one forward pass, each run with its own step fraction, acceptance and bookkeeping. The case logic
+and the dual solutions are the single learner's functions, called per run.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import torch as th
+
+from morality_gym.baselines.fleet.base import categorical
+from morality_gym.baselines.fleet.cost_base import FleetCostTrainer
+from morality_gym.baselines.safe.cpo_dual import CPOCase, CPOScalars, CPOStep, exact_direction, omnisafe_direction
+from morality_gym.baselines.safe.functional import categorical_kl
+
+
+class FleetCPO(FleetCostTrainer):
+    implementation = "cpo"
+
+    # ------------------------------------------------------------------ flat actor vectors
+    def _flat(self, tensors: list[th.Tensor] | tuple[th.Tensor, ...]) -> th.Tensor:
+        """``[K, D]``: each run's slices of the actor tensors, concatenated."""
+        return th.cat([t.reshape(self.n_runs, -1) for t in tensors], dim=1)
+
+    @th.no_grad()
+    def _set_actor(self, flat: th.Tensor) -> None:
+        start = 0
+        for p in self.actor_params:
+            n = p[0].numel()
+            p.copy_(flat[:, start : start + n].reshape(p.shape))
+            start += n
+
+    # ------------------------------------------------------------------ step direction
+    def _step_directions(
+        self, obs: th.Tensor, actions: th.Tensor, old_log_prob: th.Tensor, adv: th.Tensor, cadv: th.Tensor,
+        old_logits: th.Tensor, c: np.ndarray,
+    ) -> tuple[list[CPOStep], th.Tensor, list[CPOScalars], th.Tensor]:
+        """Every run's ``(step, g, scalars)`` of ``CPO._step_direction``; also the ``[K, D]`` directions."""
+        m, params = self.model, self.actor_params
+        norm, _ = categorical(self.nets("pi", obs))
+        log_prob = norm.gather(-1, actions.unsqueeze(-1))[..., 0]
+        ratio = th.exp(log_prob - old_log_prob)
+        g = self._flat(th.autograd.grad((ratio * adv).mean(dim=1).sum(), params, retain_graph=True))
+        b = self._flat(th.autograd.grad((ratio * cadv).mean(dim=1).sum(), params, retain_graph=True))
+        mean_kl = categorical_kl(old_logits, norm).mean(dim=1)
+        grad_kl = self._flat(th.autograd.grad(mean_kl.sum(), params, create_graph=True, retain_graph=True))
+        damping = float(m.cg_damping)
+
+        def fvp(vector: th.Tensor) -> th.Tensor:
+            hv = th.autograd.grad((grad_kl * vector).sum(), params, retain_graph=True)
+            return self._flat(hv).detach() + damping * vector
+
+        v = self._conjugate_gradient(fvp, g)
+        vhv = (v * fvp(v)).sum(dim=1)
+        w = self._conjugate_gradient(fvp, b)
+        r, s, bb = (g * w).sum(dim=1), (b * w).sum(dim=1), (b * b).sum(dim=1)
+        direction_of = omnisafe_direction if m.dual_solution == "omnisafe" else exact_direction
+        steps, scalars = [], []
+        for k in range(self.n_runs):
+            sc = CPOScalars(q=vhv[k].item(), r=r[k].item(), s=s[k].item(), c=float(c[k]), delta=float(m.target_kl), bb=bb[k].item())
+            steps.append(direction_of(v[k], w[k], sc, vhv[k].item()))
+            scalars.append(sc)
+        directions = th.stack([st.direction.to(th.float32) for st in steps])
+        if m.trust_region_rescale:
+            quad = (directions * fvp(directions)).sum(dim=1)
+            for k, st in enumerate(steps):
+                if st.direction.abs().sum() > 0 and quad[k].item() > 2 * m.target_kl:
+                    scaled = st.direction * math.sqrt(2 * m.target_kl / quad[k].item())
+                    steps[k] = CPOStep(scaled, st.case, st.lam, st.nu, st.A, st.B)
+            directions = th.stack([st.direction.to(th.float32) for st in steps])
+        return steps, g.detach(), scalars, directions
+
+    def _conjugate_gradient(self, fvp: Any, b: th.Tensor) -> th.Tensor:
+        """:func:`~morality_gym.baselines.safe.functional.conjugate_gradient` for every run, each
+        stopping on its own residual."""
+        m = self.model
+        eps, tol = float(m.cg_eps), float(m.cg_residual_tol)
+        x = th.zeros_like(b)
+        residual = b.clone()
+        direction = residual.clone()
+        rdotr = (residual * residual).sum(dim=1)
+        done = th.zeros(self.n_runs, dtype=th.bool)
+        for _ in range(int(m.cg_max_steps)):
+            h_direction = fvp(direction)
+            alpha = (rdotr / ((direction * h_direction).sum(dim=1) + eps)).unsqueeze(1)
+            live = (~done).unsqueeze(1)
+            x = th.where(live, x + alpha * direction, x)
+            residual = th.where(live, residual - alpha * h_direction, residual)
+            new_rdotr = (residual * residual).sum(dim=1)
+            converged = th.sqrt(new_rdotr) < tol
+            go_on = ~done & ~converged
+            direction = th.where(go_on.unsqueeze(1), residual + (new_rdotr / (rdotr + eps)).unsqueeze(1) * direction, direction)
+            rdotr = th.where(go_on, new_rdotr, rdotr)
+            done = done | converged
+            if bool(done.all()):
+                break
+        return x
+
+    # ------------------------------------------------------------------ line search
+    @th.no_grad()
+    def _surrogates(self, obs: th.Tensor, actions: th.Tensor, old_log_prob: th.Tensor, adv: th.Tensor, cadv: th.Tensor) -> tuple[th.Tensor, np.ndarray, np.ndarray, np.ndarray]:
+        """``(logits, L_r, L_c, valid)`` of every run's current actor (``valid``: its distribution
+        can be built, i.e. no NaN logits, where the single learner gets a ``ValueError``)."""
+        norm, _ = categorical(self.nets("pi", obs))
+        ratio = th.exp(norm.gather(-1, actions.unsqueeze(-1))[..., 0] - old_log_prob)
+        valid = ~th.isnan(norm).reshape(self.n_runs, -1).any(dim=1)
+        return norm, (ratio * adv).mean(dim=1).double().numpy(), (ratio * cadv).mean(dim=1).double().numpy(), valid.numpy()
+
+    def _accepts(self, step: CPOStep, d_reward: float, d_cost: float, kl: float, c: float, expected: float) -> bool:
+        m = self.model
+        if kl > m.target_kl or d_cost > max(-c, 0.0):
+            return False
+        if m.line_search_accept == "omnisafe":
+            return not (step.case > CPOCase.FEASIBLE_RECOVERY and d_reward < 0)
+        if step.case == CPOCase.INFEASIBLE:
+            return d_cost < 0
+        return d_reward > 0 if expected > 0 else d_cost < 0
+
+    def _line_search(self, data: list[th.Tensor], old_logits: th.Tensor, steps: list[CPOStep], directions: th.Tensor, g: th.Tensor, c: np.ndarray) -> list[dict[str, Any]]:
+        """``CPO._line_search`` for every run; leaves each run's actor at its accepted point (or unchanged)."""
+        m, k_runs = self.model, self.n_runs
+        theta_old = self._flat([p.detach() for p in self.actor_params]).clone()
+        _, reward_old, cost_old, _ = self._surrogates(*data)
+        expected = (g * directions).sum(dim=1).double().numpy()
+        results = [{"accept_step": 0, "fraction": 0.0, "kl": math.nan, "tried": 0, "d_reward": 0.0, "d_cost": 0.0} for _ in range(k_runs)]
+        fraction = np.ones(k_runs)
+        searching = np.ones(k_runs, dtype=bool)
+        shrink = float(m.line_search_shrinking_factor)
+        for j in range(int(m.line_search_max_iter)):
+            if not searching.any():
+                break
+            # Runs that are done sit at fraction 0 (their old point) while the others are tried.
+            frac32 = th.as_tensor(np.where(searching, fraction, 0.0), dtype=th.float32).unsqueeze(1)
+            self._set_actor(theta_old + frac32 * directions)
+            logits, reward_new, cost_new, valid = self._surrogates(*data)
+            kls = categorical_kl(old_logits, logits).mean(dim=1).double().numpy()
+            for k in np.flatnonzero(searching):
+                res = results[k]
+                res["tried"] = j + 1
+                if not valid[k]:
+                    fraction[k] *= shrink
+                    continue
+                kl, d_reward, d_cost = float(kls[k]), float(reward_new[k] - reward_old[k]), float(cost_new[k] - cost_old[k])
+                res.update(kl=kl, d_reward=d_reward, d_cost=d_cost)
+                if not math.isfinite(kl):
+                    if m.line_search_accept != "omnisafe":
+                        fraction[k] *= shrink
+                    continue
+                if self._accepts(steps[k], d_reward, d_cost, kl, float(c[k]), float(expected[k])):
+                    res.update(accept_step=j + 1, fraction=float(fraction[k]))
+                    searching[k] = False
+                    continue
+                fraction[k] *= shrink
+        for k in np.flatnonzero(searching):
+            results[k].update(d_reward=0.0, d_cost=0.0)
+        accepted = th.as_tensor([r["fraction"] for r in results], dtype=th.float32).unsqueeze(1)
+        self._set_actor(theta_old + accepted * directions)
+        return results
+
+    # ------------------------------------------------------------------ update
+    def _train(self) -> None:
+        m = self.model
+        _, critic_lr = self._learning_rates(actor=False)
+        mean_ep_costs = self.mean_episode_costs()
+        c = mean_ep_costs - float(m.cost_limit)
+        self._normalize_advantages()
+        data = self._full_batch("obs", "actions", "log_probs", "advantages", "cost_advantages")
+        with th.no_grad():
+            old_logits = self._logits(data[0])
+        steps, g, scalars, directions = self._step_directions(*data, old_logits, c)
+        search = self._line_search(data, old_logits, steps, directions, g, c)
+        with th.no_grad():
+            kl_mean = categorical_kl(old_logits, self._logits(data[0])).mean(dim=1).double().numpy()
+        value_loss, cost_value_loss = self._train_critics()
+        for k in range(self.n_runs):
+            step, sc, res = steps[k], scalars[k], search[k]
+            taken = res["fraction"] * directions[k]
+            self._row(
+                k, mean_ep_costs[k], None, critic_lr,
+                kl=res["kl"],
+                kl_mean=float(kl_mean[k]),
+                cpo_case=int(step.case),
+                accept_step=int(res["accept_step"]),
+                line_search_tried=int(res["tried"]),
+                step_fraction=res["fraction"],
+                lambda_star=step.lam,
+                nu_star=step.nu,
+                A=step.A,
+                B=step.B,
+                q=sc.q,
+                r=sc.r,
+                s=sc.s,
+                c=float(c[k]),
+                b_norm=math.sqrt(max(sc.bb, 0.0)),
+                full_step_norm=directions[k].norm().item(),
+                step_norm=taken.norm().item(),
+                expected_reward_change=(g[k] @ taken).item(),
+                surrogate_reward_change=res["d_reward"],
+                surrogate_cost_change=res["d_cost"],
+                value_loss=float(value_loss[k]),
+                cost_value_loss=float(cost_value_loss[k]),
+            )
