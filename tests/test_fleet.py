@@ -205,3 +205,14 @@ def test_fleet_refuses_what_it_does_not_reproduce() -> None:
         build_fleet(learner_spec("random"), [FleetRun(bound(), 0)])
     with pytest.raises(ValueError, match="share an observation size"):
         build_fleet(small_spec("ppo"), [FleetRun(bound(), 0), FleetRun(bound("Switch7-Human-v1"), 0)])
+
+
+def test_rollout_noise_draws_the_actions_torch_multinomial_draws() -> None:
+    """Drawing a rollout's exponential noise at once and taking ``argmax(probs / q)`` per step gives
+    the actions (and leaves the generator in the state) of ``torch.multinomial`` step by step."""
+    probs = th.softmax(th.randn(300, 8, 6, generator=th.Generator().manual_seed(3)) * 3, dim=-1)
+    stepwise, at_once = th.Generator().manual_seed(11), th.Generator().manual_seed(11)
+    expected = th.stack([th.multinomial(probs[t], 1, True, generator=stepwise)[:, 0] for t in range(300)])
+    noise = th.empty(300, 8, 6).exponential_(1, generator=at_once)
+    np.testing.assert_array_equal((probs / noise).argmax(dim=-1).numpy(), expected.numpy())
+    assert th.equal(stepwise.get_state(), at_once.get_state())

@@ -7,7 +7,7 @@ for its bound chain and seed, and the fleet reproduces that run's arithmetic ste
 * **Start.** Each run's single-run learner is built (SB3 seeds its RNGs and initialises the policy
   exactly as for a single run); its weights are copied into the run's slice of the stacked
   networks, and torch's and numpy's global RNG states *after* construction become the run's own
-  generators. So a run samples the actions (``torch.multinomial`` on the run's ``torch.Generator``)
+  generators. So a run samples the actions (``torch.multinomial``'s arithmetic on the run's ``torch.Generator``)
   and draws the minibatch permutations (``RandomState.permutation``) that its single run would
   draw, in the same order, and no run's draws depend on another run. The learners are kept: they
   take the trained weights back at the end (:meth:`FleetTrainer.learners`) and evaluate, save and
@@ -273,10 +273,23 @@ class FleetTrainer:
         return list(self._learners)
 
     # ------------------------------------------------------------------ rollouts
-    def _policy_step(self, obs: th.Tensor) -> tuple[th.Tensor, ...]:
-        """Actions (sampled per run from its own generator), values, log-probs and cost values."""
+    def _draw_action_noise(self) -> None:
+        """Every run's exponential noise for the whole coming rollout, from its own generator.
+
+        ``torch.multinomial(probs, 1)`` (how ``Categorical.sample`` draws one action) is
+        ``argmax(probs / q)`` with ``q = empty_like(probs).exponential_(1)`` on the caller's
+        generator, element after element. Drawing a rollout's ``q`` in one call per run consumes
+        each generator exactly as the rollout's per-step draws would (a test checks the actions
+        against ``torch.multinomial``), and turns K sampling calls per step into one ``argmax``.
+        """
+        shape = (self.n_steps, self.n_envs, 6)
+        self._action_noise = th.stack([th.empty(shape).exponential_(1, generator=g) for g in self.torch_generators])
+
+    def _policy_step(self, obs: th.Tensor, t: int) -> tuple[th.Tensor, ...]:
+        """Actions (sampled per run from its own noise, step ``t`` of the rollout), values,
+        log-probs and cost values."""
         norm, probs = categorical(self.nets("pi", obs))
-        actions = th.stack([th.multinomial(probs[k], 1, True, generator=g) for k, g in enumerate(self.torch_generators)])
+        actions = (probs / self._action_noise[:, t]).argmax(dim=-1, keepdim=True)
         log_probs = norm.gather(-1, actions)[..., 0]
         values = self.nets("vf", obs)[..., 0]
         cost_values = self.nets("cf", obs)[..., 0] if self.cost_aware else None
@@ -310,9 +323,10 @@ class FleetTrainer:
             cost_buf = np.zeros((t_steps, n), dtype=np.float32)
             cval_buf = np.zeros((t_steps, n), dtype=np.float32)
             cost_gamma = float(self.model.cost_gamma)
+        self._draw_action_noise()
         for t in range(t_steps):
             with th.no_grad():
-                actions, values, log_probs, cost_values = self._policy_step(th.from_numpy(self._last_obs).view(k_runs, e, d))
+                actions, values, log_probs, cost_values = self._policy_step(th.from_numpy(self._last_obs).view(k_runs, e, d), t)
             act = actions.reshape(n).numpy()
             step = self.env.step(act)
             self.num_timesteps += e
