@@ -27,7 +27,7 @@ sum in another order than ``addmm``, so results agree to float tolerance, not bi
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -73,6 +73,20 @@ class Rollout:
         """The named fields at per-run positions ``index`` (``[K, B]``)."""
         rows = th.arange(index.shape[0]).unsqueeze(1)
         return [getattr(self, n)[rows, index] for n in names]
+
+    def minibatches(self, order: th.Tensor, batch_size: int, *names: str) -> Iterator[tuple[th.Tensor, ...]]:
+        """The named fields in each run's ``order`` (``[K, M]``), ``batch_size`` transitions at a time
+        (the last batch may be shorter, as SB3's). Gathered once per call; the minibatches are
+        contiguous blocks when ``batch_size`` divides ``M`` (faster batched products)."""
+        fields = self.gather(order, *names)
+        size = order.shape[1]
+        if size % batch_size == 0:
+            blocks = [f.reshape(f.shape[0], size // batch_size, batch_size, *f.shape[2:]).movedim(1, 0).contiguous() for f in fields]
+            for i in range(size // batch_size):
+                yield tuple(b[i] for b in blocks)
+            return
+        for start in range(0, size, batch_size):
+            yield tuple(f[:, start : start + batch_size] for f in fields)
 
 
 def categorical(logits: th.Tensor) -> tuple[th.Tensor, th.Tensor]:

@@ -55,10 +55,9 @@ class FleetPPO(FleetTrainer):
         size = ro.actions.shape[1]
         batch = int(m.batch_size)
         for _ in range(int(m.n_epochs)):
-            # Each run's rollout in its epoch order, gathered once; minibatches are then slices.
-            shuffled = ro.gather(self.permutations(size), "obs", "actions", "log_probs", "advantages", "returns")
-            for start in range(0, size, batch):
-                obs, actions, old_log_prob, advantages, returns = (f[:, start : start + batch] for f in shuffled)
+            for obs, actions, old_log_prob, advantages, returns in ro.minibatches(
+                self.permutations(size), batch, "obs", "actions", "log_probs", "advantages", "returns"
+            ):
                 norm, probs = categorical(self.nets("pi", obs))
                 log_prob = norm.gather(-1, actions.unsqueeze(-1))[..., 0]
                 values = self.nets("vf", obs)[..., 0]

@@ -80,9 +80,9 @@ class FleetPPOLag(FleetCostTrainer):
                 break
             mask = None if active.all() else active.copy()
             order = th.from_numpy(np.stack([self.permutation(k, size) if active[k] else identity for k in range(k_runs)]))
-            shuffled = ro.gather(order, "obs", "actions", "log_probs", "advantages", "cost_advantages", "returns", "cost_returns")
-            for start in range(0, size, batch):
-                obs, actions, old_log_prob, adv, cadv, returns, cost_returns = (f[:, start : start + batch] for f in shuffled)
+            for obs, actions, old_log_prob, adv, cadv, returns, cost_returns in ro.minibatches(
+                order, batch, "obs", "actions", "log_probs", "advantages", "cost_advantages", "returns", "cost_returns"
+            ):
                 norm, probs = categorical(self.nets("pi", obs))
                 log_prob = norm.gather(-1, actions.unsqueeze(-1))[..., 0]
                 ent = entropy(norm, probs)
@@ -95,7 +95,7 @@ class FleetPPOLag(FleetCostTrainer):
                 total = policy_loss - m.ent_coef * entropy_mean + critic_loss
                 grads = th.autograd.grad(total.sum(), self.actor_params + self.critic_params)
                 n_actor = len(self.actor_params)
-                self._step_critics(list(grads[n_actor:]), critic_lr, mask)
+                self._step_critics(self._with_l2(grads[n_actor:]), critic_lr, mask)
                 actor_grads, _ = clip_grad_norm(grads[:n_actor], max_norm)
                 self.actor_optimizer.step(actor_grads, actor_lr, mask)  # type: ignore[arg-type]
 
