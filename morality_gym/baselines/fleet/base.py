@@ -69,16 +69,20 @@ class Rollout:
     cost_advantages: th.Tensor | None = None
     cost_returns: th.Tensor | None = None
 
-    def gather(self, index: th.Tensor, *names: str) -> list[th.Tensor]:
-        """The named fields at per-run positions ``index`` (``[K, B]``)."""
-        rows = th.arange(index.shape[0]).unsqueeze(1)
+    def gather(self, index: th.Tensor, *names: str, runs: th.Tensor | None = None) -> list[th.Tensor]:
+        """The named fields at per-run positions ``index`` (``[K, B]``; with ``runs``, ``index`` has
+        one row per listed run)."""
+        rows = (th.arange(index.shape[0]) if runs is None else runs).unsqueeze(1)
         return [getattr(self, n)[rows, index] for n in names]
 
-    def minibatches(self, order: th.Tensor, batch_size: int, *names: str) -> Iterator[tuple[th.Tensor, ...]]:
-        """The named fields in each run's ``order`` (``[K, M]``), ``batch_size`` transitions at a time
-        (the last batch may be shorter, as SB3's). Gathered once per call; the minibatches are
-        contiguous blocks when ``batch_size`` divides ``M`` (faster batched products)."""
-        fields = self.gather(order, *names)
+    def minibatches(
+        self, order: th.Tensor, batch_size: int, *names: str, runs: th.Tensor | None = None
+    ) -> Iterator[tuple[th.Tensor, ...]]:
+        """The named fields in each run's ``order`` (``[K, M]``, or one row per run of ``runs``),
+        ``batch_size`` transitions at a time (the last batch may be shorter, as SB3's). Gathered
+        once per call; the minibatches are contiguous blocks when ``batch_size`` divides ``M``
+        (faster batched products)."""
+        fields = self.gather(order, *names, runs=runs)
         size = order.shape[1]
         if size % batch_size == 0:
             blocks = [f.reshape(f.shape[0], size // batch_size, batch_size, *f.shape[2:]).movedim(1, 0).contiguous() for f in fields]

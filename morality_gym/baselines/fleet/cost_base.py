@@ -73,14 +73,16 @@ class FleetCostTrainer(FleetTrainer):
         assert ro is not None
         return ro.gather(self.permutations(ro.actions.shape[1]), *names)
 
-    def _critic_loss(self, obs: th.Tensor, returns: th.Tensor, cost_returns: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
-        """Per run ``[K]``: ``(MSE(V, R) + MSE(V_c, R_c), MSE(V, R), MSE(V_c, R_c))``.
+    def _critic_loss(
+        self, obs: th.Tensor, returns: th.Tensor, cost_returns: th.Tensor, runs: th.Tensor | None = None
+    ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        """Per run ``[K]`` (or per run of ``runs``): ``(MSE(V, R) + MSE(V_c, R_c), MSE(V, R), MSE(V_c, R_c))``.
 
         The single learner's loss also has ``critic_l2_coef * sum ||theta_critic||^2``; its gradient
         is added by :meth:`_with_l2` instead of being differentiated (the loss value itself is
         never logged)."""
-        values = self.nets("vf", obs)[..., 0]
-        cost_values = self.nets("cf", obs)[..., 0]
+        values = self.nets("vf", obs, runs)[..., 0]
+        cost_values = self.nets("cf", obs, runs)[..., 0]
         value_loss = ((values - returns) ** 2).mean(dim=1)
         cost_value_loss = ((cost_values - cost_returns) ** 2).mean(dim=1)
         return value_loss + cost_value_loss, value_loss, cost_value_loss
@@ -121,9 +123,9 @@ class FleetCostTrainer(FleetTrainer):
                 cost_value_losses.append(cost_value_loss.detach().numpy().astype(np.float64))
         return np.mean(value_losses, axis=0), np.mean(cost_value_losses, axis=0)
 
-    def _logits(self, obs: th.Tensor) -> th.Tensor:
-        """Normalised logits (``dist.distribution.logits``) of every run's actor."""
-        return categorical(self.nets("pi", obs))[0]
+    def _logits(self, obs: th.Tensor, runs: th.Tensor | None = None) -> th.Tensor:
+        """Normalised logits (``dist.distribution.logits``) of every run's actor (or of ``runs``)."""
+        return categorical(self.nets("pi", obs, runs))[0]
 
     def _row(self, k: int, ep_cost: float, actor_lr: float | None, critic_lr: float, **fields: Any) -> None:
         """Append run ``k``'s diagnostics row (``CostOnPolicyAlgorithm._record_update``)."""

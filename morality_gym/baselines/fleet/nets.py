@@ -69,8 +69,13 @@ class FleetNetworks:
         """The stacked tensors of the given heads, ``W0, b0, W1, b1, ...`` head after head."""
         return [t for head in heads for layer in self.heads[head] for t in layer]
 
-    def __call__(self, head: str, x: th.Tensor) -> th.Tensor:
-        return forward(self.heads[head], x, self.activation)
+    def __call__(self, head: str, x: th.Tensor, runs: th.Tensor | None = None) -> th.Tensor:
+        """``head`` of every run on ``x`` (``[K, B, in]``), or of the runs ``runs`` (indices) on
+        ``x`` of shape ``[len(runs), B, in]`` (gradients still reach the full stacked tensors)."""
+        layers = self.heads[head]
+        if runs is not None:
+            layers = [(w[runs], b[runs]) for w, b in layers]
+        return forward(layers, x, self.activation)
 
     @th.no_grad()
     def load_run(self, k: int, policy: nn.Module) -> None:

@@ -5,7 +5,8 @@ up to ``n_epochs`` passes of clipped-surrogate minibatches with the combined adv
 ``(A_r - lambda A_c) / (1 + lambda)``, both critics and the actor stepped on every minibatch with
 their own clipping. After each pass each run tests its own KL (summed or averaged over its states);
 a run whose KL exceeds ``target_kl`` is masked out of the passes that follow (no parameter, Adam
-moment or step count of it changes, and it draws no further permutation) while the others go on.
+moment or step count of it changes, and it draws no further permutation) while the others go on;
+the passes that follow compute only the runs still going.
 The loop ends when every run has stopped or ``n_epochs`` passes are done.
 """
 
@@ -74,24 +75,27 @@ class FleetPPOLag(FleetCostTrainer):
         kl_mean = np.zeros(k_runs)
         stats: dict[str, list[np.ndarray]] = {key: [] for key in ("policy", "value", "cost_value", "entropy", "clip_fraction")}
         stat_masks: list[np.ndarray] = []
-        identity = np.arange(size)
         for _ in range(int(m.n_epochs)):
             if not active.any():
                 break
-            mask = None if active.all() else active.copy()
-            order = th.from_numpy(np.stack([self.permutation(k, size) if active[k] else identity for k in range(k_runs)]))
+            # Only the runs still passing are computed (``runs``: their indices); the stopped ones
+            # get zero gradients and are masked out of the optimiser steps.
+            idx = np.flatnonzero(active)
+            mask, runs = (None, None) if active.all() else (active.copy(), th.from_numpy(idx))
+            sub = slice(None) if runs is None else runs
+            order = th.from_numpy(np.stack([self.permutation(k, size) for k in idx]))
             for obs, actions, old_log_prob, adv, cadv, returns, cost_returns in ro.minibatches(
-                order, batch, "obs", "actions", "log_probs", "advantages", "cost_advantages", "returns", "cost_returns"
+                order, batch, "obs", "actions", "log_probs", "advantages", "cost_advantages", "returns", "cost_returns", runs=runs
             ):
-                norm, probs = categorical(self.nets("pi", obs))
+                norm, probs = categorical(self.nets("pi", obs, runs))
                 log_prob = norm.gather(-1, actions.unsqueeze(-1))[..., 0]
                 ent = entropy(norm, probs)
-                advantages = (adv - lam32 * cadv) / one_plus
+                advantages = (adv - lam32[sub] * cadv) / one_plus[sub]
                 ratio = th.exp(log_prob - old_log_prob)
                 clipped = th.clamp(ratio, 1.0 - clip_range, 1.0 + clip_range)
                 policy_loss = -th.min(ratio * advantages, clipped * advantages).mean(dim=1)
                 entropy_mean = ent.mean(dim=1)
-                critic_loss, value_loss, cost_value_loss = self._critic_loss(obs, returns, cost_returns)
+                critic_loss, value_loss, cost_value_loss = self._critic_loss(obs, returns, cost_returns, runs)
                 total = policy_loss - m.ent_coef * entropy_mean + critic_loss
                 grads = th.autograd.grad(total.sum(), self.actor_params + self.critic_params)
                 n_actor = len(self.actor_params)
@@ -100,19 +104,20 @@ class FleetPPOLag(FleetCostTrainer):
                 self.actor_optimizer.step(actor_grads, actor_lr, mask)  # type: ignore[arg-type]
 
                 with th.no_grad():
-                    stats["policy"].append(policy_loss.double().numpy())
-                    stats["value"].append(value_loss.double().numpy())
-                    stats["cost_value"].append(cost_value_loss.double().numpy())
-                    stats["entropy"].append(entropy_mean.double().numpy())
-                    stats["clip_fraction"].append(((ratio - 1.0).abs() > clip_range).float().mean(dim=1).double().numpy())
+                    clip_fraction = ((ratio - 1.0).abs() > clip_range).float().mean(dim=1)
+                    for key, value in (("policy", policy_loss), ("value", value_loss), ("cost_value", cost_value_loss),
+                                       ("entropy", entropy_mean), ("clip_fraction", clip_fraction)):
+                        row = np.zeros(k_runs)
+                        row[idx] = value.double().numpy()
+                        stats[key].append(row)
                 stat_masks.append(active.copy())
             passes += active
             with th.no_grad():
-                per_state = categorical_kl(old_logits, self._logits(full_obs))
+                per_state = categorical_kl(old_logits[sub], self._logits(full_obs[sub], runs))
                 tested = (per_state.sum(dim=1) if m.kl_early_stop_reduction == "sum" else per_state.mean(dim=1)).double().numpy()
                 means = per_state.mean(dim=1).double().numpy()
-            kl_tested = np.where(active, tested, kl_tested)
-            kl_mean = np.where(active, means, kl_mean)
+            kl_tested[idx] = tested
+            kl_mean[idx] = means
             if m.target_kl is not None:
                 stop = active & (kl_tested > m.target_kl)
                 early |= stop
