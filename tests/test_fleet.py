@@ -166,30 +166,43 @@ def test_runs_of_a_fleet_do_not_influence_each_other(name: str, protocol: str, h
         assert_same_run(single, fleets[0][k], atol=1e-4 if hparams else 1e-6)
 
 
-def test_batched_adam_and_clipping_are_torch_per_slice() -> None:
+@pytest.mark.parametrize("groups", [None, [[0, 1], [2]]])
+def test_batched_adam_and_clipping_are_torch_per_slice(groups: list[list[int]] | None) -> None:
+    """Per slice, bit for bit: clipping (one norm over all tensors, or one per group, as the
+    per-critic clip) and Adam with per-run learning rates and masks; both the separate
+    :func:`clip_grad_norm` and the clipping inside :meth:`BatchedAdam.step`."""
     gen = th.Generator().manual_seed(0)
     k_runs, shapes = 4, [(31, 64), (1, 64), (64, 6)]
     stacked = [th.randn(k_runs, *s, generator=gen) for s in shapes]
+    inner = [t.clone() for t in stacked]
     singles = [[th.nn.Parameter(t[k].clone()) for t in stacked] for k in range(k_runs)]
     torch_adams = [th.optim.Adam(ps, lr=1.0, eps=1e-5) for ps in singles]
     fleet_adam = BatchedAdam(stacked, k_runs, eps=1e-5)
+    inner_adam = BatchedAdam(inner, k_runs, eps=1e-5)
     lrs = np.array([3e-4, 1e-3, 2e-4, 5e-5])
+    tensor_groups = groups or [[0, 1, 2]]
     for it in range(25):
         grads = [th.randn(k_runs, *s, generator=gen) * (1 + it) for s in shapes]
         mask = np.array([True, it % 3 != 0, True, it % 2 == 0])
-        clipped, norms = clip_grad_norm(grads, 0.5)
+        clipped = list(grads)
+        for grp in tensor_groups:
+            part, norms = clip_grad_norm([grads[i] for i in grp], 0.5)
+            for i, c in zip(grp, part):
+                clipped[i] = c
+            for k in range(k_runs):
+                for i in grp:
+                    singles[k][i].grad = grads[i][k].clone()
+                norm = th.nn.utils.clip_grad_norm_([singles[k][i] for i in grp], 0.5)
+                assert norm.item() == norms[k].item()
         fleet_adam.step(clipped, lrs, mask)
-        for k in range(k_runs):
-            for g, p in zip(grads, singles[k]):
-                p.grad = g[k].clone()
-            norm = th.nn.utils.clip_grad_norm_(singles[k], 0.5)
-            assert norm.item() == norms[k].item()
-            if mask[k]:
-                torch_adams[k].param_groups[0]["lr"] = float(lrs[k])
-                torch_adams[k].step()
+        inner_adam.step(grads, lrs, mask, max_norm=0.5, clip_groups=groups)
+        for k in np.flatnonzero(mask):
+            torch_adams[k].param_groups[0]["lr"] = float(lrs[k])
+            torch_adams[k].step()
     for k in range(k_runs):
-        for t, p in zip(stacked, singles[k]):
+        for t, u, p in zip(stacked, inner, singles[k]):
             np.testing.assert_array_equal(t[k].numpy(), p.detach().numpy())
+            np.testing.assert_array_equal(u[k].numpy(), p.detach().numpy())
         for state, p in zip(fleet_adam.state_of(k), singles[k]):
             torch_state = torch_adams[k].state[p]
             assert float(state["step"]) == float(torch_state["step"])
@@ -216,3 +229,21 @@ def test_rollout_noise_draws_the_actions_torch_multinomial_draws() -> None:
     noise = th.empty(300, 8, 6).exponential_(1, generator=at_once)
     np.testing.assert_array_equal((probs / noise).argmax(dim=-1).numpy(), expected.numpy())
     assert th.equal(stepwise.get_state(), at_once.get_state())
+
+
+def test_fleet_learners_save_and_load_like_single_runs(tmp_path: Any) -> None:
+    """The learners a fleet hands back hold its weights and optimiser state and save as any run."""
+    from morality_gym.baselines.safe import PPOLag
+
+    fleet = build_fleet(small_spec("ppo_lag"), [FleetRun(bound(), 4), FleetRun(bound("PushOrSwitch-Animal-v1"), 5)], "corrected")
+    fleet.learn(ROLLOUT)
+    learner = fleet.learners()[1]
+    assert learner.env_id == "PushOrSwitch-Animal-v1" and learner.seed == 5 and learner.trained_steps == ROLLOUT
+    path = learner.save(tmp_path / "run")
+    loaded = PPOLag.load(path, device="cpu")
+    for a, b in zip(learner.model.policy.parameters(), loaded.policy.parameters()):
+        np.testing.assert_array_equal(a.detach().numpy(), b.detach().numpy())
+    assert loaded.lagrange_multiplier == pytest.approx(learner.update_diagnostics()[-1]["lagrange_multiplier"])
+    state = loaded.policy.critic_optimizer.state_dict()["state"]
+    assert state and all(float(s["step"]) == learner.update_diagnostics()[-1]["passes"] * (512 // 64) for s in state.values())
+    assert np.isfinite(learner.final_evaluation(5).metric)  # evaluates as a single run

@@ -142,6 +142,9 @@ class FleetTrainer:
         self.n_runs = len(self.runs)
         self.max_steps = max_steps
         self.n_envs = self.spec.n_envs
+        # The simulator first: it refuses env ids of different observation sizes before any
+        # learner is built.
+        self.env = FleetEnv([r.bound for r in self.runs], self.n_envs, self.spec.reward_cost(), max_steps)
         # The runs' single-run learners: initial weights, RNG states after construction, and the
         # shells the trained weights go back into. Global RNG states are restored afterwards.
         saved = th.get_rng_state(), np.random.get_state()
@@ -164,7 +167,6 @@ class FleetTrainer:
             np.random.set_state(saved[1])
         self.model = self._learners[0].model  # hyper-parameters and schedules (the same for every run)
         self._check_supported()
-        self.env = FleetEnv([r.bound for r in self.runs], self.n_envs, self.spec.reward_cost(), max_steps)
         outputs = {"pi": 6, "vf": 1, "cf": 1}
         self.nets = FleetNetworks(
             self.n_runs, self.env.obs_dim, list(self.spec.net_arch), {h: outputs[h] for h in self.heads}, self.spec.activation

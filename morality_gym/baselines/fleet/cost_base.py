@@ -15,7 +15,7 @@ import numpy as np
 import torch as th
 
 from morality_gym.baselines.fleet.base import FleetTrainer, categorical
-from morality_gym.baselines.fleet.optim import BatchedAdam, clip_grad_norm
+from morality_gym.baselines.fleet.optim import BatchedAdam
 from morality_gym.baselines.safe.functional import normalize_advantages
 
 
@@ -99,13 +99,9 @@ class FleetCostTrainer(FleetTrainer):
 
     def _step_critics(self, grads: Sequence[th.Tensor], critic_lr: float, mask: np.ndarray | None = None) -> None:
         """Clip the critics' gradients (``critic_grad_clip``) per run and take one Adam step."""
-        max_norm = float(self.model.max_grad_norm)
-        if self.model.critic_grad_clip == "per_critic":
-            n = len(self.reward_critic_params)
-            grads = clip_grad_norm(grads[:n], max_norm)[0] + clip_grad_norm(grads[n:], max_norm)[0]
-        else:
-            grads = clip_grad_norm(grads, max_norm)[0]
-        self.critic_optimizer.step(grads, critic_lr, mask)
+        n, total = len(self.reward_critic_params), len(self.critic_params)
+        groups = [range(n), range(n, total)] if self.model.critic_grad_clip == "per_critic" else None
+        self.critic_optimizer.step(grads, critic_lr, mask, max_norm=float(self.model.max_grad_norm), clip_groups=groups)
 
     def _train_critics(self) -> tuple[np.ndarray, np.ndarray]:
         """``n_critic_updates`` passes of minibatch regression of both critics; per-run mean losses."""

@@ -19,7 +19,7 @@ import numpy as np
 import torch as th
 
 from morality_gym.baselines.fleet.base import FleetTrainer, categorical, entropy
-from morality_gym.baselines.fleet.optim import BatchedAdam, clip_grad_norm
+from morality_gym.baselines.fleet.optim import BatchedAdam
 
 
 class FleetPPO(FleetTrainer):
@@ -69,5 +69,4 @@ class FleetPPO(FleetTrainer):
                 entropy_loss = -entropy(norm, probs).mean(dim=1)
                 loss = policy_loss + m.ent_coef * entropy_loss + m.vf_coef * value_loss
                 grads = th.autograd.grad(loss.sum(), self.params)
-                grads, _ = clip_grad_norm(grads, float(m.max_grad_norm))
-                self.optimizer.step(grads, lr)
+                self.optimizer.step(grads, lr, max_norm=float(m.max_grad_norm))  # clipped per run over all parameters

@@ -17,7 +17,7 @@ import torch as th
 
 from morality_gym.baselines.fleet.base import categorical, entropy
 from morality_gym.baselines.fleet.cost_base import FleetCostTrainer
-from morality_gym.baselines.fleet.optim import BatchedAdam, clip_grad_norm
+from morality_gym.baselines.fleet.optim import BatchedAdam
 from morality_gym.baselines.safe.functional import categorical_kl
 
 
@@ -100,8 +100,7 @@ class FleetPPOLag(FleetCostTrainer):
                 grads = th.autograd.grad(total.sum(), self.actor_params + self.critic_params)
                 n_actor = len(self.actor_params)
                 self._step_critics(self._with_l2(grads[n_actor:]), critic_lr, mask)
-                actor_grads, _ = clip_grad_norm(grads[:n_actor], max_norm)
-                self.actor_optimizer.step(actor_grads, actor_lr, mask)  # type: ignore[arg-type]
+                self.actor_optimizer.step(grads[:n_actor], actor_lr, mask, max_norm=max_norm)  # type: ignore[arg-type]
 
                 with th.no_grad():
                     clip_fraction = ((ratio - 1.0).abs() > clip_range).float().mean(dim=1)
