@@ -40,19 +40,25 @@ def fleet_speed(ctx: Context) -> Section:
         budget = spec.hparams["n_steps"] * spec.n_envs * rollouts
         held: dict[str, Any] = {}
 
-        def build_single() -> None:
+        def build_single(held: dict[str, Any] = held, spec: Any = spec, protocol: str = protocol) -> None:
             held["l"] = build_learner(spec, bound, protocol, seed=0)
 
-        single = best_time(lambda: held["l"].learn(budget, eval_every=0), min(ctx.repeats, 2), setup=build_single)
+        def learn_single(held: dict[str, Any] = held, budget: int = budget) -> None:
+            held["l"].learn(budget, eval_every=0)
+
+        single = best_time(learn_single, min(ctx.repeats, 2), setup=build_single)
         task.advance()
         rates = [budget / single.cpu]
         for k in sizes:
 
-            def build() -> None:
+            def build(held: dict[str, Any] = held, spec: Any = spec, k: int = k, protocol: str = protocol) -> None:
                 held["f"] = build_fleet(spec, [FleetRun(bound, seed) for seed in range(k)], protocol)
 
+            def learn_fleet(held: dict[str, Any] = held, budget: int = budget) -> None:
+                held["f"].learn(budget)
+
             # The largest fleet is measured once: its CPU time is steady and a run takes minutes.
-            timing = best_time(lambda: held["f"].learn(budget), 1 if k == max(sizes) else min(ctx.repeats, 2), setup=build)
+            timing = best_time(learn_fleet, 1 if k == max(sizes) else min(ctx.repeats, 2), setup=build)
             rates.append(k * budget / timing.cpu)
             task.advance()
         label = spec.label if protocol == "paper" else f"{spec.label} ({protocol} protocol)"
@@ -83,8 +89,10 @@ run, which bounds the gain where it dominates (CPO's conjugate gradients run on 
         headers=headers,
         rows=rows,
         notes=[
-            f"Target: the fleet at K={max(sizes)} at least {TARGET:.0f}x the single run's steps/s per core: met by "
-            f"{met} of {len(ratios)} learners (speed-ups {', '.join(f'{r:.1f}x' for r in ratios)})."
+            (
+                f"Target: the fleet at K={max(sizes)} at least {TARGET:.0f}x the single run's steps/s per core: met by "
+                f"{met} of {len(ratios)} learners (speed-ups {', '.join(f'{r:.1f}x' for r in ratios)})."
+            )
         ],
         compare=[h for h in headers if h.endswith("steps/s")],
     )

@@ -113,6 +113,14 @@ def flatten_runs(arr: np.ndarray, n_runs: int) -> np.ndarray:
     return np.ascontiguousarray(out).reshape(n_runs, e * t, *arr.shape[2:])
 
 
+def _torch_layout(stacked_slice: th.Tensor, param: th.Tensor) -> th.Tensor:
+    """One run's slice of a stacked tensor in the layout of the torch parameter it belongs to
+    (linear weights are stored transposed, ``[in, out]``; biases as ``[1, out]``)."""
+    if param.dim() == 2:
+        return stacked_slice.T.contiguous()
+    return stacked_slice.reshape(param.shape).clone()
+
+
 class FleetTrainer:
     """Base of the fleet trainers (see the module docstring). Subclasses set :attr:`implementation`
     and :attr:`heads` and implement :meth:`_train` (one update of every run from :attr:`rollout`)."""
@@ -213,12 +221,11 @@ class FleetTrainer:
         for param, state in zip(torch_params, optimiser.state_of(k)):
             if float(state["step"]) == 0:
                 continue
-            layout = (lambda t: t.T.contiguous()) if param.dim() == 2 else (lambda t: t.reshape(param.shape).clone())
-            torch_adam.state[param] = {"step": state["step"], "exp_avg": layout(state["exp_avg"]), "exp_avg_sq": layout(state["exp_avg_sq"])}
-
-    def _run_mean(self, arr: np.ndarray) -> np.ndarray:
-        """Per-run ``[K]`` values of a ``[K, ...]`` array (as float64)."""
-        return arr.reshape(self.n_runs, -1).mean(axis=1)
+            torch_adam.state[param] = {
+                "step": state["step"],
+                "exp_avg": _torch_layout(state["exp_avg"], param),
+                "exp_avg_sq": _torch_layout(state["exp_avg_sq"], param),
+            }
 
     # ------------------------------------------------------------------ learning
     def learn(

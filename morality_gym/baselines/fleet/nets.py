@@ -16,6 +16,7 @@ any other.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable, Sequence
 
 import torch as th
@@ -62,7 +63,7 @@ class FleetNetworks:
             sizes = [obs_dim, *hidden, out]
             self.heads[head] = [
                 (th.zeros(n_runs, i, o, requires_grad=True), th.zeros(n_runs, 1, o, requires_grad=True))
-                for i, o in zip(sizes[:-1], sizes[1:])
+                for i, o in itertools.pairwise(sizes)
             ]
 
     def params(self, *heads: str) -> list[th.Tensor]:
