@@ -109,6 +109,9 @@ class BatchedTrolleyEnv:
         self._goal = np.append(t.goal, False)
         self.obs_dim = self._obs.shape[1]
         self._limit = np.iinfo(np.int32).max if max_steps is None else max_steps
+        #: Each copy's start state (all 0 here; :class:`~morality_gym.envs.mixed.MixedBatchedTrolleyEnv`
+        #: gives each copy the start of its own graph inside concatenated tables).
+        self._start = np.zeros(num_envs, dtype=np.int32)
         self.state = np.zeros(num_envs, dtype=np.int32)
         self.elapsed = np.zeros(num_envs, dtype=np.int32)
         self.ended = np.zeros(num_envs, dtype=bool)
@@ -118,11 +121,11 @@ class BatchedTrolleyEnv:
     def reset(self, mask: np.ndarray | None = None) -> np.ndarray:
         """Reset every copy (or those where ``mask`` is true); returns all observations."""
         if mask is None:
-            self.state.fill(0)
+            self.state[:] = self._start
             self.elapsed.fill(0)
             self.ended.fill(False)
         else:
-            self.state[mask] = 0
+            self.state[mask] = self._start[mask]
             self.elapsed[mask] = 0
             self.ended[mask] = False
         return self._gather(self.state)
@@ -163,7 +166,7 @@ class BatchedTrolleyEnv:
             if ended.any():
                 final_obs = np.zeros((self.num_envs, self.obs_dim), dtype=self._obs.dtype)
                 final_obs[ended] = self._obs[nxt[ended]]
-                nxt = np.where(ended, 0, nxt).astype(np.int32)
+                nxt = np.where(ended, self._start, nxt).astype(np.int32)
                 self.elapsed[ended] = 0
             self.state = nxt
             obs = self._gather(nxt)

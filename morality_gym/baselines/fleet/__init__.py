@@ -1,0 +1,61 @@
+"""Train many runs at once: K independent runs of one learner in one process (issue 14).
+
+    from morality_gym.baselines.fleet import FleetRun, build_fleet
+    fleet = build_fleet(learner_spec("ppo_lag"), [FleetRun(bound, seed) for seed in range(12)], protocol="paper")
+    fleet.learn(1_000_000)
+    for learner in fleet.learners():   # single-run learners holding the trained weights
+        learner.final_evaluation()
+
+A fleet's runs share a learner spec, a protocol, a budget and the scenario (hence the observation
+size); their variants, chains and seeds may differ. Every run reproduces its single run's
+arithmetic (tested: a fleet of one and the single learner end at the same parameters to float
+tolerance; changing one run's seed changes no other run). Modules: :mod:`.env` (all runs' copies
+in one simulator, per-run cost and reward), :mod:`.nets` (parameters stacked along a run axis,
+batched matrix products), :mod:`.optim` (per-run Adam and clipping), :mod:`.base` (start, rollouts,
+learn loop), :mod:`.ppo`, :mod:`.ppo_lag`, :mod:`.cpo` (the updates).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from morality_gym.baselines.fleet.base import FleetRun, FleetTrainer
+from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError
+from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
+
+
+def fleet_class(implementation: str) -> type[FleetTrainer]:
+    """The fleet trainer of a learner implementation (``ppo``, ``ppo_lag``, ``cpo``)."""
+    from morality_gym.baselines.fleet.ppo import FleetPPO
+
+    classes: dict[str, type[FleetTrainer]] = {"ppo": FleetPPO}
+    try:
+        from morality_gym.baselines.fleet.ppo_lag import FleetPPOLag
+
+        classes["ppo_lag"] = FleetPPOLag
+    except ImportError:  # pragma: no cover - built learner by learner
+        pass
+    try:
+        from morality_gym.baselines.fleet.cpo import FleetCPO
+
+        classes["cpo"] = FleetCPO
+    except ImportError:  # pragma: no cover
+        pass
+    if implementation not in classes:
+        raise SpecError(
+            f"the fleet engine does not train implementation {implementation!r}; fleet learners: {', '.join(classes)}"
+        )
+    return classes[implementation]
+
+
+def build_fleet(
+    spec: LearnerSpec,
+    runs: Sequence[FleetRun],
+    protocol: ProtocolSpec | str = "paper",
+    max_steps: int | None = DEFAULT_MAX_STEPS,
+) -> FleetTrainer:
+    """The fleet trainer for ``runs`` of the learner ``spec`` under ``protocol``."""
+    return fleet_class(spec.implementation)(spec, runs, protocol=protocol, max_steps=max_steps)
+
+
+__all__ = ["FleetRun", "FleetTrainer", "build_fleet", "fleet_class"]

@@ -1,0 +1,72 @@
+"""PPO and PPO-Shaped for a fleet: Stable-Baselines3's ``PPO.train`` for K runs at once.
+
+Per epoch each run draws its own permutation of its rollout (its single run's
+``np.random.permutation``) and walks it in minibatches of ``batch_size``; on every minibatch each
+run's advantages are standardised over its minibatch (``normalize_advantage``), and its loss
+``policy + ent_coef * entropy + vf_coef * value`` is differentiated with respect to its own slice
+of the stacked actor and critic, clipped by its own gradient norm over all of its parameters
+(SB3's ``clip_grad_norm_(policy.parameters())``) and stepped by its own Adam (SB3's eps 1e-5).
+PPO-Shaped differs from PPO only in the reward the environment hands out (:mod:`.env`).
+
+As the single learner, PPO logs no per-update diagnostics rows.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch as th
+
+from morality_gym.baselines.fleet.base import FleetTrainer, categorical, entropy
+from morality_gym.baselines.fleet.optim import BatchedAdam
+
+
+class FleetPPO(FleetTrainer):
+    implementation = "ppo"
+    heads = ("pi", "vf")
+
+    def _check_supported(self) -> None:
+        m = self.model
+        if m.clip_range_vf is not None:
+            raise self._unsupported("clip_range_vf", m.clip_range_vf, "only None")
+        if m.target_kl is not None:
+            raise self._unsupported("target_kl", m.target_kl, "only None")
+        if m.use_sde:
+            raise self._unsupported("use_sde", m.use_sde, "only False")
+        if type(m.policy.optimizer) is not th.optim.Adam:
+            raise self._unsupported("optimizer", type(m.policy.optimizer).__name__, "only Adam")
+
+    def _setup_optimisers(self) -> None:
+        defaults = self.model.policy.optimizer.defaults
+        if defaults.get("weight_decay", 0) or defaults.get("amsgrad", False):
+            raise self._unsupported("optimizer_kwargs", defaults, "plain Adam")
+        self.params = self.nets.params("pi", "vf")
+        self.optimizer = BatchedAdam(self.params, self.n_runs, betas=defaults["betas"], eps=defaults["eps"])
+
+    def _export_optimisers(self, k: int, model: Any) -> None:
+        self._export_adam(self.optimizer, k, model.policy.optimizer, model.policy, ("pi", "vf"))
+
+    def _train(self) -> None:
+        m, ro = self.model, self.rollout
+        assert ro is not None
+        lr = np.full(self.n_runs, float(m.lr_schedule(self.progress_remaining)))
+        clip_range = float(m.clip_range(self.progress_remaining))
+        size = ro.actions.shape[1]
+        batch = int(m.batch_size)
+        for _ in range(int(m.n_epochs)):
+            for obs, actions, old_log_prob, advantages, returns in ro.minibatches(
+                self.permutations(size), batch, "obs", "actions", "log_probs", "advantages", "returns"
+            ):
+                norm, probs = categorical(self.nets("pi", obs))
+                log_prob = norm.gather(-1, actions.unsqueeze(-1))[..., 0]
+                values = self.nets("vf", obs)[..., 0]
+                if m.normalize_advantage and advantages.shape[1] > 1:
+                    advantages = (advantages - advantages.mean(dim=1, keepdim=True)) / (advantages.std(dim=1, keepdim=True) + 1e-8)
+                ratio = th.exp(log_prob - old_log_prob)
+                policy_loss = -th.min(advantages * ratio, advantages * th.clamp(ratio, 1 - clip_range, 1 + clip_range)).mean(dim=1)
+                value_loss = ((returns - values) ** 2).mean(dim=1)
+                entropy_loss = -entropy(norm, probs).mean(dim=1)
+                loss = policy_loss + m.ent_coef * entropy_loss + m.vf_coef * value_loss
+                grads = th.autograd.grad(loss.sum(), self.params)
+                self.optimizer.step(grads, lr, max_norm=float(m.max_grad_norm))  # clipped per run over all parameters

@@ -1,0 +1,140 @@
+"""PPO-Lagrangian for a fleet: :class:`~morality_gym.baselines.safe.ppo_lag.PPOLag`'s update, K runs at once.
+
+Per run, as the single learner: one projected Adam step of its multiplier on its own ``J_c``, then
+up to ``n_epochs`` passes of clipped-surrogate minibatches with the combined advantage
+``(A_r - lambda A_c) / (1 + lambda)``, both critics and the actor stepped on every minibatch with
+their own clipping. After each pass each run tests its own KL (summed or averaged over its states);
+a run whose KL exceeds ``target_kl`` is masked out of the passes that follow (no parameter, Adam
+moment or step count of it changes, and it draws no further permutation) while the others go on;
+the passes that follow compute only the runs still going.
+The loop ends when every run has stopped or ``n_epochs`` passes are done.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch as th
+
+from morality_gym.baselines.fleet.base import categorical, entropy
+from morality_gym.baselines.fleet.cost_base import FleetCostTrainer
+from morality_gym.baselines.fleet.optim import BatchedAdam
+from morality_gym.baselines.safe.functional import categorical_kl
+
+
+class FleetPPOLag(FleetCostTrainer):
+    implementation = "ppo_lag"
+
+    def _setup_optimisers(self) -> None:
+        super()._setup_optimisers()
+        lagrange = self.model.lagrange
+        if type(lagrange.optimizer) is not th.optim.Adam:
+            raise self._unsupported("lagrange optimizer", type(lagrange.optimizer).__name__, "only Adam")
+        d = lagrange.optimizer.defaults
+        self.lagrange_lr = float(d["lr"])
+        self.lagrange_upper = lagrange.upper_bound
+        self.lagrange = th.stack([learner.model.lagrange.value_param.detach().clone() for learner in self._learners])
+        self.lagrange_optimizer = BatchedAdam([self.lagrange], self.n_runs, betas=d["betas"], eps=d["eps"])
+
+    def _export_optimisers(self, k: int, model: object) -> None:
+        super()._export_optimisers(k, model)
+        lag = model.lagrange  # type: ignore[attr-defined]
+        with th.no_grad():
+            lag.value_param.copy_(self.lagrange[k])
+        lag.optimizer.state.clear()
+        state = self.lagrange_optimizer.state_of(k)[0]
+        if float(state["step"]) > 0:
+            lag.optimizer.state[lag.value_param] = state
+
+    def _update_multipliers(self, mean_ep_costs: np.ndarray) -> np.ndarray:
+        """``LagrangeMultiplier.update`` per run; returns every run's new ``lambda`` (float64)."""
+        violation = th.as_tensor(mean_ep_costs - float(self.model.cost_limit), dtype=th.float32)
+        self.lagrange_optimizer.step([-violation], self.lagrange_lr)  # d(-lambda * v)/d lambda
+        with th.no_grad():
+            self.lagrange.clamp_(min=0.0, max=self.lagrange_upper)
+        return self.lagrange.double().numpy().copy()
+
+    def _train(self) -> None:
+        m, ro, k_runs = self.model, self.rollout, self.n_runs
+        assert ro is not None
+        actor_lr, critic_lr = self._learning_rates(actor=True)
+        mean_ep_costs = self.mean_episode_costs()
+        lam = self._update_multipliers(mean_ep_costs)
+        self._normalize_advantages()
+        (full_obs,) = self._full_batch("obs")
+        with th.no_grad():
+            old_logits = self._logits(full_obs)
+        lam32 = th.as_tensor(lam, dtype=th.float32).unsqueeze(1)
+        one_plus = th.as_tensor(1.0 + lam, dtype=th.float32).unsqueeze(1)
+        size, batch = ro.actions.shape[1], int(m.batch_size)
+        clip_range, max_norm = float(m.clip_range), float(m.max_grad_norm)
+
+        active = np.ones(k_runs, dtype=bool)
+        passes = np.zeros(k_runs, dtype=np.int64)
+        early = np.zeros(k_runs, dtype=bool)
+        kl_tested = np.zeros(k_runs)
+        kl_mean = np.zeros(k_runs)
+        stats: dict[str, list[np.ndarray]] = {key: [] for key in ("policy", "value", "cost_value", "entropy", "clip_fraction")}
+        stat_masks: list[np.ndarray] = []
+        for _ in range(int(m.n_epochs)):
+            if not active.any():
+                break
+            # Only the runs still passing are computed (``runs``: their indices); the stopped ones
+            # get zero gradients and are masked out of the optimiser steps.
+            idx = np.flatnonzero(active)
+            mask, runs = (None, None) if active.all() else (active.copy(), th.from_numpy(idx))
+            sub = slice(None) if runs is None else runs
+            order = th.from_numpy(np.stack([self.permutation(k, size) for k in idx]))
+            for obs, actions, old_log_prob, adv, cadv, returns, cost_returns in ro.minibatches(
+                order, batch, "obs", "actions", "log_probs", "advantages", "cost_advantages", "returns", "cost_returns", runs=runs
+            ):
+                norm, probs = categorical(self.nets("pi", obs, runs))
+                log_prob = norm.gather(-1, actions.unsqueeze(-1))[..., 0]
+                ent = entropy(norm, probs)
+                advantages = (adv - lam32[sub] * cadv) / one_plus[sub]
+                ratio = th.exp(log_prob - old_log_prob)
+                clipped = th.clamp(ratio, 1.0 - clip_range, 1.0 + clip_range)
+                policy_loss = -th.min(ratio * advantages, clipped * advantages).mean(dim=1)
+                entropy_mean = ent.mean(dim=1)
+                critic_loss, value_loss, cost_value_loss = self._critic_loss(obs, returns, cost_returns, runs)
+                total = policy_loss - m.ent_coef * entropy_mean + critic_loss
+                grads = th.autograd.grad(total.sum(), self.actor_params + self.critic_params)
+                n_actor = len(self.actor_params)
+                self._step_critics(self._with_l2(grads[n_actor:]), critic_lr, mask)
+                self.actor_optimizer.step(grads[:n_actor], actor_lr, mask, max_norm=max_norm)  # type: ignore[arg-type]
+
+                with th.no_grad():
+                    clip_fraction = ((ratio - 1.0).abs() > clip_range).float().mean(dim=1)
+                    for key, value in (("policy", policy_loss), ("value", value_loss), ("cost_value", cost_value_loss),
+                                       ("entropy", entropy_mean), ("clip_fraction", clip_fraction)):
+                        row = np.zeros(k_runs)
+                        row[idx] = value.double().numpy()
+                        stats[key].append(row)
+                stat_masks.append(active.copy())
+            passes += active
+            with th.no_grad():
+                per_state = categorical_kl(old_logits[sub], self._logits(full_obs[sub], runs))
+                tested = (per_state.sum(dim=1) if m.kl_early_stop_reduction == "sum" else per_state.mean(dim=1)).double().numpy()
+                means = per_state.mean(dim=1).double().numpy()
+            kl_tested[idx] = tested
+            kl_mean[idx] = means
+            if m.target_kl is not None:
+                stop = active & (kl_tested > m.target_kl)
+                early |= stop
+                active &= ~stop
+
+        weights = np.stack(stat_masks).astype(np.float64)  # [batches, K]
+        means = {key: (np.stack(v) * weights).sum(axis=0) / weights.sum(axis=0) for key, v in stats.items()}
+        for k in range(k_runs):
+            self._row(
+                k, mean_ep_costs[k], actor_lr, critic_lr,
+                passes=int(passes[k]),
+                kl=float(kl_tested[k]),
+                kl_mean=float(kl_mean[k]),
+                early_stopped=bool(early[k]),
+                lagrange_multiplier=float(lam[k]),
+                policy_loss=float(means["policy"][k]),
+                value_loss=float(means["value"][k]),
+                cost_value_loss=float(means["cost_value"][k]),
+                entropy=float(means["entropy"][k]),
+                clip_fraction=float(means["clip_fraction"][k]),
+            )

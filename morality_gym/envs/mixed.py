@@ -1,0 +1,82 @@
+"""One batched simulator whose copies may run *different* env ids (variants) of one scenario.
+
+A fleet of training runs (:mod:`morality_gym.baselines.fleet`) steps every run's copies together,
+and its runs may train on different variants. :class:`BatchedTrolleyEnv` gathers from the tables
+of one state graph; this subclass concatenates the tables of several graphs, shifting each graph's
+state ids by its offset, so that a step is still the same few gathers over all copies whatever
+their env ids: transition row ``s * 6 + a`` of global state ``s`` is the row of the same action in
+the same state of the copy's own graph, because each graph's transition block starts at six times
+its state offset. Each copy starts (and auto-resets) at its own graph's start state.
+
+All env ids must have the same observation size (variants of one scenario do), since the copies
+share one observation array.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from morality_gym.envs.batched import AutoReset, BatchedTrolleyEnv
+from morality_gym.envs.registry import parse_env_id, state_graph
+from morality_gym.envs.trolley import DEFAULT_MAX_STEPS, _overrides
+from morality_gym.world.graph import N_ACTIONS
+
+
+class MixedBatchedTrolleyEnv(BatchedTrolleyEnv):
+    """``len(env_ids)`` copies, copy ``i`` running ``env_ids[i]``; otherwise :class:`BatchedTrolleyEnv`.
+
+    ``env_id`` is the first copy's id (kept for code that reads it); ``env_ids`` lists every copy's.
+    ``copy_graph[i]`` is the index into :attr:`unique_env_ids` of copy ``i``'s graph.
+    """
+
+    def __init__(
+        self,
+        env_ids: Sequence[str],
+        *,
+        max_steps: int | None = DEFAULT_MAX_STEPS,
+        obs_dtype: type = np.float32,
+        autoreset: AutoReset = "same_step",
+        normalise_obs: bool = True,
+        overrides: dict | None = None,
+    ) -> None:
+        env_ids = [parse_env_id(e)[0].env_id(parse_env_id(e)[1]) for e in env_ids]
+        if not env_ids:
+            raise ValueError("MixedBatchedTrolleyEnv needs at least one env id")
+        # The base class validates the arguments and sets everything up for the first id; the
+        # tables are then replaced by the concatenation over all ids.
+        super().__init__(
+            env_ids[0], len(env_ids), max_steps=max_steps, obs_dtype=obs_dtype, autoreset=autoreset,
+            normalise_obs=normalise_obs, overrides=overrides,
+        )
+        self.unique_env_ids: list[str] = list(dict.fromkeys(env_ids))
+        self.env_ids = env_ids
+        tables = [state_graph(e, _overrides(overrides), normalise_obs).tables() for e in self.unique_env_ids]
+        dims = {e: t.obs.shape[1] for e, t in zip(self.unique_env_ids, tables)}
+        if len(set(dims.values())) > 1:
+            raise ValueError(
+                f"the copies of one simulator must share an observation size, got {dims}; "
+                "fleet only variants of one scenario together"
+            )
+        offsets = np.cumsum([0] + [t.n_states for t in tables])[:-1].astype(np.int32)
+        self._next = np.concatenate([t.next.astype(np.int32) + off for t, off in zip(tables, offsets)])
+        self._reward = np.concatenate([t.reward for t in tables]).astype(np.float32)
+        self._events = np.concatenate([t.events for t in tables])
+        self._done = np.concatenate([t.done for t in tables])
+        self._obs = np.ascontiguousarray(np.concatenate([t.obs for t in tables]).astype(obs_dtype))
+        self.no_transition = len(self._next)
+        utility = np.concatenate([t.utility for t in tables])
+        self._utility = np.vstack([utility, np.zeros((1, utility.shape[1]), dtype=utility.dtype)])
+        self._goal = np.append(np.concatenate([t.goal for t in tables]), False)
+        index = {e: i for i, e in enumerate(self.unique_env_ids)}
+        self.copy_graph = np.array([index[e] for e in env_ids], dtype=np.int32)
+        self._start = offsets[self.copy_graph].astype(np.int32)
+        self.state = self._start.copy()
+        assert len(self._next) == N_ACTIONS * len(self._done)
+
+    def __repr__(self) -> str:
+        return (
+            f"<MixedBatchedTrolleyEnv {', '.join(self.unique_env_ids)} x{self.num_envs} "
+            f"max_steps={self.max_steps} autoreset={self.autoreset}>"
+        )
