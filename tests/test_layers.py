@@ -143,8 +143,9 @@ def layer_of(module: str) -> str | None:
     return best
 
 
-def find_cycles(edges: list[Edge]) -> list[list[Edge]]:
-    """One shortest cycle (as its edges) per strongly connected component of more than one module."""
+def find_cycles(edges: list[Edge]) -> list[tuple[set[str], list[Edge]]]:
+    """Per strongly connected component of more than one module: its modules and one shortest
+    cycle through them (as edges; breaking it may leave another cycle of the component)."""
     graph: dict[str, dict[str, Edge]] = defaultdict(dict)
     for edge in edges:
         graph[edge.source].setdefault(edge.target, edge)
@@ -206,7 +207,7 @@ def find_cycles(edges: list[Edge]) -> list[list[Edge]]:
         while parent[path[-1]] is not None:
             path.append(parent[path[-1]])  # type: ignore[arg-type]
         path.reverse()
-        cycles.append([graph[a][b] for a, b in zip(path, [*path[1:], start])])
+        cycles.append((component, [graph[a][b] for a, b in zip(path, [*path[1:], start])]))
     return cycles
 
 
@@ -226,7 +227,8 @@ def check(root: Path) -> tuple[list[str], list[str], list[str], int]:
     edges = import_edges(modules, root)
     cycles = [
         "cycle " + " -> ".join([c[0].source, *(e.target for e in c)]) + "\n    " + "\n    ".join(e.where() for e in c)
-        for c in find_cycles(edges)
+        + (f"\n    (modules on some cycle with these: {', '.join(sorted(members))})" if len(members) > len(c) else "")
+        for members, c in find_cycles(edges)
     ]
     unplaced = sorted(m for m in modules if layer_of(m) is None)
     return cycles, upward_imports(edges), unplaced, len(edges)
