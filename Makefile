@@ -66,12 +66,12 @@ reproduce-table1: venv
 	@code=0; $(PY) -m runners.table1 preset=$(PRESET) launcher=$(LAUNCHER) results_dir=$(RESULTS) \
 	  protocols=[$(subst $(space),$(comma),$(strip $(PROTOCOLS)))] || code=$$?; \
 	if [ $$code = 2 ]; then exit 2; fi; \
-	$(PY) -m leaderboard.build --results $(RESULTS) || exit $$?; \
+	$(PY) -m leaderboard.build --results $(RESULTS) --site leaderboard/site || exit $$?; \
 	echo "Table 1: $(RESULTS)/table1.md   leaderboard: leaderboard/site/index.html"; \
 	exit $$code
 
 leaderboard: venv
-	$(PY) -m leaderboard.build --results $(RESULTS)
+	$(PY) -m leaderboard.build --results $(RESULTS) --site leaderboard/site
 
 mlflow-ui: venv
 	$(VENV)/bin/mlflow ui --backend-store-uri sqlite:///$(abspath $(RESULTS))/mlflow.db --port 5000

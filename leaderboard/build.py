@@ -7,7 +7,8 @@ moved to ``runs/.quarantine``. But a results directory that does not exist, or h
 nor manifests, fails the build: that is almost always a wrong path, and an empty leaderboard would
 hide it. The build only reads ``<results>/runs``; it writes ``table1.*``, ``figures/`` and
 ``cache/`` into ``--out`` (default: the results directory; a read-only results directory needs
-``--out``) and the site wherever ``--site`` points. User errors print one line and exit 2
+``--out``) and the site wherever ``--site`` points (default: ``site/`` in ``--out``, next to the
+tables: never inside the installed package). User errors print one line and exit 2
 (``--debug`` shows the traceback).
 """
 
@@ -24,7 +25,6 @@ from typing import Any, TypeVar
 from leaderboard.aggregate import Leaderboard, aggregate, compute_reference, reference_requests, with_reference
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
 
-DEFAULT_SITE = Path(__file__).resolve().parent / "site"
 REFERENCE_CACHE = Path("cache") / "reference_rows.json"
 EXIT_OK = 0
 T = TypeVar("T")
@@ -47,7 +47,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--results", type=Path, default=Path("results"), help="results directory (default: results)")
     parser.add_argument("--out", type=Path, default=None,
                         help="where table1.*, figures/ and cache/ go (default: the results directory)")
-    parser.add_argument("--site", type=Path, default=DEFAULT_SITE, help=f"site output directory (default: {DEFAULT_SITE})")
+    parser.add_argument("--site", type=Path, default=None, help="site output directory (default: site/ in --out)")
     parser.add_argument("--no-reference", action="store_true",
                         help="skip the exact Random and oracle reference rows (they are cached once computed)")
     parser.add_argument("--protocol", help="protocol of the primary table (table1.csv/.tex); default: automatic")
@@ -56,6 +56,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if args.out is None:
         args.out = args.results
+    if args.site is None:
+        args.site = args.out / "site"
     return args
 
 

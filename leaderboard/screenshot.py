@@ -49,7 +49,8 @@ def screenshot(site: Path, out: Path, page_name: str = "index.html", full_page: 
 
     target = (site / page_name).resolve()
     if not target.is_file():
-        raise FileNotFoundError(f"{target} does not exist; build the site first (python -m leaderboard.build)")
+        raise FileNotFoundError(f"{target} does not exist; build the site first (make leaderboard, or "
+                                f"python -m leaderboard.build --site {site}) or pass --site DIR")
     if not chromium.is_file():
         raise FileNotFoundError(f"{chromium} not found; install Debian's chromium (apt-get install chromium)")
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from morality_gym.api import make
 from morality_gym.envs.batched import BatchedTrolleyEnv
-from morality_gym.envs.registration import register_all
-from morality_gym.envs.registry import UnknownEnvError, add_scenario_dir, list_envs, parse_env_id, scenarios
+from morality_gym.envs.registration import add_scenario_dir, register_all
+from morality_gym.envs.registry import UnknownEnvError, list_envs, parse_env_id, scenarios
 from morality_gym.envs.trolley import InvalidActionError, TrolleyEnv
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.montecarlo import evaluate

@@ -433,7 +433,7 @@ def validate(cfg: DictConfig) -> SweepConfig:
         except TrackingError as exc:
             raise ConfigError(str(exc)) from exc
     if kind == "slurm" and not cfg.get("dry_run"):
-        from runners.slurm_launcher import SlurmUnavailable, check_controller
+        from runners.slurm_controller import SlurmUnavailable, check_controller
 
         try:
             check_controller()

@@ -31,13 +31,20 @@ def _now() -> str:
 
 @lru_cache(maxsize=1)
 def git_commit() -> str:
+    """The commit of the checkout this code runs from, or "unknown" (an installed package: its
+    version is recorded with the others). A package installed into a virtual environment that
+    happens to sit inside some git work tree must not report that tree's commit, so the answer
+    counts only if the work tree's ``runners/execute.py`` is this very file."""
+    here = Path(__file__).resolve()
     try:
-        out = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent, capture_output=True, text=True, timeout=10
-        )
-        return out.stdout.strip() if out.returncode == 0 else "unknown"
+        out = subprocess.run(["git", "rev-parse", "--show-toplevel", "HEAD"], cwd=here.parent,
+                             capture_output=True, text=True, timeout=10, check=False)
     except (OSError, subprocess.SubprocessError):
         return "unknown"
+    lines = out.stdout.split()
+    if out.returncode != 0 or len(lines) != 2 or (Path(lines[0]) / "runners" / "execute.py").resolve() != here:
+        return "unknown"
+    return lines[1]
 
 
 @lru_cache(maxsize=1)

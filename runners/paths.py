@@ -1,5 +1,11 @@
 """Where the sweep configuration lives, and the few facts of it that readers of results need.
 
+The one place that knows the location: the Hydra configuration is the package directory
+``runners/conf``. In the repository that is a symbolic link to ``conf/`` at the root (where people
+look for it and edit it); a wheel installs the files themselves there (``pyproject.toml``'s
+package data), so a checkout, an editable install and ``pip install .`` find it the same way.
+Users do not edit it: they add or override files from their own directory (``--config-dir``).
+
 Kept apart from :mod:`runners.config` (which validates whole sweeps and so imports the learners,
 and with them torch) so that the leaderboard can learn a preset's seeds in a millisecond.
 """
@@ -11,7 +17,7 @@ from pathlib import Path
 
 import yaml
 
-CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
+CONF_DIR = Path(__file__).resolve().parent / "conf"
 
 
 @lru_cache(maxsize=None)

@@ -8,42 +8,13 @@ Partition, time limit, CPUs, memory and array parallelism come from ``conf/launc
 
 from __future__ import annotations
 
-import shutil
-import subprocess
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 from runners.plan import PlannedRun
-
-#: How long ``scontrol ping`` may take before the controller counts as unreachable.
-PING_TIMEOUT_S = 20.0
-_FIX = "start the single-node cluster with `make slurm-up` (or point SLURM_CONF at your cluster), or use launcher=local"
-
-
-class SlurmUnavailable(RuntimeError):
-    """No SLURM controller answers; the message says how to start one or run locally instead."""
-
-
-def check_controller(timeout: float = PING_TIMEOUT_S) -> None:
-    """Raise :class:`SlurmUnavailable` unless ``scontrol ping`` reports a controller that is UP.
-
-    Without this, submitit's ``sbatch`` fails deep inside the first submission with a long
-    traceback that never says what to do.
-    """
-    scontrol = shutil.which("scontrol")
-    if scontrol is None:
-        raise SlurmUnavailable(f"launcher=slurm: SLURM is not installed here (no scontrol on PATH); {_FIX}")
-    try:
-        out = subprocess.run([scontrol, "ping"], capture_output=True, text=True, timeout=timeout)
-    except subprocess.TimeoutExpired:
-        raise SlurmUnavailable(f"launcher=slurm: no SLURM controller answered `scontrol ping` within {timeout:g} s; {_FIX}") from None
-    text = (out.stdout + out.stderr).strip()
-    if out.returncode != 0 or " is UP" not in text:
-        lines = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.strip().startswith("*")]
-        detail = lines[0] if lines else f"exit code {out.returncode}"
-        raise SlurmUnavailable(f"launcher=slurm: no SLURM controller is up (scontrol ping: {detail}); {_FIX}")
+from runners.slurm_controller import SlurmUnavailable, check_controller  # noqa: F401 - re-exported for callers
 
 
 def run_on_slurm(

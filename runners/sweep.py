@@ -31,6 +31,7 @@ from morality_gym.clitools import DEBUG_ENV, debug_enabled, one_line, run_cli
 from runners.config import ConfigError, SweepConfig, validate
 from runners.execute import finished_status, record_failure
 from runners.manifest import manifest_name, write_manifest
+from runners.paths import CONF_DIR
 from runners.plan import PlannedRun, describe, plan
 from runners.quarantine import check_run_files, read_table_or_quarantine
 
@@ -171,7 +172,7 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
     return 0 if not failed and not missing else 1
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name="config")
 def _app(cfg: DictConfig) -> None:
     from rich.console import Console
 

@@ -314,7 +314,7 @@ def test_08_variant_bounds_are_checked_against_what_the_scenario_produces(tmp_pa
     out = mg("eval", "--scenario", "OffBounds", "--chain", "Utility", "--exact", env=env)
     one_line_error(out, "off.yaml", *expected)
 
-    from morality_gym.envs.registry import add_scenario_dir
+    from morality_gym.envs.registration import add_scenario_dir
     from morality_gym.world.layout import ScenarioError
 
     with pytest.raises(ScenarioError, match=r"Fix: write n_human_harm: \[1, 5\]"):

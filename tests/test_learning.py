@@ -88,3 +88,14 @@ def test_learn_time_evaluations_do_not_change_training(name: str) -> None:
         learner.learn(1536, eval_every=eval_every, eval_episodes=5)
         weights.append([p.detach().clone() for p in learner.model.policy.parameters()])
     assert all(torch.equal(a, b) for a, b in zip(*weights))
+
+
+def test_a_budget_of_zero_evaluates_the_untrained_policy_once() -> None:
+    """No training, one learn-time evaluation at step 0, handed to learn_evals and on_eval alike
+    (the callback used to reach for an SB3 model that is only attached by model.learn)."""
+    bound = morality_gym.bind_chain("Utility", "SwitchStandard-HumanA-v1")
+    learner = build_learner(learner_spec("ppo", {"hparams": {"n_steps": 64}}), bound, "paper", seed=3)
+    rows: list[dict] = []
+    assert learner.learn(0, eval_episodes=2, on_eval=rows.append) == 0
+    assert rows == learner.learn_evals and [r["step"] for r in rows] == [0]
+    assert 0.0 <= rows[0]["exact_metric"] <= 1.0

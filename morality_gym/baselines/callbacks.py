@@ -4,28 +4,51 @@ The evaluations are logged but must never change the training run: they sample t
 their own numpy generator (see :class:`~morality_gym.evaluation.policies.PolicyAdapter`), never
 touch torch's RNG, and run on a separate simulator. The exact metric of the current policy is
 computed alongside (one batched forward pass over all states), which gives a noise-free curve.
+
+The callback takes what it evaluates (a policy, an env id, a bound chain, a seed) and where the
+rows go (``on_eval``), not the learner that owns them: learners build callbacks, never the
+other way round.
 """
 
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
+from morality_gym.baselines.learn_evals import EvalHook, learn_eval_row
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.montecarlo import evaluate
-
-if TYPE_CHECKING:
-    from morality_gym.baselines.learners import EvalHook, Learner
+from morality_gym.norms.metric import BoundChain
 
 
 class MoralityEvalCallback(BaseCallback):
-    """Evaluate at step 0 and every ``eval_every`` environment steps; hand rows to ``on_eval``."""
+    """Evaluate ``policy`` at step 0 and every ``eval_every`` environment steps; hand rows to ``on_eval``.
 
-    def __init__(self, learner: "Learner", eval_every: int, eval_episodes: int, on_eval: "EvalHook | None" = None) -> None:
+    ``policy`` is anything :class:`~morality_gym.evaluation.policies.PolicyAdapter` accepts (for an
+    SB3 model, the model being trained: it is read at each evaluation, so the rows follow
+    training). The ``k``-th evaluation's episodes are seeded ``seed * 1_000_003 + k``.
+    """
+
+    def __init__(
+        self,
+        policy: Any,
+        env_id: str,
+        bound: BoundChain,
+        *,
+        seed: int,
+        max_steps: int | None,
+        eval_every: int,
+        eval_episodes: int,
+        on_eval: EvalHook | None = None,
+    ) -> None:
         super().__init__(verbose=0)
-        self.learner = learner
+        self.policy = policy
+        self.env_id = env_id
+        self.bound = bound
+        self.seed = int(seed)
+        self.max_steps = max_steps
         self.eval_every = int(eval_every)
         self.eval_episodes = int(eval_episodes)
         self.on_eval = on_eval
@@ -34,23 +57,19 @@ class MoralityEvalCallback(BaseCallback):
         self._started = time.perf_counter()
 
     def evaluate_now(self, step: int) -> dict[str, Any]:
-        learner = self.learner
         mc = evaluate(
-            learner.policy,
-            learner.env_id,
-            learner.bound,
+            self.policy,
+            self.env_id,
+            self.bound,
             n_episodes=self.eval_episodes,
-            seed=learner.seed * 1_000_003 + self._count,
-            max_steps=learner.max_steps,
+            seed=self.seed * 1_000_003 + self._count,
+            max_steps=self.max_steps,
             keep_episodes=False,
         )
-        exact = exact_evaluate(learner.policy, learner.env_id, learner.bound, max_steps=learner.max_steps)
-        from morality_gym.baselines.learners import _eval_row
-
-        row = _eval_row(step, mc, exact, self._started)
+        exact = exact_evaluate(self.policy, self.env_id, self.bound, max_steps=self.max_steps)
+        row = learn_eval_row(step, mc, exact, self._started)
         self._count += 1
-        learner.learn_evals.append(row)
-        if self.logger is not None:
+        if "model" in vars(self):  # attached to a model that is learning (not a step-0-only evaluation)
             self.logger.record("morality/metric", row["metric"])
             self.logger.record("morality/exact_metric", row["exact_metric"])
         if self.on_eval:

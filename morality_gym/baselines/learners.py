@@ -11,9 +11,8 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -24,25 +23,14 @@ from morality_gym.evaluation.montecarlo import evaluate, evaluate_sequential
 from morality_gym.evaluation.policies import PolicyAdapter, sample_actions
 from morality_gym.evaluation.result import EvaluationResult
 from morality_gym.norms.metric import BoundChain
+from morality_gym.baselines.learn_evals import EvalHook, learn_eval_row
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, protocol_spec, training_steps
 
-#: Called with each learn-time evaluation: {"step", "metric", "exact_metric", "functions", ...}.
-EvalHook = Callable[[dict[str, Any]], None]
+if TYPE_CHECKING:  # imported when used: it loads SB3 and torch, which the random learner never needs
+    from morality_gym.baselines.callbacks import MoralityEvalCallback
+
 LEARN_EVAL_EVERY = 50_000
 LEARN_EVAL_EPISODES = 10
-
-
-def _eval_row(step: int, mc: EvaluationResult, exact: EvaluationResult | None, started: float) -> dict[str, Any]:
-    return {
-        "step": int(step),
-        "metric": mc.metric,
-        "exact_metric": exact.metric if exact is not None else float("nan"),
-        "mean_return": mc.mean_return,
-        "mean_cost": mc.mean_cost if mc.mean_cost is not None else float("nan"),
-        "mean_length": mc.mean_length,
-        "functions": dict(mc.functions),
-        "wall_time_s": time.perf_counter() - started,
-    }
 
 
 class Learner:
@@ -81,6 +69,19 @@ class Learner:
 
     def save(self, path: str | Path) -> Path:
         raise NotImplementedError
+
+    def eval_callback(self, eval_every: int, eval_episodes: int, on_eval: EvalHook | None = None) -> MoralityEvalCallback:
+        """The SB3 callback that evaluates this learner's policy while it learns; its rows go to
+        :attr:`learn_evals`, then to ``on_eval``."""
+        from morality_gym.baselines.callbacks import MoralityEvalCallback
+
+        def record(row: dict[str, Any]) -> None:
+            self.learn_evals.append(row)
+            if on_eval:
+                on_eval(row)
+
+        return MoralityEvalCallback(self.policy, self.env_id, self.bound, seed=self.seed, max_steps=self.max_steps,
+                                    eval_every=eval_every, eval_episodes=eval_episodes, on_eval=record)
 
     def update_diagnostics(self) -> list[dict[str, Any]]:
         """One row per policy update of the last ``learn`` (``[]`` for learners that do not log
@@ -161,7 +162,7 @@ class RandomLearner(Learner):
             for step in self.protocol.random_learn_eval_steps:
                 mc = evaluate_sequential(self._act, self._env, self.bound, eval_episodes, keep_episodes=False)
                 self._render_episode(self._env)
-                row = _eval_row(step, mc, None, started)
+                row = learn_eval_row(step, mc, None, started)
                 self.learn_evals.append(row)
                 if on_eval:
                     on_eval(row)
@@ -241,10 +242,8 @@ class SB3Learner(Learner):
     def learn(
         self, budget: int, eval_every: int = LEARN_EVAL_EVERY, eval_episodes: int = LEARN_EVAL_EPISODES, on_eval: EvalHook | None = None
     ) -> int:
-        from morality_gym.baselines.callbacks import MoralityEvalCallback
-
         total = training_steps(self.spec, budget)
-        callback = MoralityEvalCallback(self, eval_every, eval_episodes, on_eval)
+        callback = self.eval_callback(eval_every, eval_episodes, on_eval)
         if total > 0:
             self.model.learn(total_timesteps=total, callback=callback, reset_num_timesteps=True)
         else:

@@ -4,14 +4,19 @@ For each scenario a subclass of :class:`~morality_gym.envs.trolley.TrolleyEnv` i
 import time (``SwitchStandardEnv``, ...) whose docstring is generated from the YAML, in the style
 of MiniGrid's env classes; the classes are what the generated docs are built from. Adding a
 scenario file therefore adds a documented class and its ids without any code.
+
+This is the top of the envs layer: it builds on :mod:`~morality_gym.envs.registry` (scenarios
+and ids) and :mod:`~morality_gym.envs.trolley` (the env), neither of which imports it.
 """
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import gymnasium as gym
 
 from morality_gym.envs.describe import describe_scenario
-from morality_gym.envs.registry import NAMESPACE, scenarios
+from morality_gym.envs.registry import NAMESPACE, load_scenario_dir, scenarios
 from morality_gym.envs.trolley import TrolleyEnv
 
 ENV_CLASSES: dict[str, type[TrolleyEnv]] = {}
@@ -52,3 +57,14 @@ def register_all() -> None:
                 # Truncation follows the reference (step max_steps + 1), inside the env.
                 max_episode_steps=None,
             )
+
+
+def add_scenario_dir(directory: str | Path) -> list[str]:
+    """Load every scenario YAML in ``directory``, register its env ids with Gymnasium and return them.
+
+    An explicit request: a bad file raises :class:`~morality_gym.world.layout.ScenarioError` and
+    nothing of the directory is added.
+    """
+    env_ids = load_scenario_dir(directory)
+    register_all()
+    return env_ids

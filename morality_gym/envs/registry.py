@@ -2,9 +2,11 @@
 
 Built-in scenarios are the YAML files in ``morality_gym/data/scenarios``. Users add their own
 without touching code: put YAML files in a directory and either call
-:func:`add_scenario_dir` or list the directory in the ``MORALITY_GYM_SCENARIOS`` environment
-variable (``os.pathsep``-separated). Every variant of every scenario is registered with Gymnasium
-as ``MoralityGym/{Scenario}-{Variant}-v1``.
+:func:`~morality_gym.envs.registration.add_scenario_dir` or list the directory in the
+``MORALITY_GYM_SCENARIOS`` environment variable (``os.pathsep``-separated). Every variant of every
+scenario is registered with Gymnasium as ``MoralityGym/{Scenario}-{Variant}-v1``
+(:mod:`morality_gym.envs.registration`, which builds on this module; this module knows nothing of
+Gymnasium nor of the env class, so that both can import it).
 
 A user's file is checked more thoroughly than a built-in one: its utility bounds are compared
 with what its worlds can produce (:mod:`morality_gym.world.bounds`, ~0.1 s per variant; the
@@ -12,7 +14,7 @@ built-in files pass the same check in the test suite, so ``import morality_gym``
 for it). A bad file found through ``MORALITY_GYM_SCENARIOS`` must not break the built-in envs
 nor every command: it is skipped with a one-line :class:`ScenarioFileWarning` (file, field, fix)
 and remembered, so that asking for the scenario it would have defined explains why it is not
-there (:func:`skipped_scenario_files`). :func:`add_scenario_dir` is an explicit request, so it
+there (:func:`skipped_scenario_files`). :func:`load_scenario_dir` is an explicit request, so it
 raises instead.
 """
 
@@ -35,6 +37,10 @@ from morality_gym.world.rules import Overrides, World
 
 NAMESPACE = "MoralityGym"
 VERSION = "v1"
+#: Every env truncates at step ``max_steps + 1``; this is ``max_steps`` unless a caller sets it
+#: (200 in every run of the paper). Defined here, below the env class, because a user scenario's
+#: bounds are checked against the horizon it implies when the file is loaded.
+DEFAULT_MAX_STEPS = 200
 BUILTIN_DIR = Path(__file__).resolve().parent.parent / "data" / "scenarios"
 SCENARIOS_ENV = "MORALITY_GYM_SCENARIOS"
 
@@ -75,8 +81,6 @@ def _declared_name(path: Path) -> str | None:
 
 
 def _horizon() -> int:
-    from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
-
     return DEFAULT_MAX_STEPS + 1
 
 
@@ -173,10 +177,12 @@ def _skipped_hint(name: str) -> str:
     return ""
 
 
-def add_scenario_dir(directory: str | Path) -> list[str]:
-    """Load every scenario YAML in ``directory``, register its env ids and return them.
+def load_scenario_dir(directory: str | Path) -> list[str]:
+    """Load every scenario YAML in ``directory`` into the registry and return its env ids.
 
-    An explicit request: a bad file raises :class:`ScenarioError` and nothing of the directory is added.
+    An explicit request: a bad file raises :class:`ScenarioError` and nothing of the directory is
+    added. Users call :func:`~morality_gym.envs.registration.add_scenario_dir`, which also
+    registers the new ids with Gymnasium.
     """
     directory = Path(directory)
     if not directory.is_dir():
@@ -190,9 +196,6 @@ def add_scenario_dir(directory: str | Path) -> list[str]:
                                     f"{known[name].source}. Fix: give this scenario another name")
         _extra_dirs.append(directory)
         known.update(new)
-    from morality_gym.envs.registration import register_all
-
-    register_all()
     return [eid for s in new.values() for eid in s.env_ids]
 
 

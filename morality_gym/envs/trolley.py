@@ -16,13 +16,13 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from morality_gym.envs.registry import parse_env_id, state_graph
+from morality_gym.envs.registry import DEFAULT_MAX_STEPS, parse_env_id, state_graph
+from morality_gym.render.ansi import render_ansi
 from morality_gym.world.graph import EMPTY_NORM_EVENTS, StateGraph, norm_events_dict
 from morality_gym.world.rules import ACTION_NAMES, Overrides
 
 OBS_TYPES = ("flat", "dict")
 _OBS_ALIASES = {"flat": "flat", "np.ndarray": "flat", "dict": "dict"}
-DEFAULT_MAX_STEPS = 200
 
 
 class InvalidActionError(ValueError):
@@ -184,10 +184,26 @@ class TrolleyEnv(gym.Env[Any, int]):
         )
 
     def render(self) -> Any:
-        """``ansi``: the ASCII picture; ``rgb_array``: an image; ``human``: shown in a window."""
-        from morality_gym.render import render_env
+        """``ansi``: the ASCII picture; ``rgb_array``: an image; ``human``: shown in a window.
 
-        return render_env(self)
+        The env owns its renderer: :mod:`morality_gym.render` draws a world state and knows
+        nothing of envs; the window a ``human`` env draws into is kept here (``self._renderer``)
+        and closed by :meth:`close`.
+        """
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='ansi', 'rgb_array' or 'human'")
+            return None
+        if self.render_mode == "ansi":
+            return render_ansi(self.world, self.state, colour=False)
+        from morality_gym.render.rgb import render_rgb  # PIL: loaded by the first picture, not by import
+
+        frame = render_rgb(self.world, self.state)
+        if self.render_mode == "rgb_array":
+            return frame
+        from morality_gym.render.window import show_frame
+
+        self._renderer = show_frame(frame, self._renderer, title=self.env_id)
+        return None
 
     def close(self) -> None:
         if self._renderer is not None and hasattr(self._renderer, "close"):
@@ -226,8 +242,6 @@ class TrolleyEnv(gym.Env[Any, int]):
         return self._t
 
     def ascii(self) -> str:
-        from morality_gym.render.ansi import render_ansi
-
         return render_ansi(self.world, self.state, colour=False)
 
     def __repr__(self) -> str:

@@ -29,7 +29,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import torch as th
@@ -41,6 +41,9 @@ from morality_gym.baselines.learners import LEARN_EVAL_EPISODES, SB3Learner, bui
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError, protocol_spec, training_steps
 from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
 from morality_gym.norms.metric import BoundChain
+
+if TYPE_CHECKING:
+    from morality_gym.baselines.callbacks import MoralityEvalCallback
 
 #: Called with (run index, learn-time evaluation row) as a single run's ``on_eval`` is with the row.
 FleetEvalHook = Callable[[int, dict[str, Any]], None]
@@ -258,8 +261,6 @@ class FleetTrainer:
     def _start_evaluations(self, eval_every: int, eval_episodes: int, on_eval: FleetEvalHook | None) -> None:
         from stable_baselines3.common.logger import configure
 
-        from morality_gym.baselines.callbacks import MoralityEvalCallback
-
         self._eval_every = int(eval_every)
         self._next_eval = 0
         self._callbacks: list[MoralityEvalCallback] = []
@@ -267,7 +268,7 @@ class FleetTrainer:
             return
         for k, learner in enumerate(self._learners):
             hook = (lambda row, k=k: on_eval(k, row)) if on_eval is not None else None
-            callback = MoralityEvalCallback(learner, self._eval_every, eval_episodes, hook)
+            callback = learner.eval_callback(self._eval_every, eval_episodes, hook)
             learner.model.set_logger(configure(None, []))  # evaluations record into a silent logger
             callback.model = learner.model
             self._callbacks.append(callback)
