@@ -174,3 +174,37 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(rule: Path, tmp_path: P
     assert out.returncode == 2, out.stderr
     assert message in out.stderr and len(out.stderr.strip().splitlines()) == 1 and "Traceback" not in out.stderr
     assert not results.exists() or run_files(results) == []
+
+
+@pytest.mark.browser
+def test_the_submitted_entry_is_visible_in_a_browser(rule: Path, tmp_path: Path) -> None:
+    """The row of a submission, with its badge, is on the page Chromium renders (and filterable)."""
+    import tempfile
+
+    from leaderboard.screenshot import CHROMIUM, launch_browser
+
+    if not CHROMIUM.is_file():
+        pytest.skip(f"Debian's chromium is not installed at {CHROMIUM}")
+    sync_api = pytest.importorskip("playwright.sync_api")
+    results, site = tmp_path / "results", tmp_path / "site"
+    assert submit(results, f"{rule}:act", "--name", "Lever rule", "--preset", "smoke", "--no-gif", *SELECTION).returncode == 0
+    assert submit(results, "random", "--name", "Coin flipper", "--preset", "smoke", "--no-gif", *SELECTION).returncode == 0
+    assert build(results, site).returncode == 0
+    with tempfile.TemporaryDirectory(prefix="lb-chromium-") as profile, sync_api.sync_playwright() as pw:
+        context = launch_browser(pw, Path(profile))
+        try:
+            page = context.new_page()
+            errors: list[str] = []
+            page.on("pageerror", lambda exc: errors.append(str(exc)))
+            page.goto((site / "index.html").resolve().as_uri())
+            row = page.locator('#table1 tbody tr[data-learner="Lever rule"]')
+            assert row.is_visible()
+            badge = row.locator("td.learner .badge.submitted")
+            assert badge.is_visible() and badge.inner_text() == "submitted"
+            assert "submitted by" in (badge.get_attribute("title") or "")
+            page.select_option('select[data-filter="learner"]', "Coin flipper")
+            assert not row.is_visible()
+            assert page.locator('#table1 tbody tr[data-learner="Coin flipper"] .badge.submitted').is_visible()
+            assert errors == []
+        finally:
+            context.close()
