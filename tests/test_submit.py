@@ -20,15 +20,15 @@ from runners.schema import run_files, run_schema
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = "SwitchStandard-HumanA-v1"
-#: A hand-written rule: pull the lever when it is next to the agent (the agent starts under it),
-#: otherwise walk left, and sometimes wait: a fixed function of the observation.
+#: A hand-written rule for SwitchStandard: pull the lever while it is in state 0 (the agent starts
+#: next to it; ``obs[4:6]`` is the lever's one-hot state), then wait: a fixed function of the observation.
 RULE = """
 import numpy as np
 
 
 def act(obs):
     obs = np.asarray(obs)
-    return 5 if obs[6] == 0 else 2
+    return 5 if obs[5] == 0 else 4
 
 
 def cautious(obs):
@@ -121,7 +121,7 @@ def test_submit_build_resubmit_and_supersede(rule: Path, tmp_path: Path) -> None
     assert {p.name: p.read_bytes() for p in run_files(results)} == before
 
     # A changed file: new runs, counted; the old ones are reported as superseded.
-    rule.write_text(RULE.replace("else 2", "else 4"))
+    rule.write_text(RULE.replace("else 4", "else 2"))
     changed = submit(results, f"{rule}:act", "--name", "Lever rule", *SELECTION)
     assert changed.returncode == 0 and "wrote 3 run(s), 0 already present" in changed.stdout
     assert len(run_files(results)) == 6
