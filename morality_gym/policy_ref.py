@@ -6,7 +6,7 @@ it: the policy object the evaluators accept (:class:`morality_gym.evaluation.pol
 the file whose bytes define it (so a submission can be hashed and re-submitted idempotently), and a
 one-line error naming what is wrong when it cannot be used. This module is that one place.
 
-Accepted references (resolved in this order):
+Accepted references:
 
 * ``random`` - uniform random actions;
 * ``path/to/file.py:attr`` - ``attr`` (dots allowed: ``Agent.act``) of a Python file, loaded under
@@ -173,10 +173,11 @@ def load_policy(ref: Any, env_ids: Sequence[str] = (), allow_other_env: bool = F
         return LoadedPolicy(ref=RANDOM, kind="random", policy=RANDOM)
     if not text:
         raise PolicyError(f"empty policy reference; {_HELP}")
+    callable_form = ":" in text and (text.rsplit(":", 1)[0].endswith(".py") or bool(_MODULE_REF.match(text)))
+    if callable_form and not Path(text).expanduser().exists():  # checked first: my_rule.py:act is no model
+        return _load_callable(text)
     if _is_model_path(text):
         return _load_model(text, env_ids, allow_other_env)
-    if ":" in text and (text.rsplit(":", 1)[0].endswith(".py") or _MODULE_REF.match(text)):
-        return _load_callable(text)
     raise PolicyError(f"policy {text!r} does not exist as a saved model and is not of the form file.py:function or "
                       f"module:function; {_HELP}")
 

@@ -67,6 +67,8 @@ def test_references_resolve_to_their_kind_and_files(rules: Path, tmp_path: Path,
     by_module = load_policy("my_rules:interact")
     assert by_module.kind == "callable" and by_module.files == (rules.resolve(),)
     assert by_module.sha256() == by_file.sha256()
+    (tmp_path / "my_rules.json").write_text("{}")  # a sibling that looks like model metadata changes nothing
+    assert load_policy(f"{rules}:interact").kind == "callable"
     before = by_file.sha256()
     rules.write_text(RULES + "\n# edited\n")
     assert load_policy(f"{rules}:interact").sha256() != before  # a changed file is another policy
