@@ -130,3 +130,12 @@ def test_eval_command_takes_a_callable_reference(rules: Path) -> None:
     assert json.loads(out.stdout)["envs"][ENV]["metric"] == pytest.approx(expected, abs=1e-12)
     bad = subprocess.run(base + ["--policy", f"{rules}:ragged"], check=False, capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and "Traceback" not in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_a_table_keyed_by_rounded_observations_works_in_monte_carlo_too() -> None:
+    """A ``Mapping`` keyed by ``tuple(np.round(obs, 6))`` (as documented) was found by the exact
+    evaluator but not by Monte Carlo, whose batched env observes in float32 (KeyError)."""
+    graph = morality_gym.TrolleyEnv(ENV).graph.tables()
+    table = {tuple(np.round(o, 6).tolist()): [0, 0, 0, 0, 1, 0] for o in graph.obs}
+    mc = evaluate(table, ENV, "Utility", n_episodes=5, seed=1)
+    assert mc.metric == exact_evaluate(table, ENV, "Utility").metric and mc.mean_length == 201

@@ -78,7 +78,9 @@ class PolicyAdapter:
                 raise ValueError("a state-aligned probability table needs state ids")
             probs = np.asarray(p, dtype=np.float64)[state_ids]
         elif isinstance(p, Mapping):
-            probs = np.array([_as_probs(p[tuple(np.round(o, 6).tolist())]) for o in obs])
+            # Rounded in float64: the batched env's float32 observations, rounded as float32, would
+            # come out as 0.16666699945926666 instead of 0.166667 and miss every key.
+            probs = np.array([_as_probs(p[tuple(np.round(np.asarray(o, dtype=np.float64), 6).tolist())]) for o in obs])
         elif callable(p):
             probs = [_as_probs(p(o)) for o in obs]
         else:
