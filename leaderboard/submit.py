@@ -269,7 +269,7 @@ def _now() -> str:
 
 def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = print) -> dict[str, int]:
     """Evaluate and write every run of ``cells`` that is not in ``results`` yet; returns counts."""
-    from morality_gym.policy_ref import is_stationary, probe
+    from morality_gym.policy_ref import PolicyError, is_stationary, probe
     from runners.execute import RunLock, finished_status
     from runners.schema import write_run
 
@@ -293,7 +293,13 @@ def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = pri
                     if finished_status(results, run_id) == "ok":
                         counts["present"] += 1
                         continue
-                    row = evaluate_run(sub, cell, config, run_id, results)
+                    try:
+                        row = evaluate_run(sub, cell, config, run_id, results)
+                    except (UserError, ValueError):
+                        raise  # already a named user error (InvalidActionError is a ValueError)
+                    except Exception as exc:  # the user's code failed mid-evaluation: say where, keep what is written
+                        raise PolicyError(f"policy {sub.loaded.ref} failed while evaluating {env_id}, seed {seed} "
+                                          f"({type(exc).__name__}: {exc}); runs written so far are kept") from exc
                     write_run(results, row, cell.chain.norm_names)
                     counts["written"] += 1
                 finally:

@@ -212,11 +212,19 @@ def is_stationary(loaded: LoadedPolicy, env_id: str) -> bool:
     from morality_gym.envs.registry import state_graph
     from morality_gym.evaluation.policies import PolicyAdapter
 
+    from morality_gym.envs.trolley import InvalidActionError
+
     tables = state_graph(env_id).tables()
     ids = np.arange(tables.n_states)
     adapter = PolicyAdapter(loaded.policy)
-    first = adapter.probabilities(tables.obs, ids)
-    second = adapter.probabilities(tables.obs[::-1], ids[::-1])[::-1]
+    try:
+        first = adapter.probabilities(tables.obs, ids)
+        second = adapter.probabilities(tables.obs[::-1], ids[::-1])[::-1]
+    except InvalidActionError as exc:
+        raise InvalidActionError(f"policy {loaded.ref} on {env_id}: {exc}") from exc
+    except Exception as exc:
+        raise PolicyError(f"policy {loaded.ref} failed on a reachable state of {env_id} "
+                          f"({type(exc).__name__}: {exc}); it must answer every observation") from exc
     return bool(np.array_equal(first, second))
 
 

@@ -139,3 +139,16 @@ def test_a_table_keyed_by_rounded_observations_works_in_monte_carlo_too() -> Non
     table = {tuple(np.round(o, 6).tolist()): [0, 0, 0, 0, 1, 0] for o in graph.obs}
     mc = evaluate(table, ENV, "Utility", n_episodes=5, seed=1)
     assert mc.metric == exact_evaluate(table, ENV, "Utility").metric and mc.mean_length == 201
+
+
+def test_a_policy_failing_on_some_state_is_named(tmp_path: Path) -> None:
+    from morality_gym.envs.trolley import InvalidActionError
+
+    path = tmp_path / "picky.py"
+    path.write_text("def act(obs):\n    if obs[5] == 1:\n        raise KeyError('lever pulled')\n    return 5\n"
+                    "def bad_later(obs):\n    return 5 if obs[5] == 0 else 7\n")
+    probe(load_policy(f"{path}:act"), ENV)  # fine on the first observation
+    with pytest.raises(PolicyError, match="failed on a reachable state of SwitchStandard-HumanA-v1 .KeyError"):
+        is_stationary(load_policy(f"{path}:act"), ENV)
+    with pytest.raises(InvalidActionError, match="returned action 7"):
+        is_stationary(load_policy(f"{path}:bad_later"), ENV)

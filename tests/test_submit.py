@@ -47,6 +47,12 @@ def restless(obs):
 
 def nine(obs):
     return 9
+
+
+def picky(obs):
+    if obs[5] == 1:
+        raise KeyError("lever pulled")
+    return 5
 """
 SELECTION = ["--chain", "utility", "--scenario", "switch_standard", "--variant", "HumanA"]
 
@@ -162,6 +168,7 @@ def test_probabilities_non_stationary_policies_and_cells(rule: Path, tmp_path: P
         (["{rule}:actt", "--name", "x", *SELECTION], "did you mean act?"),
         (["no_such_policy_module:act", "--name", "x", *SELECTION], "cannot import module"),
         (["{rule}:nine", "--name", "x", *SELECTION], "the policy returned action 9"),
+        (["{rule}:picky", "--name", "x", *SELECTION], "failed on a reachable state of SwitchStandard-HumanA-v1 (KeyError"),
         (["{rule}:act", "--name", "PPO", *SELECTION], "name of a baseline"),
         (["{rule}:act", "--name", "x", "--preset", "papr", *SELECTION], "did you mean paper?"),
     ],
