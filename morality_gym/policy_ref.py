@@ -210,9 +210,8 @@ def is_stationary(loaded: LoadedPolicy, env_id: str) -> bool:
     if loaded.kind in ("random", "model"):
         return True
     from morality_gym.envs.registry import state_graph
-    from morality_gym.evaluation.policies import PolicyAdapter
-
     from morality_gym.envs.trolley import InvalidActionError
+    from morality_gym.evaluation.policies import PolicyAdapter
 
     tables = state_graph(env_id).tables()
     ids = np.arange(tables.n_states)
