@@ -9,7 +9,7 @@ trained run of the sweep gets, and lands in the results directory as ordinary ru
   episodes of the stochastic policy seeded by the seed, at ``beta`` 0.1 and ``max_steps`` 200 -
   exactly :meth:`morality_gym.baselines.learners.Learner.final_evaluation` of a trained run;
 * the exact expectation (``exact_metric``) when the policy is stationary, i.e. its action
-  probabilities are a fixed function of the observation (:func:`morality_gym.policy_ref.is_stationary`:
+  probabilities are a fixed function of the observation (:func:`morality_gym.baselines.policy_ref.is_stationary`:
   ``random`` and saved models always; a callable when asking it twice for every reachable state
   gives the same answers); otherwise ``exact_metric`` is null and the config says why.
 
@@ -177,7 +177,7 @@ class Submission:
     """What is submitted and how it is evaluated (everything except the cell)."""
 
     name: str
-    loaded: Any  # morality_gym.policy_ref.LoadedPolicy
+    loaded: Any  # morality_gym.baselines.policy_ref.LoadedPolicy
     sha256: str
     submitter: str
     protocol: str
@@ -269,7 +269,7 @@ def _now() -> str:
 
 def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = print) -> dict[str, int]:
     """Evaluate and write every run of ``cells`` that is not in ``results`` yet; returns counts."""
-    from morality_gym.policy_ref import PolicyError, is_stationary, probe
+    from morality_gym.baselines.policy_ref import PolicyError, is_stationary, probe
     from runners.execute import RunLock, finished_status
     from runners.schema import write_run
 
@@ -344,9 +344,9 @@ def _submitter(given: str | None) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from morality_gym.baselines.policy_ref import load_policy
     from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
     from morality_gym.norms.metric import DEFAULT_BETA
-    from morality_gym.policy_ref import load_policy
 
     name = check_name(args.name)
     cells = select_cells(args.chain, args.scenario, args.variant)

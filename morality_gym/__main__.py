@@ -64,9 +64,9 @@ def _max_steps(text: str) -> int | None:
 
 
 def _load_policy(spec: str, env_ids: list[str], allow_other_env: bool) -> Any:
-    """The policy ``spec`` names (:mod:`morality_gym.policy_ref`), checked against every env it
+    """The policy ``spec`` names (:mod:`morality_gym.baselines.policy_ref`), checked against every env it
     will be evaluated on; a callable is asked for a first action so its mistakes fail early."""
-    from morality_gym.policy_ref import load_policy, probe
+    from morality_gym.baselines.policy_ref import load_policy, probe
 
     loaded = load_policy(spec, env_ids, allow_other_env)
     if loaded.kind == "callable":
@@ -291,8 +291,8 @@ def build_parser() -> argparse.ArgumentParser:
 def user_errors() -> tuple[type[BaseException], ...]:
     """What a user can get wrong here (one line, exit 2); anything else is a bug (traceback)."""
     from morality_gym.baselines.io import ModelError
+    from morality_gym.baselines.policy_ref import PolicyError
     from morality_gym.envs.trolley import InvalidActionError
-    from morality_gym.policy_ref import PolicyError
     from morality_gym.world.layout import ScenarioError
 
     return (CliError, ChainError, UnknownEnvError, ModelError, ScenarioError, InvalidActionError, PolicyError)

@@ -11,7 +11,7 @@ read at a time and every character in it is a key, so that tests and scripts can
 through a pipe (``printf 'ed\\n' | python -m morality_gym play ...``).
 
 With ``--policy`` (anything ``eval --policy`` takes: ``random``, a saved model, ``file.py:function``
-or ``module:function``, see :mod:`morality_gym.policy_ref`) the agent plays instead: the same
+or ``module:function``, see :mod:`morality_gym.baselines.policy_ref`) the agent plays instead: the same
 per-step output, ``--delay`` seconds apart, for ``--episodes`` episodes; ``--render out.gif``
 writes the episodes as GIFs instead (``record_episode``), ``--render window`` also shows them in a
 window. Probabilities are sampled with a generator seeded by ``--seed``.
@@ -383,8 +383,9 @@ def run(
     loaded = None
     if policy is not None:
         from morality_gym.baselines.io import ModelError
+        from morality_gym.baselines.policy_ref import PolicyError, load_policy, probe
         from morality_gym.envs.trolley import InvalidActionError
-        from morality_gym.policy_ref import PolicyError, actor, load_policy, probe
+        from morality_gym.evaluation.policies import step_actor
 
         try:
             loaded = load_policy(policy, [env.env_id], getattr(args, "allow_other_env", False))
@@ -402,7 +403,7 @@ def run(
             import numpy as np
 
             try:
-                return watch(game, actor(loaded, np.random.default_rng(args.seed)), args.episodes, args.delay)
+                return watch(game, step_actor(loaded.policy, np.random.default_rng(args.seed)), args.episodes, args.delay)
             except InvalidActionError as exc:
                 return _error(err, exc)
         if _isatty(stdin) and _HAS_TERMIOS:

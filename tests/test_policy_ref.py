@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 import morality_gym
+from morality_gym.baselines.policy_ref import PolicyError, is_stationary, load_policy, probe
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.montecarlo import evaluate
-from morality_gym.policy_ref import PolicyError, is_stationary, load_policy, probe
 
 ENV = "SwitchStandard-HumanA-v1"
 RULES = """

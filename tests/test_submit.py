@@ -13,9 +13,9 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
+from morality_gym.baselines.policy_ref import load_policy
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.montecarlo import evaluate
-from morality_gym.policy_ref import load_policy
 from runners.schema import run_files, run_schema
 
 REPO = Path(__file__).resolve().parent.parent

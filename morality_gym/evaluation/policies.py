@@ -110,6 +110,24 @@ def _invalid(message: str) -> ValueError:
     return InvalidActionError(message)
 
 
+def step_actor(policy: Any, rng: np.random.Generator) -> Callable[[np.ndarray, int], int]:
+    """One action at a time, for an env being watched or recorded: ``act(flat_obs, state_id)``.
+
+    ``None`` or ``"random"`` draws ``rng.integers(6)``; a callable answering with an action is used
+    as is (no draw); probabilities (a callable's, a table's, an SB3 model's) are sampled with
+    ``rng``, one draw per step, as the Monte-Carlo evaluator samples them.
+    """
+    if policy is None or (isinstance(policy, str) and policy == "random"):
+        return lambda _obs, _sid: int(rng.integers(N_ACTIONS))
+    adapter = PolicyAdapter(policy)
+
+    def act(obs: np.ndarray, state_id: int) -> int:
+        row = np.asarray(obs, dtype=np.float64)[None]
+        return int(adapter.actions(row, rng, np.array([state_id], dtype=np.int64))[0])
+
+    return act
+
+
 def sample_actions(probs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """One action per row of ``probs`` (inverse-CDF sampling with one uniform draw per row)."""
     cum = probs.cumsum(axis=1)

@@ -81,11 +81,13 @@ def record_episode(
 ) -> dict[str, Any]:
     """Play one episode of ``env_id`` and write it as a GIF (initial frame included).
 
-    ``policy`` is anything ``eval --policy`` takes (:mod:`morality_gym.policy_ref`): ``None`` or
-    ``"random"`` (uniform random actions from ``np.random.default_rng(seed)``), a saved model's
-    path, ``"file.py:function"`` / ``"module:function"``, or a policy object (a callable
-    ``obs -> action`` or ``obs -> 6 probabilities``, a table, an SB3 model). Probabilities are
-    sampled with the same seeded generator. A callable gets the flat observation. The episode stops at termination, truncation or after
+    ``policy``: ``None`` or ``"random"`` (uniform random actions from
+    ``np.random.default_rng(seed)``), or any policy object the evaluators take (a callable
+    ``obs -> action`` or ``obs -> 6 probabilities``, a table, an SB3 model; probabilities are
+    sampled with the same seeded generator; a callable gets the flat observation). A reference as
+    ``eval --policy`` takes it (a saved model's path, ``"file.py:function"``) is resolved first with
+    ``load_policy(ref).policy`` of ``morality_gym.baselines.policy_ref``, as ``play --policy
+    --render`` does: loading a saved model is the baselines' job, a layer above this one. The episode stops at termination, truncation or after
     ``max_steps`` steps. Returns ``{"env_id", "path", "steps", "return", "terminated", "truncated",
     "actions", "events", "utility", "frames"}`` where ``events`` lists every norm event that
     occurred (vocabulary order) and ``utility`` sums each harm count over the episode, so the
@@ -99,12 +101,13 @@ def record_episode(
     kwargs = dict(env_kwargs or {})
     if "render_mode" in kwargs:
         raise ValueError("record_episode renders rgb_array frames itself; do not pass render_mode in env_kwargs")
-    # Imported here, not at the top: the policy references reach up to the saved-model loader,
-    # while this module sits with the env's renderer.
-    from morality_gym.policy_ref import actor, load_policy
+    from morality_gym.evaluation.policies import step_actor
 
+    if isinstance(policy, (str, os.PathLike)) and policy != "random":
+        raise ValueError(f"record_episode takes a policy object or 'random', not the reference {str(policy)!r}: "
+                         "resolve it first with load_policy(ref).policy from morality_gym.baselines.policy_ref")
     rng = np.random.default_rng(seed)
-    act = actor(load_policy(policy, [env_id]), rng)
+    act = step_actor(policy, rng)
     env = TrolleyEnv(env_id, render_mode="rgb_array", **kwargs)
     flat = env.graph.tables().obs if env.obs_type != "flat" else None
     try:

@@ -1,10 +1,12 @@
 """Policies named on a command line: ``random``, a saved model, or an importable ``module:attr``.
 
-``eval``, ``play``, :func:`morality_gym.render.gif.record_episode` and ``python -m
-leaderboard.submit`` all take a policy *reference* (a string) and need the same three things from
-it: the policy object the evaluators accept (:class:`morality_gym.evaluation.policies.PolicyAdapter`),
+``eval``, ``play`` and ``python -m leaderboard.submit`` take a policy *reference* (a string) and
+need the same three things from it: the policy object the evaluators accept (:class:`morality_gym.evaluation.policies.PolicyAdapter`),
 the file whose bytes define it (so a submission can be hashed and re-submitted idempotently), and a
-one-line error naming what is wrong when it cannot be used. This module is that one place.
+one-line error naming what is wrong when it cannot be used. This module is that one place. It sits
+with the baselines because a saved model is loaded by :mod:`morality_gym.baselines.io`; code below
+that layer (:func:`morality_gym.render.gif.record_episode`, the evaluators) takes the resolved
+policy object, ``load_policy(ref).policy``.
 
 Accepted references:
 
@@ -26,7 +28,7 @@ import importlib
 import importlib.util
 import re
 import sys
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -227,24 +229,4 @@ def is_stationary(loaded: LoadedPolicy, env_id: str) -> bool:
     return bool(np.array_equal(first, second))
 
 
-def actor(loaded: LoadedPolicy, rng: np.random.Generator) -> Callable[[np.ndarray, int], int]:
-    """One action at a time, for an env being watched: ``act(flat_obs, state_id) -> action``.
-
-    ``random`` draws ``rng.integers(6)``; a callable answering with an action is used as is (no
-    draw); probabilities (a callable's, a table's, an SB3 model's) are sampled with ``rng``, as
-    the Monte-Carlo evaluator samples them.
-    """
-    from morality_gym.evaluation.policies import N_ACTIONS, PolicyAdapter
-
-    if loaded.kind == "random":
-        return lambda _obs, _sid: int(rng.integers(N_ACTIONS))
-    adapter = PolicyAdapter(loaded.policy)
-
-    def act(obs: np.ndarray, state_id: int) -> int:
-        row = np.asarray(obs, dtype=np.float64)[None]
-        return int(adapter.actions(row, rng, np.array([state_id], dtype=np.int64))[0])
-
-    return act
-
-
-__all__ = ["RANDOM", "LoadedPolicy", "PolicyError", "actor", "is_stationary", "load_policy", "probe"]
+__all__ = ["RANDOM", "LoadedPolicy", "PolicyError", "is_stationary", "load_policy", "probe"]
