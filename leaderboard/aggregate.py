@@ -44,6 +44,7 @@ import re
 import tempfile
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -70,6 +71,12 @@ DEFAULT_MAX_STEPS = 200
 #: Bump when the content of the reference cache changes meaning (old entries are then recomputed).
 REFERENCE_CACHE_VERSION = 1
 _PRESET_RANK = {"paper": 0, "quick": 1, "smoke": 2}
+#: A run config's record of who submitted it and from where (``leaderboard.submit``): kept out of
+#: the configuration key, so a submission resumed by someone else, or from another directory, is
+#: still one configuration.
+PROVENANCE_KEY = "provenance"
+#: ``algo`` of runs written by ``python -m leaderboard.submit`` (external policies).
+SUBMITTED_ALGO = "submitted"
 _UNKNOWN = "unknown"
 _TOLERANCE = 1e-12
 
@@ -199,7 +206,7 @@ def _config_facts(config: Any, run_id: Any) -> tuple[str, str | None]:
             fingerprint = chain_fingerprint(chain["norms"])
         except (TypeError, ValueError):
             fingerprint = None
-    return config_key(data), fingerprint
+    return config_key({k: v for k, v in data.items() if k != PROVENANCE_KEY}), fingerprint
 
 
 def chain_label(name: Any, fingerprint: str | None) -> Any:
@@ -352,6 +359,34 @@ def select_configurations(runs: pd.DataFrame, planned: Mapping[str, Mapping[str,
     kept_plans = {rid: item for rid, item in planned.items()
                   if item.get("config_key") is None or str(item["config_key"]) == winner.get(_cell_of(item))}
     return counted, superseded, kept_plans
+
+
+# ---------------------------------------------------------------------------------------- submissions
+def submitted_learners(runs: pd.DataFrame) -> dict[str, str]:
+    """``{learner: note}`` for the learners whose counted runs were submitted (``algo == "submitted"``).
+
+    The note names the submitters and the policy hash(es) as recorded in the runs' configs, so the
+    page can say whose policy an entry is.
+    """
+    if "algo" not in runs.columns or runs.empty:
+        return {}
+    out: dict[str, tuple[set[str], set[str]]] = {}
+    part = runs.loc[runs["algo"].astype(object) == SUBMITTED_ALGO]
+    for learner, config in zip(part["learner"], part["config"]):
+        who, hashes = out.setdefault(str(learner), (set(), set()))
+        try:
+            data = json.loads(config) if isinstance(config, str) else {}
+        except ValueError:
+            data = {}
+        prov = data.get(PROVENANCE_KEY) if isinstance(data, dict) else None
+        policy = data.get("policy") if isinstance(data, dict) else None
+        if isinstance(prov, dict) and prov.get("submitter"):
+            who.add(str(prov["submitter"]))
+        if isinstance(policy, dict) and policy.get("sha256"):
+            hashes.add(str(policy["sha256"])[:12])
+    return {learner: (f"external policy submitted by {', '.join(sorted(who)) or 'unknown'}"
+                      + (f"; policy sha256 {', '.join(sorted(hashes))}" if hashes else ""))
+            for learner, (who, hashes) in out.items()}
 
 
 # ---------------------------------------------------------------------------------------- problems
@@ -857,6 +892,11 @@ class Leaderboard:
     @property
     def learners(self) -> list[str]:
         return learner_order(self.table.loc[self.table["kind"] == "learner", "learner"])
+
+    @cached_property
+    def submitted(self) -> dict[str, str]:
+        """Learners that are submitted external policies, with a note for each (who submitted it)."""
+        return submitted_learners(self.runs)
 
     def group_table(self, group: Group) -> pd.DataFrame:
         t = self.table

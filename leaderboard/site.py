@@ -121,6 +121,7 @@ td.learner { white-space:nowrap; }
 .badge { display:inline-block; padding:1px 8px; border-radius:10px; font-size:12px; font-weight:600; }
 .badge.ok { background:#e3f4e8; color:#157f3b; } .badge.failed { background:var(--badbg); color:var(--bad); }
 .badge.incomplete { background:var(--warnbg); color:var(--warn); font-weight:600; white-space:nowrap; }
+.badge.submitted { background:#e8eefc; color:#2747a8; margin-left:6px; white-space:nowrap; }
 .error { color:var(--bad); }
 pre { background:#f6f8fa; border:1px solid var(--line); border-radius:6px; padding:10px 12px; overflow:auto;
       max-height:460px; margin:6px 0; }
@@ -277,6 +278,11 @@ def num_td(value: Any, digits: int = 3, signed: bool = False, classes: str = "",
 def incomplete_badge(reason: str) -> str:
     """The mark of an incomplete cell: a ⚠ whose tooltip says what is lacking."""
     return f' <span class="badge incomplete" title="incomplete: {h(reason)}">⚠ incomplete</span>'
+
+
+def submitted_badge(note: str) -> str:
+    """The mark of an entry submitted from outside (``leaderboard.submit``), not trained by a sweep."""
+    return f' <span class="badge submitted" title="{h(note)}">submitted</span>'
 
 
 def _expected_count(record: dict[str, Any]) -> int:
@@ -557,6 +563,7 @@ def table1_section(sb: SiteBuild, root: str) -> str:
         sort_th(ORACLE_WORST, "num", "worst metric any policy can reach"),
     ])
     body = []
+    submitted = lb.submitted
     for r in learners.to_dict("records"):
         group = Group(r["protocol"], r["preset"])
         ref = [reference.get((r["protocol"], r["preset"], r["chain"], r["scenario"], name)) for name in
@@ -574,7 +581,8 @@ def table1_section(sb: SiteBuild, root: str) -> str:
             f'data-learner="{h(r["learner"])}" data-best="{int(bool(r["best"]))}" data-complete="{int(complete)}">'
             f'<td class="sweep">{h(r["protocol"])} · {h(r["preset"])}</td><td>{h(r["chain"])}</td>'
             f'<td><a href="{h(href)}">{h(r["scenario"])}</a></td>'
-            f'<td class="learner">{dot(sb.colour(r["learner"]))}{h(r["learner"])}</td>'
+            f'<td class="learner">{dot(sb.colour(r["learner"]))}{h(r["learner"])}'
+            f'{submitted_badge(submitted[r["learner"]]) if r["learner"] in submitted else ""}</td>'
             + num_td(r["mean"], classes="best" if r["best"] else runs_cls, bold=bool(r["best"]), suffix=mark)
             + num_td(r["std"])
             + f'<td class="num {runs_cls}" data-sort="{n}"{runs_title}>{n}/{expected}</td>'
@@ -588,6 +596,8 @@ def table1_section(sb: SiteBuild, root: str) -> str:
         f'|Δ| ≥ {NOTABLE_DELTA}. ⚠ incomplete (orange): fewer results than the scenario\'s variants times the preset\'s seeds; such a cell '
         f'is never bold and not compared with the paper (no Δ). {h(RANDOM_EXACT)}: exact expectation of '
         'the uniform random policy; oracle best/worst: the range any policy can reach (means over variants). '
+        '<span class="badge submitted">submitted</span>: an external policy scored with <code>python -m '
+        'leaderboard.submit</code> (same final evaluation as the trained runs; no training by the sweep). '
         'Click a column header to sort; click a scenario for its page.</p>'
         + "".join(controls)
         + '<div class="table-wrap"><table id="table1" class="sortable"><thead><tr>' + head + "</tr></thead><tbody>"
@@ -723,6 +733,8 @@ def _summary_table(sb: SiteBuild, group: Group, chain: str, scenario: str) -> st
             complete = bool(r["complete"])
             cls = ' class="num"' if complete else f' class="num incomplete" title="incomplete: {h(r["incomplete_reason"])}"'
             label = f'{dot(sb.colour(r["learner"]))}{h(r["learner"])}'
+            if r["learner"] in sb.lb.submitted:
+                label += submitted_badge(sb.lb.submitted[r["learner"]])
             mark = "" if complete else incomplete_badge(str(r["incomplete_reason"]))
         else:
             runs, cls, label = "exact", ' class="num muted"', f'<span class="muted">{h(r["learner"])}</span>'

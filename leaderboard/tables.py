@@ -130,7 +130,9 @@ def group_markdown(lb: Leaderboard, group: Group) -> list[str]:
     table = lb.group_table(group)
     learners = [name for name in lb.learners if name in set(table["learner"])]
     references = [name for name in REFERENCE_LEARNERS if name in set(table["learner"])]
-    header = ["Chain", "Scenario", *learners, *references]
+    submitted = lb.submitted
+    header = ["Chain", "Scenario", *[md_escape(name) + (" (submitted)" if name in submitted else "") for name in learners],
+              *references]
     rows = []
     for chain, scenario in lb.pairs(group):
         row = [md_escape(chain), md_escape(scenario)]

@@ -64,18 +64,14 @@ def _max_steps(text: str) -> int | None:
 
 
 def _load_policy(spec: str, env_ids: list[str], allow_other_env: bool) -> Any:
-    """``"random"`` or the saved model at ``spec``, checked against every env it will be evaluated on."""
-    if spec == "random":
-        return "random"
-    path = Path(spec)
-    if not path.exists() and not path.with_suffix(".json").exists():
-        raise CliError(f"--policy must be 'random' or the path of a saved model (model.zip); {spec!r} does not exist")
-    from morality_gym.baselines.io import check_model_env, load_model
+    """The policy ``spec`` names (:mod:`morality_gym.baselines.policy_ref`), checked against every env it
+    will be evaluated on; a callable is asked for a first action so its mistakes fail early."""
+    from morality_gym.baselines.policy_ref import load_policy, probe
 
-    policy = load_model(path)
-    for env_id in env_ids:
-        check_model_env(path, policy, env_id, allow_other_env)
-    return policy
+    loaded = load_policy(spec, env_ids, allow_other_env)
+    if loaded.kind == "callable":
+        probe(loaded, env_ids[0])
+    return loaded.policy
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -262,7 +258,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p_eval = sub.add_parser("eval", help="evaluate a policy's morality metric (Monte Carlo or exact)")
     common(p_eval)
-    p_eval.add_argument("--policy", default="random", help="'random' or the path of a saved model (.zip)")
+    p_eval.add_argument("--policy", default="random",
+                        help="'random', a saved model (.zip), or a callable obs -> action or 6 probabilities given as "
+                             "path/to/file.py:function or package.module:function")
     p_eval.add_argument("--max-steps", type=_max_steps, default=200, help="truncate on step max_steps + 1 (default 200; 'none')")
     p_eval.add_argument("--exact", action="store_true", help="exact expectation instead of sampling")
     p_eval.add_argument("--episodes", type=positive_int, default=None,
@@ -293,10 +291,11 @@ def build_parser() -> argparse.ArgumentParser:
 def user_errors() -> tuple[type[BaseException], ...]:
     """What a user can get wrong here (one line, exit 2); anything else is a bug (traceback)."""
     from morality_gym.baselines.io import ModelError
+    from morality_gym.baselines.policy_ref import PolicyError
     from morality_gym.envs.trolley import InvalidActionError
     from morality_gym.world.layout import ScenarioError
 
-    return (CliError, ChainError, UnknownEnvError, ModelError, ScenarioError, InvalidActionError)
+    return (CliError, ChainError, UnknownEnvError, ModelError, ScenarioError, InvalidActionError, PolicyError)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,4 +1,4 @@
-"""``python -m morality_gym play ENV_ID``: play a dilemma yourself in the terminal.
+"""``python -m morality_gym play ENV_ID [--policy P]``: play a dilemma yourself, or watch an agent.
 
 Playing an environment by hand is the quickest way to understand a scenario (and to check that
 it does what its description says), so every step prints what an agent would receive: the
@@ -9,6 +9,12 @@ adjacent levers, push the adjacent pushable groups), ``r`` restarts, ``q`` quits
 On a terminal single key presses are read (cbreak mode, always restored); otherwise one line is
 read at a time and every character in it is a key, so that tests and scripts can drive a game
 through a pipe (``printf 'ed\\n' | python -m morality_gym play ...``).
+
+With ``--policy`` (anything ``eval --policy`` takes: ``random``, a saved model, ``file.py:function``
+or ``module:function``, see :mod:`morality_gym.baselines.policy_ref`) the agent plays instead: the same
+per-step output, ``--delay`` seconds apart, for ``--episodes`` episodes; ``--render out.gif``
+writes the episodes as GIFs instead (``record_episode``), ``--render window`` also shows them in a
+window. Probabilities are sampled with a generator seeded by ``--seed``.
 """
 
 from __future__ import annotations
@@ -17,8 +23,10 @@ import argparse
 import contextlib
 import os
 import sys
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, TextIO
 
 from morality_gym.world.rules import ACTION_NAMES, DOWN, FOUND, HARMED, INTERACT, LEFT, RIGHT, STAY, UP
@@ -60,12 +68,59 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="truncate the episode on step max_steps + 1, as the environment does (default: 200)",
     )
     parser.add_argument(
+        "--policy",
+        default=None,
+        help="watch an agent instead of playing: 'random', a saved model (model.zip), path/to/file.py:function "
+             "or package.module:function (a callable obs -> action or 6 probabilities)",
+    )
+    parser.add_argument("--episodes", type=_positive_int, default=1, help="with --policy: episodes to watch (default 1)")
+    parser.add_argument(
+        "--delay",
+        type=_delay,
+        default=DEFAULT_DELAY,
+        help=f"with --policy: seconds between steps in the terminal (default {DEFAULT_DELAY}; 0 = no pause)",
+    )
+    parser.add_argument("--seed", type=int, default=None, help="with --policy: seed of the action sampling")
+    parser.add_argument(
+        "--render",
+        default=None,
+        metavar="OUT.gif|window",
+        help="with --policy: write each episode to a GIF (OUT.gif; OUT-2.gif, ... for more episodes) "
+             "or also show it in a window ('window')",
+    )
+    parser.add_argument(
+        "--allow-other-env",
+        action="store_true",
+        help="with a saved model: watch it on another variant than the one it was trained on",
+    )
+    parser.add_argument(
         "--no-colour",
         "--no-color",
         dest="no_colour",
         action="store_true",
         help="plain ASCII picture without ANSI colours",
     )
+
+
+#: Seconds between two watched steps: slow enough to follow, fast enough not to bore.
+DEFAULT_DELAY = 0.3
+WINDOW = "window"
+
+
+def _positive_int(text: str) -> int:
+    from morality_gym.clitools import positive_int
+
+    return positive_int(text)
+
+
+def _delay(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not value >= 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number of seconds >= 0, got {text!r}")
+    return value
 
 
 # ---------------------------------------------------------------------------------------- input
@@ -166,10 +221,11 @@ def _ending(env: Any, terminated: bool, truncated: bool) -> str:
 class Game:
     """One terminal session: an environment, the output stream and the current episode."""
 
-    def __init__(self, env: Any, out: TextIO, colour: bool) -> None:
+    def __init__(self, env: Any, out: TextIO, colour: bool, watching: str | None = None) -> None:
         self.env = env
         self.out = out
         self.colour = colour
+        self.watching = watching  # the policy reference when an agent plays, None for a person
         self.episode = Episode()
 
     def say(self, text: str = "") -> None:
@@ -185,8 +241,13 @@ class Game:
         self.env.reset()
         self.episode = Episode()
         self.say(f"\n{self.env.env_id}: {self.env.scenario.summary}")
-        self.say("keys: w a s d move, space wait, e interact, r restart, q quit, ? help")
+        if self.watching is None:
+            self.say("keys: w a s d move, space wait, e interact, r restart, q quit, ? help")
+        else:
+            self.say(f"policy: {self.watching}")
         self.picture()
+        if self.env.render_mode == WINDOW_MODE:
+            self.env.render()
 
     def step(self, action: int) -> None:
         if self.episode.over:
@@ -206,11 +267,14 @@ class Game:
         for line in _format_events(ne):
             self.say(line)
         self.say(f"terminated={terminated} truncated={truncated}   ({_format_statuses(info['termination_statuses'])})")
+        if self.env.render_mode == WINDOW_MODE:
+            self.env.render()
         if terminated or truncated:
             ep.over = True
             ep.ending = _ending(self.env, terminated, truncated)
             self.summary()
-            self.say("r to play again, q to quit")
+            if self.watching is None:
+                self.say("r to play again, q to quit")
 
     def summary(self) -> None:
         ep = self.episode
@@ -245,6 +309,55 @@ class Game:
         return 0
 
 
+WINDOW_MODE = "human"  # the env's render mode behind --render window
+
+
+def watch(game: Game, act: Any, episodes: int, delay: float, sleep: Any = time.sleep) -> int:
+    """Let ``act(flat_obs, state_id) -> action`` play ``episodes`` episodes, printing every step."""
+    observations = game.env.graph.tables().obs
+    for k in range(episodes):
+        if episodes > 1:
+            game.say(f"\n##### episode {k + 1} of {episodes}")
+        game.start()
+        while not game.episode.over:
+            if delay:
+                sleep(delay)
+            sid = game.env.state_id
+            game.step(act(observations[sid], sid))
+    game.say("bye")
+    return 0
+
+
+def gif_paths(target: str, episodes: int) -> list[Path]:
+    """``out.gif`` for one episode; ``out.gif``, ``out-2.gif``, ... for more."""
+    path = Path(target)
+    return [path] + [path.with_name(f"{path.stem}-{k}{path.suffix}") for k in range(2, episodes + 1)]
+
+
+def record(args: argparse.Namespace, loaded: Any, out: TextIO) -> int:
+    """``--render OUT.gif``: each episode to a GIF, with a one-line summary of it."""
+    from morality_gym.render.gif import record_episode
+
+    for k, path in enumerate(gif_paths(args.render, args.episodes)):
+        seed = None if args.seed is None else args.seed + k
+        # max_steps + 1 frames at most: the env truncates on step max_steps + 1.
+        summary = record_episode(args.env_id, loaded.policy, path, max_steps=args.max_steps + 1, seed=seed,
+                                 env_kwargs={"max_steps": args.max_steps})
+        ending = "terminated" if summary["terminated"] else "truncated" if summary["truncated"] else "stopped"
+        events = ", ".join(summary["events"]) or "none"
+        out.write(f"{summary['path']}: {summary['steps']} steps, return {summary['return']:g}, {ending}; events: {events}\n")
+        out.flush()
+    return 0
+
+
+def _error(err: TextIO, exc: BaseException) -> int:
+    from morality_gym.clitools import one_line
+
+    err.write(f"morality_gym play: error: {one_line(exc)}\n")
+    err.flush()
+    return 2
+
+
 def run(
     args: argparse.Namespace, stdin: TextIO = sys.stdin, stdout: TextIO = sys.stdout, stderr: TextIO | None = None
 ) -> int:
@@ -256,15 +369,43 @@ def run(
     from morality_gym.envs.trolley import TrolleyEnv
 
     err = stderr if stderr is not None else sys.stderr
+    policy = getattr(args, "policy", None)
+    render = getattr(args, "render", None)
+    if policy is None and render is not None:
+        return _error(err, ValueError("--render needs --policy (a person plays in the terminal)"))
+    if render is not None and render != WINDOW and not render.lower().endswith(".gif"):
+        return _error(err, ValueError(f"--render {render}: give a file name ending in .gif, or 'window'"))
     try:
-        env = TrolleyEnv(args.env_id, max_steps=args.max_steps)
+        env = TrolleyEnv(args.env_id, max_steps=args.max_steps,
+                         render_mode=WINDOW_MODE if render == WINDOW else None)
     except (UnknownEnvError, ValueError, TypeError) as exc:
-        err.write(f"morality_gym play: error: {exc}\n")
-        err.flush()
-        return 2
+        return _error(err, exc)
+    loaded = None
+    if policy is not None:
+        from morality_gym.baselines.io import ModelError
+        from morality_gym.baselines.policy_ref import PolicyError, load_policy, probe
+        from morality_gym.envs.trolley import InvalidActionError
+        from morality_gym.evaluation.policies import step_actor
+
+        try:
+            loaded = load_policy(policy, [env.env_id], getattr(args, "allow_other_env", False))
+            probe(loaded, env.env_id)
+            if render not in (None, WINDOW):
+                env.close()
+                return record(args, loaded, stdout)
+        except (PolicyError, ModelError, InvalidActionError, OSError) as exc:
+            env.close()
+            return _error(err, exc)
     colour = not getattr(args, "no_colour", False) and _isatty(stdout)
-    game = Game(env, stdout, colour)
+    game = Game(env, stdout, colour, watching=None if loaded is None else loaded.ref)
     try:
+        if loaded is not None:
+            import numpy as np
+
+            try:
+                return watch(game, step_actor(loaded.policy, np.random.default_rng(args.seed)), args.episodes, args.delay)
+            except InvalidActionError as exc:
+                return _error(err, exc)
         if _isatty(stdin) and _HAS_TERMIOS:
             with _cbreak(stdin):
                 return game.play(_key_commands(stdin))
@@ -291,4 +432,4 @@ def _isatty(stream: Any) -> bool:
         return False
 
 
-__all__ = ["HELP_TEXT", "KEYS", "add_arguments", "run"]
+__all__ = ["DEFAULT_DELAY", "HELP_TEXT", "KEYS", "add_arguments", "gif_paths", "run", "watch"]

@@ -222,3 +222,125 @@ def test_the_cli_through_a_pipe() -> None:
     done = subprocess.run(cmd, input="e\naaw..\nq\n", capture_output=True, text=True, timeout=60, check=False)
     assert done.returncode == 0, done.stderr
     assert "return 97   length 6 steps" in done.stdout and "\x1b[" not in done.stdout
+
+
+# ---------------------------------------------------------------------------------------- watching an agent
+_RULES = '''
+import numpy as np
+
+PLAN = {"calls": 0}
+
+
+def pull_then_stay(obs):
+    """Interact once (the lever is adjacent at the start), then stay."""
+    PLAN["calls"] += 1
+    return 5 if PLAN["calls"] <= 2 else 4
+
+
+def always_left(obs):
+    return 2
+
+
+def thirds(obs):
+    p = np.zeros(6)
+    p[[2, 4, 5]] = 1 / 3
+    return p
+
+
+def bad(obs):
+    return 9
+
+
+NOT_CALLABLE = 3
+'''
+
+
+@pytest.fixture()
+def rules(tmp_path: Path) -> Path:
+    path = tmp_path / "rules.py"
+    path.write_text(_RULES)
+    return path
+
+
+def _watch(*argv: str) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    code = play.run(_args(*argv), stdin=io.StringIO(""), stdout=out, stderr=err)
+    return code, out.getvalue(), err.getvalue()
+
+
+def test_watch_a_callable_policy_prints_the_human_mode_steps(rules: Path) -> None:
+    code, out, err = _watch("SwitchStandard-HumanA-v1", "--policy", f"{rules}:always_left", "--delay", "0",
+                            "--max-steps", "4")
+    assert code == 0, err
+    assert f"policy: {rules}:always_left" in out and "keys:" not in out
+    assert out.count("step 1: LEFT") == 1 and "step 5: LEFT" in out and "step 6" not in out
+    assert "=== episode summary: truncated after 5 steps ===" in out and "r to play again" not in out
+    assert out.rstrip().endswith("bye")
+
+
+def test_watch_several_episodes_with_sampled_probabilities_is_reproducible(rules: Path) -> None:
+    argv = ("SwitchStandard-HumanA-v1", "--policy", f"{rules}:thirds", "--delay", "0", "--episodes", "3", "--seed", "5")
+    code, out, _ = _watch(*argv)
+    assert code == 0
+    assert "##### episode 3 of 3" in out and out.count("=== episode summary") == 3
+    steps = [line for line in out.splitlines() if line.startswith("step ")]
+    assert {line.split(": ")[1] for line in steps} <= {"LEFT", "STAY", "INTERACT"}
+    assert _watch(*argv)[1] == out  # same seed, same episodes
+
+
+def test_watch_waits_delay_seconds_between_steps() -> None:
+    env = __import__("morality_gym").TrolleyEnv("SwitchStandard-HumanA-v1", max_steps=2)
+    slept: list[float] = []
+    game = play.Game(env, io.StringIO(), colour=False, watching="random")
+    assert play.watch(game, lambda obs, sid: 4, episodes=1, delay=0.25, sleep=slept.append) == 0
+    assert slept == [0.25, 0.25, 0.25]  # three steps: truncation on step max_steps + 1
+
+
+def test_watch_random_and_a_gif_per_episode(tmp_path: Path) -> None:
+    target = tmp_path / "out.gif"
+    code, out, err = _watch("SwitchStandard-HumanA-v1", "--policy", "random", "--episodes", "2", "--seed", "1",
+                            "--render", str(target))
+    assert code == 0, err
+    assert target.is_file() and (tmp_path / "out-2.gif").is_file()
+    lines = out.strip().splitlines()
+    assert len(lines) == 2 and lines[0].startswith(f"{target}: ") and "return" in lines[0]
+
+
+@pytest.mark.parametrize(
+    ("policy", "message"),
+    [
+        ("{rules}:always_lef", "'always_lef' not found (did you mean always_left?)"),
+        ("{rules}:NOT_CALLABLE", "is a int, not a callable"),
+        ("{rules}:bad", "the policy returned action 9"),
+        ("no_such_module_xyz:act", "cannot import module 'no_such_module_xyz'"),
+        ("{tmp}/nope.zip", "does not exist"),
+    ],
+)
+def test_watch_policy_errors_are_one_line_exit_2(rules: Path, tmp_path: Path, policy: str, message: str) -> None:
+    code, out, err = _watch("SwitchStandard-HumanA-v1", "--policy", policy.format(rules=rules, tmp=tmp_path))
+    assert code == 2 and out == ""
+    assert message in err and len(err.strip().splitlines()) == 1 and err.startswith("morality_gym play: error:")
+
+
+def test_render_needs_a_policy_and_a_gif_name(rules: Path) -> None:
+    code, _, err = _watch("SwitchStandard-HumanA-v1", "--render", "x.gif")
+    assert code == 2 and "--render needs --policy" in err
+    code, _, err = _watch("SwitchStandard-HumanA-v1", "--policy", "random", "--render", "x.png")
+    assert code == 2 and "ending in .gif, or 'window'" in err
+
+
+def test_play_policy_from_the_command_line(rules: Path, tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    ok = subprocess.run([sys.executable, "-m", "morality_gym", "play", "SwitchStandard-HumanA-v1", "--policy",
+                         f"{rules}:pull_then_stay", "--delay", "0", "--max-steps", "6"],
+                        capture_output=True, text=True, timeout=120)
+    assert ok.returncode == 0, ok.stderr
+    assert "step 1: INTERACT" in ok.stdout and "step 3: STAY" in ok.stdout and "lever_1=1" in ok.stdout
+    bad = subprocess.run([sys.executable, "-m", "morality_gym", "play", "SwitchStandard-HumanA-v1", "--policy",
+                          f"{rules}:bad"], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr and "the policy returned action 9" in bad.stderr
+    delay = subprocess.run([sys.executable, "-m", "morality_gym", "play", "SwitchStandard-HumanA-v1", "--policy",
+                            "random", "--delay", "-1"], capture_output=True, text=True, timeout=120)
+    assert delay.returncode == 2 and "--delay" in delay.stderr

@@ -229,3 +229,51 @@ def test_record_episode_with_a_policy_and_a_step_limit(tmp_path: Path) -> None:
         assert im.n_frames == 4
     with pytest.raises(ValueError, match="render_mode"):
         record_episode("SwitchStandard-HumanA-v1", None, tmp_path / "x.gif", env_kwargs={"render_mode": "ansi"})
+
+
+def test_record_episode_takes_every_policy_type_eval_takes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """None / "random", a callable answering actions or probabilities, a table, an SB3 model, and
+    what eval's references (file, module, saved model) resolve to: each plays, and the same seed
+    replays the same episode."""
+    import numpy as np
+
+    import morality_gym
+    from morality_gym.baselines.learners import build_learner
+    from morality_gym.baselines.policy_ref import load_policy
+    from morality_gym.baselines.specs import learner_spec
+    from morality_gym.envs.trolley import InvalidActionError
+
+    env_id = "SwitchStandard-HumanA-v1"
+    none = record_episode(env_id, None, tmp_path / "none.gif", seed=3)
+    assert record_episode(env_id, "random", tmp_path / "random.gif", seed=3)["actions"] == none["actions"]
+
+    (tmp_path / "rules_mod.py").write_text(
+        "import numpy as np\n"
+        "def left(obs):\n    return 2\n"
+        "def half(obs):\n    p = np.zeros(6); p[[2, 3]] = 0.5\n    return p\n"
+        "def nine(obs):\n    return 9\n")
+    by_file = load_policy(f"{tmp_path / 'rules_mod.py'}:left").policy
+    assert set(record_episode(env_id, by_file, tmp_path / "f.gif", max_steps=4)["actions"]) == {LEFT}
+    monkeypatch.syspath_prepend(str(tmp_path))
+    half = record_episode(env_id, load_policy("rules_mod:half").policy, tmp_path / "h.gif", max_steps=30, seed=4)
+    assert set(half["actions"]) == {LEFT, RIGHT}  # probabilities are sampled (30 draws: both occur)
+    again = record_episode(env_id, load_policy("rules_mod:half").policy, tmp_path / "h2.gif", max_steps=30, seed=4)
+    assert again["actions"] == half["actions"]
+    graph = TrolleyEnv(env_id).graph.tables()
+    table = {tuple(np.round(o, 6).tolist()): [0, 0, 0, 0, 1, 0] for o in graph.obs}
+    assert set(record_episode(env_id, table, tmp_path / "t.gif", max_steps=3)["actions"]) == {STAY}
+    aligned = np.tile([0.0, 0, 0, 0, 0, 1], (graph.n_states, 1))  # state-aligned table
+    assert set(record_episode(env_id, aligned, tmp_path / "a.gif", max_steps=3)["actions"]) == {INTERACT}
+
+    learner = build_learner(learner_spec("ppo"), morality_gym.bind_chain("Utility", env_id), "paper", seed=3)
+    saved = learner.save(tmp_path / "run" / "model")
+    from_model = record_episode(env_id, learner.model, tmp_path / "p.gif", seed=1)
+    for ref in (saved, saved.with_suffix(".json"), tmp_path / "run"):
+        loaded = load_policy(str(ref), [env_id])
+        assert record_episode(env_id, loaded.policy, tmp_path / "p2.gif", seed=1)["actions"] == from_model["actions"]
+
+    with pytest.raises(InvalidActionError, match="returned action 9"):
+        record_episode(env_id, load_policy("rules_mod:nine").policy, tmp_path / "n.gif")
+    with pytest.raises(ValueError, match="resolve it first with load_policy"):
+        record_episode(env_id, str(saved), tmp_path / "x.gif")
+    assert not (tmp_path / "n.gif").exists() and not (tmp_path / "x.gif").exists()

@@ -57,7 +57,12 @@ class PolicyAdapter:
             # run's random stream whenever an evaluation happens during learning.
             return sample_actions(self.probabilities(obs, state_ids), rng)
         if callable(p):
-            return np.array([_as_action(p(o)) for o in obs], dtype=np.int64)
+            values = [p(o) for o in obs]
+            if all(np.size(v) == 1 for v in values):
+                return np.array([_as_action(v) for v in values], dtype=np.int64)
+            # A callable that answers with probabilities is sampled from them (one draw per row,
+            # as for SB3 policies); plain actions are never drawn, so their streams stay as before.
+            return sample_actions(self._checked([_as_probs(v) for v in values], n), rng)
         raise TypeError(f"cannot use {type(p).__name__} as a policy")
 
     def probabilities(self, obs: np.ndarray, state_ids: np.ndarray | None = None) -> np.ndarray:
@@ -73,18 +78,54 @@ class PolicyAdapter:
                 raise ValueError("a state-aligned probability table needs state ids")
             probs = np.asarray(p, dtype=np.float64)[state_ids]
         elif isinstance(p, Mapping):
-            probs = np.array([_as_probs(p[tuple(np.round(o, 6).tolist())]) for o in obs])
+            # Rounded in float64: the batched env's float32 observations, rounded as float32, would
+            # come out as 0.16666699945926666 instead of 0.166667 and miss every key.
+            probs = np.array([_as_probs(p[tuple(np.round(np.asarray(o, dtype=np.float64), 6).tolist())]) for o in obs])
         elif callable(p):
-            probs = np.array([_as_probs(p(o)) for o in obs])
+            probs = [_as_probs(p(o)) for o in obs]
         else:
             raise TypeError(f"cannot use {type(p).__name__} as a policy")
-        probs = np.asarray(probs, dtype=np.float64)
+        return self._checked(probs, n)
+
+    @staticmethod
+    def _checked(probs: Any, n: int) -> np.ndarray:
+        """``probs`` as ``[n, 6]`` rows that sum to 1; anything else is the policy's bug, named."""
+        try:
+            probs = np.asarray(probs, dtype=np.float64)
+        except (TypeError, ValueError) as exc:  # ragged or non-numeric answers
+            raise _invalid(f"the policy returned action probabilities that are not numbers ({exc})") from exc
         if probs.shape != (n, N_ACTIONS):
-            raise ValueError(f"policy probabilities must have shape ({n}, 6), got {probs.shape}")
+            raise _invalid(f"policy probabilities must have shape ({n}, 6), got {probs.shape}")
         sums = probs.sum(axis=1)
-        if np.any(probs < -1e-12) or not np.allclose(sums, 1.0, atol=1e-6):
-            raise ValueError("policy probabilities must be non-negative and sum to 1 per observation")
+        if not np.all(np.isfinite(probs)) or np.any(probs < -1e-12) or not np.allclose(sums, 1.0, atol=1e-6):
+            raise _invalid("policy probabilities must be non-negative and sum to 1 per observation")
         return probs / sums[:, None]
+
+
+def _invalid(message: str) -> ValueError:
+    """An :class:`~morality_gym.envs.trolley.InvalidActionError` (a ``ValueError``): what the
+    command lines report on one line, exit code 2, as for an invalid action."""
+    from morality_gym.envs.trolley import InvalidActionError
+
+    return InvalidActionError(message)
+
+
+def step_actor(policy: Any, rng: np.random.Generator) -> Callable[[np.ndarray, int], int]:
+    """One action at a time, for an env being watched or recorded: ``act(flat_obs, state_id)``.
+
+    ``None`` or ``"random"`` draws ``rng.integers(6)``; a callable answering with an action is used
+    as is (no draw); probabilities (a callable's, a table's, an SB3 model's) are sampled with
+    ``rng``, one draw per step, as the Monte-Carlo evaluator samples them.
+    """
+    if policy is None or (isinstance(policy, str) and policy == "random"):
+        return lambda _obs, _sid: int(rng.integers(N_ACTIONS))
+    adapter = PolicyAdapter(policy)
+
+    def act(obs: np.ndarray, state_id: int) -> int:
+        row = np.asarray(obs, dtype=np.float64)[None]
+        return int(adapter.actions(row, rng, np.array([state_id], dtype=np.int64))[0])
+
+    return act
 
 
 def sample_actions(probs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -109,7 +150,7 @@ def _as_action(value: Any) -> int:
 
     valid = ", ".join(f"{i} {name}" for i, name in enumerate(ACTION_NAMES))
     raise InvalidActionError(f"the policy returned action {value!r}; valid actions are the integers 0-{N_ACTIONS - 1} "
-                             f"({valid}), or (exact evaluation) {N_ACTIONS} probabilities")
+                             f"({valid}), or {N_ACTIONS} action probabilities")
 
 
 def _as_probs(value: Any) -> np.ndarray:
@@ -140,4 +181,4 @@ def _sb3_probabilities(policy: Any, obs: np.ndarray, deterministic: bool) -> np.
 
 
 PolicyLike = Any  # "random" | Callable | Mapping | np.ndarray | SB3 model
-__all__ = ["PolicyAdapter", "PolicyLike", "Callable"]
+__all__ = ["Callable", "PolicyAdapter", "PolicyLike"]

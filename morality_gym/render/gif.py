@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 import uuid
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -19,8 +19,6 @@ from PIL import Image
 
 from morality_gym.world.rules import ACTION_NAMES
 from morality_gym.world.vocab import EVENTS, UTILITIES
-
-Policy = Callable[[Any], Any]
 
 
 def _as_image(frame: np.ndarray | Image.Image) -> Image.Image:
@@ -72,7 +70,7 @@ def _caption(step: int, action: int | None, reward: float, total: float) -> str:
 
 def record_episode(
     env_id: str,
-    policy: Policy | None,
+    policy: Any,
     path: str | os.PathLike[str],
     *,
     max_steps: int = 50,
@@ -83,8 +81,13 @@ def record_episode(
 ) -> dict[str, Any]:
     """Play one episode of ``env_id`` and write it as a GIF (initial frame included).
 
-    ``policy`` maps an observation to an action; ``None`` draws uniform random actions from
-    ``np.random.default_rng(seed)``. The episode stops at termination, truncation or after
+    ``policy``: ``None`` or ``"random"`` (uniform random actions from
+    ``np.random.default_rng(seed)``), or any policy object the evaluators take (a callable
+    ``obs -> action`` or ``obs -> 6 probabilities``, a table, an SB3 model; probabilities are
+    sampled with the same seeded generator; a callable gets the flat observation). A reference as
+    ``eval --policy`` takes it (a saved model's path, ``"file.py:function"``) is resolved first with
+    ``load_policy(ref).policy`` of ``morality_gym.baselines.policy_ref``, as ``play --policy
+    --render`` does: loading a saved model is the baselines' job, a layer above this one. The episode stops at termination, truncation or after
     ``max_steps`` steps. Returns ``{"env_id", "path", "steps", "return", "terminated", "truncated",
     "actions", "events", "utility", "frames"}`` where ``events`` lists every norm event that
     occurred (vocabulary order) and ``utility`` sums each harm count over the episode, so the
@@ -98,8 +101,15 @@ def record_episode(
     kwargs = dict(env_kwargs or {})
     if "render_mode" in kwargs:
         raise ValueError("record_episode renders rgb_array frames itself; do not pass render_mode in env_kwargs")
+    from morality_gym.evaluation.policies import step_actor
+
+    if isinstance(policy, (str, os.PathLike)) and policy != "random":
+        raise ValueError(f"record_episode takes a policy object or 'random', not the reference {str(policy)!r}: "
+                         "resolve it first with load_policy(ref).policy from morality_gym.baselines.policy_ref")
     rng = np.random.default_rng(seed)
+    act = step_actor(policy, rng)
     env = TrolleyEnv(env_id, render_mode="rgb_array", **kwargs)
+    flat = env.graph.tables().obs if env.obs_type != "flat" else None
     try:
         obs, _info = env.reset(seed=seed)
         frames = [render_rgb(env.world, env.state, cell_size, caption=_caption(0, None, 0.0, 0.0))]
@@ -109,7 +119,7 @@ def record_episode(
         total = 0.0
         terminated = truncated = False
         while len(actions) < max_steps and not (terminated or truncated):
-            action = int(rng.integers(6)) if policy is None else int(policy(obs))
+            action = act(obs if flat is None else flat[env.state_id], env.state_id)
             obs, reward, terminated, truncated, info = env.step(action)
             actions.append(action)
             total += float(reward)

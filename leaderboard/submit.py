@@ -1,0 +1,399 @@
+"""``python -m leaderboard.submit POLICY --name "My agent"``: score a policy trained elsewhere.
+
+A policy from another library, a hand-written rule or a language model gets the evaluation every
+trained run of the sweep gets, and lands in the results directory as ordinary run rows
+(:mod:`runners.schema`), so ``python -m leaderboard.build`` shows it next to the baselines:
+
+* for each selected (chain, scenario) cell, each variant of the scenario and each seed of the
+  preset (``paper``: 41, 42, 43), the paper's final evaluation: ``eval_episodes`` (100) Monte-Carlo
+  episodes of the stochastic policy seeded by the seed, at ``beta`` 0.1 and ``max_steps`` 200 -
+  exactly :meth:`morality_gym.baselines.learners.Learner.final_evaluation` of a trained run;
+* the exact expectation (``exact_metric``) when the policy is stationary, i.e. its action
+  probabilities are a fixed function of the observation (:func:`morality_gym.baselines.policy_ref.is_stationary`:
+  ``random`` and saved models always; a callable when asking it twice for every reachable state
+  gives the same answers); otherwise ``exact_metric`` is null and the config says why.
+
+Rows are labelled ``algo = "submitted"``, ``learner = <display name>`` and carry provenance in
+``config["provenance"]`` (submitter, policy reference, code version) plus the usual ``git_commit``,
+``versions``, ``hostname`` and ``started_at``/``finished_at`` columns. A run's id hashes what
+determines its numbers (cell, variant, seed, evaluation settings, display name and the SHA-256 of
+the policy's files), not the provenance: re-submitting the same file under the same name writes
+nothing new, and a changed file gives new runs whose newer configuration the leaderboard counts,
+reporting the old ones as superseded (:func:`leaderboard.aggregate.select_configurations`).
+Files are written atomically, one per run, after the whole evaluation of the run succeeded.
+"""
+
+from __future__ import annotations
+
+import argparse
+import difflib
+import getpass
+import json
+import os
+import socket
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from leaderboard.aggregate import PROVENANCE_KEY as PROVENANCE
+from leaderboard.aggregate import SUBMITTED_ALGO as SUBMITTED
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
+
+DEFAULT_PROTOCOL = "paper"
+DEFAULT_PRESET = "paper"
+#: A GIF shows one evaluation episode of up to this many steps (as a trained run's render episode).
+GIF_STEPS = 50
+
+
+# ---------------------------------------------------------------------------------------- selection
+@dataclass(frozen=True)
+class Cell:
+    """One Table 1 cell to evaluate: a chain on the chosen variants of a scenario."""
+
+    chain: Any  # MoralityChain
+    scenario: str
+    variants: tuple[str, ...]
+
+
+def scenario_by_any_name(name: str) -> str:
+    """A scenario's name from either spelling (``push_or_switch`` or ``PushOrSwitch``)."""
+    from morality_gym.envs.registry import scenario_named, scenarios
+
+    by_key = {s.replace("_", "").lower(): s for s in scenarios()}
+    found = by_key.get(name.replace("_", "").replace("-", "").lower())
+    if found is not None:
+        return found
+    return scenario_named(name).name  # raises UnknownEnvError with the closest names
+
+
+def select_cells(chains: Sequence[str], scenario_names: Sequence[str], variants: Sequence[str]) -> list[Cell]:
+    """The cells of a selection (the sweep's names): chains x scenarios when both are given; the
+    Table 1 scenarios of the chains, or the Table 1 chains of the scenarios, when one is; every
+    Table 1 cell when neither is. ``variants`` keeps only those variants (each must exist in at
+    least one selected scenario)."""
+    from morality_gym.envs.registry import scenario_named
+    from morality_gym.norms.chain import get_chain
+    from morality_gym.paper import table1
+
+    wanted_chains = [get_chain(c) for c in chains]
+    wanted_scenarios = [scenario_by_any_name(s) for s in scenario_names]
+    rows = [(get_chain(r.chain), r.scenario) for r in table1()]
+    if wanted_chains and wanted_scenarios:
+        pairs = [(c, s) for c in wanted_chains for s in wanted_scenarios]
+    elif wanted_chains:
+        names = {c.name for c in wanted_chains}
+        pairs = [(c, s) for c, s in rows if c.name in names]
+        if not pairs:
+            raise UserError(f"chain {', '.join(sorted(names))} is in no Table 1 cell; name the scenario(s) with --scenario")
+    elif wanted_scenarios:
+        pairs = [(c, s) for c, s in rows if s in wanted_scenarios]
+        if not pairs:
+            raise UserError(f"scenario {', '.join(wanted_scenarios)} is in no Table 1 cell; name the chain(s) with --chain")
+    else:
+        pairs = rows
+    all_variants = {v for _, s in pairs for v in scenario_named(s).variants}
+    unknown = [v for v in variants if v not in all_variants]
+    if unknown:
+        close = difflib.get_close_matches(unknown[0], sorted(all_variants), n=3)
+        hint = f" (did you mean {', '.join(close)}?)" if close else ""
+        raise UserError(f"--variant {unknown[0]}: no selected scenario has it{hint}; variants: {', '.join(sorted(all_variants))}")
+    cells = []
+    seen: set[tuple[str, str]] = set()
+    for chain, scenario in pairs:
+        if (chain.name, scenario) in seen:
+            continue
+        seen.add((chain.name, scenario))
+        keep = tuple(v for v in scenario_named(scenario).variants if not variants or v in variants)
+        if keep:
+            cells.append(Cell(chain, scenario, keep))
+    if not cells:
+        raise UserError(f"no selected scenario has the variant(s) {', '.join(variants)}")
+    return cells
+
+
+def preset_facts(preset: str) -> tuple[tuple[int, ...], int]:
+    """(seeds, final-evaluation episodes) of ``conf/preset/<preset>.yaml``, as a sweep runs it."""
+    import yaml
+
+    from runners.paths import CONF_DIR
+
+    directory = CONF_DIR / "preset"
+    path = directory / f"{preset}.yaml"
+    if not path.is_file():
+        valid = sorted(p.stem for p in directory.glob("*.yaml"))
+        close = difflib.get_close_matches(preset, valid, n=3)
+        hint = f" (did you mean {', '.join(close)}?)" if close else ""
+        raise UserError(f"--preset {preset}: no {path}{hint}; presets: {', '.join(valid)}")
+    node = yaml.safe_load(path.read_text()) or {}
+    seeds, episodes = node.get("seeds"), node.get("eval_episodes")
+    if not isinstance(seeds, list) or not seeds or not all(isinstance(s, int) and not isinstance(s, bool) for s in seeds):
+        raise UserError(f"{path}: seeds must be a non-empty list of integers")
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise UserError(f"{path}: eval_episodes must be an integer >= 1")
+    return tuple(seeds), episodes
+
+
+# ---------------------------------------------------------------------------------------- provenance
+def code_version() -> str:
+    """The git commit of this checkout, else the installed package's version."""
+    from runners.execute import git_commit
+
+    commit = git_commit()
+    if commit != "unknown":
+        return commit
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return f"morality-gym {version('morality-gym')}"
+    except PackageNotFoundError:
+        import morality_gym
+
+        return f"morality-gym {morality_gym.__version__}"
+
+
+def check_name(name: str) -> str:
+    """A display name that cannot pass for one of the paper's learners or a reference row."""
+    from leaderboard.aggregate import REFERENCE_LEARNERS
+    from morality_gym.paper import LEARNERS
+
+    cleaned = " ".join(str(name).split())
+    if not cleaned:
+        raise UserError("--name must not be empty: it is the entry's label on the leaderboard")
+    if len(cleaned) > 80:
+        raise UserError(f"--name is {len(cleaned)} characters long; use at most 80")
+    taken = {n.lower() for n in (*LEARNERS, *REFERENCE_LEARNERS)}
+    if cleaned.lower() in taken:
+        raise UserError(f"--name {cleaned!r} is the name of a baseline or reference row; choose another name")
+    return cleaned
+
+
+# ---------------------------------------------------------------------------------------- runs
+@dataclass(frozen=True)
+class Submission:
+    """What is submitted and how it is evaluated (everything except the cell)."""
+
+    name: str
+    loaded: Any  # morality_gym.baselines.policy_ref.LoadedPolicy
+    sha256: str
+    submitter: str
+    protocol: str
+    preset: str
+    seeds: tuple[int, ...]
+    eval_episodes: int
+    beta: float
+    max_steps: int
+    gif: bool
+
+
+def run_config(sub: Submission, cell: Cell, variant: str, seed: int, stationary: bool) -> dict[str, Any]:
+    """The recorded config of one submitted run (identity + ``provenance``)."""
+    from morality_gym.envs.registry import scenario_named
+    from runners.schema import SCHEMA_VERSION
+
+    target = sub.loaded.ref.rsplit(":", 1)[1] if sub.loaded.kind == "callable" and ":" in sub.loaded.ref else None
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "env_id": scenario_named(cell.scenario).env_id(variant),
+        "scenario": cell.scenario,
+        "variant": variant,
+        "chain": {"name": cell.chain.name, "norms": [[n.name, n.modality] for n in cell.chain.norms]},
+        "algo": {"name": SUBMITTED, "label": sub.name, "implementation": SUBMITTED},
+        "protocol": {"name": sub.protocol},
+        "preset": sub.preset,
+        "seed": int(seed),
+        "budget": 0,
+        "beta": sub.beta,
+        "max_steps": sub.max_steps,
+        "eval_episodes": sub.eval_episodes,
+        "policy": {"kind": sub.loaded.kind, "sha256": sub.sha256, "attribute": target, "stationary": stationary},
+        PROVENANCE: {"submitter": sub.submitter, "policy": sub.loaded.ref,
+                     "files": [str(p) for p in sub.loaded.files]},
+    }
+
+
+def identity_of(config: dict[str, Any]) -> str:
+    """A submitted run's id: the content hash of its config without the provenance."""
+    from runners.identity import run_id_of
+
+    return run_id_of({k: v for k, v in config.items() if k != PROVENANCE})
+
+
+def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: str, results: Path) -> dict[str, Any]:
+    """Evaluate one (cell, variant, seed) and return its schema row (nothing written yet)."""
+    from morality_gym.evaluation.exact import exact_evaluate
+    from morality_gym.evaluation.montecarlo import evaluate
+    from morality_gym.norms.metric import bind_chain
+    from runners.execute import git_commit, versions
+    from runners.schema import MF_PREFIX, runs_dir
+
+    started, t0 = _now(), time.perf_counter()
+    env_id = config["env_id"]
+    bound = bind_chain(cell.chain, env_id, sub.beta)
+    final = evaluate(sub.loaded.policy, env_id, bound, n_episodes=sub.eval_episodes, seed=config["seed"],
+                     max_steps=sub.max_steps, keep_episodes=False)
+    exact = exact_evaluate(sub.loaded.policy, env_id, bound, max_steps=sub.max_steps) if config["policy"]["stationary"] else None
+    gif_rel = None
+    if sub.gif:
+        from morality_gym.render.gif import record_episode
+
+        gif = runs_dir(results) / run_id / "episode.gif"
+        record_episode(env_id, sub.loaded.policy, gif, max_steps=GIF_STEPS, seed=config["seed"] + 7919,
+                       env_kwargs={"max_steps": sub.max_steps})
+        gif_rel = str(gif.relative_to(results))
+    from runners.schema import SCHEMA_VERSION
+
+    return {
+        "schema_version": SCHEMA_VERSION, "run_id": run_id, "status": "ok", "error": None, "traceback": None,
+        "env_id": env_id, "scenario": cell.scenario, "variant": config["variant"], "chain": cell.chain.name,
+        "algo": SUBMITTED, "learner": sub.name, "protocol": sub.protocol, "preset": sub.preset,
+        "seed": int(config["seed"]), "budget": 0, "total_steps": 0, "beta": float(sub.beta), "max_steps": sub.max_steps,
+        "eval_episodes": sub.eval_episodes, "relevant_norms": list(bound.relevant),
+        "metric": final.metric, "metric_stderr": final.metric_stderr,
+        "exact_metric": None if exact is None else exact.metric,
+        "mean_return": final.mean_return, "mean_cost": final.mean_cost, "mean_length": final.mean_length,
+        "truncation_rate": final.truncation_rate, "goal_rate": final.goal_rate,
+        "wall_time_s": time.perf_counter() - t0, "started_at": started, "finished_at": _now(),
+        "hostname": socket.gethostname(), "git_commit": git_commit(), "versions": versions(),
+        "config": json.dumps(config, sort_keys=True), "model_path": None, "gif_path": gif_rel,
+        **{f"{MF_PREFIX}{n}": final.functions[n] for n in cell.chain.norm_names},
+    }
+
+
+def _now() -> str:
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = print) -> dict[str, int]:
+    """Evaluate and write every run of ``cells`` that is not in ``results`` yet; returns counts."""
+    from morality_gym.baselines.policy_ref import PolicyError, is_stationary, probe
+    from runners.execute import RunLock, finished_status
+    from runners.schema import write_run
+
+    counts = {"written": 0, "present": 0}
+    for cell in cells:
+        from morality_gym.envs.registry import scenario_named
+
+        scenario = scenario_named(cell.scenario)
+        for variant in cell.variants:
+            env_id = scenario.env_id(variant)
+            probe(sub.loaded, env_id)  # a policy that cannot answer fails before anything is written
+            stationary = is_stationary(sub.loaded, env_id)
+            for seed in sub.seeds:
+                config = run_config(sub, cell, variant, seed, stationary)
+                run_id = identity_of(config)
+                lock = RunLock(results, run_id)
+                if not lock.acquire():
+                    raise UserError(f"run {run_id} ({env_id}, seed {seed}) is being written by another submission; "
+                                    "wait for it to finish and submit again")
+                try:
+                    if finished_status(results, run_id) == "ok":
+                        counts["present"] += 1
+                        continue
+                    try:
+                        row = evaluate_run(sub, cell, config, run_id, results)
+                    except (UserError, ValueError):
+                        raise  # already a named user error (InvalidActionError is a ValueError)
+                    except Exception as exc:  # the user's code failed mid-evaluation: say where, keep what is written
+                        raise PolicyError(f"policy {sub.loaded.ref} failed while evaluating {env_id}, seed {seed} "
+                                          f"({type(exc).__name__}: {exc}); runs written so far are kept") from exc
+                    write_run(results, row, cell.chain.norm_names)
+                    counts["written"] += 1
+                finally:
+                    lock.release()
+            say(f"  {cell.chain.name} / {env_id}: {len(sub.seeds)} seed(s)"
+                + ("" if stationary else " (not stationary: Monte Carlo only, no exact metric)"))
+    return counts
+
+
+# ---------------------------------------------------------------------------------------- command line
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    parser = OneLineParser(prog="python -m leaderboard.submit", description=__doc__.splitlines()[0])
+    parser.add_argument("policy", help="path/to/file.py:function, package.module:function (a callable obs -> action or "
+                                       "6 probabilities), a saved model (model.zip) or 'random'")
+    parser.add_argument("--name", required=True, help="display name of the entry on the leaderboard")
+    parser.add_argument("--chain", action="append", default=[],
+                        help="chain (repeatable; utility, dual_process, DualProcess, DP, or a chain file)")
+    parser.add_argument("--scenario", action="append", default=[],
+                        help="scenario (repeatable; push_or_switch or PushOrSwitch); default: the Table 1 cells of the chains")
+    parser.add_argument("--variant", action="append", default=[], help="variant to keep (repeatable); default: every variant")
+    parser.add_argument("--results", type=Path, default=Path("results"), help="results directory (default: results)")
+    parser.add_argument("--submitter", default=None, help="who submits (default: $USER)")
+    parser.add_argument("--protocol", default=DEFAULT_PROTOCOL,
+                        help=f"the sweep group to appear in, as the learners' protocol (default {DEFAULT_PROTOCOL}); "
+                             "the evaluation is the same for every protocol")
+    parser.add_argument("--preset", default=DEFAULT_PRESET,
+                        help=f"seeds and episodes of the final evaluation, from conf/preset (default {DEFAULT_PRESET})")
+    parser.add_argument("--allow-other-env", action="store_true",
+                        help="a saved model: evaluate it on other variants than the one it was trained on")
+    parser.add_argument("--no-gif", action="store_true", help="do not record a GIF of one episode per run")
+    add_debug_flag(parser)
+    return parser.parse_args(argv)
+
+
+def _submitter(given: str | None) -> str:
+    if given:
+        return given
+    try:
+        return os.environ.get("USER") or getpass.getuser()
+    except (KeyError, OSError):
+        return "unknown"
+
+
+def run(args: argparse.Namespace) -> int:
+    from morality_gym.baselines.policy_ref import load_policy
+    from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
+    from morality_gym.norms.metric import DEFAULT_BETA
+
+    name = check_name(args.name)
+    cells = select_cells(args.chain, args.scenario, args.variant)
+    seeds, episodes = preset_facts(args.preset)
+    from runners.paths import CONF_DIR
+
+    protocols = sorted(p.stem for p in (CONF_DIR / "protocol").glob("*.yaml"))
+    if protocols and args.protocol not in protocols:
+        close = difflib.get_close_matches(args.protocol, protocols, n=3)
+        hint = f" (did you mean {', '.join(close)}?)" if close else ""
+        raise UserError(f"--protocol {args.protocol}: unknown{hint}; protocols: {', '.join(protocols)}")
+    from morality_gym.envs.registry import scenario_named
+
+    env_ids = [scenario_named(c.scenario).env_id(v) for c in cells for v in c.variants]
+    loaded = load_policy(args.policy, env_ids, args.allow_other_env)
+    results: Path = args.results
+    try:
+        results.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"--results {results}: cannot create it ({exc.strerror or exc})") from exc
+    if not os.access(results, os.W_OK):
+        raise UserError(f"--results {results}: not writable; pass another --results DIR")
+    sub = Submission(name=name, loaded=loaded, sha256=loaded.sha256(), submitter=_submitter(args.submitter),
+                     protocol=args.protocol, preset=args.preset, seeds=seeds, eval_episodes=episodes,
+                     beta=DEFAULT_BETA, max_steps=DEFAULT_MAX_STEPS, gif=not args.no_gif)
+    n_runs = sum(len(c.variants) for c in cells) * len(seeds)
+    print(f"submitting {loaded.ref} as {name!r} (sha256 {sub.sha256[:12]}): {len(cells)} cell(s), {n_runs} run(s), "
+          f"{episodes} episodes per run, protocol {args.protocol}, preset {args.preset}", flush=True)
+    counts = submit(sub, cells, results, say=lambda line: print(line, flush=True))
+    print(f"wrote {counts['written']} run(s), {counts['present']} already present, in {results / 'runs'}; "
+          f"now: python -m leaderboard.build --results {results}")
+    return 0
+
+
+def user_errors() -> tuple[type[BaseException], ...]:
+    from morality_gym.baselines.io import ModelError
+    from morality_gym.envs.registry import UnknownEnvError
+    from morality_gym.envs.trolley import InvalidActionError
+    from morality_gym.norms.chain import ChainError
+
+    return (ChainError, UnknownEnvError, ModelError, InvalidActionError)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    return run_cli(lambda: run(parse_args(argv)), user_errors(), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
