@@ -15,7 +15,8 @@ from pathlib import Path
 from typing import Any
 
 from morality_gym.clitools import OneLineParser, add_debug_flag, console, positive_int, run_cli
-from morality_gym.envs.registry import UnknownEnvError, list_envs, scenario_named
+from morality_gym.envs.naming import find_scenario as scenario_named  # either spelling: SwitchStandard, switch_standard
+from morality_gym.envs.registry import UnknownEnvError, list_envs
 from morality_gym.norms.chain import ChainError, builtin_chains, chain_file_stem, get_chain
 
 
@@ -208,7 +209,7 @@ def cmd_list(args: argparse.Namespace) -> int:
         for s in scenarios().values():
             print(f"{s.name:28s} {len(s.variants):3d} variants  {s.summary}")
     else:
-        for env_id in list_envs(args.scenario):
+        for env_id in list_envs(scenario_named(args.scenario).name if args.scenario else None):
             print(env_id)
     return 0
 

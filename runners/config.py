@@ -19,10 +19,11 @@ import yaml
 from omegaconf import DictConfig, OmegaConf
 
 from morality_gym.baselines.hparams import validate_learner
-from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError, learner_spec, protocol_spec
+from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError, protocol_spec
+from morality_gym.baselines.targets import learner_trains
 from morality_gym.envs.registry import scenarios as all_scenarios
 from morality_gym.norms.chain import ChainError, MoralityChain, check_name_collision, get_chain, parse_chain
-from runners.paths import CONF_DIR  # re-exported: CONF_DIR is defined once, there
+from runners.paths import CONF_DIR, find_config, group_options  # re-exported: CONF_DIR is defined once, there
 
 _TOP_KEYS = {
     "scenario", "chain", "algo", "protocol", "preset", "launcher", "experiment", "variant", "seed", "beta",
@@ -137,9 +138,15 @@ def _group(cfg: DictConfig, key: str) -> dict[str, Any]:
 
 
 def _scenario_chains() -> dict[str, list[str]]:
-    """Each scenario's paper chains, from every file of conf/scenario (selected or not)."""
+    """Each scenario's chains (a sweep for a chain covers the scenarios that list it), from every
+    scenario file on the search path (selected or not; a user's file replaces conf/'s of the same name)."""
+    from runners.paths import config_roots
+
     out: dict[str, list[str]] = {}
-    for path in sorted((CONF_DIR / "scenario").glob("*.yaml")):
+    files = {}
+    for root in reversed(config_roots()):
+        files.update({p.name: p for p in (root / "scenario").glob("*.yaml")})
+    for path in sorted(files.values()):
         text = path.read_text()
         first = text.splitlines()[0] if text else ""
         if not first.startswith("# @package scenario."):
@@ -149,13 +156,14 @@ def _scenario_chains() -> dict[str, list[str]]:
     return out
 
 
-def load_algo_file(name: str) -> dict[str, Any]:
-    """An algorithm's config file as a dict (for experiments that select several)."""
-    path = CONF_DIR / "algo" / f"{name}.yaml"
-    if not path.is_file():
-        valid = sorted(p.stem for p in (CONF_DIR / "algo").glob("*.yaml"))
-        raise ConfigError(f"algo={name}: no conf/algo/{name}.yaml{_hint(name, valid)}; valid: {', '.join(valid)}")
-    return yaml.safe_load(path.read_text())
+def load_algo_file(name: str) -> tuple[Path, dict[str, Any]]:
+    """An algorithm's config file (found on the sweep's search path) and its values."""
+    path = find_config("algo", name)
+    if path is None:
+        valid = group_options("algo")
+        raise ConfigError(f"algo={name}: no algo/{name}.yaml on the config search path{_hint(name, valid)}; "
+                          f"valid: {', '.join(valid)}")
+    return path, yaml.safe_load(path.read_text()) or {}
 
 
 def _diff(composed: Mapping[str, Any], base: Mapping[str, Any]) -> dict[str, Any]:
@@ -187,17 +195,17 @@ def _check_hparam_types(where: str, spec: LearnerSpec, defaults: LearnerSpec) ->
 
 
 def _algo(option: str, node: Mapping[str, Any], preset: Preset, protocol: ProtocolSpec) -> AlgoChoice:
-    """file values < the protocol's overrides for its implementation < the preset's overrides for
-    this algorithm < command-line overrides."""
-    where = f"algo={option} (conf/algo/{option}.yaml)"
+    """file values < the protocol's overrides for this algorithm < the preset's overrides for it <
+    command-line overrides. Any class works (``_target_``); nothing here knows the baselines."""
+    path, file_node = load_algo_file(option)
+    where = f"algo={option} ({path})"
     composed = {k: v for k, v in node.items() if k != "planning"}
-    file_node = load_algo_file(option)
     planning = (node.get("planning") or file_node.get("planning") or {})
     file_values = {k: v for k, v in file_node.items() if k != "planning"}
     name = composed.get("name", option)
     try:
-        base = learner_spec(name)
-        spec = protocol.apply(base.with_overrides(file_values))
+        base = LearnerSpec.from_mapping(file_values, name)
+        spec = protocol.apply(base)
         override = preset.algo_overrides.get(option)
         if override:
             spec = spec.with_overrides(override)
@@ -306,9 +314,10 @@ def validate(cfg: DictConfig) -> SweepConfig:
             raise ConfigError(f"unknown top-level key {key!r}{_hint(str(key), sorted(_TOP_KEYS))}; valid: {', '.join(sorted(_TOP_KEYS))}")
     known = all_scenarios()
     preset = _preset(_group(cfg, "preset"))
+    algo_options = group_options("algo")
     for algo_name in preset.algo_overrides:
-        if not (CONF_DIR / "algo" / f"{algo_name}.yaml").is_file():
-            raise ConfigError(f"preset={preset.name}.algo_overrides: unknown algo {algo_name!r}")
+        if algo_name not in algo_options:
+            raise ConfigError(f"preset={preset.name}.algo_overrides: unknown algo {algo_name!r}{_hint(algo_name, algo_options)}")
 
     chains_sel = _group(cfg, "chain")
     if not chains_sel:
@@ -324,13 +333,18 @@ def validate(cfg: DictConfig) -> SweepConfig:
     if not algos_sel:
         raise ConfigError("algo: select at least one algorithm, e.g. algo=ppo")
     for option, node in algos_sel.items():
-        if not isinstance(node, Mapping):
-            raise ConfigError(f"algo: conf/algo/{option}.yaml is missing its '# @package algo.<name>' first line")
+        if not isinstance(node, Mapping) or option not in algo_options:
+            raise ConfigError(f"algo: a selected algo file is missing its '# @package algo.<file name>' first line "
+                              f"(its key {option!r} landed at the top of the algo group); add the line")
     protocol_node = _group(cfg, "protocol")
     try:
         protocol = protocol_spec(str(protocol_node.get("name")), {k: v for k, v in protocol_node.items() if k != "name"})
     except SpecError as exc:
         raise ConfigError(f"protocol: {exc}") from exc
+    for algo_name in protocol.learner_overrides:
+        if algo_name not in algo_options:
+            raise ConfigError(f"protocol={protocol.name}.learner_overrides: unknown algo {algo_name!r}"
+                              f"{_hint(str(algo_name), algo_options)}; keys are algo names, valid: {', '.join(algo_options)}")
     algos = tuple(_algo(option, node, preset, protocol) for option, node in algos_sel.items())
 
     paper_chains = _scenario_chains()
@@ -370,15 +384,6 @@ def validate(cfg: DictConfig) -> SweepConfig:
     if not pairs:
         raise ConfigError("the selection is empty: no (chain, scenario) pair remains")
 
-    from morality_gym.norms.metric import bind_chain
-
-    for chain, scenario in pairs:
-        for env_id in known[scenario].env_ids:
-            try:
-                bind_chain(chain, env_id, 0.1)
-            except (ChainError, ValueError) as exc:
-                raise ConfigError(f"chain {chain.name} cannot score {env_id}: {exc}") from exc
-
     variants = cfg.get("variant")
     if variants is not None:
         variants = OmegaConf.to_container(variants) if not isinstance(variants, str) else [variants]
@@ -388,6 +393,21 @@ def validate(cfg: DictConfig) -> SweepConfig:
             if not any(v in known[s].variants for _, s in pairs):
                 valid = sorted({vv for _, s in pairs for vv in known[s].variants})
                 raise ConfigError(f"variant: {v!r} is not a variant of the selected scenarios{_hint(v, valid)}; valid: {', '.join(valid)}")
+
+    # Coverage: every env the sweep will run must be scorable by its chain; the variant filter
+    # applies first, so a chain that only fits some variants can be swept on those.
+    from morality_gym.norms.metric import bind_chain
+
+    for chain, scenario in pairs:
+        for variant in known[scenario].variants:
+            if variants is not None and variant not in variants:
+                continue
+            env_id = known[scenario].env_id(variant)
+            try:
+                bind_chain(chain, env_id, 0.1)
+            except (ChainError, ValueError) as exc:
+                raise ConfigError(f"chain {chain.name} cannot score {env_id}: {exc}; "
+                                  "choose the variants it can score with variant=[...]") from exc
     seeds = cfg.get("seed")
     if seeds is None:
         seed_list = preset.seeds
@@ -405,7 +425,7 @@ def validate(cfg: DictConfig) -> SweepConfig:
         max_steps = _int("max_steps", max_steps, 1)
     for algo in algos:
         for _, scenario in pairs:
-            if algo.spec.implementation != "random" and preset.budget_for(scenario) <= 0:
+            if learner_trains(algo.spec.target) and preset.budget_for(scenario) <= 0:
                 raise ConfigError(f"preset={preset.name}.budget: a budget of 0 steps trains nothing ({algo.spec.name} on {scenario})")
 
     launcher = _group(cfg, "launcher")

@@ -31,3 +31,77 @@ def preset_seeds(preset: str) -> tuple[int, ...] | None:
     if not isinstance(seeds, list) or not all(isinstance(s, int) and not isinstance(s, bool) for s in seeds):
         return None
     return tuple(seeds)
+
+
+#: Entry-point group of installed plugins: each entry point names a package that is a config root
+#: (holding ``algo/*.yaml`` and, if it likes, ``chain/``, ``scenario/``, ...), e.g. in a plugin's
+#: pyproject.toml: ``[project.entry-points."morality_gym.algos"] my_algos = "my_algos.conf"``.
+ENTRY_POINT_GROUP = "morality_gym.algos"
+
+
+def plugin_sources() -> list[str]:
+    """``pkg://`` search-path entries of the installed plugins (:data:`ENTRY_POINT_GROUP`)."""
+    from importlib.metadata import entry_points
+
+    return [f"pkg://{ep.module}" for ep in sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name)]
+
+
+def source_dir(source: str) -> Path | None:
+    """The directory of a Hydra search-path entry (``file://DIR``, ``pkg://package`` or a plain path)."""
+    if source.startswith("pkg://"):
+        import importlib.util
+
+        try:
+            spec = importlib.util.find_spec(source[len("pkg://"):].replace("/", "."))
+        except (ImportError, ValueError):
+            return None
+        locations = list(spec.submodule_search_locations or []) if spec else []
+        return Path(locations[0]) if locations else None
+    path = source[len("file://"):] if source.startswith("file://") else source
+    return Path(path).expanduser().resolve() if path else None
+
+
+def split_list(value: str) -> list[str]:
+    """The items of a command-line list (``[a,b]``, ``a``)."""
+    value = value.strip()
+    if value.startswith("[") and value.endswith("]"):
+        value = value[1:-1]
+    return [item.strip().strip("'\"") for item in value.split(",") if item.strip()]
+
+
+def sources_from_argv(argv: list[str]) -> list[str]:
+    """The config search-path entries a sweep's command line adds: ``--config-dir DIR``,
+    ``--config-dir=DIR``, ``-cd DIR`` and ``hydra.searchpath=[...]`` (in that order of appearance)."""
+    out: list[str] = []
+    for i, arg in enumerate(argv):
+        if arg in ("--config-dir", "-cd") and i + 1 < len(argv):
+            out.append(argv[i + 1])
+        elif arg.startswith("--config-dir="):
+            out.append(arg.split("=", 1)[1])
+        elif arg.lstrip("+").startswith("hydra.searchpath="):
+            out.extend(split_list(arg.split("=", 1)[1]))
+    return out
+
+
+def config_roots(argv: list[str] | None = None) -> list[Path]:
+    """Every directory the sweep composes configuration from: the command line's, the installed
+    plugins', then ``conf/`` (Hydra's own order of precedence for the same file name)."""
+    import sys
+
+    sources = [*sources_from_argv(sys.argv[1:] if argv is None else argv), *plugin_sources()]
+    roots = [d for d in (source_dir(s) for s in sources) if d is not None and d.is_dir()]
+    return list(dict.fromkeys([*roots, CONF_DIR]))
+
+
+def find_config(group: str, option: str, argv: list[str] | None = None) -> Path | None:
+    """The file of a config-group option (``algo``, ``a2c``) on the search path, or None."""
+    for root in config_roots(argv):
+        path = root / group / f"{option}.yaml"
+        if path.is_file():
+            return path
+    return None
+
+
+def group_options(group: str, argv: list[str] | None = None) -> list[str]:
+    """Every option of a config group on the search path."""
+    return sorted({p.stem for root in config_roots(argv) for p in (root / group).glob("*.yaml")})

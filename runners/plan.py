@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from morality_gym.baselines.specs import training_steps
+from morality_gym.baselines.targets import learner_trains
 from morality_gym.envs.registry import scenario_named
 from morality_gym.norms.chain import chain_fingerprint
 from runners.config import SweepConfig
@@ -72,7 +73,7 @@ def plan(sweep: SweepConfig) -> list[PlannedRun]:
             env_id = scenario.env_id(variant)
             for algo in sweep.algos:
                 for seed in sweep.seeds:
-                    budget = 0 if algo.spec.implementation == "random" else sweep.preset.budget_for(scenario_name)
+                    budget = sweep.preset.budget_for(scenario_name) if learner_trains(algo.spec.target) else 0
                     config = {
                         "schema_version": SCHEMA_VERSION,
                         "env_id": env_id,

@@ -198,29 +198,30 @@ def _app(cfg: DictConfig) -> None:
 _GROUPS = ("scenario", "chain", "algo", "protocol", "preset", "launcher", "experiment")
 
 
-def _hparam_override(key: str, value: str) -> str | None:
+def _hparam_override(key: str, value: str, argv: list[str]) -> str | None:
     """An ``[+]algo.<option>.hparams.<name>=...`` override whose name the algorithm does not take.
 
     Hydra would answer a name without ``+`` with "Key ... is not in struct" and advise adding
-    ``+``; the real problem is usually a typo, so it is named here, with the closest names.
+    ``+``; the real problem is usually a typo, so it is named here, with the closest names. Works
+    for any learner: the names are its class's constructor parameters.
     """
-    from morality_gym.baselines.hparams import HyperParameterError, accepted_hparams
+    from morality_gym.baselines.hparams import accepted_hparams
     from morality_gym.baselines.specs import SpecError
-    from runners.config import CONF_DIR
+    from runners.paths import find_config
 
     parts = key.lstrip("+~").split(".")
     if len(parts) != 4 or parts[0] != "algo" or parts[2] != "hparams" or key.startswith("~"):
         return None
-    path = CONF_DIR / "algo" / f"{parts[1]}.yaml"
-    if not path.is_file():
+    path = find_config("algo", parts[1], argv)
+    if path is None:
         return None
     import yaml
 
-    implementation = (yaml.safe_load(path.read_text()) or {}).get("implementation")
+    target = (yaml.safe_load(path.read_text()) or {}).get("_target_")
     try:
-        accepted = accepted_hparams(str(implementation))
-    except (SpecError, HyperParameterError):
-        return None
+        accepted = accepted_hparams(str(target))
+    except (SpecError, ValueError):
+        return None  # reported with its file by the validation
     if parts[3] in accepted:
         return None
     import difflib
@@ -232,17 +233,26 @@ def _hparam_override(key: str, value: str) -> str | None:
 
 def precheck(argv: list[str]) -> str | None:
     """Check config-group selections and hyper-parameter names on the command line, before Hydra
-    (whose messages for these do not say what the valid options are). Returns an error or None."""
+    (whose messages for these do not say what the valid options are). Returns an error or None.
+
+    Options are looked up on the whole search path: ``conf/``, ``--config-dir DIR`` (either form),
+    ``hydra.searchpath=[...]`` and the installed plugins.
+    """
     import difflib
 
-    from runners.config import CONF_DIR
+    from runners.options import options as group_options
+    from runners.paths import source_dir, sources_from_argv
 
-    extra = [Path(a.split("=", 1)[1]) for a in argv if a.startswith("--config-dir=")]
+    for source in sources_from_argv(argv):
+        directory = source_dir(source)
+        if directory is None or not directory.is_dir():
+            return (f"config search path entry {source!r} is not a directory; give an existing directory "
+                    "(--config-dir DIR, hydra.searchpath=[file:///abs/dir] or [pkg://package])")
     for arg in argv:
         if "=" not in arg or arg.startswith("-"):
             continue
         key, value = arg.split("=", 1)
-        problem = _hparam_override(key, value)
+        problem = _hparam_override(key, value, argv)
         if problem:
             return problem
         group = key.lstrip("+~")
@@ -250,13 +260,39 @@ def precheck(argv: list[str]) -> str | None:
             continue
         value = value.strip()
         options = [o.strip() for o in value.strip("[]").split(",") if o.strip()] if value not in ("null", "[]") else []
-        valid = sorted({p.stem for d in [CONF_DIR, *extra] for p in (d / group).glob("*.yaml")})
+        valid = group_options(group, argv)
         for option in options:
             if option not in valid:
                 close = difflib.get_close_matches(option, valid, n=1)
                 hint = f" (did you mean {close[0]!r}?)" if close else ""
                 return f"{group}={value}: unknown {group} {option!r}{hint}; valid: {', '.join(valid)}"
     return None
+
+
+def with_plugins(argv: list[str]) -> list[str]:
+    """``argv`` with the installed plugins' config packages added to ``hydra.searchpath`` (merged
+    with the user's own entries, which come first), and every user config directory made
+    importable, here and in the workers (:func:`morality_gym.baselines.targets.add_python_roots`):
+    a ``_target_`` module kept next to ``algo/`` in a config directory needs no install."""
+    from morality_gym.baselines.targets import add_python_roots
+    from runners.paths import plugin_sources, source_dir, sources_from_argv, split_list
+
+    add_python_roots([d for s in sources_from_argv(argv) if not s.startswith("pkg://") and (d := source_dir(s)) is not None])
+    plugins = plugin_sources()
+    if not plugins:
+        return argv
+    out, merged = [], False
+    for arg in argv:
+        if arg.lstrip("+").startswith("hydra.searchpath="):
+            key, value = arg.split("=", 1)
+            items = [*split_list(value), *(p for p in plugins if p not in split_list(value))]
+            out.append(f"{key}=[{','.join(items)}]")
+            merged = True
+        else:
+            out.append(arg)
+    if not merged:
+        out.append(f"hydra.searchpath=[{','.join(plugins)}]")
+    return out
 
 
 def user_errors() -> tuple[type[BaseException], ...]:
@@ -274,6 +310,9 @@ def main() -> int:
         os.environ[DEBUG_ENV] = "1"
 
     def body() -> int:
+        from runners.options import normalise_argv
+
+        sys.argv[1:] = normalise_argv(with_plugins(sys.argv[1:]))
         problem = precheck(sys.argv[1:])
         if problem:
             print(f"configuration error: {problem}", file=sys.stderr)

@@ -214,7 +214,7 @@ def test_fleet_refuses_what_it_does_not_reproduce() -> None:
         build_fleet(small_spec("ppo", target_kl=0.01), [FleetRun(bound(), 0)])
     with pytest.raises(SpecError, match="at least one run"):
         build_fleet(small_spec("ppo"), [])
-    with pytest.raises(SpecError, match="does not train implementation 'random'"):
+    with pytest.raises(SpecError, match="does not train 'morality_gym.baselines.learners.RandomLearner'"):
         build_fleet(learner_spec("random"), [FleetRun(bound(), 0)])
     with pytest.raises(ValueError, match="share an observation size"):
         build_fleet(small_spec("ppo"), [FleetRun(bound(), 0), FleetRun(bound("Switch7-Human-v1"), 0)])

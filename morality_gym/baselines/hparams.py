@@ -104,35 +104,40 @@ RANGES: dict[str, Range] = {
 }
 
 
-def algorithm_class(implementation: str) -> type:
-    """The class that trains an implementation (``ppo``: SB3's PPO; ``ppo_lag``, ``cpo``: ours)."""
-    if implementation == "ppo":
-        from stable_baselines3 import PPO
+def algorithm_class(target: str) -> type:
+    """The class a learner's ``_target_`` names (imported; :class:`TargetError` if it cannot be)."""
+    from morality_gym.baselines.targets import resolve
 
-        return PPO
-    if implementation == "ppo_lag":
-        from morality_gym.baselines.safe import PPOLag
-
-        return PPOLag
-    if implementation == "cpo":
-        from morality_gym.baselines.safe import CPO
-
-        return CPO
-    raise SpecError(f"implementation {implementation!r} has no algorithm class")
+    return resolve(target)
 
 
 @lru_cache(maxsize=None)
-def accepted_hparams(implementation: str) -> dict[str, inspect.Parameter]:
-    """The constructor parameters a sweep may set for an implementation (``{}`` for ``random``)."""
-    if implementation == "random":
+def accepted_hparams(target: str) -> dict[str, inspect.Parameter]:
+    """The constructor parameters a sweep may set for the class at ``target``.
+
+    An SB3 algorithm (the baselines', or any user's) takes its ``hparams`` as constructor
+    arguments, so its signature is the list; a self-driving learner class (the random baseline)
+    takes none.
+    """
+    from stable_baselines3.common.base_class import BaseAlgorithm
+
+    cls = algorithm_class(target)
+    if not issubclass(cls, BaseAlgorithm):
         return {}
-    init = algorithm_class(implementation).__init__
-    try:
-        signature = inspect.signature(init, eval_str=True)
-    except (NameError, TypeError):  # an annotation that cannot be evaluated: keep them as strings
-        signature = inspect.signature(init)
-    return {name: p for name, p in signature.parameters.items()
-            if name not in RESERVED and name != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
+    accepted: dict[str, inspect.Parameter] = {}
+    for klass in cls.__mro__:  # a subclass's ``**kwargs`` passes the rest on to its base class
+        if "__init__" not in vars(klass):
+            continue
+        try:
+            signature = inspect.signature(klass.__init__, eval_str=True)
+        except (NameError, TypeError):  # an annotation that cannot be evaluated: keep them as strings
+            signature = inspect.signature(klass.__init__)
+        for name, p in signature.parameters.items():
+            if name not in RESERVED and name != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD):
+                accepted.setdefault(name, p)
+        if not any(p.kind is p.VAR_KEYWORD for p in signature.parameters.values()) or klass is BaseAlgorithm:
+            break
+    return accepted
 
 
 def _is_number(value: Any) -> bool:
@@ -186,24 +191,28 @@ def _type_problem(value: Any, parameter: inspect.Parameter) -> str | None:
     return f"expected {' or '.join(expected) or 'another value'}, got {value!r}"
 
 
-def validate_hparams(algo_name: str, implementation: str, hparams: Mapping[str, Any]) -> None:
+def validate_hparams(algo_name: str, target: str, hparams: Mapping[str, Any]) -> None:
     """Raise :class:`HyperParameterError` for the first hyper-parameter that cannot work.
 
-    ``algo_name`` is only used in the message (``ppo_shaped``, ``cpo``, ...); ``implementation`` picks
-    the class whose constructor receives ``hparams``.
+    ``algo_name`` is only used in the message (``ppo_shaped``, ``cpo``, ...); ``target`` names the
+    class whose constructor receives ``hparams``.
     """
+    from morality_gym.baselines.targets import TargetError
+
     where = f"learner {algo_name!r}"
-    accepted = accepted_hparams(implementation)
+    try:
+        accepted = accepted_hparams(target)
+    except TargetError as exc:
+        raise HyperParameterError(f"{where}: {exc}") from exc
     for key, value in hparams.items():
         if key in RESERVED:
             raise HyperParameterError(f"{where}: hparams.{key} is set by the runner, not by the configuration; remove it")
         if key not in accepted:
             if not accepted:
-                raise HyperParameterError(f"{where}: hparams.{key}: the {implementation} learner takes no hyper-parameters; "
-                                          "remove it")
+                raise HyperParameterError(f"{where}: hparams.{key}: {target} takes no hyper-parameters; remove it")
             close = difflib.get_close_matches(str(key), list(accepted), n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
-            cls = algorithm_class(implementation).__name__
+            cls = algorithm_class(target).__name__
             raise HyperParameterError(f"{where}: hparams.{key} is not a hyper-parameter of {cls}{hint}; "
                                       f"valid: {', '.join(sorted(accepted))}")
         problem = _type_problem(value, accepted[key])
@@ -233,4 +242,4 @@ def validate_learner(spec: LearnerSpec) -> None:
             or not bounds[0] < bounds[1]):
         raise HyperParameterError(f"{where}: return_bounds={list(bounds) if isinstance(bounds, (tuple, list)) else bounds!r}: "
                                   "expected [low, high] with low < high")
-    validate_hparams(spec.name, spec.implementation, spec.hparams)
+    validate_hparams(spec.name, spec.target, spec.hparams)

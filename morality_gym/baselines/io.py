@@ -1,8 +1,10 @@
 """Loading saved learners: a model file plus its JSON sidecar naming the algorithm and the env.
 
-``Learner.save`` writes ``<name>.zip`` (SB3's format) and ``<name>.json`` (what it is: algorithm,
-env id, chain, seed, spec). Loading reads the sidecar to pick the right class, so a PPO-Lag model
-is never silently loaded as plain PPO, and to know which env the model was trained on: a policy
+``Learner.save`` writes ``<name>.zip`` (SB3's format) and ``<name>.json`` (what it is: the import
+path of its class as ``target``, env id, chain, seed, spec; for a user's class from a plain file,
+the directory to import it from as ``import_root``). Loading imports the recorded class, so any
+learner, built-in or a user's, loads with no table of learners, a PPO-Lag model is never silently
+loaded as plain PPO, and to know which env the model was trained on: a policy
 evaluated on another env than its own gives a number about nothing in particular, so
 :func:`check_model_env` refuses that unless the caller explicitly allows it *and* the observation
 sizes agree (a different size could not even be fed to the network). Every way a model file can
@@ -16,7 +18,15 @@ import json
 from pathlib import Path
 from typing import Any
 
-IMPLEMENTATIONS = ("random", "ppo", "ppo_lag", "cpo")
+from morality_gym.baselines.targets import TargetError, resolve
+
+#: Sidecars written before learners were named by class recorded a short ``implementation``.
+_LEGACY_TARGETS = {
+    "random": "morality_gym.baselines.learners.RandomLearner",
+    "ppo": "stable_baselines3.PPO",
+    "ppo_lag": "morality_gym.baselines.safe.PPOLag",
+    "cpo": "morality_gym.baselines.safe.CPO",
+}
 
 
 class ModelError(ValueError):
@@ -43,38 +53,36 @@ def read_metadata(path: str | Path) -> dict[str, Any]:
     except (OSError, ValueError) as exc:
         raise ModelError(f"{sidecar}: unreadable model metadata ({type(exc).__name__}: {exc}); "
                          "restore the file saved by Learner.save or retrain the run") from exc
-    if not isinstance(meta, dict) or meta.get("implementation") not in IMPLEMENTATIONS:
-        found = meta.get("implementation") if isinstance(meta, dict) else None
-        raise ModelError(f"{sidecar}: 'implementation' is {found!r}, expected one of {', '.join(IMPLEMENTATIONS)}; "
+    if isinstance(meta, dict) and "target" not in meta and meta.get("implementation") in _LEGACY_TARGETS:
+        meta["target"] = _LEGACY_TARGETS[meta["implementation"]]
+    if not isinstance(meta, dict) or not isinstance(meta.get("target"), str):
+        raise ModelError(f"{sidecar}: no 'target' (the import path of the model's class); "
                          "this is not a sidecar written by Learner.save")
     return meta
 
 
-def _model_class(implementation: str) -> type:
-    if implementation == "ppo":
-        from stable_baselines3 import PPO
-
-        return PPO
-    if implementation == "ppo_lag":
-        from morality_gym.baselines.safe import PPOLag
-
-        return PPOLag
-    from morality_gym.baselines.safe import CPO
-
-    return CPO
+def model_class(path: str | Path, meta: dict[str, Any]) -> type:
+    """The class recorded in a sidecar, imported (from its recorded ``import_root`` if need be)."""
+    roots = [meta["import_root"]] if isinstance(meta.get("import_root"), str) else []
+    try:
+        return resolve(meta["target"], where=f"{_paths(path)[1]}: target", search=roots)
+    except TargetError as exc:
+        raise ModelError(str(exc)) from exc
 
 
 def load_model(path: str | Path) -> Any:
-    """The policy saved at ``path``: ``"random"`` or an SB3 model of the right class."""
+    """The policy saved at ``path``: ``"random"``, an SB3 model of its recorded class, or what a
+    self-driving learner class's ``load_policy`` returns."""
+    from morality_gym.baselines.learners import Learner
+
     meta = read_metadata(path)
-    impl = meta["implementation"]
-    if impl == "random":
-        return "random"
+    cls = model_class(path, meta)
     zip_path, _ = _paths(path)
+    if isinstance(cls, type) and issubclass(cls, Learner):
+        return cls.load_policy(zip_path, meta)
     if not zip_path.is_file():
-        raise ModelError(f"{zip_path}: missing, but {zip_path.with_suffix('.json').name} says it is a {impl} model; "
+        raise ModelError(f"{zip_path}: missing, but {zip_path.with_suffix('.json').name} says it is a {cls.__name__} model; "
                          "restore the .zip saved with it or retrain the run")
-    cls = _model_class(impl)
     try:
         return cls.load(zip_path, device="cpu")
     except Exception as exc:  # noqa: BLE001 - zipfile, torch and pickle each raise their own kinds
@@ -96,7 +104,7 @@ def check_model_env(path: str | Path, policy: Any, env_id: str, allow_other_env:
     generalisation test), but only when the observation sizes agree; a random "model" fits any env.
     """
     meta = read_metadata(path)
-    if meta["implementation"] == "random":
+    if isinstance(policy, str) and policy == "random":
         return
     from morality_gym.envs.registry import parse_env_id, state_graph
 

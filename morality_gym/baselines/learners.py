@@ -25,6 +25,7 @@ from morality_gym.evaluation.result import EvaluationResult
 from morality_gym.norms.metric import BoundChain
 from morality_gym.baselines.learn_evals import EvalHook, learn_eval_row
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, protocol_spec, training_steps
+from morality_gym.baselines.targets import import_root
 
 if TYPE_CHECKING:  # imported when used: it loads SB3 and torch, which the random learner never needs
     from morality_gym.baselines.callbacks import MoralityEvalCallback
@@ -34,7 +35,14 @@ LEARN_EVAL_EPISODES = 10
 
 
 class Learner:
-    """Base class: the protocol-independent parts (evaluation, GIFs, save/load bookkeeping)."""
+    """Base class: the protocol-independent parts (evaluation, GIFs, save/load bookkeeping).
+
+    A learner that is not an SB3 algorithm subclasses this and is named by its own import path as
+    ``_target_`` (as the random baseline is); ``trains = False`` tells planners it needs no budget,
+    and :meth:`load_policy` turns its saved files back into a policy.
+    """
+
+    trains: bool = True
 
     def __init__(
         self,
@@ -83,6 +91,11 @@ class Learner:
         return MoralityEvalCallback(self.policy, self.env_id, self.bound, seed=self.seed, max_steps=self.max_steps,
                                     eval_every=eval_every, eval_episodes=eval_episodes, on_eval=record)
 
+    @classmethod
+    def load_policy(cls, path: Path, metadata: dict[str, Any]) -> Any:
+        """The policy saved at ``path`` by :meth:`save` (for :func:`~morality_gym.baselines.io.load_model`)."""
+        raise NotImplementedError
+
     def update_diagnostics(self) -> list[dict[str, Any]]:
         """One row per policy update of the last ``learn`` (``[]`` for learners that do not log
         them; PPO-Lag and CPO do, see :class:`~morality_gym.baselines.safe.base.CostOnPolicyAlgorithm`)."""
@@ -114,7 +127,7 @@ class Learner:
         return {
             "algo": self.spec.name,
             "label": self.spec.label,
-            "implementation": self.spec.implementation,
+            "target": self.spec.target,
             "env_id": self.env_id,
             "chain": self.bound.chain.name,
             "beta": self.bound.beta,
@@ -132,6 +145,8 @@ class RandomLearner(Learner):
     50,000 (10 episodes each, each followed by a render episode of up to 50 steps) and then the
     final 100-episode evaluation. This reproduces the paper's Random column to the last digit.
     """
+
+    trains = False
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -174,6 +189,10 @@ class RandomLearner(Learner):
             self.learn(0)
         return evaluate_sequential(self._act, self._env, self.bound, n_episodes, keep_episodes=False)
 
+    @classmethod
+    def load_policy(cls, path: Path, metadata: dict[str, Any]) -> Any:
+        return "random"
+
     def save(self, path: str | Path) -> Path:
         path = Path(path).with_suffix(".json")
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -182,7 +201,8 @@ class RandomLearner(Learner):
 
 
 class SB3Learner(Learner):
-    """PPO and PPO-Shaped on SB3's PPO; PPO-Lagrangian and CPO on this package's SB3 subclasses."""
+    """Any SB3 algorithm named by the spec's ``target``: PPO and PPO-Shaped on SB3's PPO,
+    PPO-Lagrangian and CPO on this package's subclasses, and any user's (A2C, TRPO, ...)."""
 
     def __init__(self, *args: Any, model: Any = None, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -191,7 +211,7 @@ class SB3Learner(Learner):
     def _algorithm_class(self) -> type:
         from morality_gym.baselines.hparams import algorithm_class
 
-        return algorithm_class(self.spec.implementation)
+        return algorithm_class(self.spec.target)
 
     def make_vec_env(self) -> Any:
         """The training VecEnv: batched simulator (or SB3 DummyVecEnv) -> VecMonitor -> cost/reward wrapper."""
@@ -217,11 +237,14 @@ class SB3Learner(Learner):
         cls = self._algorithm_class()
         activation = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}[self.spec.activation]
         arch = list(self.spec.net_arch)
-        policy_kwargs = {"activation_fn": activation}
-        if self.spec.implementation == "ppo":
-            policy_kwargs["net_arch"] = {"pi": arch, "vf": arch}
-        else:
-            policy_kwargs["net_arch"] = {"pi": arch, "vf": arch, "cf": arch} if "cf" in _net_arch_keys(cls) else {"pi": arch, "vf": arch}
+        policy_kwargs: dict[str, Any] = {"activation_fn": activation}
+        from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+
+        if issubclass(cls, OnPolicyAlgorithm):  # actor-critic: one network each (and a cost critic for ours)
+            keys = _net_arch_keys(cls)
+            policy_kwargs["net_arch"] = {key: arch for key in ("pi", "vf", "cf") if key in keys}
+        else:  # off-policy algorithms (DQN, ...) take one list
+            policy_kwargs["net_arch"] = arch
         return cls(
             "MlpPolicy",
             self.make_vec_env(),
@@ -255,7 +278,11 @@ class SB3Learner(Learner):
         path = Path(path).with_suffix(".zip")
         path.parent.mkdir(parents=True, exist_ok=True)
         self.model.save(path)
-        path.with_suffix(".json").write_text(json.dumps({**self.metadata(), "spec": _spec_dict(self.spec)}, indent=1))
+        meta = {**self.metadata(), "spec": _spec_dict(self.spec)}
+        root = import_root(type(self.model))
+        if root is not None:  # a user's class from a plain file: where to import it from again
+            meta["import_root"] = root
+        path.with_suffix(".json").write_text(json.dumps(meta, indent=1))
         return path
 
 
@@ -279,6 +306,13 @@ def build_learner(
     seed: int = 41,
     max_steps: int | None = DEFAULT_MAX_STEPS,
 ) -> Learner:
-    """The learner of ``spec`` for one env id and chain (see :mod:`morality_gym.baselines.specs`)."""
-    cls = RandomLearner if spec.implementation == "random" else SB3Learner
-    return cls(spec, bound, protocol=protocol, seed=seed, max_steps=max_steps)
+    """The learner of ``spec`` for one env id and chain (see :mod:`morality_gym.baselines.specs`).
+
+    ``spec.target`` is either a :class:`Learner` subclass (built directly) or an SB3 algorithm
+    (driven by :class:`SB3Learner`).
+    """
+    from morality_gym.baselines.targets import resolve
+
+    cls = resolve(spec.target, where=f"learner {spec.name!r}: _target_")
+    learner_cls = cls if issubclass(cls, Learner) else SB3Learner
+    return learner_cls(spec, bound, protocol=protocol, seed=seed, max_steps=max_steps)

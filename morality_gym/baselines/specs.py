@@ -17,7 +17,11 @@ from typing import Any
 from morality_gym.norms.cost import COST_MODES, RESET_POLICIES
 from morality_gym.norms.wrappers import PAPER_RETURN_BOUNDS, RewardCostSpec
 
-IMPLEMENTATIONS = ("random", "ppo", "ppo_lag", "cpo")
+#: The baselines' classes (``_target_`` of ``conf/algo/*.yaml``); a user learner names its own.
+RANDOM = "morality_gym.baselines.learners.RandomLearner"
+SB3_PPO = "stable_baselines3.PPO"
+PPO_LAG = "morality_gym.baselines.safe.PPOLag"
+CPO = "morality_gym.baselines.safe.CPO"
 VEC_ENVS = ("batched", "dummy")
 STEP_ACCOUNTING = ("rollouts", "floor")
 
@@ -36,7 +40,12 @@ def _check_keys(where: str, given: Mapping[str, Any], allowed: list[str]) -> Non
 
 @dataclass(frozen=True)
 class LearnerSpec:
-    """One learner: which implementation, how it sees reward and cost, and its hyper-parameters.
+    """One learner: which class trains it, how it sees reward and cost, and its hyper-parameters.
+
+    ``target``: the import path of the class (an algo file's ``_target_``): an SB3 algorithm, which
+    receives ``hparams`` as constructor arguments, or a self-driving
+    :class:`~morality_gym.baselines.learners.Learner` subclass (the random baseline). Any class
+    works; see :mod:`morality_gym.baselines.targets`.
 
     ``cost_reset``: when the cost's first-violation memory is cleared (``never`` is what the paper's
     PPO-Lag and CPO runs did; the corrected protocol resets it ``per_episode``).
@@ -49,7 +58,7 @@ class LearnerSpec:
 
     name: str
     label: str
-    implementation: str
+    target: str
     n_envs: int = 8
     vec_env: str = "batched"
     normalise_reward: bool = True
@@ -66,8 +75,10 @@ class LearnerSpec:
 
     def __post_init__(self) -> None:
         where = f"learner {self.name!r}"
+        if not isinstance(self.target, str) or "." not in self.target.strip("."):
+            raise SpecError(f"{where}: _target_ must be the import path of a class, like stable_baselines3.PPO, "
+                            f"got {self.target!r}")
         checks = [
-            ("implementation", self.implementation, IMPLEMENTATIONS),
             ("vec_env", self.vec_env, VEC_ENVS),
             ("cost_mode", self.cost_mode, COST_MODES),
             ("cost_reset", self.cost_reset, RESET_POLICIES),
@@ -92,7 +103,11 @@ class LearnerSpec:
         )
 
     def with_overrides(self, overrides: Mapping[str, Any]) -> "LearnerSpec":
-        """A copy with some fields (and ``hparams`` entries) replaced; unknown keys raise."""
+        """A copy with some fields (and ``hparams`` entries) replaced; unknown keys raise.
+
+        ``_target_`` (the key of the YAML files) is accepted for ``target``.
+        """
+        overrides = _rename_target(overrides)
         fields = [f.name for f in dataclasses.fields(self) if f.name != "protocol"]  # set by ProtocolSpec.apply only
         _check_keys(f"learner {self.name!r}", overrides, fields)
         if not isinstance(overrides.get("hparams", {}), Mapping):
@@ -104,6 +119,34 @@ class LearnerSpec:
             if key in values:
                 values[key] = tuple(values[key])
         return dataclasses.replace(self, **values)
+
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any], name: str) -> "LearnerSpec":
+        """A spec from an algo file's values (``_target_`` names the class; every field left out
+        takes this class's default, ``label`` defaults to ``name``)."""
+        values = _rename_target(values)
+        fields = [f.name for f in dataclasses.fields(cls) if f.name != "protocol"]
+        _check_keys(f"learner {name!r}", values, fields)
+        if "target" not in values:
+            raise SpecError(f"learner {name!r}: no _target_; name the algorithm class, e.g. _target_: stable_baselines3.A2C")
+        values = {"name": name, "label": values.get("label", values.get("name", name)), **values}
+        if not isinstance(values.get("hparams", {}), Mapping):
+            raise SpecError(f"learner {name!r}: hparams must be a mapping, got {values['hparams']!r}")
+        values["hparams"] = dict(values.get("hparams") or {})
+        for key in ("return_bounds", "net_arch"):
+            if key in values and isinstance(values[key], (list, tuple)):
+                values[key] = tuple(values[key])
+        return cls(**values)
+
+
+def _rename_target(values: Mapping[str, Any]) -> dict[str, Any]:
+    out = dict(values)
+    if "_target_" in out:
+        if "target" in out:
+            raise SpecError("give the class once, as _target_ (not also as target)")
+        out["target"] = out.pop("_target_")
+    return out
 
 
 _SB3_PPO = {
@@ -145,15 +188,15 @@ _OMNISAFE_COMMON = {
 }
 
 DEFAULT_LEARNERS: dict[str, LearnerSpec] = {
-    "random": LearnerSpec("random", "Random", "random", n_envs=1, normalise_reward=False),
-    "ppo": LearnerSpec("ppo", "PPO", "ppo", hparams=dict(_SB3_PPO)),
+    "random": LearnerSpec("random", "Random", RANDOM, n_envs=1, normalise_reward=False),
+    "ppo": LearnerSpec("ppo", "PPO", SB3_PPO, hparams=dict(_SB3_PPO)),
     "ppo_shaped": LearnerSpec(
-        "ppo_shaped", "PPO Shaped", "ppo", shape_reward=True, cost_mode="full", cost_scale=50.0, hparams=dict(_SB3_PPO)
+        "ppo_shaped", "PPO Shaped", SB3_PPO, shape_reward=True, cost_mode="full", cost_scale=50.0, hparams=dict(_SB3_PPO)
     ),
     "ppo_lag": LearnerSpec(
         "ppo_lag",
         "PPO Lag",
-        "ppo_lag",
+        PPO_LAG,
         cost_reset="never",
         step_accounting="floor",
         hparams={
@@ -170,7 +213,7 @@ DEFAULT_LEARNERS: dict[str, LearnerSpec] = {
     "cpo": LearnerSpec(
         "cpo",
         "CPO",
-        "cpo",
+        CPO,
         cost_reset="never",
         step_accounting="floor",
         hparams={
@@ -205,10 +248,12 @@ def learner_spec(name: str, overrides: Mapping[str, Any] | None = None) -> Learn
 class ProtocolSpec:
     """What a protocol changes (docs/protocols.md; the reasons are in ``conf/protocol/*.yaml``).
 
-    ``learner_overrides``: per learner *implementation* (``ppo_lag``, ``cpo``, ...), the spec fields
-    and ``hparams`` the protocol sets, applied on top of the algorithm's own values by
-    :meth:`apply`. ``paper`` reproduces the reference's runs where it changes numbers (OmniSafe's
-    arithmetic, bugs included, and a cost memory that is never reset); ``corrected`` fixes only what
+    ``learner_overrides``: per *algorithm name* (an algo file's ``name``: ``ppo_lag``, ``cpo``), the
+    spec fields and ``hparams`` the protocol sets, applied on top of the algorithm's own values by
+    :meth:`apply`. Keyed by name, not by class, so that a protocol changes exactly the baselines it
+    was written for: a user's learner (even one built on PPOLag) is never silently changed by it
+    (a protocol file may list it by its name). ``paper`` reproduces the reference's runs where it
+    changes numbers (OmniSafe's arithmetic, bugs included, and a cost memory that is never reset); ``corrected`` fixes only what
     is a bug (the memory resets each episode, PPO-Lag's early stop uses the mean KL, CPO solves its
     dual exactly) and keeps OmniSafe's design choices.
 
@@ -224,21 +269,14 @@ class ProtocolSpec:
     render_episode_steps: int = 50
 
     def __post_init__(self) -> None:
-        for implementation, override in self.learner_overrides.items():
-            if implementation not in IMPLEMENTATIONS:
-                close = difflib.get_close_matches(str(implementation), IMPLEMENTATIONS, n=1)
-                hint = f" (did you mean {close[0]!r}?)" if close else ""
-                raise SpecError(
-                    f"protocol {self.name!r}: learner_overrides: unknown implementation {implementation!r}{hint}; "
-                    f"valid: {', '.join(IMPLEMENTATIONS)}"
-                )
+        for algo, override in self.learner_overrides.items():
             if not isinstance(override, Mapping):
-                raise SpecError(f"protocol {self.name!r}: learner_overrides.{implementation} must be a mapping")
-            allowed = [f.name for f in dataclasses.fields(LearnerSpec) if f.name not in ("name", "label", "implementation", "protocol")]
-            _check_keys(f"protocol {self.name!r}: learner_overrides.{implementation}", override, allowed)
+                raise SpecError(f"protocol {self.name!r}: learner_overrides.{algo} must be a mapping")
+            allowed = [f.name for f in dataclasses.fields(LearnerSpec) if f.name not in ("name", "label", "target", "protocol")]
+            _check_keys(f"protocol {self.name!r}: learner_overrides.{algo}", override, allowed)
 
     def apply(self, spec: LearnerSpec) -> LearnerSpec:
-        """``spec`` with this protocol's overrides for its implementation, stamped with the protocol.
+        """``spec`` with this protocol's overrides for its algorithm name, stamped with the protocol.
 
         A spec already stamped with this protocol is returned unchanged (so that settings changed
         after the protocol, e.g. on a sweep's command line, are not overwritten); one stamped with
@@ -251,7 +289,7 @@ class ProtocolSpec:
                 f"learner {spec.name!r} was resolved for protocol {spec.protocol!r} and cannot run under {self.name!r}; "
                 "start from learner_spec(name) instead"
             )
-        override = self.learner_overrides.get(spec.implementation)
+        override = self.learner_overrides.get(spec.name)
         resolved = spec.with_overrides(override) if override else spec
         return dataclasses.replace(resolved, protocol=self.name)
 
@@ -300,7 +338,9 @@ def training_steps(spec: LearnerSpec, budget: int) -> int:
     """The ``total_timesteps`` to pass to SB3 so that the run trains what the paper's runs trained."""
     if budget < 0:
         raise SpecError(f"budget must be >= 0, got {budget}")
-    if spec.implementation == "random":
+    from morality_gym.baselines.targets import learner_trains
+
+    if not learner_trains(spec.target):
         return 0
     rollout = int(spec.hparams.get("n_steps", 2048)) * spec.n_envs
     if spec.step_accounting == "floor":

@@ -24,28 +24,34 @@ from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError
 from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
 
 
-def fleet_class(implementation: str) -> type[FleetTrainer]:
-    """The fleet trainer of a learner implementation (``ppo``, ``ppo_lag``, ``cpo``)."""
-    from morality_gym.baselines.fleet.ppo import FleetPPO
+def fleet_class(target: str) -> type[FleetTrainer]:
+    """The fleet trainer that reproduces the algorithm class at ``target`` (SB3's PPO, PPOLag, CPO).
 
-    classes: dict[str, type[FleetTrainer]] = {"ppo": FleetPPO}
+    Matched by class identity: a subclass may train differently, so it has no fleet trainer.
+    """
+    from morality_gym.baselines.fleet.ppo import FleetPPO
+    from morality_gym.baselines.targets import resolve
+
+    trainers: list[type[FleetTrainer]] = [FleetPPO]
     try:
         from morality_gym.baselines.fleet.ppo_lag import FleetPPOLag
 
-        classes["ppo_lag"] = FleetPPOLag
+        trainers.append(FleetPPOLag)
     except ImportError:  # pragma: no cover - built learner by learner
         pass
     try:
         from morality_gym.baselines.fleet.cpo import FleetCPO
 
-        classes["cpo"] = FleetCPO
+        trainers.append(FleetCPO)
     except ImportError:  # pragma: no cover
         pass
-    if implementation not in classes:
-        raise SpecError(
-            f"the fleet engine does not train implementation {implementation!r}; fleet learners: {', '.join(classes)}"
-        )
-    return classes[implementation]
+    cls = resolve(target)
+    for trainer in trainers:
+        if resolve(trainer.algorithm) is cls:
+            return trainer
+    raise SpecError(
+        f"the fleet engine does not train {target!r}; fleet learners: {', '.join(t.algorithm for t in trainers)}"
+    )
 
 
 def build_fleet(
@@ -55,7 +61,7 @@ def build_fleet(
     max_steps: int | None = DEFAULT_MAX_STEPS,
 ) -> FleetTrainer:
     """The fleet trainer for ``runs`` of the learner ``spec`` under ``protocol``."""
-    return fleet_class(spec.implementation)(spec, runs, protocol=protocol, max_steps=max_steps)
+    return fleet_class(spec.target)(spec, runs, protocol=protocol, max_steps=max_steps)
 
 
 __all__ = ["FleetRun", "FleetTrainer", "build_fleet", "fleet_class"]

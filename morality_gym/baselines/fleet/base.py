@@ -41,6 +41,7 @@ from morality_gym.baselines.learners import LEARN_EVAL_EPISODES, SB3Learner, bui
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError, protocol_spec, training_steps
 from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
 from morality_gym.norms.metric import BoundChain
+from morality_gym.baselines.targets import resolve
 
 if TYPE_CHECKING:
     from morality_gym.baselines.callbacks import MoralityEvalCallback
@@ -125,10 +126,10 @@ def _torch_layout(stacked_slice: th.Tensor, param: th.Tensor) -> th.Tensor:
 
 
 class FleetTrainer:
-    """Base of the fleet trainers (see the module docstring). Subclasses set :attr:`implementation`
-    and :attr:`heads` and implement :meth:`_train` (one update of every run from :attr:`rollout`)."""
+    """Base of the fleet trainers (see the module docstring). Subclasses set :attr:`algorithm` (the
+    import path of the single-run class they reproduce) and :attr:`heads` and implement :meth:`_train` (one update of every run from :attr:`rollout`)."""
 
-    implementation: ClassVar[str] = ""
+    algorithm: ClassVar[str] = ""
     heads: ClassVar[tuple[str, ...]] = ("pi", "vf")
     #: PPO's truncation bootstrap adds ``gamma * V`` in float32 (SB3), the constrained learners in float64.
     cost_aware: ClassVar[bool] = False
@@ -142,10 +143,10 @@ class FleetTrainer:
     ) -> None:
         self.protocol = protocol_spec(protocol)
         self.spec = self.protocol.apply(spec)
-        if self.spec.implementation != self.implementation:
+        if resolve(self.spec.target) is not resolve(self.algorithm):
             raise SpecError(
-                f"learner {self.spec.name!r} is implemented by {self.spec.implementation!r}, "
-                f"but {type(self).__name__} trains {self.implementation!r}; use build_fleet"
+                f"learner {self.spec.name!r} is trained by {self.spec.target!r}, "
+                f"but {type(self).__name__} reproduces {self.algorithm!r}; use build_fleet"
             )
         self.runs = list(runs)
         if not self.runs:

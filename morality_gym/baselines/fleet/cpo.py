@@ -27,10 +27,11 @@ from morality_gym.baselines.fleet.cost_base import FleetCostTrainer
 from morality_gym.baselines.fleet.nets import forward
 from morality_gym.baselines.safe.cpo_dual import CPOCase, CPOScalars, CPOStep, exact_direction, omnisafe_direction
 from morality_gym.baselines.safe.functional import categorical_kl
+from morality_gym.baselines.specs import CPO
 
 
 class FleetCPO(FleetCostTrainer):
-    implementation = "cpo"
+    algorithm = CPO
     #: Runs per conjugate-gradient batch (see :meth:`_step_directions`).
     CG_CHUNK = 4
 

@@ -20,10 +20,11 @@ import torch as th
 
 from morality_gym.baselines.fleet.base import FleetTrainer, categorical, entropy
 from morality_gym.baselines.fleet.optim import BatchedAdam
+from morality_gym.baselines.specs import SB3_PPO
 
 
 class FleetPPO(FleetTrainer):
-    implementation = "ppo"
+    algorithm = SB3_PPO
     heads = ("pi", "vf")
 
     def _check_supported(self) -> None:

@@ -19,10 +19,11 @@ from morality_gym.baselines.fleet.base import categorical, entropy
 from morality_gym.baselines.fleet.cost_base import FleetCostTrainer
 from morality_gym.baselines.fleet.optim import BatchedAdam
 from morality_gym.baselines.safe.functional import categorical_kl
+from morality_gym.baselines.specs import PPO_LAG
 
 
 class FleetPPOLag(FleetCostTrainer):
-    implementation = "ppo_lag"
+    algorithm = PPO_LAG
 
     def _setup_optimisers(self) -> None:
         super()._setup_optimisers()
