@@ -201,7 +201,7 @@ def run_config(sub: Submission, cell: Cell, variant: str, seed: int, stationary:
         "scenario": cell.scenario,
         "variant": variant,
         "chain": {"name": cell.chain.name, "norms": [[n.name, n.modality] for n in cell.chain.norms]},
-        "algo": {"name": SUBMITTED, "label": sub.name, "implementation": SUBMITTED},
+        "algo": {"name": SUBMITTED, "label": sub.name},  # no learner class: the policy came from outside
         "protocol": {"name": sub.protocol},
         "preset": sub.preset,
         "seed": int(seed),
