@@ -221,7 +221,7 @@ def _algo(option: str, node: Mapping[str, Any], preset: Preset, protocol: Protoc
         validate_learner(spec)  # keys against the algorithm class, values against sane ranges
     except SpecError as exc:
         raise ConfigError(f"{where}: {exc}") from exc
-    steps_per_s, overhead = _planning_rate(where, planning, file_values, spec)
+    steps_per_s, overhead = _planning_rate(where, planning, file_values, spec, protocol.name)
     return AlgoChoice(spec, steps_per_s, overhead)
 
 
@@ -229,7 +229,7 @@ _PLANNING_KEYS = {"steps_per_s", "update_share", "overhead_s"}
 
 
 def _planning_rate(where: str, planning: Mapping[str, Any], file_values: Mapping[str, Any],
-                   spec: LearnerSpec) -> tuple[float, float]:
+                   spec: LearnerSpec, protocol: str | None = None) -> tuple[float, float]:
     """Training steps per second and fixed seconds per run, for the plan's time estimate.
 
     ``planning.steps_per_s`` is measured with the algorithm file's own settings. Only part of a
@@ -238,10 +238,23 @@ def _planning_rate(where: str, planning: Mapping[str, Any], file_values: Mapping
     whole rate by the epoch ratio, as a first version did, made the smoke preset (2 epochs
     instead of 10-40) look 2.7x slower than it ran. ``overhead_s`` covers what every run pays
     regardless of its budget: building the envs, the final and exact evaluations, the GIF, writes.
+
+    ``planning.protocols.<protocol>`` replaces some of these values under one protocol: a protocol
+    can change a learner's speed by an order of magnitude (PPO-Lag's early stop ends its update
+    after one pass under ``paper`` and after up to 40 under ``corrected``).
     """
+    planning = dict(planning)
+    by_protocol = planning.pop("protocols", None) or {}
+    if not isinstance(by_protocol, Mapping):
+        raise ConfigError(f"{where}: planning.protocols must map protocol names to planning values, got {by_protocol!r}")
+    if protocol is not None and protocol in by_protocol:
+        chosen = by_protocol[protocol]
+        if not isinstance(chosen, Mapping):
+            raise ConfigError(f"{where}: planning.protocols.{protocol} must be a mapping, got {chosen!r}")
+        planning.update(chosen)
     unknown = set(planning) - _PLANNING_KEYS
     if unknown:
-        raise ConfigError(f"{where}: unknown planning key(s) {sorted(unknown)}; valid: {sorted(_PLANNING_KEYS)}")
+        raise ConfigError(f"{where}: unknown planning key(s) {sorted(unknown)}; valid: {sorted(_PLANNING_KEYS | {'protocols'})}")
     try:
         steps_per_s = float(planning.get("steps_per_s", 2000.0))
         share = float(planning.get("update_share", 1.0))
