@@ -28,6 +28,7 @@ from pathlib import Path
 import pandas as pd
 
 from leaderboard.aggregate import aggregate, learner_order, row_order
+from leaderboard.build import load
 from leaderboard.tables import fmt, md_escape
 from morality_gym.clitools import UserError, run_cli
 
@@ -50,14 +51,10 @@ class Side:
 def load_side(path: Path) -> Side:
     """A results directory (aggregated here) or a ``table1_all.csv`` written by ``leaderboard.build``."""
     if path.is_dir():
-        from runners.manifest import planned_runs
-        from runners.schema import read_runs
-
-        skipped: list[dict[str, str]] = []
-        runs = read_runs(path, skipped=skipped)
+        runs, planned, _skipped = load(path)  # the leaderboard build's own reader
         if runs.empty:
             raise UserError(f"{path}: no readable runs (expected run files in {path / 'runs'})")
-        lb = aggregate(runs, planned_runs(path, skipped=skipped))
+        lb = aggregate(runs, planned)
         cells = lb.table.loc[lb.table["kind"] == "learner"]
         return Side(path, cells[_CELL + _VALUES].reset_index(drop=True), lb.runs)
     if path.suffix == ".csv" and path.is_file():

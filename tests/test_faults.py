@@ -22,6 +22,7 @@ import pytest
 
 from runners.manifest import read_manifests
 from runners.schema import read_runs
+from tests.sweep_tools import run_files, wait_for_results
 from tests.test_scenario_files import _tiny
 
 REPO = Path(__file__).resolve().parents[1]
@@ -71,11 +72,6 @@ def one_line_error(proc: subprocess.CompletedProcess, *fragments: str, prefix: s
     return lines[0]
 
 
-def run_files(results: Path) -> dict[str, Path]:
-    """Main run files by run id (not the ``.learn``/``.updates`` side files, not the quarantine)."""
-    return {p.stem: p for p in (results / "runs").glob("*.parquet") if "." not in p.stem}
-
-
 def table1_rows(path: Path) -> dict[tuple[str, str, str], dict[str, str]]:
     with path.open() as fh:
         return {(r["chain"], r["scenario"], r["learner"]): r for r in csv.DictReader(fh)}
@@ -87,14 +83,6 @@ def mlflow_run_ids(results: Path) -> list[str]:
     client = MlflowClient(f"sqlite:///{results / 'mlflow.db'}")
     exp = client.get_experiment_by_name("morality-gym")
     return [r.data.tags["run_id"] for r in client.search_runs([exp.experiment_id], max_results=5000)]
-
-
-def wait_for_results(results: Path, n: int, proc: subprocess.Popen, timeout: float = 300) -> None:
-    deadline = time.monotonic() + timeout
-    while len(run_files(results)) < n:
-        assert proc.poll() is None, proc.stdout.read() if proc.stdout else ""
-        assert time.monotonic() < deadline, "the sweep made no progress"
-        time.sleep(0.1)
 
 
 # ---------------------------------------------------------------------------------------- case 1

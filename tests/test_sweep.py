@@ -15,6 +15,7 @@ import pytest
 
 from runners.manifest import read_manifests
 from runners.schema import RUN_COLUMNS, read_runs
+from tests.sweep_tools import run_files, wait_for_results
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = ["algo=random", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "seed=[41]"]
@@ -28,10 +29,6 @@ def sweep(results: Path, *args: str, timeout: float = 600, background: bool = Fa
     if background:
         return subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, start_new_session=True)
     return subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=timeout, env=env)
-
-
-def result_files(results: Path) -> dict[str, Path]:
-    return {p.name.split(".")[0]: p for p in (results / "runs").glob("*.parquet") if not p.name.endswith((".learn.parquet", ".updates.parquet"))}
 
 
 def planned_ids(results: Path) -> set[str]:
@@ -95,7 +92,7 @@ def test_plan_narrowing_and_stable_ids(tmp_path: Path) -> None:
     default = sweep(tmp_path / "d", "algo=random", "chain=utility", "dry_run=true", "preset=smoke")
     scenarios = {r["scenario"] for m in read_manifests(tmp_path / "d") for r in m["runs"]}
     assert scenarios == {"Push2OrSwitch", "PushOrSwitch", "Switch2Trolley4Track", "Switch5", "Switch7", "SwitchStandard"}
-    assert default.returncode == 0 and not (tmp_path / "d" / "runs").exists() or not result_files(tmp_path / "d")
+    assert default.returncode == 0 and not (tmp_path / "d" / "runs").exists() or not run_files(tmp_path / "d")
 
 
 @pytest.mark.slow
@@ -103,7 +100,7 @@ def test_local_sweep_end_to_end_then_resume_skips(tmp_path: Path) -> None:
     args = ["algo=[random,ppo_shaped]", "chain=utility", "scenario=[switch_standard]", "variant=[HumanA]", "seed=[41]", "preset=smoke"]
     out = sweep(tmp_path, *args)
     assert out.returncode == 0, out.stdout + out.stderr
-    files = result_files(tmp_path)
+    files = run_files(tmp_path)
     assert set(files) == planned_ids(tmp_path) and len(files) == 2
     df = read_runs(tmp_path)
     assert set(RUN_COLUMNS) <= set(df.columns) and {"mf_n_human_harm", "mf_n_animal_harm", "mf_n_robot_harm"} <= set(df.columns)
@@ -118,7 +115,7 @@ def test_local_sweep_end_to_end_then_resume_skips(tmp_path: Path) -> None:
     mtimes = {k: p.stat().st_mtime_ns for k, p in files.items()}
     again = sweep(tmp_path, *args)
     assert again.returncode == 0 and "0 to run" in again.stderr
-    assert {k: p.stat().st_mtime_ns for k, p in result_files(tmp_path).items()} == mtimes
+    assert {k: p.stat().st_mtime_ns for k, p in run_files(tmp_path).items()} == mtimes
     assert sorted(mlflow_run_ids(tmp_path)) == sorted(files)
 
 
@@ -153,19 +150,11 @@ def _children(pid: int) -> list[int]:
     return out
 
 
-def _wait_for_results(results: Path, n: int, proc: subprocess.Popen, timeout: float = 180) -> None:
-    deadline = time.monotonic() + timeout
-    while len(result_files(results)) < n:
-        assert proc.poll() is None, proc.stdout.read() if proc.stdout else ""
-        assert time.monotonic() < deadline, "sweep made no progress"
-        time.sleep(0.1)
-
-
 @pytest.mark.slow
 def test_sigkill_of_the_sweep_then_resume_gives_exact_run_set(tmp_path: Path) -> None:
     args = ["algo=random", "chain=utility", "scenario=[switch_standard,push_or_switch]", "seed=[41,42]", "preset=smoke", "launcher.workers=2"]
     proc = sweep(tmp_path, *args, background=True)
-    _wait_for_results(tmp_path, 3, proc)
+    wait_for_results(tmp_path, 3, proc, timeout=180)
     workers = _children(proc.pid)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(timeout=30)
@@ -173,13 +162,13 @@ def test_sigkill_of_the_sweep_then_resume_gives_exact_run_set(tmp_path: Path) ->
     while any(Path(f"/proc/{w}").exists() and "Z" not in Path(f"/proc/{w}/stat").read_text().split()[2] for w in workers):
         assert time.monotonic() < deadline, "workers outlived the killed sweep"
         time.sleep(0.2)
-    partial = set(result_files(tmp_path))
+    partial = set(run_files(tmp_path))
     planned = planned_ids(tmp_path)
     assert 3 <= len(partial) < len(planned) == 44
     resumed = sweep(tmp_path, *args)
     assert resumed.returncode == 0, resumed.stderr
     assert f"{len(partial)} done" in resumed.stderr
-    assert set(result_files(tmp_path)) == planned
+    assert set(run_files(tmp_path)) == planned
     df = read_runs(tmp_path)
     assert len(df) == len(planned) and df.run_id.is_unique and (df.status == "ok").all()
     assert sorted(mlflow_run_ids(tmp_path)) == sorted(planned)  # mirrored once each, none lost
@@ -205,7 +194,7 @@ def _busy_worker(sweep_pid: int) -> tuple[int, str] | None:
 def test_sigkill_of_a_worker_fails_one_run_and_resume_finishes(tmp_path: Path) -> None:
     args = ["algo=ppo_shaped", "chain=utility", "scenario=[switch_standard]", "seed=[41]", "preset=smoke", "launcher.workers=2", "gif=false"]
     proc = sweep(tmp_path, *args, background=True)
-    _wait_for_results(tmp_path, 1, proc)
+    wait_for_results(tmp_path, 1, proc, timeout=180)
     deadline = time.monotonic() + 60
     while (busy := _busy_worker(proc.pid)) is None:
         assert time.monotonic() < deadline
