@@ -259,6 +259,7 @@ def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: st
         "wall_time_s": time.perf_counter() - t0, "started_at": started, "finished_at": _now(),
         "hostname": socket.gethostname(), "git_commit": git_commit(), "versions": versions(),
         "config": json.dumps(config, sort_keys=True), "model_path": None, "gif_path": gif_rel,
+        "engine": None,  # a submitted policy was not trained here
         **{f"{MF_PREFIX}{n}": final.functions[n] for n in cell.chain.norm_names},
     }
 

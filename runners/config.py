@@ -27,7 +27,7 @@ from runners.paths import CONF_DIR, find_config, group_options  # re-exported: C
 
 _TOP_KEYS = {
     "scenario", "chain", "algo", "protocol", "preset", "launcher", "experiment", "variant", "seed", "beta",
-    "max_steps", "results_dir", "dry_run", "retry_failed", "mlflow", "gif", "name",
+    "max_steps", "results_dir", "dry_run", "retry_failed", "mlflow", "gif", "name", "engine", "fleet_size",
 }
 _PRESET_KEYS = {
     "name", "seeds", "budget", "budget_overrides", "eval_episodes", "learn_eval_every", "learn_eval_episodes", "algo_overrides",
@@ -73,6 +73,7 @@ class AlgoChoice:
     spec: LearnerSpec
     steps_per_s: float  # planning estimate per worker
     overhead_s: float
+    fleet_speedup: float = 1.0  # measured speed-up of the fleet engine at K >= 12 (planning only)
 
 
 @dataclass(frozen=True)
@@ -95,6 +96,8 @@ class SweepConfig:
     gif: bool
     name: str
     chain_files: Mapping[str, str] = field(default_factory=dict)  # chain name -> config option name
+    engine: str = "fleet"  # fleet | single (runners/fleet.py)
+    fleet_size: int = 36  # most runs trained together in one fleet
 
 
 def _load_chain(option: str, node: Any) -> MoralityChain:
@@ -221,16 +224,16 @@ def _algo(option: str, node: Mapping[str, Any], preset: Preset, protocol: Protoc
         validate_learner(spec)  # keys against the algorithm class, values against sane ranges
     except SpecError as exc:
         raise ConfigError(f"{where}: {exc}") from exc
-    steps_per_s, overhead = _planning_rate(where, planning, file_values, spec, protocol.name)
-    return AlgoChoice(spec, steps_per_s, overhead)
+    steps_per_s, overhead, speedup = _planning_rate(where, planning, file_values, spec, protocol.name)
+    return AlgoChoice(spec, steps_per_s, overhead, speedup)
 
 
-_PLANNING_KEYS = {"steps_per_s", "update_share", "overhead_s"}
+_PLANNING_KEYS = {"steps_per_s", "update_share", "overhead_s", "fleet_speedup"}
 
 
 def _planning_rate(where: str, planning: Mapping[str, Any], file_values: Mapping[str, Any],
-                   spec: LearnerSpec, protocol: str | None = None) -> tuple[float, float]:
-    """Training steps per second and fixed seconds per run, for the plan's time estimate.
+                   spec: LearnerSpec, protocol: str | None = None) -> tuple[float, float, float]:
+    """Training steps per second, fixed seconds per run and the fleet speed-up, for the plan's estimate.
 
     ``planning.steps_per_s`` is measured with the algorithm file's own settings. Only part of a
     training step's time is gradient work (``update_share``); that part scales with the number of
@@ -241,7 +244,8 @@ def _planning_rate(where: str, planning: Mapping[str, Any], file_values: Mapping
 
     ``planning.protocols.<protocol>`` replaces some of these values under one protocol: a protocol
     can change a learner's speed by an order of magnitude (PPO-Lag's early stop ends its update
-    after one pass under ``paper`` and after up to 40 under ``corrected``).
+    after one pass under ``paper`` and after up to 40 under ``corrected``). ``fleet_speedup`` is
+    the fleet engine's measured gain at K >= 12 (BENCHMARKS.md), used by :mod:`runners.fleet`.
     """
     planning = dict(planning)
     by_protocol = planning.pop("protocols", None) or {}
@@ -259,10 +263,11 @@ def _planning_rate(where: str, planning: Mapping[str, Any], file_values: Mapping
         steps_per_s = float(planning.get("steps_per_s", 2000.0))
         share = float(planning.get("update_share", 1.0))
         overhead = float(planning.get("overhead_s", 1.0))
+        speedup = float(planning.get("fleet_speedup", 1.0))
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{where}: planning values must be numbers ({exc})") from exc
-    if steps_per_s <= 0 or not 0.0 <= share <= 1.0 or overhead < 0:
-        raise ConfigError(f"{where}: planning needs steps_per_s > 0, 0 <= update_share <= 1, overhead_s >= 0; "
+    if steps_per_s <= 0 or not 0.0 <= share <= 1.0 or overhead < 0 or speedup < 1.0:
+        raise ConfigError(f"{where}: planning needs steps_per_s > 0, 0 <= update_share <= 1, overhead_s >= 0, fleet_speedup >= 1; "
                           f"got {dict(planning)}")
     ratio = 1.0
     for key in ("n_epochs", "n_critic_updates"):
@@ -270,7 +275,7 @@ def _planning_rate(where: str, planning: Mapping[str, Any], file_values: Mapping
         if reference and actual:
             ratio *= actual / reference
     seconds_per_step = ((1.0 - share) + share * ratio) / steps_per_s
-    return 1.0 / seconds_per_step, overhead
+    return 1.0 / seconds_per_step, overhead, speedup
 
 
 def _preset(node: Mapping[str, Any]) -> Preset:
@@ -458,6 +463,10 @@ def validate(cfg: DictConfig) -> SweepConfig:
     for key in ("dry_run", "retry_failed", "mlflow", "gif"):
         if not isinstance(cfg.get(key), bool):
             raise ConfigError(f"{key}: expected true or false, got {cfg.get(key)!r}")
+    engine = cfg.get("engine", "fleet")
+    if engine not in ("fleet", "single"):
+        raise ConfigError(f"engine: expected fleet or single, got {engine!r}{_hint(str(engine), ['fleet', 'single'])}")
+    fleet_size = _int("fleet_size", cfg.get("fleet_size", 36), 1)
     if cfg.get("mlflow") and not cfg.get("dry_run"):
         from runners.tracking import TrackingError, check_reachable
 
@@ -493,4 +502,6 @@ def validate(cfg: DictConfig) -> SweepConfig:
         gif=cfg.get("gif"),
         name=str(name),
         chain_files={chain.name: option for option, chain in chains.items()},
+        engine=str(engine),
+        fleet_size=fleet_size,
     )

@@ -107,7 +107,7 @@ def finished_status(results_dir: Path, run_id: str) -> str | None:
     return None if table is None else str(table.column("status")[0].as_py())
 
 
-def _base_row(config: dict[str, Any], run_id: str) -> dict[str, Any]:
+def _base_row(config: dict[str, Any], run_id: str, engine: str | None = "single") -> dict[str, Any]:
     algo = config["algo"]
     return {
         "schema_version": SCHEMA_VERSION,
@@ -129,6 +129,7 @@ def _base_row(config: dict[str, Any], run_id: str) -> dict[str, Any]:
         "git_commit": git_commit(),
         "versions": versions(),
         "config": json.dumps(config, sort_keys=True),
+        "engine": engine,
     }
 
 
@@ -153,24 +154,33 @@ def execute(config: dict[str, Any], run_id: str, results_dir: str | Path, gif: b
         lock.release()
 
 
+def _spec_and_protocol(config: dict[str, Any]) -> tuple[Any, Any]:
+    """The learner spec and protocol of a run config (JSON lists back to the spec's tuples)."""
+    from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec
+
+    algo = dict(config["algo"])
+    algo["return_bounds"] = tuple(algo["return_bounds"])
+    algo["net_arch"] = tuple(algo["net_arch"])
+    proto = dict(config["protocol"])
+    proto["random_learn_eval_steps"] = tuple(proto["random_learn_eval_steps"])
+    return LearnerSpec(**algo), ProtocolSpec(**proto)
+
+
+def bound_chain(config: dict[str, Any]) -> Any:
+    """The run's chain bound to its env id."""
+    from morality_gym.norms.metric import bind_chain
+
+    return bind_chain(_chain(config), config["env_id"], config["beta"])
+
+
 def _execute_locked(config: dict[str, Any], run_id: str, results_dir: Path, gif: bool) -> dict[str, Any]:
     limit_threads()
     started, t0 = _now(), time.perf_counter()
-    row = _base_row(config, run_id)
-    norms = [n for n, _ in config["chain"]["norms"]]
     try:
         from morality_gym.baselines.learners import build_learner
-        from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec
-        from morality_gym.norms.metric import bind_chain
 
-        bound = bind_chain(_chain(config), config["env_id"], config["beta"])
-        algo = dict(config["algo"])
-        algo["return_bounds"] = tuple(algo["return_bounds"])
-        algo["net_arch"] = tuple(algo["net_arch"])
-        spec = LearnerSpec(**algo)
-        proto = dict(config["protocol"])
-        proto["random_learn_eval_steps"] = tuple(proto["random_learn_eval_steps"])
-        learner = build_learner(spec, bound, ProtocolSpec(**proto), seed=config["seed"], max_steps=config["max_steps"])
+        spec, protocol = _spec_and_protocol(config)
+        learner = build_learner(spec, bound_chain(config), protocol, seed=config["seed"], max_steps=config["max_steps"])
         learn_rows: list[dict[str, Any]] = []
         learner.learn(
             config["budget"],
@@ -178,6 +188,35 @@ def _execute_locked(config: dict[str, Any], run_id: str, results_dir: Path, gif:
             eval_episodes=config["learn_eval_episodes"],
             on_eval=learn_rows.append,
         )
+    except Exception as exc:  # noqa: BLE001 - every failure must be recorded, whatever it is
+        return record_outcome(config, run_id, results_dir, gif, None, [], started, t0, error=exc)
+    return record_outcome(config, run_id, results_dir, gif, learner, learn_rows, started, t0)
+
+
+def record_outcome(
+    config: dict[str, Any],
+    run_id: str,
+    results_dir: Path,
+    gif: bool,
+    learner: Any,
+    learn_rows: list[dict[str, Any]],
+    started: str,
+    t0: float,
+    engine: str = "single",
+    error: BaseException | None = None,
+) -> dict[str, Any]:
+    """Evaluate a trained ``learner`` and write every artifact of the run, its Parquet row last.
+
+    Shared by the single and the fleet engine, so a run's files are the same whichever trained it.
+    With ``error`` (training failed) only the failed row is written. Any exception here is recorded
+    as the run's failure too. Returns the short summary the parent receives.
+    """
+    row = _base_row(config, run_id, engine)
+    norms = [n for n, _ in config["chain"]["norms"]]
+    try:
+        if error is not None:
+            raise error
+        bound = learner.bound
         final = learner.final_evaluation(config["eval_episodes"])
         exact = learner.exact_evaluation()
         artifacts = runs_dir(results_dir) / run_id
@@ -233,19 +272,8 @@ def _execute_locked(config: dict[str, Any], run_id: str, results_dir: Path, gif:
         row.update(
             status="failed",
             error=f"{type(exc).__name__}: {exc}",
-            traceback=traceback.format_exc(),
-            total_steps=0,
-            relevant_norms=[],
-            metric=None,
-            metric_stderr=None,
-            exact_metric=None,
-            mean_return=None,
-            mean_cost=None,
-            mean_length=None,
-            truncation_rate=None,
-            goal_rate=None,
-            model_path=None,
-            gif_path=None,
+            traceback="".join(traceback.format_exception(exc)),
+            **_EMPTY_RESULT,
             **{f"{MF_PREFIX}{n}": None for n in norms},
         )
     row.update(started_at=started, finished_at=_now(), wall_time_s=time.perf_counter() - t0)
@@ -253,18 +281,23 @@ def _execute_locked(config: dict[str, Any], run_id: str, results_dir: Path, gif:
     return {"run_id": run_id, "status": row["status"], "error": row["error"], "metric": row["metric"], "wall_time_s": row["wall_time_s"]}
 
 
-def record_failure(config: dict[str, Any], run_id: str, results_dir: str | Path, error: str, trace: str = "") -> None:
+#: The result columns of a run that produced no result.
+_EMPTY_RESULT: dict[str, Any] = dict(
+    total_steps=0, relevant_norms=[], metric=None, metric_stderr=None, exact_metric=None, mean_return=None,
+    mean_cost=None, mean_length=None, truncation_rate=None, goal_rate=None, model_path=None, gif_path=None,
+)
+
+
+def record_failure(config: dict[str, Any], run_id: str, results_dir: str | Path, error: str, trace: str = "", engine: str | None = None) -> None:
     """Record a run that died without recording itself (a killed worker, a lost SLURM job)."""
     results_dir = Path(results_dir)
     if finished_status(results_dir, run_id) is not None:
         return
     norms = [n for n, _ in config["chain"]["norms"]]
-    row = _base_row(config, run_id)
+    row = _base_row(config, run_id, engine)
     now = _now()
     row.update(
-        status="failed", error=error, traceback=trace or None, total_steps=0, relevant_norms=[], metric=None,
-        metric_stderr=None, exact_metric=None, mean_return=None, mean_cost=None, mean_length=None,
-        truncation_rate=None, goal_rate=None, model_path=None, gif_path=None, started_at=now, finished_at=now,
-        wall_time_s=0.0, **{f"{MF_PREFIX}{n}": None for n in norms},
+        status="failed", error=error, traceback=trace or None, started_at=now, finished_at=now, wall_time_s=0.0,
+        **_EMPTY_RESULT, **{f"{MF_PREFIX}{n}": None for n in norms},
     )
     write_run(results_dir, row, norms)

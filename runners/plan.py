@@ -30,6 +30,7 @@ class PlannedRun:
     run_id: str
     config: dict[str, Any]  # the resolved run config (what the worker executes)
     est_seconds: float
+    overhead_s: float = 0.0  # the part of est_seconds every run pays whatever trains it (evaluations, writes)
 
     @property
     def identity(self) -> dict[str, Any]:
@@ -96,7 +97,7 @@ def plan(sweep: SweepConfig) -> list[PlannedRun]:
                         continue
                     seen.add(rid)
                     steps = training_steps(algo.spec, budget)
-                    runs.append(PlannedRun(rid, config, algo.overhead_s + steps / max(algo.steps_per_s, 1e-9)))
+                    runs.append(PlannedRun(rid, config, algo.overhead_s + steps / max(algo.steps_per_s, 1e-9), algo.overhead_s))
     return runs
 
 

@@ -1,8 +1,11 @@
 """A local pool of worker processes that survives the death of any of them.
 
 ``concurrent.futures.ProcessPoolExecutor`` gives up entirely when one worker is killed; a sweep
-must instead record that run as failed, start a replacement and carry on. Each worker is a spawned
-process (torch is imported once per worker, not once per run) that executes one run at a time and
+must instead record the runs it held as failed, start a replacement and carry on. Each worker is a
+spawned process (torch is imported once per worker, not once per run) that executes one job at a
+time (one run, or a fleet of runs trained together: :mod:`runners.fleet`), reports each run as
+soon as its result is written (so a worker killed late in a fleet's recording loses only the runs
+not yet written), and
 asks the kernel to kill it when the parent dies (``PR_SET_PDEATHSIG``), so ``kill -9`` of the
 sweep leaves no orphan that could race a resumed sweep.
 """
@@ -16,11 +19,12 @@ import signal
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
 from typing import Any
 
+from runners.fleet import Job
 from runners.plan import PlannedRun
 
 ResultHook = Callable[[PlannedRun, dict[str, Any]], None]
@@ -40,7 +44,8 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int)
     if os.getppid() != parent_pid:  # the parent died before prctl took effect
         os._exit(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-    from runners.execute import execute, limit_threads
+    from runners.execute import limit_threads
+    from runners.fleet import execute_job
 
     limit_threads()
     import morality_gym  # noqa: F401 - warm imports before the first run
@@ -54,16 +59,18 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int)
             return
         if message is None:
             return
-        run_id, config = message
-        summary = execute(config, run_id, results_dir, gif)
-        conn.send(("done", summary))
+        items, engine = message
+        for summary in execute_job(items, results_dir, gif, engine):
+            conn.send(("done", summary))
+        conn.send(("free", None))
 
 
 @dataclass
 class _Worker:
     process: Any
     conn: Connection
-    run: PlannedRun | None = None
+    job: Job | None = None
+    pending: dict[str, PlannedRun] = field(default_factory=dict)  # the job's runs not reported yet
 
 
 class WorkerPool:
@@ -85,18 +92,23 @@ class WorkerPool:
         child.close()
         return _Worker(process, parent)
 
-    def run(self, runs: list[PlannedRun], on_result: ResultHook, on_failure: Callable[[PlannedRun, str], None]) -> None:
-        """Execute ``runs``; a worker that dies takes only its current run with it (``on_failure``)."""
-        queue: deque[PlannedRun] = deque(runs)
-        self._workers = [self._start() for _ in range(min(self.n_workers, max(1, len(runs))))]
+    def run(self, jobs: list[Job], on_result: ResultHook, on_failure: Callable[[PlannedRun, str], None]) -> None:
+        """Execute ``jobs``; a worker that dies takes only its job's unreported runs with it (``on_failure``)."""
+        queue: deque[Job] = deque(jobs)
+        self._workers = [self._start() for _ in range(min(self.n_workers, max(1, len(jobs))))]
         ready: set[int] = set()
         deferred_until = 0.0
+
+        def busy() -> bool:
+            return any(w.job is not None for w in self._workers)
+
         try:
-            while queue or any(w.run is not None for w in self._workers):
+            while queue or busy():
                 for w in self._workers:
-                    if w.run is None and queue and id(w) in ready and time.monotonic() >= deferred_until:
-                        w.run = queue.popleft()
-                        w.conn.send((w.run.run_id, w.run.config))
+                    if w.job is None and queue and id(w) in ready and time.monotonic() >= deferred_until:
+                        w.job = queue.popleft()
+                        w.pending = {r.run_id: r for r in w.job.runs}
+                        w.conn.send((w.job.items, w.job.engine))
                 waitables: list[Any] = []
                 for w in self._workers:
                     waitables += [w.conn, w.process.sentinel]
@@ -114,11 +126,15 @@ class WorkerPool:
                     if message is not None and message[0] == "ready":
                         ready.add(id(worker))
                         continue
+                    if message is not None and message[0] == "free":
+                        worker.job, worker.pending = None, {}
+                        continue
                     if message is not None and message[0] == "done":
-                        run, worker.run = worker.run, None
                         summary = message[1]
+                        run = worker.pending.pop(summary["run_id"], None)
                         if run is not None and summary["status"] == "busy":
-                            queue.append(run)  # another process holds the run: try again later
+                            # another process holds the run: try it again later, on its own
+                            queue.append(Job((run,), "single", run.est_seconds))
                             deferred_until = time.monotonic() + 1.0
                         elif run is not None:
                             on_result(run, summary)
@@ -127,11 +143,14 @@ class WorkerPool:
                     worker.process.join(timeout=5)
                     code = worker.process.exitcode
                     reason = f"signal {-code}" if code is not None and code < 0 else f"exit code {code}"
-                    if worker.run is not None:
-                        on_failure(worker.run, f"worker process died ({reason}) while running this configuration")
+                    what = "this configuration" if worker.job is None or len(worker.job.runs) == 1 else \
+                        f"a fleet of {len(worker.job.runs)} runs including this configuration"
+                    for run in worker.pending.values():
+                        on_failure(run, f"worker process died ({reason}) while running {what}")
+                    worker.job, worker.pending = None, {}
                     self._workers.remove(worker)
                     ready.discard(id(worker))
-                    if queue or any(w.run is not None for w in self._workers):
+                    if queue or busy():
                         self._workers.append(self._start())
         finally:
             self.close()

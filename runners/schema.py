@@ -24,7 +24,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 SCHEMA_VERSION = 1
-CHANGES = {1: "first version"}
+CHANGES = {
+    1: "first version; compatible addition (2026-11-23): the `engine` column (files written before it lack it, "
+    "readers treat a missing value as the single engine)",
+}
 
 #: Fixed columns of a run row (``mf_<norm>`` columns come on top, one per norm of the chain).
 RUN_FIELDS: list[pa.Field] = [
@@ -68,6 +71,9 @@ RUN_FIELDS: list[pa.Field] = [
     pa.field("config", pa.string()),  # JSON of the resolved run config
     pa.field("model_path", pa.string()),  # relative to results_dir, null if none
     pa.field("gif_path", pa.string()),  # relative to results_dir, null if none
+    # how the run was trained: "single", or "fleet:K" (trained with K-1 other runs, runners/fleet.py);
+    # null in files written before the column existed, and for runs that never started
+    pa.field("engine", pa.string()),
 ]
 
 LEARN_FIELDS: list[pa.Field] = [

@@ -1,8 +1,9 @@
-"""Dispatch runs to SLURM as one submitit job array (one array task per run).
+"""Dispatch jobs to SLURM as one submitit job array (one array task per job: a run or a fleet).
 
-Every array task calls :func:`runners.execute.execute`, which records its own result (including
-failures) in Parquet; the parent polls the jobs, and records the runs whose jobs died without a
-result (time limit, ``kill -9``, node failure) as failed with SLURM's view of what happened.
+Every array task calls :func:`runners.fleet.execute_job_all`, which records each run's result
+(including failures) in Parquet; the parent polls the jobs, and records the runs whose jobs died
+without a result (time limit, ``kill -9``, node failure) as failed with SLURM's view of what
+happened. A fleet job that died after writing some of its runs keeps those.
 Partition, time limit, CPUs, memory and array parallelism come from ``conf/launcher/slurm.yaml``.
 """
 
@@ -13,12 +14,14 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
+from runners.execute import finished_status
+from runners.fleet import Job
 from runners.plan import PlannedRun
 from runners.slurm_controller import SlurmUnavailable, check_controller  # noqa: F401 - re-exported for callers
 
 
 def run_on_slurm(
-    runs: list[PlannedRun],
+    jobs_: list[Job],
     launcher: Mapping[str, Any],
     results_dir: Path,
     gif: bool,
@@ -28,7 +31,7 @@ def run_on_slurm(
 ) -> None:
     import submitit
 
-    from runners.execute import execute
+    from runners.fleet import execute_job_all
 
     folder = Path(launcher.get("folder") or results_dir / "slurm" / sweep_name)
     folder.mkdir(parents=True, exist_ok=True)
@@ -44,13 +47,13 @@ def run_on_slurm(
         nodes=1,
     )
     jobs = executor.map_array(
-        execute,
-        [r.config for r in runs],
-        [r.run_id for r in runs],
-        [str(results_dir)] * len(runs),
-        [gif] * len(runs),
+        execute_job_all,
+        [j.items for j in jobs_],
+        [str(results_dir)] * len(jobs_),
+        [gif] * len(jobs_),
+        [j.engine for j in jobs_],
     )
-    pending = dict(zip(range(len(runs)), jobs))
+    pending = dict(zip(range(len(jobs_)), jobs))
     poll = float(launcher.get("poll_s", 2.0))
     while pending:
         for i in list(pending):
@@ -58,15 +61,27 @@ def run_on_slurm(
             if not job.done():
                 continue
             del pending[i]
-            run = runs[i]
+            runs = {r.run_id: r for r in jobs_[i].runs}
             try:
-                summary = job.result()
+                summaries = job.result()
             except Exception as exc:  # noqa: BLE001 - a lost job is recorded, whatever SLURM says
-                on_failure(run, f"SLURM job {job.job_id} ended without a result: {type(exc).__name__}: {str(exc)[:500]}")
+                lost = f"SLURM job {job.job_id} ended without a result: {type(exc).__name__}: {str(exc)[:500]}"
+                for run in runs.values():
+                    status = finished_status(results_dir, run.run_id)
+                    if status is not None:  # written before the job died
+                        on_result(run, {"run_id": run.run_id, "status": status, "error": None})
+                    else:
+                        on_failure(run, lost)
                 continue
-            if summary.get("status") == "busy":
-                on_failure(run, f"SLURM job {job.job_id}: the run was locked by another process")
-            else:
-                on_result(run, summary)
+            for summary in summaries:
+                run = runs.pop(summary["run_id"], None)
+                if run is None:
+                    continue
+                if summary.get("status") == "busy":
+                    on_failure(run, f"SLURM job {job.job_id}: the run was locked by another process")
+                else:
+                    on_result(run, summary)
+            for run in runs.values():  # not reported by the task (should not happen): never silently lost
+                on_failure(run, f"SLURM job {job.job_id} returned no result for this run")
         if pending:
             time.sleep(poll)

@@ -30,6 +30,7 @@ from rich.markup import escape
 from morality_gym.clitools import DEBUG_ENV, debug_enabled, one_line, run_cli
 from runners.config import ConfigError, SweepConfig, validate
 from runners.execute import finished_status, record_failure
+from runners.fleet import make_jobs, jobs_estimate
 from runners.manifest import manifest_name, write_manifest
 from runners.paths import CONF_DIR
 from runners.plan import PlannedRun, describe, plan
@@ -66,6 +67,10 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
     done = {rid for rid, s in status.items() if s == "ok" or (s == "failed" and not sweep.retry_failed)}
     workers = _workers(sweep)
     info = describe(runs, done, workers)
+    todo_runs = [r for r in runs if r.run_id not in done]
+    jobs = make_jobs(todo_runs, sweep.engine, sweep.fleet_size, workers, {a.spec.name: a.fleet_speedup for a in sweep.algos})
+    info["est_seconds"] = jobs_estimate(jobs, done, workers)
+    fleets = [j for j in jobs if j.engine == "fleet"]
     console.print(f"sweep [bold]{sweep.name}[/bold]: {info['total']} runs ({info['done']} done, {info['todo']} to run)")
     table = Table()
     for col in ("learner", "runs", "done"):
@@ -78,6 +83,16 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
         f"launcher [bold]{sweep.launcher['name']}[/bold] ({workers} parallel), results in {sweep.results_dir}; "
         f"estimated time for what remains: [bold]{_fmt_duration(info['est_seconds'])}[/bold]"
     )
+    if fleets:
+        in_fleets = sum(len(j.runs) for j in fleets)
+        console.print(
+            f"engine [bold]fleet[/bold]: {in_fleets} of {len(todo_runs)} runs to do train in {len(fleets)} fleet(s) of "
+            f"{min(len(j.runs) for j in fleets)}-{max(len(j.runs) for j in fleets)} runs, the other {len(todo_runs) - in_fleets} "
+            "one by one (engine=single trains every run on its own)"
+        )
+    elif todo_runs:
+        console.print(f"engine [bold]single[/bold]: every run trains on its own" + (
+            "" if sweep.engine == "single" else " (no two runs to do can share a fleet)"))
     tracker = None
     if sweep.mlflow and not sweep.dry_run:
         from runners.tracking import Tracker
@@ -98,15 +113,18 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
                   + (" (dry run: not counted as planned by the leaderboard)" if sweep.dry_run else ""), soft_wrap=True)
     if sweep.dry_run:
         listing = Table(title="planned runs")
-        for col in ("run id", "env id", "chain", "learner", "seed", "budget", "status"):
+        for col in ("run id", "env id", "chain", "learner", "seed", "budget", "job", "status"):
             listing.add_column(col)
+        job_of = {r.run_id: (f"fleet {i + 1} ({len(j.runs)} runs)" if j.engine == "fleet" else "single")
+                  for i, j in enumerate(jobs) for r in j.runs}
         for r in runs:
             c = r.config
-            listing.add_row(r.run_id, c["env_id"], c["chain"]["name"], c["algo"]["label"], str(c["seed"]), str(c["budget"]), status[r.run_id] or "-")
+            listing.add_row(r.run_id, c["env_id"], c["chain"]["name"], c["algo"]["label"], str(c["seed"]), str(c["budget"]),
+                            job_of.get(r.run_id, "-"), status[r.run_id] or "-")
         console.print(listing)
         return 0
 
-    todo = [r for r in runs if r.run_id not in done]
+    todo = todo_runs
     failures: dict[str, str] = {}
     started = time.perf_counter()
     with Progress(
@@ -141,11 +159,11 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
             if sweep.launcher["name"] == "slurm":
                 from runners.slurm_launcher import run_on_slurm
 
-                run_on_slurm(todo, sweep.launcher, sweep.results_dir, sweep.gif, sweep.name, finish, fail)
+                run_on_slurm(jobs, sweep.launcher, sweep.results_dir, sweep.gif, sweep.name, finish, fail)
             else:
                 from runners.pool import WorkerPool
 
-                WorkerPool(workers, sweep.results_dir, sweep.gif).run(todo, finish, fail)
+                WorkerPool(workers, sweep.results_dir, sweep.gif).run(jobs, finish, fail)
     if tracker is not None:
         for r in runs:
             if finished_status(sweep.results_dir, r.run_id) is not None:

@@ -131,8 +131,8 @@ def test_plan_estimate_scales_only_the_update_share_with_epochs() -> None:
     same = learner_spec("ppo")
     fewer = same.with_overrides({"hparams": {"n_epochs": 2}})
     planning = {"steps_per_s": 3000.0, "update_share": 0.5, "overhead_s": 0.5}
-    assert _planning_rate("w", planning, file_values, same) == pytest.approx((3000.0, 0.5))
-    rate, _ = _planning_rate("w", planning, file_values, fewer)
+    assert _planning_rate("w", planning, file_values, same) == pytest.approx((3000.0, 0.5, 1.0))
+    rate, _, _ = _planning_rate("w", planning, file_values, fewer)
     assert rate == pytest.approx(3000.0 / (0.5 + 0.5 * 0.2))  # 5000 steps/s, not 15000
     with pytest.raises(ConfigError, match="update_share"):
         _planning_rate("w", {**planning, "update_share": 1.5}, file_values, same)
@@ -148,9 +148,9 @@ def test_plan_estimate_per_protocol() -> None:
     file_values = {"hparams": {"n_epochs": 40}}
     planning = {"steps_per_s": 10000.0, "update_share": 0.25, "overhead_s": 0.5,
                 "protocols": {"corrected": {"steps_per_s": 500.0, "overhead_s": 1.0}}}
-    assert _planning_rate("w", planning, file_values, spec, "paper") == pytest.approx((10000.0, 0.5))
-    assert _planning_rate("w", planning, file_values, spec, "corrected") == pytest.approx((500.0, 1.0))
-    assert _planning_rate("w", planning, file_values, spec) == pytest.approx((10000.0, 0.5))
+    assert _planning_rate("w", planning, file_values, spec, "paper") == pytest.approx((10000.0, 0.5, 1.0))
+    assert _planning_rate("w", planning, file_values, spec, "corrected") == pytest.approx((500.0, 1.0, 1.0))
+    assert _planning_rate("w", planning, file_values, spec) == pytest.approx((10000.0, 0.5, 1.0))
     with pytest.raises(ConfigError, match="planning.protocols.corrected must be a mapping"):
         _planning_rate("w", {**planning, "protocols": {"corrected": 5}}, file_values, spec, "corrected")
     with pytest.raises(ConfigError, match="unknown planning key"):

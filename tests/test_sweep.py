@@ -192,7 +192,9 @@ def _busy_worker(sweep_pid: int) -> tuple[int, str] | None:
 
 @pytest.mark.slow
 def test_sigkill_of_a_worker_fails_one_run_and_resume_finishes(tmp_path: Path) -> None:
-    args = ["algo=ppo_shaped", "chain=utility", "scenario=[switch_standard]", "seed=[41]", "preset=smoke", "launcher.workers=2", "gif=false"]
+    # one run per worker, so that a killed worker takes exactly one run (a fleet's: test_fleet_sweep.py)
+    args = ["algo=ppo_shaped", "chain=utility", "scenario=[switch_standard]", "seed=[41]", "preset=smoke", "launcher.workers=2",
+            "gif=false", "engine=single"]
     proc = sweep(tmp_path, *args, background=True)
     wait_for_results(tmp_path, 1, proc, timeout=180)
     deadline = time.monotonic() + 60
@@ -219,7 +221,8 @@ def test_sweep_through_real_slurm_with_a_failing_run(slurm_cluster, tmp_path: Pa
     args = ["launcher=slurm", f"launcher.partition={slurm_cluster.partition}", "launcher.timeout_min=10",
             f"launcher.cpus_per_task=1", "launcher.mem_gb=2", "launcher.array_parallelism=2", "launcher.poll_s=0.5",
             "algo=[random,ppo]", "algo.ppo.hparams.n_steps=1", "algo.ppo.n_envs=1",
-            "chain=utility", "scenario=[switch_standard]", "variant=[HumanA,HumanB]", "seed=[41]", "preset=smoke"]
+            "chain=utility", "scenario=[switch_standard]", "variant=[HumanA,HumanB]", "seed=[41]", "preset=smoke",
+            "engine=single"]  # one array task per run (the fleet engine on SLURM: the next test)
     out = sweep(tmp_path, *args, timeout=600)
     assert out.returncode == 1, out.stdout + out.stderr
     df = read_runs(tmp_path)
@@ -230,3 +233,22 @@ def test_sweep_through_real_slurm_with_a_failing_run(slurm_cluster, tmp_path: Pa
     assert sorted(mlflow_run_ids(tmp_path)) == sorted(df.run_id)
     again = sweep(tmp_path, *[a for a in args if not a.startswith("algo")], "algo=[random]")
     assert again.returncode == 0 and "0 to run" in again.stderr
+
+
+@pytest.mark.slurm
+@pytest.mark.slow
+def test_fleet_sweep_through_real_slurm(slurm_cluster, tmp_path: Path) -> None:
+    """The fleet engine on SLURM: one array task trains a fleet and writes each of its runs."""
+    args = ["launcher=slurm", f"launcher.partition={slurm_cluster.partition}", "launcher.timeout_min=10",
+            "launcher.cpus_per_task=1", "launcher.mem_gb=2", "launcher.array_parallelism=2", "launcher.poll_s=0.5",
+            "algo=[random,ppo_lag]", "chain=utility", "scenario=[switch_standard]", "variant=[HumanA,HumanB,AnimalA]",
+            "seed=[41]", "preset=smoke", "engine=fleet"]
+    out = sweep(tmp_path, *args, timeout=600)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "3 of 6 runs to do train in 1 fleet(s)" in out.stderr
+    df = read_runs(tmp_path)
+    assert set(df.run_id) == planned_ids(tmp_path) and len(df) == 6 and (df.status == "ok").all()
+    assert sorted(df[df.algo == "ppo_lag"].engine) == ["fleet:3"] * 3
+    assert sorted(df[df.algo == "random"].engine) == ["single"] * 3
+    assert len(list((tmp_path / "slurm").rglob("*_log.out"))) == 4  # 3 Random tasks + 1 fleet task
+    assert sorted(mlflow_run_ids(tmp_path)) == sorted(df.run_id)

@@ -1,0 +1,262 @@
+"""The sweep's unit of work: a *job* of one run (single engine) or of many runs trained as a fleet.
+
+With ``engine=fleet`` (the default) the plan's runs are grouped into fleets: runs whose resolved
+configurations differ only in env id (variant), chain and seed, on one scenario (one observation
+size), of a learner the fleet engine reproduces (:func:`morality_gym.baselines.fleet.fleet_class`),
+are trained together by :mod:`morality_gym.baselines.fleet`, at most ``fleet_size`` at a time.
+Everything else (Random, the oracle, a user's learner, a group of one) stays a single-run job.
+
+Why per-run files stay exactly as before: a fleet only *trains*; every run is then evaluated,
+saved, rendered and written by :func:`runners.execute.record_outcome`, the same function the single
+engine uses, one run after the other, each Parquet row last. A fleet killed while training loses
+the runs it had not finished (all of them, when killed before the end of training); those, and
+only those, are planned again by the next sweep. Runs already finished by another process are
+skipped, and runs another process holds are reported ``busy`` and retried, as single runs are.
+
+The run id does not include the engine: the fleet reproduces each run's arithmetic to float
+tolerance, not bit for bit (batched products may sum in another order), so a fleet run and a
+single run of one id are two trainings of the same configuration, as two machines' would be. The
+row's ``engine`` column (``single`` / ``fleet:K``) says which trained it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+from runners.execute import (
+    RunLock,
+    _execute_locked,
+    _now,
+    _spec_and_protocol,
+    bound_chain,
+    finished_status,
+    limit_threads,
+    record_outcome,
+)
+from runners.plan import PlannedRun
+
+ENGINES = ("fleet", "single")
+#: Keys of a run config that may differ between the runs of one fleet (the rest must be equal).
+FLEET_FREE_KEYS = ("env_id", "variant", "chain", "seed")
+
+Summary = dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Job:
+    """Runs executed together by one worker (one local process or one SLURM array task)."""
+
+    runs: tuple[PlannedRun, ...]
+    engine: str  # "single" (one run) | "fleet"
+    est_seconds: float
+
+    @property
+    def items(self) -> list[tuple[str, dict[str, Any]]]:
+        """``(run_id, config)`` of each run: what a worker receives."""
+        return [(r.run_id, r.config) for r in self.runs]
+
+
+@lru_cache(maxsize=None)
+def fleet_trains(target: str) -> bool:
+    """True if the fleet engine reproduces the learner class at ``target``."""
+    from morality_gym.baselines.fleet import fleet_class
+    from morality_gym.baselines.specs import SpecError
+
+    try:
+        fleet_class(target)
+    except (SpecError, ImportError, ValueError):
+        return False
+    return True
+
+
+def fleet_speedup(measured: float, size: int) -> float:
+    """The planning speed-up of a fleet of ``size`` runs from the speed-up ``measured`` at K >= 12.
+
+    BENCHMARKS.md's fleet section shows the gain saturating by K = 12 (K = 12 and K = 36 within
+    10-40% of each other); below 12 it is taken to grow linearly from 1 at K = 1. An estimate for
+    the plan's time only; it never changes what runs.
+    """
+    if size <= 1:
+        return 1.0
+    return 1.0 + (max(measured, 1.0) - 1.0) * min(1.0, (size - 1) / 11)
+
+
+def _group_key(config: Mapping[str, Any]) -> str:
+    return json.dumps({k: v for k, v in config.items() if k not in FLEET_FREE_KEYS}, sort_keys=True)
+
+
+def _split(runs: list[PlannedRun], parts: int) -> list[list[PlannedRun]]:
+    """``runs`` in ``parts`` contiguous chunks whose sizes differ by at most one."""
+    size, extra = divmod(len(runs), parts)
+    out, start = [], 0
+    for i in range(parts):
+        end = start + size + (i < extra)
+        out.append(runs[start:end])
+        start = end
+    return out
+
+
+def make_jobs(
+    runs: Sequence[PlannedRun],
+    engine: str = "fleet",
+    fleet_size: int = 36,
+    workers: int = 1,
+    speedups: Mapping[str, float] | None = None,
+) -> list[Job]:
+    """The plan's runs as jobs, in plan order of each job's first run.
+
+    Under ``fleet`` each group of fleet-compatible runs is cut into ``ceil(n / fleet_size)``
+    balanced fleets; while there are fewer jobs than ``workers``, the largest fleet is cut again
+    (down to fleets of 2), so that no worker idles while one trains everything. ``speedups`` maps
+    an algo name to its measured fleet speed-up (``planning.fleet_speedup``) for the estimate.
+    """
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
+    if fleet_size < 1:
+        raise ValueError(f"fleet_size must be >= 1, got {fleet_size}")
+    speedups = speedups or {}
+    if engine == "single":
+        return [Job((r,), "single", r.est_seconds) for r in runs]
+    groups: dict[str, list[PlannedRun]] = {}
+    order: list[tuple[int, str | PlannedRun]] = []
+    for i, run in enumerate(runs):
+        c = run.config
+        if int(c["budget"]) <= 0 or not fleet_trains(str(c["algo"]["target"])):
+            order.append((i, run))
+            continue
+        key = _group_key(c)
+        if key not in groups:
+            groups[key] = []
+            order.append((i, key))
+        groups[key].append(run)
+    parts = {key: max(1, math.ceil(len(g) / fleet_size)) for key, g in groups.items()}
+    singles = sum(1 for _, item in order if isinstance(item, PlannedRun))
+    while singles + sum(parts.values()) < workers:
+        splittable = [k for k, g in groups.items() if len(g) // (parts[k] + 1) >= 2]
+        if not splittable:
+            break
+        widest = max(splittable, key=lambda k: len(groups[k]) / parts[k])
+        parts[widest] += 1
+    jobs: list[Job] = []
+    for _, item in order:
+        if isinstance(item, PlannedRun):
+            jobs.append(Job((item,), "single", item.est_seconds))
+            continue
+        for chunk in _split(groups[item], parts[item]):
+            if len(chunk) == 1:
+                jobs.append(Job((chunk[0],), "single", chunk[0].est_seconds))
+                continue
+            measured = float(speedups.get(chunk[0].config["algo"]["name"], 1.0))
+            # only training is shared; each run's evaluations and writes stay its own
+            overhead = sum(r.overhead_s for r in chunk)
+            est = overhead + (sum(r.est_seconds for r in chunk) - overhead) / fleet_speedup(measured, len(chunk))
+            jobs.append(Job(tuple(chunk), "fleet", est))
+    return jobs
+
+
+def jobs_estimate(jobs: Sequence[Job], done: set[str], workers: int) -> float:
+    """Wall-time estimate of what remains: the jobs' seconds (scaled by the share of each job
+    still to run) spread over ``workers``, and never less than the longest job."""
+    remaining = []
+    for job in jobs:
+        todo = sum(r.run_id not in done for r in job.runs)
+        if todo:
+            remaining.append(job.est_seconds * todo / len(job.runs))
+    return max(sum(remaining) / max(1, workers), max(remaining, default=0.0))
+
+
+# ---------------------------------------------------------------------------------------------- workers
+def execute_job(
+    items: Sequence[tuple[str, dict[str, Any]]],
+    results_dir: str | Path,
+    gif: bool = True,
+    engine: str = "single",
+) -> Iterator[Summary]:
+    """Execute a job's runs, yielding each run's summary as soon as its result is written.
+
+    Each run is locked first (a run another live process holds is yielded as ``busy``; one already
+    finished ``ok`` as skipped); the rest are trained together when ``engine == "fleet"`` and more
+    than one remains, else one by one.
+    """
+    results_dir = Path(results_dir)
+    locks: list[RunLock] = []
+    mine: list[tuple[str, dict[str, Any]]] = []
+    try:
+        for run_id, config in items:
+            lock = RunLock(results_dir, run_id)
+            if not lock.acquire():
+                yield {"run_id": run_id, "status": "busy"}
+                continue
+            locks.append(lock)
+            if finished_status(results_dir, run_id) == "ok":
+                yield {"run_id": run_id, "status": "ok", "skipped": True}
+                continue
+            mine.append((run_id, config))
+        if engine == "fleet" and len(mine) > 1:
+            yield from _train_fleet(mine, results_dir, gif)
+        else:
+            for run_id, config in mine:
+                yield _execute_locked(config, run_id, results_dir, gif)
+    finally:
+        for lock in locks:
+            lock.release()
+
+
+def execute_job_all(
+    items: Sequence[tuple[str, dict[str, Any]]], results_dir: str, gif: bool = True, engine: str = "single"
+) -> list[Summary]:
+    """:func:`execute_job` as one list (what a SLURM array task returns to the parent)."""
+    return list(execute_job(items, results_dir, gif, engine))
+
+
+def _train_fleet(mine: list[tuple[str, dict[str, Any]]], results_dir: Path, gif: bool) -> Iterator[Summary]:
+    """Train the locked runs ``mine`` as one fleet, then record them one after the other."""
+    from morality_gym.baselines.fleet import FleetRun, build_fleet
+    from morality_gym.baselines.specs import SpecError
+
+    limit_threads()
+    started, t0 = _now(), time.perf_counter()
+    engine = f"fleet:{len(mine)}"
+    first = mine[0][1]
+    try:
+        spec, protocol = _spec_and_protocol(first)
+        fleet = build_fleet(
+            spec, [FleetRun(bound_chain(c), int(c["seed"])) for _, c in mine], protocol, max_steps=first["max_steps"]
+        )
+    except SpecError:
+        # A setting the fleet does not reproduce (e.g. a learner option it has no batched form
+        # of): the runs are trained one by one, as the single engine would.
+        for run_id, config in mine:
+            yield _execute_locked(config, run_id, results_dir, gif)
+        return
+    except Exception as exc:  # noqa: BLE001 - recorded for every run of the fleet
+        for run_id, config in mine:
+            yield record_outcome(config, run_id, results_dir, gif, None, [], started, t0, engine=engine, error=exc)
+        return
+    learn_rows: list[list[dict[str, Any]]] = [[] for _ in mine]
+    try:
+        fleet.learn(
+            int(first["budget"]),
+            eval_every=int(first["learn_eval_every"]),
+            eval_episodes=int(first["learn_eval_episodes"]),
+            on_eval=lambda k, row: learn_rows[k].append(row),
+        )
+    except Exception as exc:  # noqa: BLE001
+        for run_id, config in mine:
+            yield record_outcome(config, run_id, results_dir, gif, None, [], started, t0, engine=engine, error=exc)
+        return
+    # Each run's wall time is its share of the fleet's training plus its own evaluation and
+    # writes, so that summing wall times over runs still gives the compute spent.
+    share = (time.perf_counter() - t0) / len(mine)
+    for k, learner in enumerate(fleet.learners()):
+        run_id, config = mine[k]
+        yield record_outcome(config, run_id, results_dir, gif, learner, learn_rows[k], started,
+                             time.perf_counter() - share, engine=engine)
+

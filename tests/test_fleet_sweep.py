@@ -1,0 +1,178 @@
+"""Sweeps on the fleet engine (issue 14, stage 2): how the plan is cut into jobs, what a job writes,
+that a resumed fleet trains only its unfinished runs, and that a killed fleet loses nothing written.
+
+The fleet's arithmetic itself (a fleet of one equals the single learner; runs do not influence each
+other) is tested in tests/test_fleet.py; here it is the sweep around it.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from runners.config import validate
+from runners.execute import RunLock, finished_status
+from runners.fleet import execute_job, fleet_speedup, fleet_trains, jobs_estimate, make_jobs
+from runners.plan import plan
+from runners.schema import read_runs, read_updates
+from tests.sweep_tools import run_files, wait_for_results
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _sweep_config(tmp_path: Path, *overrides: str):
+    from hydra import compose, initialize_config_dir
+
+    from runners.paths import CONF_DIR
+
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=[f"results_dir={tmp_path / 'r'}", "mlflow=false", "gif=false", *overrides])
+    return validate(cfg)
+
+
+def _sweep(results: Path, *overrides: str, background: bool = False) -> subprocess.CompletedProcess | subprocess.Popen:
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    env.pop("MLFLOW_TRACKING_URI", None)
+    args = [sys.executable, "-m", "runners.sweep", f"results_dir={results}", "mlflow=false", "gif=false", *overrides]
+    if background:
+        return subprocess.Popen(args, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+                                start_new_session=True)
+    return subprocess.run(args, cwd=REPO, capture_output=True, text=True, timeout=900, env=env)
+
+
+# ------------------------------------------------------------------------------------------ plan -> jobs
+def test_runs_group_into_fleets_by_learner_and_scenario(tmp_path: Path) -> None:
+    sweep = _sweep_config(tmp_path, "algo=[random,ppo,ppo_lag]", "chain=[utility,dual_process]",
+                          "scenario=[switch_standard,push_standard]", "preset=smoke", "seed=[1,2]")
+    runs = plan(sweep)
+    jobs = make_jobs(runs, "fleet", fleet_size=1000, workers=1)
+    assert sorted(r.run_id for j in jobs for r in j.runs) == sorted(r.run_id for r in runs)  # each run exactly once
+    for job in jobs:
+        configs = [r.config for r in job.runs]
+        if job.engine == "single":
+            assert len(job.runs) == 1
+            continue
+        # one learner, one scenario, one budget; chains, variants and seeds may differ
+        assert len({c["algo"]["name"] for c in configs}) == 1 and len({c["scenario"] for c in configs}) == 1
+        assert len({c["budget"] for c in configs}) == 1
+    fleets = [j for j in jobs if j.engine == "fleet"]
+    assert {(j.runs[0].config["algo"]["name"], j.runs[0].config["scenario"]) for j in fleets} == {
+        ("ppo", "SwitchStandard"), ("ppo", "PushStandard"), ("ppo_lag", "SwitchStandard"), ("ppo_lag", "PushStandard")}
+    # both chains of a scenario share its fleet
+    assert all(len({r.config["chain"]["name"] for r in j.runs}) == 2 for j in fleets)
+    # Random trains nothing: never in a fleet
+    assert all(j.engine == "single" for j in jobs if j.runs[0].config["algo"]["name"] == "random")
+    assert all(j.engine == "single" for j in make_jobs(runs, "single"))
+
+
+def test_fleets_are_cut_to_fleet_size_and_to_keep_workers_busy(tmp_path: Path) -> None:
+    sweep = _sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "seed=[1,2,3]")
+    runs = plan(sweep)  # 12 variants x 3 seeds
+    assert len(runs) == 36
+    sizes = sorted(len(j.runs) for j in make_jobs(runs, "fleet", fleet_size=10, workers=1))
+    assert sizes == [9, 9, 9, 9]  # ceil(36/10) = 4 balanced fleets
+    sizes = sorted(len(j.runs) for j in make_jobs(runs, "fleet", fleet_size=36, workers=3))
+    assert sizes == [12, 12, 12]  # one fleet would leave two workers idle
+    jobs = make_jobs(runs[:3], "fleet", fleet_size=2, workers=1)
+    assert sorted((j.engine, len(j.runs)) for j in jobs) == [("fleet", 2), ("single", 1)]  # a fleet of one is a single run
+    with pytest.raises(ValueError, match="engine"):
+        make_jobs(runs, "batched")
+
+
+def test_estimate_uses_the_measured_fleet_speedup(tmp_path: Path) -> None:
+    assert fleet_speedup(8.0, 1) == 1.0 and fleet_speedup(8.0, 12) == 8.0 and fleet_speedup(8.0, 36) == 8.0
+    assert 1.0 < fleet_speedup(8.0, 6) < 8.0
+    sweep = _sweep_config(tmp_path, "algo=ppo_lag", "chain=utility", "scenario=[switch_standard]", "preset=quick", "seed=[1]")
+    runs = plan(sweep)
+    speedups = {a.spec.name: a.fleet_speedup for a in sweep.algos}
+    assert speedups["ppo_lag"] == pytest.approx(15.5)  # conf/algo/ppo_lag.yaml, paper protocol
+    single = jobs_estimate(make_jobs(runs, "single"), set(), 1)
+    fleet = jobs_estimate(make_jobs(runs, "fleet", 36, 1, speedups), set(), 1)
+    overhead = sum(r.overhead_s for r in runs)
+    assert overhead > 0 and fleet == pytest.approx(overhead + (single - overhead) / 15.5)
+    assert jobs_estimate(make_jobs(runs, "fleet", 36, 1, speedups), {r.run_id for r in runs}, 1) == 0.0
+
+
+def test_only_learners_the_fleet_reproduces_are_grouped() -> None:
+    assert fleet_trains("stable_baselines3.PPO")
+    assert not fleet_trains("stable_baselines3.A2C")  # a user's learner runs on the single engine
+
+
+def test_engine_is_validated(tmp_path: Path) -> None:
+    from runners.config import ConfigError
+
+    with pytest.raises(ConfigError, match="engine: expected fleet or single, got 'fleat' \\(did you mean 'fleet'\\?\\)"):
+        _sweep_config(tmp_path, "algo=ppo", "engine=fleat")
+    with pytest.raises(ConfigError, match="fleet_size"):
+        _sweep_config(tmp_path, "algo=ppo", "fleet_size=0")
+
+
+# ------------------------------------------------------------------------------------------ execution
+def test_a_fleet_job_writes_every_run_as_the_single_engine_does(tmp_path: Path) -> None:
+    sweep = _sweep_config(tmp_path, "algo=ppo_lag", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
+                          "seed=[1]", "variant=[HumanA,HumanB,AnimalA]")
+    runs = plan(sweep)
+    results = tmp_path / "r"
+    (job,) = make_jobs(runs, "fleet", 36, 1)
+    assert job.engine == "fleet" and len(job.runs) == 3
+    summaries = list(execute_job(job.items, results, gif=False, engine="fleet"))
+    assert [s["status"] for s in summaries] == ["ok"] * 3, summaries
+    df = read_runs(results)
+    assert sorted(df.run_id) == sorted(r.run_id for r in runs)
+    assert set(df.engine) == {"fleet:3"}
+    assert (df.total_steps > 0).all() and df.metric.notna().all()
+    for r in runs:
+        assert any((results / "runs" / r.run_id).glob("model*"))  # the saved model, per run
+        assert len(read_updates(results, r.run_id)) > 0  # PPO-Lag's per-update diagnostics, per run
+        assert (results / "runs" / f"{r.run_id}.learn.parquet").is_file()
+
+
+def test_a_resumed_fleet_trains_only_its_unfinished_runs(tmp_path: Path) -> None:
+    sweep = _sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
+                          "seed=[1]", "variant=[HumanA,HumanB,AnimalA,AnimalB]")
+    runs = plan(sweep)
+    results = tmp_path / "r"
+    # run 0 finished earlier (single engine); run 1 is held by another live process
+    first = list(execute_job([(runs[0].run_id, runs[0].config)], results, gif=False))
+    assert first[0]["status"] == "ok"
+    before = (results / "runs" / f"{runs[0].run_id}.parquet").stat().st_mtime_ns
+    holder = RunLock(results, runs[1].run_id)
+    assert holder.acquire()
+    try:
+        summaries = {s["run_id"]: s for s in execute_job([(r.run_id, r.config) for r in runs], results, gif=False, engine="fleet")}
+    finally:
+        holder.release()
+    assert summaries[runs[0].run_id].get("skipped") is True
+    assert summaries[runs[1].run_id]["status"] == "busy" and finished_status(results, runs[1].run_id) is None
+    assert summaries[runs[2].run_id]["status"] == summaries[runs[3].run_id]["status"] == "ok"
+    assert (results / "runs" / f"{runs[0].run_id}.parquet").stat().st_mtime_ns == before  # not trained again
+    df = read_runs(results)
+    engines = dict(zip(df.run_id, df.engine))
+    assert engines[runs[0].run_id] == "single" and engines[runs[2].run_id] == engines[runs[3].run_id] == "fleet:2"
+
+
+@pytest.mark.slow
+def test_a_killed_fleet_sweep_resumes_with_nothing_lost_or_twice(tmp_path: Path) -> None:
+    """Kill -9 a fleet sweep once some runs are written; the resumed sweep plans only the rest,
+    and the directory ends with every run exactly once, all trained by fleets."""
+    results = tmp_path / "r"
+    args = ["algo=ppo", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "seed=[1,2]", "launcher.workers=1",
+            "fleet_size=6"]
+    first = _sweep(results, *args, background=True)
+    wait_for_results(results, 2, first)
+    os.killpg(first.pid, signal.SIGKILL)
+    first.wait(timeout=30)
+    written = set(run_files(results))
+    assert 2 <= len(written) < 24
+    second = _sweep(results, *args)
+    assert second.returncode == 0, second.stderr
+    assert f"({len(written)} done, {24 - len(written)} to run)" in second.stderr
+    df = read_runs(results)
+    assert len(df) == 24 and df.run_id.is_unique and (df.status == "ok").all()
+    assert set(df.engine) <= {f"fleet:{k}" for k in range(2, 7)} | {"single"}
+    assert written <= set(df.run_id)
