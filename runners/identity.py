@@ -26,3 +26,14 @@ def run_id_of(config: dict[str, Any]) -> str:
 def config_key(config: dict[str, Any]) -> str:
     """The hash of a run config without :data:`PER_RUN_KEYS`: one value per configuration of a cell."""
     return run_id_of({k: v for k, v in config.items() if k not in PER_RUN_KEYS})
+
+
+#: The part of a submitted run's config that says who submitted it and from where: recorded, but not
+#: part of what the run is, so left out of its id (``leaderboard.submit`` writes it).
+PROVENANCE_KEY = "provenance"
+
+
+def run_identity(config: dict[str, Any]) -> str:
+    """The id a run's recorded config stands for: :func:`run_id_of` without the provenance (a
+    sweep's configs have none, so for them this is :func:`run_id_of` itself)."""
+    return run_id_of({k: v for k, v in config.items() if k != PROVENANCE_KEY})

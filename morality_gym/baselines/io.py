@@ -18,15 +18,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from morality_gym.baselines.specs import LEGACY_IMPLEMENTATIONS as _LEGACY_TARGETS  # old sidecars' ``implementation``
 from morality_gym.baselines.targets import TargetError, resolve
-
-#: Sidecars written before learners were named by class recorded a short ``implementation``.
-_LEGACY_TARGETS = {
-    "random": "morality_gym.baselines.learners.RandomLearner",
-    "ppo": "stable_baselines3.PPO",
-    "ppo_lag": "morality_gym.baselines.safe.PPOLag",
-    "cpo": "morality_gym.baselines.safe.CPO",
-}
 
 
 class ModelError(ValueError):

@@ -22,6 +22,10 @@ RANDOM = "morality_gym.baselines.learners.RandomLearner"
 SB3_PPO = "stable_baselines3.PPO"
 PPO_LAG = "morality_gym.baselines.safe.PPOLag"
 CPO = "morality_gym.baselines.safe.CPO"
+#: The short names that specs, run configs and model sidecars written before learners were named by
+#: class (commit c0db801) recorded as ``implementation``, and the class each one meant. Frozen
+#: history: read by :mod:`morality_gym.baselines.io` (old sidecars) and ``runners.migrations``.
+LEGACY_IMPLEMENTATIONS = {"random": RANDOM, "ppo": SB3_PPO, "ppo_lag": PPO_LAG, "cpo": CPO}
 VEC_ENVS = ("batched", "dummy")
 STEP_ACCOUNTING = ("rollouts", "floor")
 
