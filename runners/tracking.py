@@ -151,6 +151,8 @@ class Tracker:
         for old in self.client.search_runs([self.experiment_id], filter_string=f"tags.run_id = '{run_id}'"):
             self.client.delete_run(old.info.run_id)  # an interrupted earlier mirror
         tags = {k: str(row[k]) for k in ("run_id", "env_id", "scenario", "variant", "chain", "algo", "learner", "protocol", "preset", "seed", "status")}
+        if row.get("engine"):  # absent in rows written before the column existed
+            tags["engine"] = str(row["engine"])
         run = self.client.create_run(self.experiment_id, tags=tags, run_name=f"{row['learner']} {row['env_id']} {row['chain']} s{row['seed']}")
         mid = run.info.run_id
         params: dict[str, str] = {}
