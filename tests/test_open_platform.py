@@ -199,12 +199,12 @@ def test_a2c_example_end_to_end_from_outside_the_repo(tmp_path: Path) -> None:
 
 
 def test_protocols_change_the_baselines_they_name_and_leave_user_learners_alone() -> None:
-    from morality_gym.baselines.specs import PROTOCOLS, LearnerSpec, learner_spec
+    from morality_gym.baselines.specs import LearnerSpec, learner_spec, protocol_spec
 
     user = LearnerSpec.from_mapping({"_target_": "morality_gym.baselines.safe.PPOLag", "cost_reset": "per_episode",
                                      "hparams": {"kl_early_stop_reduction": "mean"}}, "my_lag")
-    assert PROTOCOLS["paper"].apply(user).hparams == user.hparams and PROTOCOLS["paper"].apply(user).cost_reset == "per_episode"
-    builtin = PROTOCOLS["corrected"].apply(learner_spec("ppo_lag"))
+    assert protocol_spec("paper").apply(user).hparams == user.hparams and protocol_spec("paper").apply(user).cost_reset == "per_episode"
+    builtin = protocol_spec("corrected").apply(learner_spec("ppo_lag"))
     assert builtin.hparams["kl_early_stop_reduction"] == "mean" and builtin.cost_reset == "per_episode"
     assert user.label == "my_lag" and user.n_envs == 8  # left-out fields take the spec's defaults
 
