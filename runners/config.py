@@ -345,6 +345,11 @@ def _results_dir(value: Any) -> Path:
 
 def validate(cfg: DictConfig) -> SweepConfig:
     """Check the composed config and resolve it into a :class:`SweepConfig`."""
+    if "hydra" in cfg:  # composed with the compose API and return_hydra_config=True: its search path counts
+        from hydra.core.hydra_config import HydraConfig
+
+        HydraConfig.instance().set_config(cfg)
+        cfg = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"])
     known = all_scenarios()
     preset = _preset(_group(cfg, "preset"))
     algo_options = group_options("algo")

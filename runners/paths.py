@@ -17,22 +17,19 @@ from __future__ import annotations
 from functools import lru_cache
 from pathlib import Path
 
-import yaml
 
 from morality_gym.baselines.specs import CONF_DIR  # noqa: F401 - re-exported: defined once, there
 
 
 @lru_cache(maxsize=None)
 def preset_seeds(preset: str) -> tuple[int, ...] | None:
-    """The seeds of ``conf/preset/<preset>.yaml`` (None if there is no such preset or it is unreadable)."""
-    path = CONF_DIR / "preset" / f"{preset}.yaml"
+    """The seeds of ``conf/preset/<preset>.yaml`` (None if there is no such preset or it is invalid)."""
+    from runners.schemas import PresetError, load_preset
+
     try:
-        seeds = (yaml.safe_load(path.read_text()) or {}).get("seeds")
-    except (OSError, yaml.YAMLError, AttributeError):
+        return load_preset(preset).seeds
+    except PresetError:
         return None
-    if not isinstance(seeds, list) or not all(isinstance(s, int) and not isinstance(s, bool) for s in seeds):
-        return None
-    return tuple(seeds)
 
 
 #: Entry-point group of installed plugins: each entry point names a package that is a config root

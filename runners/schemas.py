@@ -23,12 +23,14 @@ learner's class, chain coverage) is checked by :mod:`runners.config` after compo
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+import difflib
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from morality_gym.baselines import typed
-from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec
+from morality_gym.baselines.specs import CONF_DIR, LearnerSpec, ProtocolSpec
 
 
 @dataclass(frozen=True)
@@ -118,6 +120,32 @@ class Preset:
 
     def budget_for(self, scenario: str) -> int:
         return int(self.budget_overrides.get(scenario, self.budget))
+
+
+class PresetError(ValueError):
+    """An unknown or invalid preset file; one line naming the file and the fix."""
+
+
+def preset_names() -> list[str]:
+    return sorted(p.stem for p in (CONF_DIR / "preset").glob("*.yaml"))
+
+
+def load_preset(name: str) -> Preset:
+    """``conf/preset/<name>.yaml`` over the :class:`Preset` schema, checked as a sweep checks it:
+    for readers that do not compose a sweep (``leaderboard.submit``, the leaderboard's seeds)."""
+    import yaml
+
+    path = CONF_DIR / "preset" / f"{name}.yaml"
+    if not path.is_file():
+        names = preset_names()
+        close = difflib.get_close_matches(name, names, n=3)
+        hint = f" (did you mean {', '.join(close)}?)" if close else ""
+        raise PresetError(f"no {path}{hint}; presets: {', '.join(names)}")
+    try:
+        values = yaml.safe_load(path.read_text()) or {}
+        return typed.build(Preset, typed.merge(Preset, values, where=str(path)), where=str(path))
+    except (OSError, yaml.YAMLError, typed.TypedConfigError, ValueError, TypeError) as exc:
+        raise PresetError(f"{path}: {' '.join(str(exc).split())}") from exc
 
 
 @dataclass(frozen=True)
@@ -219,19 +247,20 @@ def register() -> None:
         store.store(group="schema/launcher", name=name, node=typed.schema(cls), provider="morality_gym")
 
 
-def composition_error(exc: BaseException, argv: list[str] | None = None) -> str:
+def composition_error(exc: BaseException, find: Callable[[str, str], Path | None] | None = None) -> str:
     """One line for an error Hydra raised while composing the sweep: the key, the file or command-line
-    override it came from, what is wrong and, for an unknown key, the closest valid key."""
+    override it came from, what is wrong and, for an unknown key, the closest valid key.
+
+    ``find(group, option)`` gives an option's file on the search path (``runners.paths.find_config``).
+    """
     import re
 
     text = str(exc)
     where = ""
     found = re.match(r"In '([^']+)'", text)
     if found:  # from a config file: name the file
-        from runners.paths import find_config
-
         group, _, option = found.group(1).rpartition("/")
-        path = find_config(group, option, argv) if group else None
+        path = find(group, option) if group and find is not None else None
         where = f"{group}={option}, {path}" if path else found.group(1)
     else:
         if re.match(r"(?:Could not override|Error merging override)", text):

@@ -305,7 +305,9 @@ def compose_check(argv: list[str]) -> str | None:
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
             compose(args.config_name or "config", overrides=overrides)
     except Exception as exc:  # noqa: BLE001 - every composition error is the user's to fix
-        return composition_error(exc, argv)
+        from runners.paths import find_config
+
+        return composition_error(exc, lambda group, option: find_config(group, option, argv))
     return None
 
 
