@@ -267,7 +267,7 @@ def composition_error(exc: BaseException, find: Callable[[str, str], Path | None
             where = "command line"
     line = typed.explain(exc, where, SCHEMAS)
     package = re.match(r"^(algo|chain|scenario)\.([^.\s]+)[ :]", line)
-    if package and "not be converted" in line:
+    if package and "unknown key" not in line:  # a value where a whole file's mapping belongs
         group = package.group(1)
         return (f"{group}: a selected {group} file is missing its '# @package {group}.<file name>' first line "
                 f"(its key {package.group(2)!r} landed at the top of the {group} group); add the line")

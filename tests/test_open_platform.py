@@ -276,3 +276,30 @@ def test_a_preset_caps_the_rollout_of_every_learner_and_the_plan_warns(tmp_path:
     out = run(["-m", "runners.sweep", "--config-dir", str(conf), "algo=big_ppo", *SMALL, "preset.rollout_cap=null",
                "dry_run=true", f"results_dir={tmp_path / 'r2'}"], cwd=tmp_path)
     assert out.returncode == 0 and "warning: algo=big_ppo: one rollout is" in out.stderr, out.stderr
+
+
+def test_a_misspelt_key_or_wrong_type_fails_at_composition_in_one_line(tmp_path: Path) -> None:
+    """The typed schemas refuse a bad key or value while Hydra composes: the line names the key, the
+    file or the command line, and the closest valid key; a user's file is checked like a built-in."""
+    from runners.sweep import compose_check
+
+    conf = tmp_path / "my_conf"
+    (conf / "algo").mkdir(parents=True)
+    (conf / "algo" / "typo.yaml").write_text("# @package algo.typo\n_target_: stable_baselines3.A2C\nn_env: 2\n")
+    (conf / "algo" / "nopkg.yaml").write_text("_target_: stable_baselines3.A2C\nlabel: No package line\n")
+    base = ["--config-dir", str(conf), "chain=utility", "scenario=[switch_standard]"]
+    cases = {
+        "algo=typo": ["algo.typo.n_env", f"algo=typo, {conf / 'algo' / 'typo.yaml'}", "did you mean 'n_envs'?"],
+        "algo=nopkg": ["missing its '# @package algo.<file name>' first line"],
+        "preset.budgte=5": ["preset.budgte (command line): unknown key 'budgte' (did you mean 'budget'?)"],
+        "launcher.workerz=2": ["launcher.workerz (command line)", "did you mean 'workers'?"],
+        "max_steps=many": ["max_steps (command line): value 'many'", "could not be converted to Integer"],
+        "dry_rn=true": ["did you mean 'dry_run'?"],
+    }
+    for override, fragments in cases.items():
+        message = compose_check([*base, override])
+        assert message is not None and "\n" not in message, override
+        for fragment in fragments:
+            assert fragment in message, (override, message)
+    assert compose_check([*base, "algo=[typo]", "algo.typo.n_env=3"]) is not None
+    assert compose_check([*base, "algo=[random,ppo]", "launcher=slurm", "launcher.partition=gpu"]) is None
