@@ -9,7 +9,7 @@ and ``pip install .`` find it the same way. Users do not edit it: they add or ov
 their own directory (``--config-dir``).
 
 Kept apart from :mod:`runners.config` (which validates whole sweeps and so imports the learners,
-and with them torch) so that the leaderboard can learn a preset's seeds in a millisecond.
+and with them torch) so that the leaderboard can learn a preset's seeds quickly.
 """
 
 from __future__ import annotations
@@ -17,8 +17,7 @@ from __future__ import annotations
 from functools import lru_cache
 from pathlib import Path
 
-
-from morality_gym.baselines.specs import CONF_DIR  # noqa: F401 - re-exported: defined once, there
+from morality_gym.baselines.specs import CONF_DIR  # re-exported: defined once, there
 
 
 @lru_cache(maxsize=None)

@@ -31,6 +31,7 @@ from typing import Any
 
 from morality_gym.baselines import typed
 from morality_gym.baselines.specs import CONF_DIR, LearnerSpec, ProtocolSpec
+from runners.schema import SCHEMA_VERSION
 
 
 @dataclass(frozen=True)
@@ -228,6 +229,45 @@ class Sweep:
     mlflow: bool = True
     gif: bool = True
     name: str | None = None
+
+
+@dataclass(frozen=True)
+class Run:
+    """One resolved run: what its id hashes (:func:`runners.identity.run_id_of` over
+    :meth:`config`) and what a worker executes. ``chain`` is the chain's full definition
+    (``{"name", "norms": [[norm, modality], ...]}``), so that a changed chain is a new run."""
+
+    env_id: str
+    scenario: str
+    variant: str
+    chain: Mapping[str, Any]
+    algo: LearnerSpec
+    protocol: ProtocolSpec
+    preset: str
+    seed: int
+    budget: int
+    beta: float
+    max_steps: int | None
+    eval_episodes: int
+    learn_eval_every: int
+    learn_eval_episodes: int
+    schema_version: int = SCHEMA_VERSION
+
+    def config(self) -> dict[str, Any]:
+        """The run config as plain data (JSON-ready): the dict the run id hashes, the worker
+        receives and the Parquet row records. Tuples become lists, specs their field dicts."""
+        return {f.name: plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
+
+
+def plain(value: Any) -> Any:
+    """``value`` as JSON-ready data: a dataclass as the dict of its fields, tuples as lists."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, Mapping):
+        return {k: plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain(v) for v in value]
+    return value
 
 
 #: The schema of a class by the name OmegaConf gives it in its messages (for the valid keys).

@@ -14,8 +14,6 @@ import json
 import sys
 from pathlib import Path
 
-import pytest
-
 PINNED = Path(__file__).resolve().parent / "data" / "pinned_run_ids.json"
 ALGOS = ("random", "ppo", "ppo_shaped", "ppo_lag", "cpo")
 PROTOCOLS = ("paper", "corrected")

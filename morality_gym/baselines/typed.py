@@ -17,10 +17,12 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import types
 import typing
 from collections.abc import Mapping
-from functools import lru_cache
+from functools import cache
 from typing import Any
+
 
 def _writable_type(tp: Any) -> Any:
     """``tp`` with every frozen dataclass replaced by its writable schema and abstract containers
@@ -37,12 +39,12 @@ def _writable_type(tp: Any) -> Any:
         return typing.List[_writable_type(args[0])]  # noqa: UP006
     if origin is tuple:
         return typing.Tuple[tuple(_writable_type(a) for a in args)]  # noqa: UP006
-    if origin in (typing.Union, getattr(__import__("types"), "UnionType", ())):
-        return typing.Union[tuple(_writable_type(a) for a in args)]
+    if origin in (typing.Union, types.UnionType):
+        return typing.Union[tuple(_writable_type(a) for a in args)]  # noqa: UP007 - built from a tuple
     return tp
 
 
-@lru_cache(maxsize=None)
+@cache
 def schema(cls: type) -> type:
     """A writable dataclass with ``cls``'s fields, types and defaults (OmegaConf's schema for it).
 
@@ -164,7 +166,7 @@ def _coerce(tp: Any, value: Any) -> Any:
     origin, args = typing.get_origin(tp), typing.get_args(tp)
     if origin is tuple and isinstance(value, (list, tuple)):
         return tuple(value)
-    if origin in (typing.Union, getattr(__import__("types"), "UnionType", ())):
+    if origin in (typing.Union, types.UnionType):
         for arg in args:
             if arg is not type(None):
                 return _coerce(arg, value)
