@@ -116,25 +116,15 @@ def select_cells(chains: Sequence[str], scenario_names: Sequence[str], variants:
 
 
 def preset_facts(preset: str) -> tuple[tuple[int, ...], int]:
-    """(seeds, final-evaluation episodes) of ``conf/preset/<preset>.yaml``, as a sweep runs it."""
-    import yaml
+    """(seeds, final-evaluation episodes) of ``conf/preset/<preset>.yaml``, read and checked by the
+    sweep's own preset schema (:func:`runners.schemas.load_preset`)."""
+    from runners.schemas import PresetError, load_preset
 
-    from runners.paths import CONF_DIR
-
-    directory = CONF_DIR / "preset"
-    path = directory / f"{preset}.yaml"
-    if not path.is_file():
-        valid = sorted(p.stem for p in directory.glob("*.yaml"))
-        close = difflib.get_close_matches(preset, valid, n=3)
-        hint = f" (did you mean {', '.join(close)}?)" if close else ""
-        raise UserError(f"--preset {preset}: no {path}{hint}; presets: {', '.join(valid)}")
-    node = yaml.safe_load(path.read_text()) or {}
-    seeds, episodes = node.get("seeds"), node.get("eval_episodes")
-    if not isinstance(seeds, list) or not seeds or not all(isinstance(s, int) and not isinstance(s, bool) for s in seeds):
-        raise UserError(f"{path}: seeds must be a non-empty list of integers")
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-        raise UserError(f"{path}: eval_episodes must be an integer >= 1")
-    return tuple(seeds), episodes
+    try:
+        loaded = load_preset(preset)
+    except PresetError as exc:
+        raise UserError(f"--preset {preset}: {exc}") from exc
+    return loaded.seeds, loaded.eval_episodes
 
 
 # ---------------------------------------------------------------------------------------- provenance

@@ -1,13 +1,17 @@
-"""Validate a composed sweep configuration into a :class:`SweepConfig`, before anything runs.
+"""Resolve a composed sweep configuration into a :class:`SweepConfig`, before anything runs.
 
-Hydra composes ``conf/``; this module checks every value a user can get wrong (unknown scenario,
-variant, chain or algorithm, wrong types, a zero budget, an unwritable results directory, a
-malformed user chain) and raises :class:`ConfigError` naming the key, where it came from and the
-valid choices. Nothing is written and no run starts unless the whole sweep is valid.
+Hydra composes ``conf/`` over the typed schemas of :mod:`runners.schemas`, so unknown keys and
+wrong types have already failed at composition. What is left here is what a type cannot say:
+ranges (in the schemas' ``__post_init__``), one setting against another (a variant of the
+selected scenarios, a budget that trains nothing, a protocol or preset naming an algo that does
+not exist), hyper-parameters against the learner's class, chain coverage, a writable results
+directory. Each raises :class:`ConfigError` naming the key, where it came from and the valid
+choices. Nothing is written and no run starts unless the whole sweep is valid.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import os
 from collections.abc import Mapping
@@ -18,24 +22,16 @@ from typing import Any
 import yaml
 from omegaconf import DictConfig, OmegaConf
 
+from morality_gym.baselines import typed
 from morality_gym.baselines.hparams import validate_learner
-from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError, protocol_spec
+from morality_gym.baselines.specs import ALGO_FILE_EXTRAS, LearnerSpec, ProtocolSpec, SpecError
 from morality_gym.baselines.targets import learner_trains
 from morality_gym.envs.registry import scenarios as all_scenarios
 from morality_gym.norms.chain import ChainError, MoralityChain, check_name_collision, get_chain, parse_chain
-from runners.paths import CONF_DIR, find_config, group_options  # re-exported: CONF_DIR is defined once, there
+from runners.paths import CONF_DIR, find_config, group_options  # noqa: F401 - re-exported: CONF_DIR is defined once
+from runners.schemas import ENGINES, LAUNCHERS, AlgoFile, Planning, Preset, register
 
-_TOP_KEYS = {
-    "scenario", "chain", "algo", "protocol", "preset", "launcher", "experiment", "variant", "seed", "beta",
-    "max_steps", "results_dir", "dry_run", "retry_failed", "mlflow", "gif", "name", "engine", "fleet_size",
-}
-_PRESET_KEYS = {
-    "name", "seeds", "budget", "budget_overrides", "eval_episodes", "learn_eval_every", "learn_eval_episodes", "algo_overrides",
-}
-_LAUNCHER_KEYS = {
-    "local": {"name", "workers"},
-    "slurm": {"name", "partition", "timeout_min", "cpus_per_task", "mem_gb", "array_parallelism", "folder", "poll_s"},
-}
+register()  # the schemas conf/config.yaml names (sweep_schema, schema/launcher/*): Hydra needs them stored
 
 
 class ConfigError(ValueError):
@@ -51,21 +47,6 @@ def _int(where: str, value: Any, minimum: int = 0) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
         raise ConfigError(f"{where}: expected an integer >= {minimum}, got {value!r}")
     return value
-
-
-@dataclass(frozen=True)
-class Preset:
-    name: str
-    seeds: tuple[int, ...]
-    budget: int
-    budget_overrides: Mapping[str, int]
-    eval_episodes: int
-    learn_eval_every: int
-    learn_eval_episodes: int
-    algo_overrides: Mapping[str, Mapping[str, Any]]
-
-    def budget_for(self, scenario: str) -> int:
-        return int(self.budget_overrides.get(scenario, self.budget))
 
 
 @dataclass(frozen=True)
@@ -95,9 +76,10 @@ class SweepConfig:
     mlflow: bool
     gif: bool
     name: str
+    engine: str  # fleet | single (runners/fleet.py; default: runners.schemas.Sweep)
+    fleet_size: int  # most runs trained together in one fleet
     chain_files: Mapping[str, str] = field(default_factory=dict)  # chain name -> config option name
-    engine: str = "fleet"  # fleet | single (runners/fleet.py)
-    fleet_size: int = 36  # most runs trained together in one fleet
+    warnings: tuple[str, ...] = ()  # shown with the plan: valid, but probably not what the user meant
 
 
 def _load_chain(option: str, node: Any) -> MoralityChain:
@@ -197,26 +179,88 @@ def _check_hparam_types(where: str, spec: LearnerSpec, defaults: LearnerSpec) ->
             raise ConfigError(f"{where}: hparams.{key}={value!r} has the wrong type (expected {type(default).__name__}, like {default!r})")
 
 
+def _typed(cls: type, node: Any, where: str) -> Any:
+    """The frozen ``cls`` from a (composed) node; a value its ``__post_init__`` refuses is a ConfigError."""
+    try:
+        return typed.build(cls, typed.merge(cls, node, where=where), where=where)
+    except (typed.TypedConfigError, SpecError, ValueError) as exc:
+        raise ConfigError(str(exc)) from exc
+
+
+def _n_steps(spec: LearnerSpec) -> int | None:
+    """The learner's steps per env per rollout: its ``hparams.n_steps``, else its class's default
+    (None for a class that takes no ``n_steps``, e.g. an off-policy one or the random baseline)."""
+    if "n_steps" in spec.hparams:
+        return int(spec.hparams["n_steps"])
+    import inspect
+
+    from morality_gym.baselines.hparams import algorithm_class
+
+    try:
+        parameter = inspect.signature(algorithm_class(spec.target)).parameters.get("n_steps")
+    except (SpecError, ValueError, TypeError):
+        return None
+    return parameter.default if parameter is not None and isinstance(parameter.default, int) else None
+
+
+def _cap_rollout(spec: LearnerSpec, cap: int, where: str) -> LearnerSpec:
+    """``spec`` with ``n_steps`` lowered so that one rollout (``n_steps`` x ``n_envs``) is at most ``cap``."""
+    n_steps = _n_steps(spec)
+    if n_steps is None or n_steps * spec.n_envs <= cap:
+        return spec
+    try:
+        if not learner_trains(spec.target):
+            return spec
+    except ValueError:
+        return spec  # a class that cannot be imported: validate_learner names it, with the fix
+    return spec.with_overrides({"hparams": {"n_steps": max(1, cap // spec.n_envs)}}, where=where)
+
+
+def _rollout_warning(spec: LearnerSpec, preset: Preset, pairs: list[tuple[MoralityChain, str]]) -> str | None:
+    """A warning if one rollout of the learner is longer than the smallest budget of the sweep: it
+    then trains a whole rollout (SB3's accounting) or nothing at all (``floor``), not the budget."""
+    from morality_gym.baselines.specs import training_steps
+
+    n_steps = _n_steps(spec)
+    if n_steps is None or not learner_trains(spec.target) or not pairs:
+        return None
+    budget = min(preset.budget_for(scenario) for _, scenario in pairs)
+    rollout = n_steps * spec.n_envs
+    if rollout <= budget:
+        return None
+    return (f"algo={spec.name}: one rollout is n_steps x n_envs = {n_steps} x {spec.n_envs} = {rollout} steps, more than "
+            f"the budget of {budget} steps of preset={preset.name}, so a run trains {training_steps(spec, budget)} steps; "
+            f"set preset.rollout_cap={budget} or algo.{spec.name}.hparams.n_steps")
+
+
 def _algo(option: str, node: Mapping[str, Any], preset: Preset, protocol: ProtocolSpec) -> AlgoChoice:
     """file values < the protocol's overrides for this algorithm < the preset's overrides for it <
-    command-line overrides. Any class works (``_target_``); nothing here knows the baselines."""
+    the preset's rollout cap < command-line overrides. Any class works (``_target_``); nothing here
+    knows the baselines."""
     path, file_node = load_algo_file(option)
     where = f"algo={option} ({path})"
-    composed = {k: v for k, v in node.items() if k != "planning"}
-    planning = (node.get("planning") or file_node.get("planning") or {})
-    file_values = {k: v for k, v in file_node.items() if k != "planning"}
-    name = composed.get("name", option)
+    file_values = {k: v for k, v in file_node.items() if k not in ALGO_FILE_EXTRAS}
+    # What the command line changed: the composed node against the file over the same schema.
     try:
-        base = LearnerSpec.from_mapping(file_values, name)
+        file_typed = OmegaConf.to_container(typed.merge(AlgoFile, file_values, where=where))
+    except typed.TypedConfigError as exc:
+        raise ConfigError(str(exc)) from exc
+    composed = {k: v for k, v in node.items() if k not in ALGO_FILE_EXTRAS}
+    planning = dict(node.get("planning") or {})
+    name = composed.get("name") or option
+    try:
+        base = LearnerSpec.from_mapping(file_values, name, where=where)
         spec = protocol.apply(base)
         override = preset.algo_overrides.get(option)
         if override:
-            spec = spec.with_overrides(override)
-        delta = _diff(composed, file_values)
+            spec = spec.with_overrides(override, where=f"preset={preset.name}.algo_overrides.{option}")
+        if preset.rollout_cap is not None:
+            spec = _cap_rollout(spec, preset.rollout_cap, where=f"preset={preset.name}.rollout_cap")
+        delta = {k: v for k, v in _diff(composed, file_typed).items() if not (k in ("name", "label") and v is None)}
         if delta:
-            spec = spec.with_overrides(delta)
+            spec = spec.with_overrides(delta, where=where)
     except SpecError as exc:
-        raise ConfigError(f"{where}: {exc}") from exc
+        raise ConfigError(f"{where}: {exc}" if where not in str(exc) else str(exc)) from exc
     except TypeError as exc:
         raise ConfigError(f"{where}: {exc}") from exc
     _check_hparam_types(where, spec, base)
@@ -228,7 +272,7 @@ def _algo(option: str, node: Mapping[str, Any], preset: Preset, protocol: Protoc
     return AlgoChoice(spec, steps_per_s, overhead, speedup)
 
 
-_PLANNING_KEYS = {"steps_per_s", "update_share", "overhead_s", "fleet_speedup"}
+_PLANNING_KEYS = set(typed.valid_keys(Planning)) - {"protocols"}
 
 
 def _planning_rate(where: str, planning: Mapping[str, Any], file_values: Mapping[str, Any],
@@ -255,15 +299,16 @@ def _planning_rate(where: str, planning: Mapping[str, Any], file_values: Mapping
         chosen = by_protocol[protocol]
         if not isinstance(chosen, Mapping):
             raise ConfigError(f"{where}: planning.protocols.{protocol} must be a mapping, got {chosen!r}")
-        planning.update(chosen)
+        planning.update({k: v for k, v in chosen.items() if v is not None})  # unset: the algo's own value
     unknown = set(planning) - _PLANNING_KEYS
     if unknown:
         raise ConfigError(f"{where}: unknown planning key(s) {sorted(unknown)}; valid: {sorted(_PLANNING_KEYS | {'protocols'})}")
+    default = Planning()
     try:
-        steps_per_s = float(planning.get("steps_per_s", 2000.0))
-        share = float(planning.get("update_share", 1.0))
-        overhead = float(planning.get("overhead_s", 1.0))
-        speedup = float(planning.get("fleet_speedup", 1.0))
+        steps_per_s = float(planning.get("steps_per_s", default.steps_per_s))
+        share = float(planning.get("update_share", default.update_share))
+        overhead = float(planning.get("overhead_s", default.overhead_s))
+        speedup = float(planning.get("fleet_speedup", default.fleet_speedup))
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{where}: planning values must be numbers ({exc})") from exc
     if steps_per_s <= 0 or not 0.0 <= share <= 1.0 or overhead < 0 or speedup < 1.0:
@@ -278,31 +323,14 @@ def _planning_rate(where: str, planning: Mapping[str, Any], file_values: Mapping
     return 1.0 / seconds_per_step, overhead, speedup
 
 
-def _preset(node: Mapping[str, Any]) -> Preset:
-    where = f"preset={node.get('name', '?')}"
-    unknown = set(node) - _PRESET_KEYS
-    if unknown:
-        key = sorted(unknown)[0]
-        raise ConfigError(f"{where}: unknown key {key!r}{_hint(key, sorted(_PRESET_KEYS))}; valid: {', '.join(sorted(_PRESET_KEYS))}")
-    seeds = node.get("seeds")
-    if not isinstance(seeds, list) or not seeds:
-        raise ConfigError(f"{where}.seeds: expected a non-empty list of integers, got {seeds!r}")
-    budgets = dict(node.get("budget_overrides") or {})
+def _preset(node: Any) -> Preset:
+    """The typed preset; ranges and scenario names (what the schema's types cannot say) checked."""
+    preset = _typed(Preset, node, where=f"preset={(node or {}).get('name', '?')}")
     known = all_scenarios()
-    for scenario, value in budgets.items():
+    for scenario in preset.budget_overrides:
         if scenario not in known:
-            raise ConfigError(f"{where}.budget_overrides: unknown scenario {scenario!r}{_hint(scenario, list(known))}")
-        _int(f"{where}.budget_overrides.{scenario}", value)
-    return Preset(
-        name=str(node.get("name")),
-        seeds=tuple(_int(f"{where}.seeds", s) for s in seeds),
-        budget=_int(f"{where}.budget", node.get("budget")),
-        budget_overrides=budgets,
-        eval_episodes=_int(f"{where}.eval_episodes", node.get("eval_episodes"), 1),
-        learn_eval_every=_int(f"{where}.learn_eval_every", node.get("learn_eval_every")),
-        learn_eval_episodes=_int(f"{where}.learn_eval_episodes", node.get("learn_eval_episodes"), 1),
-        algo_overrides=dict(node.get("algo_overrides") or {}),
-    )
+            raise ConfigError(f"preset={preset.name}.budget_overrides: unknown scenario {scenario!r}{_hint(scenario, list(known))}")
+    return preset
 
 
 def _results_dir(value: Any) -> Path:
@@ -327,9 +355,11 @@ def _results_dir(value: Any) -> Path:
 
 def validate(cfg: DictConfig) -> SweepConfig:
     """Check the composed config and resolve it into a :class:`SweepConfig`."""
-    for key in cfg:
-        if key not in _TOP_KEYS and key != "hydra":
-            raise ConfigError(f"unknown top-level key {key!r}{_hint(str(key), sorted(_TOP_KEYS))}; valid: {', '.join(sorted(_TOP_KEYS))}")
+    if "hydra" in cfg:  # composed with the compose API and return_hydra_config=True: its search path counts
+        from hydra.core.hydra_config import HydraConfig
+
+        HydraConfig.instance().set_config(cfg)
+        cfg = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"])
     known = all_scenarios()
     preset = _preset(_group(cfg, "preset"))
     algo_options = group_options("algo")
@@ -356,7 +386,7 @@ def validate(cfg: DictConfig) -> SweepConfig:
                               f"(its key {option!r} landed at the top of the algo group); add the line")
     protocol_node = _group(cfg, "protocol")
     try:
-        protocol = protocol_spec(str(protocol_node.get("name")), {k: v for k, v in protocol_node.items() if k != "name"})
+        protocol = ProtocolSpec.from_mapping(protocol_node, where=f"protocol={protocol_node.get('name', '?')}")
     except SpecError as exc:
         raise ConfigError(f"protocol: {exc}") from exc
     for algo_name in protocol.learner_overrides:
@@ -446,27 +476,18 @@ def validate(cfg: DictConfig) -> SweepConfig:
             if learner_trains(algo.spec.target) and preset.budget_for(scenario) <= 0:
                 raise ConfigError(f"preset={preset.name}.budget: a budget of 0 steps trains nothing ({algo.spec.name} on {scenario})")
 
-    launcher = _group(cfg, "launcher")
-    kind = launcher.get("name")
-    if kind not in _LAUNCHER_KEYS:
-        raise ConfigError(f"launcher: unknown launcher {kind!r}; valid: {', '.join(_LAUNCHER_KEYS)}")
-    unknown = set(launcher) - _LAUNCHER_KEYS[kind]
-    if unknown:
-        key = sorted(unknown)[0]
-        raise ConfigError(f"launcher={kind}: unknown key {key!r}{_hint(key, sorted(_LAUNCHER_KEYS[kind]))}")
-    if kind == "local" and launcher.get("workers") is not None:
-        _int("launcher.workers", launcher["workers"], 1)
-    if kind == "slurm":
-        for key in ("timeout_min", "cpus_per_task", "mem_gb", "array_parallelism"):
-            _int(f"launcher.{key}", launcher[key], 1)
+    warnings = tuple(w for algo in algos if (w := _rollout_warning(algo.spec, preset, pairs)))
 
-    for key in ("dry_run", "retry_failed", "mlflow", "gif"):
-        if not isinstance(cfg.get(key), bool):
-            raise ConfigError(f"{key}: expected true or false, got {cfg.get(key)!r}")
-    engine = cfg.get("engine", "fleet")
-    if engine not in ("fleet", "single"):
-        raise ConfigError(f"engine: expected fleet or single, got {engine!r}{_hint(str(engine), ['fleet', 'single'])}")
-    fleet_size = _int("fleet_size", cfg.get("fleet_size", 36), 1)
+    launcher_node = _group(cfg, "launcher")
+    kind = launcher_node.get("name")
+    if kind not in LAUNCHERS:
+        raise ConfigError(f"launcher: unknown launcher {kind!r}{_hint(str(kind), list(LAUNCHERS))}; valid: {', '.join(LAUNCHERS)}")
+    launcher = dataclasses.asdict(_typed(LAUNCHERS[kind], launcher_node, where=f"launcher={kind}"))
+
+    engine = cfg.get("engine")
+    if engine not in ENGINES:
+        raise ConfigError(f"engine: expected fleet or single, got {engine!r}{_hint(str(engine), list(ENGINES))}")
+    fleet_size = _int("fleet_size", cfg.get("fleet_size"), 1)
     if cfg.get("mlflow") and not cfg.get("dry_run"):
         from runners.tracking import TrackingError, check_reachable
 
@@ -504,4 +525,5 @@ def validate(cfg: DictConfig) -> SweepConfig:
         chain_files={chain.name: option for option, chain in chains.items()},
         engine=str(engine),
         fleet_size=fleet_size,
+        warnings=warnings,
     )

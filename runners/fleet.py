@@ -41,8 +41,8 @@ from runners.execute import (
     record_outcome,
 )
 from runners.plan import PlannedRun
+from runners.schemas import ENGINES
 
-ENGINES = ("fleet", "single")
 #: Keys of a run config that may differ between the runs of one fleet (the rest must be equal).
 FLEET_FREE_KEYS = ("env_id", "variant", "chain", "seed")
 

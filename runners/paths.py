@@ -1,13 +1,15 @@
 """Where the sweep configuration lives, and the few facts of it that readers of results need.
 
-The one place that knows the location: the Hydra configuration is the package directory
-``runners/conf``. In the repository that is a symbolic link to ``conf/`` at the root (where people
-look for it and edit it); a wheel installs the files themselves there (``pyproject.toml``'s
-package data), so a checkout, an editable install and ``pip install .`` find it the same way.
-Users do not edit it: they add or override files from their own directory (``--config-dir``).
+The location is defined once, as :data:`morality_gym.baselines.specs.CONF_DIR` (the package
+directory ``morality_gym/conf``): the library's loaders (``learner_spec("ppo_lag")``) read the same
+files as a sweep, and they sit below ``runners`` in the layers. In the repository that directory is
+a symbolic link to ``conf/`` at the root (where people look for it and edit it); a wheel installs
+the files themselves there (``pyproject.toml``'s package data), so a checkout, an editable install
+and ``pip install .`` find it the same way. Users do not edit it: they add or override files from
+their own directory (``--config-dir``).
 
 Kept apart from :mod:`runners.config` (which validates whole sweeps and so imports the learners,
-and with them torch) so that the leaderboard can learn a preset's seeds in a millisecond.
+and with them torch) so that the leaderboard can learn a preset's seeds quickly.
 """
 
 from __future__ import annotations
@@ -15,22 +17,18 @@ from __future__ import annotations
 from functools import lru_cache
 from pathlib import Path
 
-import yaml
-
-CONF_DIR = Path(__file__).resolve().parent / "conf"
+from morality_gym.baselines.specs import CONF_DIR  # re-exported: defined once, there
 
 
 @lru_cache(maxsize=None)
 def preset_seeds(preset: str) -> tuple[int, ...] | None:
-    """The seeds of ``conf/preset/<preset>.yaml`` (None if there is no such preset or it is unreadable)."""
-    path = CONF_DIR / "preset" / f"{preset}.yaml"
+    """The seeds of ``conf/preset/<preset>.yaml`` (None if there is no such preset or it is invalid)."""
+    from runners.schemas import PresetError, load_preset
+
     try:
-        seeds = (yaml.safe_load(path.read_text()) or {}).get("seeds")
-    except (OSError, yaml.YAMLError, AttributeError):
+        return load_preset(preset).seeds
+    except PresetError:
         return None
-    if not isinstance(seeds, list) or not all(isinstance(s, int) and not isinstance(s, bool) for s in seeds):
-        return None
-    return tuple(seeds)
 
 
 #: Entry-point group of installed plugins: each entry point names a package that is a config root
@@ -83,13 +81,36 @@ def sources_from_argv(argv: list[str]) -> list[str]:
     return out
 
 
+def _hydra_sources() -> list[str] | None:
+    """The search path of the running Hydra job (``HydraConfig``'s ``runtime.config_sources``,
+    which holds ``--config-dir`` in either form, ``hydra.searchpath`` and the plugins merged into
+    it), or None where Hydra is not running (before it parses the command line, or a library caller)."""
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        if not HydraConfig.initialized():
+            return None
+        sources = HydraConfig.get().runtime.config_sources
+    except (ImportError, ValueError, AttributeError):
+        return None
+    return [f"{s.schema}://{s.path}" if s.schema == "pkg" else str(s.path)
+            for s in sources if s.schema in ("file", "pkg") and s.provider not in ("hydra", "schema")]
+
+
 def config_roots(argv: list[str] | None = None) -> list[Path]:
     """Every directory the sweep composes configuration from: the command line's, the installed
-    plugins', then ``conf/`` (Hydra's own order of precedence for the same file name)."""
+    plugins', then ``conf/`` (Hydra's own order of precedence for the same file name).
+
+    Inside a Hydra job the answer is Hydra's own record of its search path; only where Hydra is not
+    running (the command-line checks that run before it) is it read from ``argv``.
+    """
     import sys
 
-    sources = [*sources_from_argv(sys.argv[1:] if argv is None else argv), *plugin_sources()]
+    sources = _hydra_sources() if argv is None else None
+    if sources is None:
+        sources = [*sources_from_argv(sys.argv[1:] if argv is None else argv), *plugin_sources()]
     roots = [d for d in (source_dir(s) for s in sources) if d is not None and d.is_dir()]
+    roots = [r for r in roots if r.resolve() != CONF_DIR.resolve()]
     return list(dict.fromkeys([*roots, CONF_DIR]))
 
 

@@ -12,7 +12,6 @@ leaderboard keeps runs of different configurations out of one cell.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,6 +22,7 @@ from morality_gym.norms.chain import chain_fingerprint
 from runners.config import SweepConfig
 from runners.identity import PER_RUN_KEYS, config_key, run_id_of  # noqa: F401 - re-exported
 from runners.schema import SCHEMA_VERSION
+from runners.schemas import Run
 
 
 @dataclass(frozen=True)
@@ -51,21 +51,10 @@ class PlannedRun:
         }
 
 
-def _spec_dict(spec: Any) -> dict[str, Any]:
-    out = dataclasses.asdict(spec)
-    for key, value in out.items():
-        if isinstance(value, tuple):
-            out[key] = list(value)
-    if hasattr(spec, "hparams"):
-        out["hparams"] = dict(spec.hparams)
-    return out
-
-
 def plan(sweep: SweepConfig) -> list[PlannedRun]:
     """Every run of the sweep, in a stable order (chain, scenario, variant, algo, seed)."""
     runs: list[PlannedRun] = []
     seen: set[str] = set()
-    protocol = _spec_dict(sweep.protocol)
     for chain, scenario_name in sweep.pairs:
         scenario = scenario_named(scenario_name)
         chain_def = {"name": chain.name, "norms": [[n.name, n.modality] for n in chain.norms]}
@@ -75,23 +64,23 @@ def plan(sweep: SweepConfig) -> list[PlannedRun]:
             for algo in sweep.algos:
                 for seed in sweep.seeds:
                     budget = sweep.preset.budget_for(scenario_name) if learner_trains(algo.spec.target) else 0
-                    config = {
-                        "schema_version": SCHEMA_VERSION,
-                        "env_id": env_id,
-                        "scenario": scenario_name,
-                        "variant": variant,
-                        "chain": chain_def,
-                        "algo": _spec_dict(algo.spec),
-                        "protocol": protocol,
-                        "preset": sweep.preset.name,
-                        "seed": int(seed),
-                        "budget": int(budget),
-                        "beta": sweep.beta,
-                        "max_steps": sweep.max_steps,
-                        "eval_episodes": sweep.preset.eval_episodes,
-                        "learn_eval_every": sweep.preset.learn_eval_every,
-                        "learn_eval_episodes": sweep.preset.learn_eval_episodes,
-                    }
+                    config = Run(
+                        schema_version=SCHEMA_VERSION,
+                        env_id=env_id,
+                        scenario=scenario_name,
+                        variant=variant,
+                        chain=chain_def,
+                        algo=algo.spec,
+                        protocol=sweep.protocol,
+                        preset=sweep.preset.name,
+                        seed=int(seed),
+                        budget=int(budget),
+                        beta=sweep.beta,
+                        max_steps=sweep.max_steps,
+                        eval_episodes=sweep.preset.eval_episodes,
+                        learn_eval_every=sweep.preset.learn_eval_every,
+                        learn_eval_episodes=sweep.preset.learn_eval_episodes,
+                    ).config()
                     rid = run_id_of(config)
                     if rid in seen:
                         continue

@@ -28,7 +28,7 @@ from omegaconf import DictConfig
 from rich.markup import escape
 
 from morality_gym.clitools import DEBUG_ENV, debug_enabled, one_line, run_cli
-from runners.config import ConfigError, SweepConfig, validate
+from runners.config import ConfigError, SweepConfig, validate  # also stores the schemas (runners.schemas)
 from runners.execute import finished_status, record_failure
 from runners.fleet import make_jobs, jobs_estimate
 from runners.manifest import manifest_name, write_manifest
@@ -78,6 +78,8 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
     for label, (n, d) in info["by_algo"].items():
         table.add_row(label, str(n), str(d))
     console.print(table)
+    for warning in sweep.warnings:
+        console.print(f"[yellow]warning: {escape(warning)}[/yellow]", markup=True, highlight=False, soft_wrap=True)
     console.print(
         f"protocol [bold]{sweep.protocol.name}[/bold], preset [bold]{sweep.preset.name}[/bold], seeds {list(sweep.seeds)}, "
         f"launcher [bold]{sweep.launcher['name']}[/bold] ({workers} parallel), results in {sweep.results_dir}; "
@@ -287,6 +289,46 @@ def precheck(argv: list[str]) -> str | None:
     return None
 
 
+def compose_check(argv: list[str]) -> str | None:
+    """Compose the configuration once before Hydra's own run, to report a key or value the typed
+    schemas (:mod:`runners.schemas`) refuse as one line naming the key, its file or override and
+    the closest valid key (Hydra would print several lines and a hint about ``+key=``). Returns the
+    error or None. Hydra's own flags are parsed by Hydra's parser; ``--config-dir`` becomes a
+    search-path entry, as Hydra itself treats it."""
+    from hydra import compose, initialize_config_dir
+    from hydra._internal.utils import get_args_parser
+
+    from runners.paths import source_dir, split_list
+    from runners.schemas import composition_error
+
+    try:
+        args = get_args_parser().parse_args(argv)
+    except SystemExit:
+        return None  # Hydra reports its own command-line errors
+    if args.help or args.hydra_help or args.info or args.shell_completion or args.multirun:
+        return None
+    overrides = list(args.overrides)
+    if args.config_dir:
+        directory = source_dir(args.config_dir)
+        extra = f"file://{directory}"
+        merged = False
+        for i, item in enumerate(overrides):
+            if item.lstrip("+").startswith("hydra.searchpath="):
+                key, value = item.split("=", 1)
+                overrides[i] = f"{key}=[{','.join([*split_list(value), extra])}]"
+                merged = True
+        if not merged:
+            overrides.append(f"hydra.searchpath=[{extra}]")
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            compose(args.config_name or "config", overrides=overrides)
+    except Exception as exc:  # noqa: BLE001 - every composition error is the user's to fix
+        from runners.paths import find_config
+
+        return composition_error(exc, lambda group, option: find_config(group, option, argv))
+    return None
+
+
 def with_plugins(argv: list[str]) -> list[str]:
     """``argv`` with the installed plugins' config packages added to ``hydra.searchpath`` (merged
     with the user's own entries, which come first), and every user config directory made
@@ -331,7 +373,7 @@ def main() -> int:
         from runners.options import normalise_argv
 
         sys.argv[1:] = normalise_argv(with_plugins(sys.argv[1:]))
-        problem = precheck(sys.argv[1:])
+        problem = precheck(sys.argv[1:]) or compose_check(sys.argv[1:])
         if problem:
             print(f"configuration error: {problem}", file=sys.stderr)
             return 2

@@ -199,12 +199,12 @@ def test_a2c_example_end_to_end_from_outside_the_repo(tmp_path: Path) -> None:
 
 
 def test_protocols_change_the_baselines_they_name_and_leave_user_learners_alone() -> None:
-    from morality_gym.baselines.specs import PROTOCOLS, LearnerSpec, learner_spec
+    from morality_gym.baselines.specs import LearnerSpec, learner_spec, protocol_spec
 
     user = LearnerSpec.from_mapping({"_target_": "morality_gym.baselines.safe.PPOLag", "cost_reset": "per_episode",
                                      "hparams": {"kl_early_stop_reduction": "mean"}}, "my_lag")
-    assert PROTOCOLS["paper"].apply(user).hparams == user.hparams and PROTOCOLS["paper"].apply(user).cost_reset == "per_episode"
-    builtin = PROTOCOLS["corrected"].apply(learner_spec("ppo_lag"))
+    assert protocol_spec("paper").apply(user).hparams == user.hparams and protocol_spec("paper").apply(user).cost_reset == "per_episode"
+    builtin = protocol_spec("corrected").apply(learner_spec("ppo_lag"))
     assert builtin.hparams["kl_early_stop_reduction"] == "mean" and builtin.cost_reset == "per_episode"
     assert user.label == "my_lag" and user.n_envs == 8  # left-out fields take the spec's defaults
 
@@ -236,3 +236,70 @@ def test_legacy_sidecar_and_unimportable_target(tmp_path: Path) -> None:
     (tmp_path / "gone.json").write_text(json.dumps({"target": "nowhere_pkg.Algo", "env_id": "SwitchStandard-HumanA-v1"}))
     with pytest.raises(ModelError, match="cannot import 'nowhere_pkg.Algo'"):
         load_model(tmp_path / "gone.zip")
+
+
+#: A user's PPO clone with the paper's 8 x 2048 rollout: at the smoke preset's budget of 2,048 steps
+#: it would train one 16,384-step rollout (8x the budget) unless the preset caps it.
+BIG_ROLLOUT = """# @package algo.big_ppo
+_target_: stable_baselines3.PPO
+label: Big PPO
+hparams: {n_steps: 2048, batch_size: 64}
+"""
+
+
+def _sweep_config(conf: Path, results: Path, *overrides: str):
+    """The validated sweep as ``runners.sweep`` builds it, through the compose API with a user dir."""
+    from hydra import compose, initialize_config_dir
+
+    from runners.config import CONF_DIR, validate
+
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=[f"hydra.searchpath=[file://{conf}]", "chain=utility", "scenario=[switch_standard]",
+                                           "mlflow=false", f"results_dir={results}", *overrides], return_hydra_config=True)
+    return validate(cfg)
+
+
+def test_a_preset_caps_the_rollout_of_every_learner_and_the_plan_warns(tmp_path: Path) -> None:
+    conf = tmp_path / "my_conf"
+    (conf / "algo").mkdir(parents=True)
+    (conf / "algo" / "big_ppo.yaml").write_text(BIG_ROLLOUT)
+    smoke = _sweep_config(conf, tmp_path / "r", "algo=[big_ppo,ppo]", "preset=smoke")
+    by_name = {a.spec.name: a.spec for a in smoke.algos}
+    assert by_name["big_ppo"].hparams["n_steps"] == 128 and by_name["ppo"].hparams["n_steps"] == 128  # 1024 / 8 envs
+    assert by_name["big_ppo"].hparams["batch_size"] == 64 and smoke.warnings == ()
+    # The command line still wins over the cap, and a rollout longer than the budget is a warning.
+    uncapped = _sweep_config(conf, tmp_path / "r", "algo=[big_ppo]", "preset=smoke", "preset.rollout_cap=null")
+    assert uncapped.algos[0].spec.hparams["n_steps"] == 2048
+    (warning,) = uncapped.warnings
+    assert "algo=big_ppo" in warning and "2048 x 8 = 16384 steps" in warning and "budget of 2048" in warning
+    assert "preset.rollout_cap=2048" in warning
+    out = run(["-m", "runners.sweep", "--config-dir", str(conf), "algo=big_ppo", *SMALL, "preset.rollout_cap=null",
+               "dry_run=true", f"results_dir={tmp_path / 'r2'}"], cwd=tmp_path)
+    assert out.returncode == 0 and "warning: algo=big_ppo: one rollout is" in out.stderr, out.stderr
+
+
+def test_a_misspelt_key_or_wrong_type_fails_at_composition_in_one_line(tmp_path: Path) -> None:
+    """The typed schemas refuse a bad key or value while Hydra composes: the line names the key, the
+    file or the command line, and the closest valid key; a user's file is checked like a built-in."""
+    from runners.sweep import compose_check
+
+    conf = tmp_path / "my_conf"
+    (conf / "algo").mkdir(parents=True)
+    (conf / "algo" / "typo.yaml").write_text("# @package algo.typo\n_target_: stable_baselines3.A2C\nn_env: 2\n")
+    (conf / "algo" / "nopkg.yaml").write_text("_target_: stable_baselines3.A2C\nlabel: No package line\n")
+    base = ["--config-dir", str(conf), "chain=utility", "scenario=[switch_standard]"]
+    cases = {
+        "algo=typo": ["algo.typo.n_env", f"algo=typo, {conf / 'algo' / 'typo.yaml'}", "did you mean 'n_envs'?"],
+        "algo=nopkg": ["missing its '# @package algo.<file name>' first line"],
+        "preset.budgte=5": ["preset.budgte (command line): unknown key 'budgte' (did you mean 'budget'?)"],
+        "launcher.workerz=2": ["launcher.workerz (command line)", "did you mean 'workers'?"],
+        "max_steps=many": ["max_steps (command line): value 'many'", "could not be converted to Integer"],
+        "dry_rn=true": ["did you mean 'dry_run'?"],
+    }
+    for override, fragments in cases.items():
+        message = compose_check([*base, override])
+        assert message is not None and "\n" not in message, override
+        for fragment in fragments:
+            assert fragment in message, (override, message)
+    assert compose_check([*base, "algo=[typo]", "algo.typo.n_env=3"]) is not None
+    assert compose_check([*base, "algo=[random,ppo]", "launcher=slurm", "launcher.partition=gpu"]) is None

@@ -1,9 +1,15 @@
-"""Learner and protocol specifications: every knob of the baselines as data, with the paper's values.
+"""Learner and protocol specifications: every knob of the baselines as typed, frozen data.
 
-The defaults below are the hyper-parameters that actually ran in the paper (evaluation spec 6.3),
-not the ones printed in its appendix. Sweeps take these values from ``conf/algo/*.yaml`` and
-``conf/protocol/*.yaml`` (a test keeps the files and these defaults identical); library users get
-them by name via :func:`learner_spec`. Unknown keys are errors that name the key and the choices.
+Each setting's default is defined once. A default every learner shares (8 envs, the paper's return
+bounds, a (64, 64) tanh network, ...) is a field default of :class:`LearnerSpec`; a learner's own
+values (its class, its hyper-parameters) are in its file ``conf/algo/<name>.yaml``, which states
+only what differs from the field defaults. A protocol's changes are in ``conf/protocol/<name>.yaml``
+over the :class:`ProtocolSpec` defaults. :func:`learner_spec` and :func:`protocol_spec` read those
+same files for library users (tests, the fleet trainer, the CLI), exactly as a sweep's Hydra
+composition does (``runners.schemas`` registers these classes as Hydra's structured configs), so
+there is no second copy of any value. The values are those that actually ran in the paper
+(evaluation spec 6.3), not the ones printed in its appendix. Unknown keys and wrong types are
+errors that name the key, the file and the closest valid key.
 """
 
 from __future__ import annotations
@@ -12,20 +18,29 @@ import dataclasses
 import difflib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
+from morality_gym.baselines import typed
 from morality_gym.norms.cost import COST_MODES, RESET_POLICIES
 from morality_gym.norms.wrappers import PAPER_RETURN_BOUNDS, RewardCostSpec
 
-#: The baselines' classes (``_target_`` of ``conf/algo/*.yaml``); a user learner names its own.
-RANDOM = "morality_gym.baselines.learners.RandomLearner"
+#: The configuration files (Hydra's config directory): ``conf/`` at the repository's root, reached
+#: through the link ``morality_gym/conf`` (a wheel installs the files themselves there). The one
+#: place that knows where they are; ``runners.paths.CONF_DIR`` is this.
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+
+#: The baselines' classes, which the fleet trainers match by identity (``_target_`` of their
+#: ``conf/algo/*.yaml``); a user learner names its own.
 SB3_PPO = "stable_baselines3.PPO"
 PPO_LAG = "morality_gym.baselines.safe.PPOLag"
 CPO = "morality_gym.baselines.safe.CPO"
 #: The short names that specs, run configs and model sidecars written before learners were named by
 #: class (commit c0db801) recorded as ``implementation``, and the class each one meant. Frozen
 #: history: read by :mod:`morality_gym.baselines.io` (old sidecars) and ``runners.migrations``.
-LEGACY_IMPLEMENTATIONS = {"random": RANDOM, "ppo": SB3_PPO, "ppo_lag": PPO_LAG, "cpo": CPO}
+LEGACY_IMPLEMENTATIONS = {
+    "random": "morality_gym.baselines.learners.RandomLearner", "ppo": SB3_PPO, "ppo_lag": PPO_LAG, "cpo": CPO,
+}
 VEC_ENVS = ("batched", "dummy")
 STEP_ACCOUNTING = ("rollouts", "floor")
 
@@ -35,8 +50,9 @@ class SpecError(ValueError):
 
 
 def _check_keys(where: str, given: Mapping[str, Any], allowed: list[str]) -> None:
+    allowed_here = [("target" if a == "_target_" else a) for a in allowed]
     for key in given:
-        if key not in allowed:
+        if key not in allowed_here:
             close = difflib.get_close_matches(str(key), allowed, n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             raise SpecError(f"{where}: unknown key {key!r}{hint}; valid keys: {', '.join(allowed)}")
@@ -106,42 +122,43 @@ class LearnerSpec:
             shape_reward=self.shape_reward,
         )
 
-    def with_overrides(self, overrides: Mapping[str, Any]) -> "LearnerSpec":
-        """A copy with some fields (and ``hparams`` entries) replaced; unknown keys raise.
+    def with_overrides(self, overrides: Mapping[str, Any], where: str = "") -> "LearnerSpec":
+        """A copy with some fields (and ``hparams`` entries) replaced; unknown keys and wrong types raise.
 
         ``_target_`` (the key of the YAML files) is accepted for ``target``.
         """
         overrides = _rename_target(overrides)
-        fields = [f.name for f in dataclasses.fields(self) if f.name != "protocol"]  # set by ProtocolSpec.apply only
-        _check_keys(f"learner {self.name!r}", overrides, fields)
+        where = where or f"learner {self.name!r}"
+        _check_keys(where, overrides, _settable(LearnerSpec))
         if not isinstance(overrides.get("hparams", {}), Mapping):
-            raise SpecError(f"learner {self.name!r}: hparams must be a mapping, got {overrides['hparams']!r}")
-        values = dict(overrides)
-        if "hparams" in values:
-            values["hparams"] = {**self.hparams, **values["hparams"]}
-        for key in ("return_bounds", "net_arch"):
-            if key in values:
-                values[key] = tuple(values[key])
-        return dataclasses.replace(self, **values)
-
+            raise SpecError(f"{where}: hparams must be a mapping, got {overrides['hparams']!r}")
+        return _typed(LearnerSpec, dataclasses.asdict(self), overrides, where=where)
 
     @classmethod
-    def from_mapping(cls, values: Mapping[str, Any], name: str) -> "LearnerSpec":
+    def from_mapping(cls, values: Mapping[str, Any], name: str, where: str = "") -> "LearnerSpec":
         """A spec from an algo file's values (``_target_`` names the class; every field left out
         takes this class's default, ``label`` defaults to ``name``)."""
         values = _rename_target(values)
-        fields = [f.name for f in dataclasses.fields(cls) if f.name != "protocol"]
-        _check_keys(f"learner {name!r}", values, fields)
+        where = where or f"learner {name!r}"
+        _check_keys(where, values, _settable(cls))
         if "target" not in values:
-            raise SpecError(f"learner {name!r}: no _target_; name the algorithm class, e.g. _target_: stable_baselines3.A2C")
-        values = {"name": name, "label": values.get("label", values.get("name", name)), **values}
-        if not isinstance(values.get("hparams", {}), Mapping):
-            raise SpecError(f"learner {name!r}: hparams must be a mapping, got {values['hparams']!r}")
-        values["hparams"] = dict(values.get("hparams") or {})
-        for key in ("return_bounds", "net_arch"):
-            if key in values and isinstance(values[key], (list, tuple)):
-                values[key] = tuple(values[key])
-        return cls(**values)
+            raise SpecError(f"{where}: no _target_; name the algorithm class, e.g. _target_: stable_baselines3.A2C")
+        if not isinstance(values.get("hparams") or {}, Mapping):
+            raise SpecError(f"{where}: hparams must be a mapping, got {values['hparams']!r}")
+        base = {"name": name, "label": values.get("label") or values.get("name") or name}
+        return _typed(cls, base, values, where=where)
+
+
+def _settable(cls: type) -> list[str]:
+    """The keys a file or an override may set (``protocol`` is set by :meth:`ProtocolSpec.apply` only)."""
+    return ["_target_" if f == "target" else f for f in typed.valid_keys(cls) if f != "protocol"]
+
+
+def _typed(cls: type, *layers: Mapping[str, Any], where: str) -> Any:
+    try:
+        return typed.build(cls, typed.merge(cls, *layers, where=where), where=where)
+    except typed.TypedConfigError as exc:
+        raise SpecError(str(exc)) from exc
 
 
 def _rename_target(values: Mapping[str, Any]) -> dict[str, Any]:
@@ -153,98 +170,34 @@ def _rename_target(values: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-_SB3_PPO = {
-    "n_steps": 2048,
-    "batch_size": 64,
-    "n_epochs": 10,
-    "learning_rate": 3e-4,
-    "gamma": 0.99,
-    "gae_lambda": 0.95,
-    "clip_range": 0.2,
-    "ent_coef": 0.0,
-    "vf_coef": 0.5,
-    "max_grad_norm": 0.5,
-}
+def _file_names(group: str) -> list[str]:
+    return sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))
 
-#: What the paper's OmniSafe runs of PPO-Lag and CPO shared: the values that actually ran, not
-#: the paper's appendix tables (docs/protocols.md has one entry per reproduced behaviour).
-_OMNISAFE_COMMON = {
-    "n_steps": 256,  # 2048 steps per epoch over 8 envs, as OmniSafe's steps_per_epoch
-    "batch_size": 64,
-    "learning_rate": 3e-4,
-    "anneal_lr": True,  # the actor's rate decays linearly to 0 ...
-    "anneal_lr_timing": "epoch",  # ... stepped after each epoch, so epoch k of E trains at lr (1 - k/E)
-    "anneal_critic_lr": False,  # the critics keep 3e-4
-    "gamma": 0.99,
-    "gae_lambda": 0.95,
-    "cost_gamma": 0.99,
-    "cost_gae_lambda": 0.95,
-    "max_grad_norm": 40.0,
-    "critic_grad_clip": "per_critic",  # each critic clips its own gradient norm
-    "critic_l2_coef": 0.001,
-    "cost_limit": 0.0,
-    "ep_cost_window": 50,
-    "reward_advantage_normalization": "standardize",
-    "cost_advantage_normalization": "center",  # OmniSafe only centres cost advantages
-    "reset_envs_each_rollout": True,  # OmniSafe restarts every training env at each epoch
-    "weight_init": "kaiming_uniform",
-    "adam_eps": 1e-8,
-}
 
-DEFAULT_LEARNERS: dict[str, LearnerSpec] = {
-    "random": LearnerSpec("random", "Random", RANDOM, n_envs=1, normalise_reward=False),
-    "ppo": LearnerSpec("ppo", "PPO", SB3_PPO, hparams=dict(_SB3_PPO)),
-    "ppo_shaped": LearnerSpec(
-        "ppo_shaped", "PPO Shaped", SB3_PPO, shape_reward=True, cost_mode="full", cost_scale=50.0, hparams=dict(_SB3_PPO)
-    ),
-    "ppo_lag": LearnerSpec(
-        "ppo_lag",
-        "PPO Lag",
-        PPO_LAG,
-        cost_reset="never",
-        step_accounting="floor",
-        hparams={
-            **_OMNISAFE_COMMON,
-            "n_epochs": 40,
-            "target_kl": 0.02,
-            "kl_early_stop_reduction": "sum",
-            "clip_range": 0.2,
-            "ent_coef": 0.0,
-            "lagrange_init": 0.001,
-            "lagrange_lr": 0.035,
-        },
-    ),
-    "cpo": LearnerSpec(
-        "cpo",
-        "CPO",
-        CPO,
-        cost_reset="never",
-        step_accounting="floor",
-        hparams={
-            **_OMNISAFE_COMMON,
-            "n_critic_updates": 10,
-            "target_kl": 0.01,
-            "cg_damping": 0.1,
-            "cg_max_steps": 15,
-            "cg_residual_tol": 1e-10,
-            "cg_eps": 1e-6,
-            "dual_solution": "omnisafe",
-            "line_search_max_iter": 20,
-            "line_search_shrinking_factor": 0.8,
-            "line_search_accept": "omnisafe",
-            "trust_region_rescale": False,
-        },
-    ),
-}
+def _read_file(group: str, name: str, what: str) -> tuple[Path, dict[str, Any]]:
+    import yaml
+
+    path = CONF_DIR / group / f"{name}.yaml"
+    if not path.is_file():
+        names = _file_names(group)
+        close = difflib.get_close_matches(str(name), names, n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise SpecError(f"unknown {what} {name!r}{hint}; {what}s: {', '.join(names)} (the files of {CONF_DIR / group})")
+    return path, yaml.safe_load(path.read_text()) or {}
+
+
+#: Keys of an algo file that are not learner settings: ``planning`` is the sweep's time estimate
+#: (``runners.schemas.Planning``), read by the sweep's plan only.
+ALGO_FILE_EXTRAS = ("planning",)
 
 
 def learner_spec(name: str, overrides: Mapping[str, Any] | None = None) -> LearnerSpec:
-    """The paper's spec of a learner (``random``, ``ppo``, ``ppo_shaped``, ``ppo_lag``, ``cpo``)."""
-    if name not in DEFAULT_LEARNERS:
-        close = difflib.get_close_matches(name, list(DEFAULT_LEARNERS), n=1)
-        hint = f" (did you mean {close[0]!r}?)" if close else ""
-        raise SpecError(f"unknown learner {name!r}{hint}; learners: {', '.join(DEFAULT_LEARNERS)}")
-    spec = DEFAULT_LEARNERS[name]
+    """A built-in learner (``random``, ``ppo``, ``ppo_shaped``, ``ppo_lag``, ``cpo``, or any
+    ``conf/algo/<name>.yaml`` shipped with the package) as its file defines it, over the
+    :class:`LearnerSpec` defaults: the same file, read the same way, as a sweep's ``algo=<name>``.
+    """
+    path, values = _read_file("algo", name, "learner")
+    spec = LearnerSpec.from_mapping({k: v for k, v in values.items() if k not in ALGO_FILE_EXTRAS}, name, where=str(path))
     return spec.with_overrides(overrides) if overrides else spec
 
 
@@ -278,6 +231,15 @@ class ProtocolSpec:
                 raise SpecError(f"protocol {self.name!r}: learner_overrides.{algo} must be a mapping")
             allowed = [f.name for f in dataclasses.fields(LearnerSpec) if f.name not in ("name", "label", "target", "protocol")]
             _check_keys(f"protocol {self.name!r}: learner_overrides.{algo}", override, allowed)
+        if isinstance(self.render_episode_steps, bool) or not isinstance(self.render_episode_steps, int) or self.render_episode_steps < 0:
+            raise SpecError(f"protocol {self.name!r}: render_episode_steps must be an integer >= 0, got {self.render_episode_steps!r}")
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any], where: str = "") -> "ProtocolSpec":
+        """A protocol from a protocol file's values over this class's defaults."""
+        where = where or f"protocol {values.get('name', '?')!r}"
+        _check_keys(where, values, typed.valid_keys(cls))
+        return _typed(cls, values, where=where)
 
     def apply(self, spec: LearnerSpec) -> LearnerSpec:
         """``spec`` with this protocol's overrides for its algorithm name, stamped with the protocol.
@@ -298,44 +260,14 @@ class ProtocolSpec:
         return dataclasses.replace(resolved, protocol=self.name)
 
 
-#: Each protocol's learner overrides. Both protocols state every protocol-dependent setting, so that
-#: what differs between them is visible in one place, and an algorithm file cannot change it.
-PROTOCOLS: dict[str, ProtocolSpec] = {
-    "paper": ProtocolSpec(
-        "paper",
-        {
-            "ppo_lag": {"cost_reset": "never", "hparams": {"kl_early_stop_reduction": "sum"}},
-            "cpo": {"cost_reset": "never", "hparams": {"dual_solution": "omnisafe"}},
-        },
-        random_replays_learn_evals=True,
-    ),
-    "corrected": ProtocolSpec(
-        "corrected",
-        {
-            "ppo_lag": {"cost_reset": "per_episode", "hparams": {"kl_early_stop_reduction": "mean"}},
-            "cpo": {"cost_reset": "per_episode", "hparams": {"dual_solution": "exact"}},
-        },
-        random_replays_learn_evals=False,
-    ),
-}
-
-
 def protocol_spec(name: str | ProtocolSpec, overrides: Mapping[str, Any] | None = None) -> ProtocolSpec:
-    """A protocol by name (``paper`` or ``corrected``), optionally with some fields replaced."""
+    """A protocol (``paper``, ``corrected``: ``conf/protocol/<name>.yaml`` over the
+    :class:`ProtocolSpec` defaults, as a sweep's ``protocol=<name>`` reads it), optionally with
+    some fields replaced."""
     if isinstance(name, ProtocolSpec):
         return name
-    if name not in PROTOCOLS:
-        close = difflib.get_close_matches(str(name), list(PROTOCOLS), n=1)
-        hint = f" (did you mean {close[0]!r}?)" if close else ""
-        raise SpecError(f"unknown protocol {name!r}{hint}; protocols: {', '.join(PROTOCOLS)}")
-    spec = PROTOCOLS[name]
-    if overrides:
-        _check_keys(f"protocol {name!r}", overrides, [f.name for f in dataclasses.fields(spec)])
-        values = dict(overrides)
-        if "random_learn_eval_steps" in values:
-            values["random_learn_eval_steps"] = tuple(values["random_learn_eval_steps"])
-        spec = dataclasses.replace(spec, **values)
-    return spec
+    path, values = _read_file("protocol", str(name), "protocol")
+    return ProtocolSpec.from_mapping({**values, **(overrides or {})}, where=str(path))
 
 
 def training_steps(spec: LearnerSpec, budget: int) -> int:
