@@ -57,8 +57,10 @@ STD_DDOF = 1
 #: ``n_variants``/``n_seeds``: distinct variants/seeds among the cell's results, out of
 #: ``n_variants_expected``/``n_seeds_expected``; ``complete``: every expected (variant, seed) has a
 #: result; ``incomplete_reason``: what is lacking (empty when complete). Reference rows are exact
-#: over all variants (``complete`` true, seed columns empty).
-CSV_COLUMNS = ["chain", "scenario", "learner", "mean", "std", "n_runs", "paper", "delta",
+#: over all variants (``complete`` true, seed columns empty). ``ci_low``/``ci_high``: the 95% bootstrap
+#: interval of the mean (seeds resampled within each variant; empty with one seed and on reference
+#: rows), joined by :mod:`leaderboard.intervals` (empty when the table was built without it).
+CSV_COLUMNS = ["chain", "scenario", "learner", "mean", "std", "ci_low", "ci_high", "n_runs", "paper", "delta",
                "n_variants", "n_variants_expected", "n_seeds", "n_seeds_expected", "complete", "incomplete_reason"]
 COMPLETENESS_COLUMNS = ["n_variants", "n_variants_expected", "n_seeds", "n_seeds_expected", "n_expected", "complete",
                         "incomplete_reason"]
@@ -671,7 +673,7 @@ def _sort_table(frame: pd.DataFrame) -> pd.DataFrame:
 def csv_rows(table: pd.DataFrame, group: Group) -> pd.DataFrame:
     """The rows of one group with exactly :data:`CSV_COLUMNS` (what ``table1.csv`` holds)."""
     part = table.loc[(table["protocol"] == group.protocol) & (table["preset"] == group.preset)]
-    return part[CSV_COLUMNS].reset_index(drop=True)
+    return part.reindex(columns=CSV_COLUMNS).reset_index(drop=True)
 
 
 def choose_primary(table: pd.DataFrame, groups: list[Group], protocol: str | None = None,

@@ -91,8 +91,13 @@ def build(args: argparse.Namespace, runs: Any, planned: dict[str, dict[str, Any]
           ) -> tuple[Leaderboard, dict[str, Any]]:
     """Run every stage on loaded runs; returns the leaderboard and what was written (for the summary)."""
     from leaderboard.figures import write_figures, write_learn_curves
+    from leaderboard.intervals import with_intervals
     from leaderboard.site import build_site
+    from leaderboard.stamp import stamp_text
+    from leaderboard.stat_figures import write_stat_figures
+    from leaderboard.stats import DEFAULT_RESAMPLES, compute_stats
     from leaderboard.tables import write_tables
+    from runners.schema import read_learn
 
     results: Path = args.results
     out_dir: Path = args.out
@@ -104,21 +109,31 @@ def build(args: argparse.Namespace, runs: Any, planned: dict[str, dict[str, Any]
         reference = compute_reference(reference_requests(lb.table), out_dir / REFERENCE_CACHE, progress)
         lb = with_reference(lb, reference.entries, reference.errors, args.protocol, args.preset)
     lb.skipped, lb.quarantined = list(skipped or []), list(quarantined or [])
+    stamp = stamp_text(lb.runs)
     timings["aggregate"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    tables = write_tables(lb, out_dir, str(results))
+    stats = compute_stats(lb.runs, lb.table if reference is not None else None, read_learn(results),
+                          n_resamples=DEFAULT_RESAMPLES)
+    lb = with_intervals(lb, stats.cells)
+    timings["statistics"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    tables = write_tables(lb, out_dir, str(results), stamp)
     timings["tables"] = time.perf_counter() - start
 
     start = time.perf_counter()
     figures = write_figures(lb, out_dir / "figures", progress)
     write_learn_curves(lb, results, out_dir / "figures" / "learn", figures, progress)
+    stat_figures = write_stat_figures(lb, stats, out_dir / "figures", figures.colours, progress)
     timings["figures"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    site = build_site(lb, results, args.site, figures, str(results), progress)
+    site = build_site(lb, results, args.site, figures, str(results), progress, stats=stats, stat_figures=stat_figures,
+                      stamp=stamp, resamples=DEFAULT_RESAMPLES)
     timings["site"] = time.perf_counter() - start
-    return lb, {"tables": tables, "figures": figures, "site": site, "reference": reference, "timings": timings}
+    return lb, {"tables": tables, "figures": figures, "stat_figures": stat_figures, "site": site,
+                "reference": reference, "timings": timings}
 
 
 def summary(lb: Leaderboard, out: dict[str, Any], args: argparse.Namespace) -> str:
@@ -151,7 +166,8 @@ def summary(lb: Leaderboard, out: dict[str, Any], args: argparse.Namespace) -> s
     if len(lb.problems) > 5:
         lines.append(f"  ... and {len(lb.problems) - 5} more failed run(s), see table1.md")
     lines += [f"wrote {path}" for path in out["tables"]]
-    lines.append(f"figures: {out['figures'].count} under {args.out / 'figures'}")
+    lines.append(f"figures: {out['figures'].count} + {out['stat_figures'].count} statistics figure(s) "
+                 f"under {args.out / 'figures'}")
     lines.append(f"site: {out['site'].pages} page(s) in {args.site} (open {args.site / 'index.html'})")
     lines.append("time: " + ", ".join(f"{k} {v:.1f}s" for k, v in out["timings"].items()))
     return "\n".join(lines)
@@ -160,8 +176,13 @@ def summary(lb: Leaderboard, out: dict[str, Any], args: argparse.Namespace) -> s
 def run(args: argparse.Namespace) -> int:
     """The build, with every user error raised as :class:`UserError` (one line, exit 2)."""
     from leaderboard.site import SiteError, check_target
+    from leaderboard.stamp import StampError, source_date_epoch
     from runners.quarantine import quarantined_files
 
+    try:
+        source_date_epoch()  # before scipy is imported: numpy.f2py reads the variable too and crashes on it
+    except StampError as exc:
+        raise UserError(str(exc)) from exc
     results: Path = args.results
     if not results.is_dir():
         raise UserError(f"results directory {results} does not exist (pass --results DIR)")
@@ -181,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
                         f"({results / 'manifests'}/*.json): nothing to build")
     try:
         lb, out = build(args, runs, planned, skipped, quarantined_files(results))
-    except SiteError as exc:
+    except (SiteError, StampError) as exc:
         raise UserError(str(exc)) from exc
     except PermissionError as exc:
         raise UserError(f"cannot write {exc.filename or exc} ({exc.strerror}); pass --out DIR / --site DIR "

@@ -7,7 +7,6 @@ services would otherwise stall or log errors). Each launch gets a fresh, empty p
 
 from __future__ import annotations
 
-import argparse
 import sys
 import tempfile
 from collections.abc import Sequence

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -90,6 +89,19 @@ def _cell(table: pd.DataFrame, chain: str, scenario: str, learner: str) -> dict[
 INCOMPLETE = "⚠ incomplete"
 
 
+def is_bold(cell: dict[str, Any]) -> bool:
+    """Bold by the interval rule (``leaderboard.intervals``) when the table has it, else the best mean."""
+    return bool(cell["bold"]) if "bold" in cell else bool(cell.get("best"))
+
+
+def interval_text(cell: dict[str, Any]) -> str:
+    """``[low, high]`` of a learner cell, or "" when the table has no interval for it."""
+    low, high = cell.get("ci_low"), cell.get("ci_high")
+    if low is None or high is None or math.isnan(float(low)) or math.isnan(float(high)):
+        return ""
+    return f"[{fmt(low)}, {fmt(high)}]"
+
+
 def is_incomplete(cell: dict[str, Any]) -> bool:
     """A learner cell that lacks results of its expected (variant, seed) grid."""
     return cell.get("kind", "learner") == "learner" and not bool(cell.get("complete", True))
@@ -116,8 +128,10 @@ def learner_cell_md(cell: dict[str, Any] | None) -> str:
         ours = f"no result: {md_escape(cell.get('incomplete_reason') or '0 runs')}"
     else:
         ours = f"{fmt(cell['mean'])} ± {fmt(cell['std'])}"
-        if cell["best"]:
+        if is_bold(cell):
             ours = f"**{ours}**"
+        if interval_text(cell):
+            ours += f"<br>95% CI {interval_text(cell)}"
         ours += _count_note(cell)
     if not math.isnan(float(cell["paper"])):
         delta = fmt(cell["delta"], signed=True) if empty or not is_incomplete(cell) else f"{DASH} (not compared: incomplete)"
@@ -225,10 +239,13 @@ def _seed(value: Any) -> str:
 
 def explanation_lines() -> list[str]:
     """How the numbers were made, next to the numbers (so the table can be read on its own)."""
+    from leaderboard.intervals import BOLD_RULE
+
     return [
         ("Each learner cell: mean of the final evaluation's morality metric over all variants and seeds of the "
-        f"scenario ± standard deviation over seeds of the per-seed means (ddof={STD_DDOF}); **bold** = best learner "
-        "of the row; then the paper's value and Δ = ours − paper. A cell marked ⚠ incomplete lacks results for some "
+        f"scenario ± standard deviation over seeds of the per-seed means (ddof={STD_DDOF}); 95% CI = percentile "
+        "bootstrap interval of the mean, resampling seeds within each variant (absent with one seed); **bold** = "
+        f"{BOLD_RULE} Then the paper's value and Δ = ours − paper. A cell marked ⚠ incomplete lacks results for some "
         "of its (variant, seed) pairs (the scenario's variants times the preset's seeds): it is shown, but never bold "
         "and not compared with the paper."),
         (f"{RANDOM_EXACT}: exact expected metric of the uniform random policy, mean over variants (compare with the "
@@ -237,9 +254,15 @@ def explanation_lines() -> list[str]:
     ]
 
 
-def table1_markdown(lb: Leaderboard, results_name: str) -> str:
-    """The whole ``table1.md``: the primary group first, every other group, then the problems."""
-    stamp = datetime.now(UTC).isoformat(timespec="seconds")
+def table1_markdown(lb: Leaderboard, results_name: str, stamp: str = "") -> str:
+    """The whole ``table1.md``: the primary group first, every other group, then the problems.
+
+    ``stamp``: the build date (:mod:`leaderboard.stamp`), so that the same results give the same file.
+    """
+    if not stamp:
+        from leaderboard.stamp import stamp_text
+
+        stamp = stamp_text(lb.runs)
     lines = ["# Table 1: average normalised morality metric by morality chain and scenario", "",
              (f"Results: `{md_escape(results_name)}` · {lb.n_ok} runs with a result · {len(lb.problems)} failed · "
              f"{len(lb.missing)} missing · {len(lb.superseded)} superseded · built {stamp}"), ""]
@@ -333,10 +356,12 @@ def table1_latex(lb: Leaderboard, group: Group) -> str:
                 cells.append("--")
                 continue
             text = fmt(cell["mean"])
-            if cell["best"]:
+            if is_bold(cell):
                 text = f"\\textbf{{{text}}}"
             if cell["kind"] == "learner" and not math.isnan(float(cell["std"])):
                 text += f"\\,{{\\scriptsize$\\pm${fmt(cell['std'])}}}"
+            if cell["kind"] == "learner" and interval_text(cell):
+                text += f"\\,{{\\scriptsize{interval_text(cell)}}}"
             if is_incomplete(cell):
                 text += "$^\\dagger$"
                 incomplete.append(f"{chain} / {scenario} / {cell['learner']}: {cell.get('incomplete_reason', '')}")
@@ -344,6 +369,10 @@ def table1_latex(lb: Leaderboard, group: Group) -> str:
         scen = tex_escape(SCENARIO_ABBREVIATIONS.get(scenario, scenario))
         lines.append(f"{label} & {scen} & " + " & ".join(cells) + " \\\\")
     lines += ["\\bottomrule", "\\end{tabular}"]
+    from leaderboard.intervals import BOLD_RULE_TEX
+
+    lines.append(f"\\par\\smallskip{{\\footnotesize Brackets: 95\\% bootstrap interval of the mean (seeds resampled "
+                 f"within each variant); {BOLD_RULE_TEX}}}")
     if incomplete:
         lines.append("\\par\\smallskip{\\footnotesize $^\\dagger$ incomplete: fewer results than the scenario's "
                      "variants times the preset's seeds; not comparable with the paper.}")
@@ -355,19 +384,20 @@ def table1_latex(lb: Leaderboard, group: Group) -> str:
 
 
 # ---------------------------------------------------------------------------------------- files
-def write_tables(lb: Leaderboard, out_dir: Path, results_name: str | None = None) -> list[Path]:
+def write_tables(lb: Leaderboard, out_dir: Path, results_name: str | None = None, stamp: str = "") -> list[Path]:
     """Write every table file into ``out_dir`` (the results directory); returns the paths written."""
     out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     if lb.primary is not None:
         path = out_dir / "table1.csv"
-        csv_rows(lb.table, lb.primary).to_csv(path, index=False, columns=CSV_COLUMNS, float_format="%.6f")
+        csv_rows(lb.table, lb.primary).to_csv(path, index=False, columns=CSV_COLUMNS, float_format="%.6f",
+                                              lineterminator="\n")
         written.append(path)
     path = out_dir / "table1_all.csv"
-    lb.table.to_csv(path, index=False, float_format="%.6f")
+    lb.table.to_csv(path, index=False, float_format="%.6f", lineterminator="\n")
     written.append(path)
     path = out_dir / "table1.md"
-    path.write_text(table1_markdown(lb, results_name or out_dir.name), encoding="utf-8")
+    path.write_text(table1_markdown(lb, results_name or out_dir.name, stamp), encoding="utf-8")
     written.append(path)
     if lb.primary is not None:
         path = out_dir / "table1.tex"

@@ -144,8 +144,39 @@ def test_runs_of_an_earlier_configuration_are_superseded_not_averaged() -> None:
 def test_csv_has_exactly_the_contract_columns(built: BuiltSite) -> None:
     with (built.results / "table1.csv").open() as fh:
         assert next(csv.reader(fh)) == CSV_COLUMNS == [
-            "chain", "scenario", "learner", "mean", "std", "n_runs", "paper", "delta",
+            "chain", "scenario", "learner", "mean", "std", "ci_low", "ci_high", "n_runs", "paper", "delta",
             "n_variants", "n_variants_expected", "n_seeds", "n_seeds_expected", "complete", "incomplete_reason"]
+
+
+def _bold_expected(rows: list[dict[str, str]]) -> set[tuple[str, str, str]]:
+    """(chain, scenario, learner) that must be bold, from the CSV alone: the highest mean among the
+    complete cells of the row, whose interval overlaps no other complete cell's interval."""
+    by_row: dict[tuple[str, str], list[dict[str, str]]] = defaultdict(list)
+    for r in rows:
+        if r["learner"] in LEARNERS and r["complete"] == "True":
+            by_row[(r["chain"], r["scenario"])].append(r)
+    bold = set()
+    for (chain, scenario), cells in by_row.items():
+        top = max(cells, key=lambda r: float(r["mean"]))
+        others = [r for r in cells if r is not top]
+        if any(r["ci_low"] == "" for r in cells) or any(float(r["mean"]) == float(top["mean"]) for r in others):
+            continue
+        if all(float(top["ci_low"]) > float(r["ci_high"]) or float(top["ci_high"]) < float(r["ci_low"]) for r in others):
+            bold.add((chain, scenario, top["learner"]))
+    return bold
+
+
+def test_csv_intervals_hold_the_mean_and_need_two_seeds(built: BuiltSite) -> None:
+    """Three seeds per variant: every learner cell has an interval around its mean; references have none."""
+    rows = _csv(built.results / "table1.csv")
+    for r in rows:
+        if r["learner"] not in LEARNERS:
+            assert r["ci_low"] == r["ci_high"] == "", r
+            continue
+        low, mean, high = float(r["ci_low"]), float(r["mean"]), float(r["ci_high"])
+        assert low <= mean <= high and high - low < 0.5, r
+    # the bold rule is not vacuous on this data: some rows have a separated best, some do not
+    assert 0 < len(_bold_expected(rows)) < len(ROWS) * 2 or len(_bold_expected(rows)) > 0
 
 
 def test_table1_means_and_spreads_match_hand_computation(built: BuiltSite) -> None:
@@ -255,12 +286,15 @@ def test_markdown_bolds_the_best_learner_and_shows_paper_and_delta(built: BuiltS
     header = next(line for line in primary.splitlines() if line.startswith("| Chain |"))
     columns = [c.strip() for c in header.strip().strip("|").split(" | ")]
     expected = _expected_cells(built.data.records)
+    bold = _bold_expected(_csv(built.results / "table1.csv"))
+    assert "**bold** = highest mean of the row whose 95% interval overlaps no other learner's" in text
     for chain, scenario in ROWS:
         cells = dict(zip(columns, _md_row(primary, chain, scenario)))
         means = {lr: expected[("paper", "quick", chain, scenario, lr)][0] for lr in LEARNERS}
-        best = max(means, key=means.get)
         for learner in LEARNERS:
-            assert cells[learner].startswith("**") == (learner == best), (chain, scenario, learner, cells[learner])
+            # issue 13: bold = best and separated by its interval (was: best mean)
+            assert cells[learner].startswith("**") == ((chain, scenario, learner) in bold), (chain, scenario, learner)
+            assert "95% CI [" in cells[learner]
             assert f"{means[learner]:.3f}" in cells[learner]
             paper = PAPER[(chain, scenario)][learner]
             assert f"paper {paper:.3f}" in cells[learner]
@@ -282,15 +316,22 @@ def test_markdown_reports_missing_and_failed_runs(built: BuiltSite) -> None:
     assert "⚠ incomplete: 20 of 21 runs (7/7 variants, 3/3 seeds; 1 missing)" in text
 
 
-def test_latex_is_booktabs_with_one_bold_per_row(built: BuiltSite) -> None:
+def test_latex_is_booktabs_with_the_interval_bold_rule(built: BuiltSite) -> None:
     tex = (built.results / "table1.tex").read_text()
     assert "\\toprule" in tex and "\\midrule" in tex and "\\bottomrule" in tex
+    assert "overlaps no other learner" in tex  # the bold rule is stated under the table
     body = [line for line in tex.splitlines() if line.endswith("\\\\") and ("PSS" in line or "SSS" in line or "Switch5" in line)]
     assert len(body) == len(ROWS)
+    bold = _bold_expected(_csv(built.results / "table1.csv"))
+    assert bold, "the synthetic profile should separate at least one row's best learner"
+    abbreviation = {"PushSelfSacrifice": "PSS", "SwitchSelfSacrifice": "SSS", "Switch5": "Switch5"}
     for line in body:
-        assert line.count("\\textbf{") == 1
         cells = [c.strip() for c in line.removesuffix("\\\\").split("&")]
-        assert cells[2 + list(LEARNERS).index("PPO Shaped")].startswith("\\textbf{")  # the profile's best learner
+        chain, scenario = next((c, s) for c, s in ROWS if abbreviation[s] == cells[1])
+        for i, learner in enumerate(LEARNERS):
+            # issue 13: bold = best and separated by its interval (was: one bold per row, the best mean)
+            assert cells[2 + i].startswith("\\textbf{") == ((chain, scenario, learner) in bold), (chain, scenario, learner)
+            assert "[" in cells[2 + i] or "--" in cells[2 + i]
 
 
 def test_protocol_comparison(built: BuiltSite) -> None:
@@ -318,7 +359,7 @@ def test_figures_are_written(built: BuiltSite) -> None:
 
 def test_site_is_self_contained_with_relative_links(built: BuiltSite) -> None:
     pages = sorted(built.site.rglob("*.html"))
-    assert len(pages) == 2 + len(ROWS) + len(built.data.records)
+    assert len(pages) == 3 + len(ROWS) + len(built.data.records)  # index, ranking (issue 13), runs index
     for page in pages:
         text = page.read_text()
         assert "http://" not in text and "https://" not in text, page
@@ -352,14 +393,20 @@ def test_site_reports_missing_and_failed(built: BuiltSite) -> None:
 def test_site_table_marks_best_and_links_scenarios(built: BuiltSite) -> None:
     index = (built.site / "index.html").read_text()
     rows = re.findall(r"<tr data-sweep=\"([^\"]+)\" data-chain=\"([^\"]+)\" data-scenario=\"([^\"]+)\" "
-                      r"data-learner=\"([^\"]+)\" data-best=\"(\d)\" data-complete=\"\d\">(.*?)</tr>", index)
+                      r"data-learner=\"([^\"]+)\" data-best=\"(\d)\" data-complete=\"(\d)\" data-bold=\"(\d)\">(.*?)</tr>",
+                      index)
     assert len(rows) == len(ROWS) * len(LEARNERS) + len(LEARNERS)
     expected = _expected_cells(built.data.records)
-    for sweep, chain, scenario, learner, best, html in rows:
+    bold = _bold_expected(_csv(built.results / "table1.csv"))
+    assert "overlaps no other learner" in index  # the bold rule is stated on the page
+    for sweep, chain, scenario, learner, best, complete, is_bold, html in rows:
         protocol, preset = sweep.split("-")
         means = {lr: expected[(protocol, preset, chain, scenario, lr)][0] for lr in LEARNERS}
-        assert (best == "1") == (learner == max(means, key=means.get))
-        assert ("<strong>" in html) == (best == "1")
+        assert (best == "1") == (learner == max(means, key=means.get))  # still shaded: highest mean
+        # issue 13: <strong> = bold by the interval rule (was: highest mean)
+        if sweep == "paper-quick":
+            assert (is_bold == "1") == ((chain, scenario, learner) in bold), (chain, scenario, learner)
+        assert ("<strong>" in html) == (is_bold == "1")
         assert f'href="scenarios/{scenario}.html#{sweep}--{chain}"' in html
 
 

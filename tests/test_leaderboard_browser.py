@@ -128,3 +128,48 @@ def test_failed_run_page_and_runs_index(site: BuiltSite, page: Any) -> None:
     assert "policy loss is NaN at <step 4096>" in page.locator("#error").inner_text()  # escaped in HTML, shown verbatim
     assert "Traceback (most recent call last)" in page.locator("#error pre").inner_text()
     assert page.errors == []
+
+
+def test_ranking_page_matrix_and_learning_curves(site: BuiltSite, page: Any) -> None:
+    """Issue 13: the ranking page (aggregates with intervals, P(X > Y) matrix, profile figure), the
+    matrix view of Table 1 (coloured cells, interval on hover) and a scenario's pooled learning curves."""
+    page.goto((site.site / "index.html").resolve().as_uri())
+    matrix = page.locator("#matrix-paper-quick")
+    assert matrix.is_visible()
+    assert matrix.locator("tbody tr").count() == len(ROWS)
+    cells = matrix.locator("td.mcell")
+    assert cells.count() == len(ROWS) * len(LEARNERS)
+    titles = cells.evaluate_all("cs => cs.map(c => c.getAttribute('title'))")
+    assert all("95% CI [" in t for t in titles), titles[:3]  # three seeds per variant: every cell has an interval
+    colours = set(cells.evaluate_all("cs => cs.map(c => getComputedStyle(c).backgroundColor)"))
+    assert len(colours) > 3  # coloured by score, not one flat colour
+    page.select_option('select[data-filter="sweep"]', "corrected-quick")
+    assert not matrix.is_visible() and page.locator("#matrix-corrected-quick").is_visible()
+
+    page.locator("nav.pages a", has_text="Ranking").click()
+    page.wait_for_load_state("load")
+    assert page.url.endswith("/ranking.html")
+    section = page.locator("#ranking-paper-quick")
+    table = section.locator("table.aggregates").first
+    learners = table.locator("tbody tr").evaluate_all("rs => rs.map(r => r.dataset.learner)")
+    assert learners == list(LEARNERS)
+    first = table.locator("tbody tr").first.locator("td").all_inner_texts()
+    assert first[2].startswith("[") and first[2].endswith("]")  # the mean's 95% interval
+    improvement = section.locator("table.improvement")
+    assert improvement.locator("tbody tr").count() == len(LEARNERS)
+    assert improvement.locator("td.pcell").count() == len(LEARNERS) * (len(LEARNERS) - 1)
+    assert "P(" in improvement.locator("td.pcell").first.get_attribute("title")
+    assert "Rows in the ranking" in section.inner_text() and "normalised score aggregates" in section.inner_text()
+    page.wait_for_function("Array.from(document.images).every(i => i.complete)")
+    images = section.locator("img").evaluate_all("is => is.map(i => [i.getAttribute('src'), i.naturalWidth])")
+    assert any("profile-score" in src and width > 300 for src, width in images), images
+    assert page.locator("a[href$='data/runs.parquet']").count() >= 1
+    assert page.errors == []
+
+    page.goto((site.site / "scenarios" / "Switch5.html").resolve().as_uri())
+    page.wait_for_function("Array.from(document.images).every(i => i.complete)")
+    curves = page.locator("figure.curves img").evaluate_all("is => is.map(i => i.naturalWidth)")
+    assert curves and all(width > 300 for width in curves)  # pooled learning curves, decoded
+    assert page.locator("figure.tradeoff img").count() >= 1
+    assert page.locator("table.violations tbody tr").count() >= 1
+    assert page.errors == []

@@ -210,6 +210,8 @@ def run_scores(
     for column in ("variant", "seed", "run_id"):
         if column not in ok.columns:
             ok[column] = None
+    if ok.empty:  # no usable run: an empty frame's key columns carry no dtype to merge on
+        return pd.DataFrame(columns=columns + ["score"])
     merged = ok[columns].merge(rows[ROW_KEYS + ["random", "best", "normalised"]], on=ROW_KEYS, how="left")
     score = (merged["metric"] - merged["random"]) / (merged["best"] - merged["random"])
     merged["score"] = score.where(merged["normalised"].astype(bool), np.nan).astype(float)

@@ -1,0 +1,86 @@
+"""The whole leaderboard build (``python -m leaderboard.build``) on a Table 1 sized results directory.
+
+Why: the build runs after every sweep; issue 13 added the statistics, their figures, the ranking
+page and the downloads to it, so its wall time on a realistic directory is what a user waits for.
+The directory is :func:`write_results`: :func:`tests.stats_data.synthetic_runs` (the paper's 14
+rows with all 126 variants, five learners, learn-time curves) written as real run files, so the
+build reads Parquet from disk as it does after a sweep. Reference rows come from a first build and
+are cached, as in real use; the timed build is the second one (figures of earlier runs cached too,
+as after a sweep that added nothing). ``python -m benchmarks.bench_leaderboard DIR [SEEDS]`` writes
+the directory alone, to time other builds (e.g. another commit) on the same data.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+from tempfile import TemporaryDirectory
+from typing import Any
+
+from benchmarks import Context, Section, register
+
+REPO = Path(__file__).resolve().parents[1]
+FINISHED_AT = "2026-01-01T00:00:00+00:00"
+
+
+def write_results(root: Path, seeds: tuple[int, ...] = (41, 42)) -> int:
+    """A results directory of synthetic runs (all 126 variants x 5 learners x ``seeds``); returns the run count."""
+    from morality_gym.norms.chain import get_chain
+    from runners.schema import MF_PREFIX, SCHEMA_VERSION, run_schema, write_learn, write_run
+    from tests.stats_data import synthetic_runs
+
+    runs, learn = synthetic_runs(seeds=seeds, preset="quick")
+    algo = {"CPO": "cpo", "PPO": "ppo", "PPO Lag": "ppo_lag", "PPO Shaped": "ppo_shaped", "Random": "random"}
+    curves = {run_id: part for run_id, part in learn.groupby("run_id", sort=False)}
+    for record in runs.to_dict("records"):
+        norms = list(get_chain(record["chain"]).norm_names)
+        names = run_schema(norms).names
+        row: dict[str, Any] = {name: None for name in names}
+        row.update({k: v for k, v in record.items() if k in names})
+        row.update(schema_version=SCHEMA_VERSION, algo=algo[record["learner"]], budget=1000, total_steps=1000,
+                   eval_episodes=100, metric_stderr=0.01, mean_length=5.0, truncation_rate=0.0, goal_rate=1.0,
+                   wall_time_s=1.0, started_at=FINISHED_AT, finished_at=FINISHED_AT, hostname="bench",
+                   git_commit="0" * 7, versions="{}", config=json.dumps({"learner": record["learner"]}))
+        row.update({f"{MF_PREFIX}{n}": record.get(f"{MF_PREFIX}{n}") for n in norms})
+        write_run(root, row, norms)
+        part = curves.get(record["run_id"])
+        if part is not None:
+            write_learn(root, record["run_id"], [r | {"schema_version": SCHEMA_VERSION, "mean_length": 5.0,
+                                                      "wall_time_s": 1.0} for r in part.to_dict("records")], norms)
+    return len(runs)
+
+
+def timed_build(results: Path) -> float:
+    """Wall seconds of ``python -m leaderboard.build`` (a subprocess, as a user runs it)."""
+    start = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "leaderboard.build", "--results", str(results)], cwd=REPO, check=True,
+                   capture_output=True, text=True)
+    return time.perf_counter() - start
+
+
+@register("leaderboard", "Leaderboard build on ~1,000 runs (python -m leaderboard.build)", order=85)
+def leaderboard_speed(ctx: Context) -> Section:
+    with TemporaryDirectory(prefix="bench-leaderboard-") as tmp:
+        results = Path(tmp) / "results"
+        n = write_results(results, (41,) if ctx.quick else (41, 42))
+        first = timed_build(results)  # computes the reference rows and every figure
+        second = timed_build(results)  # as after a sweep: references and per-run figures cached
+    return Section(
+        intro="""
+`python -m leaderboard.build --results DIR` (a subprocess, as a user runs it) on a synthetic results directory
+written as real run files by `benchmarks/bench_leaderboard.py` (`tests/stats_data.py`: the paper's 14 rows with all
+126 variants, 5 learners, 2 seeds, 21 learn-time evaluations per run). First build: computes the exact reference
+rows and draws every figure; rebuild: references and per-run figures cached, as after a sweep. One run each,
+wall-clock seconds, on whatever else the machine is doing.
+""",
+        headers=["runs", "first build (s)", "rebuild (s)"],
+        rows=[[f"{n:,}", f"{first:.1f}", f"{second:.1f}"]],
+    )
+
+if __name__ == "__main__":
+    target = Path(sys.argv[1] if len(sys.argv) > 1 else "results-bench")
+    seeds = tuple(int(s) for s in sys.argv[2].split(",")) if len(sys.argv) > 2 else (41, 42)
+    print(f"wrote {write_results(target, seeds)} runs to {target}")

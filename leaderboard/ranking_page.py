@@ -1,0 +1,193 @@
+"""The data of the ranking page (aggregates, probability of improvement, figures, rows used) and of
+the matrix view of Table 1 on the index page, both from :mod:`leaderboard.stats`.
+
+Colours are computed here (a cell's background is data: its normalised score or its probability),
+so the templates stay free of arithmetic.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import pandas as pd
+
+from leaderboard.aggregate import ORACLE_BEST, RANDOM_EXACT, Group
+from leaderboard.render import clean, clean_records, is_missing, scenario_href, section_id
+from leaderboard.site_state import SiteBuild
+from leaderboard.stat_figures import RANKING_FIGURES
+from leaderboard.tables import fmt
+
+#: Anchors of the score colour scale: worse than random (score -1 and below), random (0), oracle best (1).
+SCORE_COLOURS = ("#f2a7a0", "#f7f7f7", "#7cc68d")
+NOT_NORMALISED = "#e9ecf1"
+#: Anchors of the probability colour scale: P = 0, 0.5, 1.
+PROBABILITY_COLOURS = ("#f2a7a0", "#f7f7f7", "#8db8e8")
+STATISTICS = (("mean", "Mean", max), ("iqm", "IQM", max), ("optimality_gap", "Optimality gap ↓", min))
+MEASURE_TITLES = {"score": "Normalised score", "metric": "Raw morality metric"}
+
+
+def _mix(a: str, b: str, t: float) -> str:
+    """The colour ``t`` of the way from ``a`` to ``b`` (hex ``#rrggbb``)."""
+    ca = [int(a[i:i + 2], 16) for i in (1, 3, 5)]
+    cb = [int(b[i:i + 2], 16) for i in (1, 3, 5)]
+    return "#" + "".join(f"{round(x + (y - x) * t):02x}" for x, y in zip(ca, cb))
+
+
+def diverging(value: float | None, low: float, mid: float, high: float, anchors: tuple[str, str, str]) -> str:
+    """A colour on a three-anchor scale (``low``..``mid``..``high``, clipped); grey when there is no value."""
+    if value is None or is_missing(value):
+        return NOT_NORMALISED
+    value = min(max(float(value), low), high)
+    if value <= mid:
+        return _mix(anchors[0], anchors[1], (value - low) / (mid - low))
+    return _mix(anchors[1], anchors[2], (value - mid) / (high - mid))
+
+
+def interval(low: Any, high: Any, digits: int = 3) -> str:
+    if is_missing(low) or is_missing(high):
+        return "—"
+    return f"[{fmt(low, digits)}, {fmt(high, digits)}]"
+
+
+def _group_frame(frame: pd.DataFrame | None, group: Group) -> pd.DataFrame:
+    if frame is None or frame.empty:
+        return pd.DataFrame() if frame is None else frame
+    return frame.loc[(frame["protocol"] == group.protocol) & (frame["preset"] == group.preset)]
+
+
+# ---------------------------------------------------------------------------------------- matrix
+def matrix_context(sb: SiteBuild, root: str) -> dict[str, Any]:
+    """Per sweep: rows (chain, scenario) x learners, mean metric coloured by normalised score."""
+    lb = sb.lb
+    rows_frame = sb.stats.rows if sb.stats is not None else pd.DataFrame()
+    groups = []
+    for group in lb.groups:
+        table = lb.group_table(group)
+        cells = {(r["chain"], r["scenario"], r["learner"]): r for r in clean_records(table.loc[table["kind"] == "learner"])}
+        refs = {(r["chain"], r["scenario"]): r for r in clean_records(_group_frame(rows_frame, group))}
+        learners = [n for n in lb.learners if n in set(table["learner"])]
+        rows = []
+        for chain, scenario in lb.pairs(group):
+            ref = refs.get((chain, scenario))
+            normalised = bool(ref and ref["normalised"])
+            line = []
+            for learner in learners:
+                c = cells.get((chain, scenario, learner))
+                if c is None or c["mean"] is None:
+                    line.append({"text": "—", "colour": NOT_NORMALISED, "title": f"{learner}: no result", "score": None,
+                                 "bold": False, "incomplete": False})
+                    continue
+                score = (c["mean"] - ref["random"]) / ref["headroom"] if normalised else None
+                tip = [f"{learner} · {chain} / {scenario}", f"mean {fmt(c['mean'])}",
+                       "95% CI " + (interval(c.get("ci_low"), c.get("ci_high")) if not is_missing(c.get("ci_low"))
+                                    else f"— ({c.get('ci_note') or 'none'})"),
+                       f"runs {int(c['n_runs'])}",
+                       f"normalised score {fmt(score)}" if score is not None
+                       else "not normalised" + (f" ({ref['note']})" if ref and ref.get("note") else "")]
+                if not c["complete"]:
+                    tip.append(f"incomplete: {c['incomplete_reason']}")
+                if c.get("best"):
+                    tip.append("bold" if c.get("bold") else f"highest mean, not bold: {c.get('bold_note') or ''}")
+                line.append({"text": fmt(c["mean"]), "colour": diverging(score, -1.0, 0.0, 1.0, SCORE_COLOURS),
+                             "title": " · ".join(tip), "score": score, "bold": bool(c.get("bold")),
+                             "incomplete": not c["complete"]})
+            rows.append({"chain": chain, "scenario": scenario, "cells": line,
+                         "href": scenario_href(scenario, root, section_id(group, chain))})
+        groups.append({"slug": group.slug, "label": group.label, "learners": [(n, sb.colour(n)) for n in learners],
+                       "rows": rows})
+    return {"groups": groups, "random_exact": RANDOM_EXACT, "oracle_best": ORACLE_BEST,
+            "legend": (SCORE_COLOURS[0], SCORE_COLOURS[1], SCORE_COLOURS[2])}
+
+
+# ---------------------------------------------------------------------------------------- ranking
+def _measure_rows(sb: SiteBuild, aggregates: pd.DataFrame, measure: str) -> list[dict[str, Any]]:
+    part = aggregates.loc[aggregates["measure"] == measure] if not aggregates.empty else aggregates
+    if part.empty:
+        return []
+    best = {}
+    for statistic, _, pick in STATISTICS:
+        values = part.loc[part["statistic"] == statistic, "value"].dropna()
+        best[statistic] = pick(values) if len(values) else math.nan
+    rows = []
+    for learner in [n for n in sb.lb.learners if n in set(part["learner"])]:
+        mine = {r["statistic"]: r for r in clean_records(part.loc[part["learner"] == learner])}
+        stats = []
+        for statistic, _, _ in STATISTICS:
+            r = mine.get(statistic)
+            value = None if r is None else r["value"]
+            stats.append({"value": value, "ci": interval(r["ci_low"], r["ci_high"]) if r else "—",
+                          "top": value is not None and abs(value - best[statistic]) < 1e-12})
+        first = next(iter(mine.values()))
+        rows.append({"learner": learner, "colour": sb.colour(learner), "stats": stats,
+                     "n_rows": first["n_rows"], "n_runs": first["n_runs"]})
+    return rows
+
+
+def _improvement(sb: SiteBuild, frame: pd.DataFrame) -> tuple[list[tuple[str, str]], list[dict[str, Any]]]:
+    if frame.empty:
+        return [], []
+    learners = [n for n in sb.lb.learners if n in set(frame["learner_x"])]
+    pairs = {(r["learner_x"], r["learner_y"]): r for r in clean_records(frame)}
+    rows = []
+    for x in learners:
+        cells = []
+        for y in learners:
+            r = pairs.get((x, y))
+            if x == y or r is None:
+                cells.append(None)
+                continue
+            cells.append({"probability": r["probability"], "ci": interval(r["ci_low"], r["ci_high"], 2),
+                          "colour": diverging(r["probability"], 0.0, 0.5, 1.0, PROBABILITY_COLOURS),
+                          "title": f"P({x} > {y}) = {fmt(r['probability'])}, 95% CI "
+                                   f"{interval(r['ci_low'], r['ci_high'])}, over {r['n_rows']} row(s)"})
+        rows.append({"learner": x, "colour": sb.colour(x), "cells": cells})
+    return [(n, sb.colour(n)) for n in learners], rows
+
+
+def footnote(rows: list[dict[str, Any]]) -> str:
+    """Which rows enter the score and the metric aggregates, and why the others do not."""
+    n = len(rows)
+    in_score = sum(bool(r["in_score"]) for r in rows)
+    in_metric = sum(bool(r["in_metric"]) for r in rows)
+    left = [f"{r['chain']} / {r['scenario']}: {r['note']}" for r in rows if not r["in_score"] and r["note"]]
+    text = (f"The normalised score aggregates {in_score} of the {n} row(s) with runs; the raw metric {in_metric}. "
+            "A row enters only if every learner compared has a usable run there (so all learners are aggregated over "
+            "the same rows), and the score only if the reference values exist and Oracle best − Random exact ≥ 0.05: "
+            "below that the row's distance from random is within one standard error of the final evaluation's "
+            "100 episodes, and dividing by it would blow evaluation noise up twentyfold. ")
+    text += ("Left out of the score: " + "; ".join(left) + ".") if left else "No row is left out."
+    return text
+
+
+def ranking_context(sb: SiteBuild) -> dict[str, Any]:
+    stats = sb.stats
+    groups = []
+    for group in sb.lb.groups:
+        if stats is None:
+            break
+        aggregates = _group_frame(stats.aggregates, group)
+        rows = [r | {"href": scenario_href(r["scenario"], "", section_id(group, r["chain"]))}
+                for r in clean_records(_group_frame(stats.rows, group))]
+        measures = []
+        for measure in ("score", "metric"):
+            empty = ("No row can be normalised (no reference values, or too little headroom): see the rows below."
+                     if measure == "score" else "No row where every learner has a usable run.")
+            measures.append({"measure": measure, "title": MEASURE_TITLES[measure],
+                             "rows": _measure_rows(sb, aggregates, measure), "empty": empty})
+        learners, improvement = _improvement(sb, _group_frame(stats.improvement, group))
+        captions = dict(RANKING_FIGURES)
+        figures = [{"src": path, "alt": f"{kind} of {group.label}", "caption": captions.get(kind, "")}
+                   for kind, path in sb.ranking_figures.get(group, [])]
+        groups.append({"slug": group.slug, "label": group.label, "measures": measures, "learners": learners,
+                       "improvement": improvement, "figures": figures, "rows": rows, "footnote": footnote(rows)})
+    n_rows = {len(g["rows"]) for g in groups}
+    n_rows_text = f"{n_rows.pop()} rows" if len(n_rows) == 1 else "rows"
+    return sb.common("Ranking across the benchmark", "", "ranking.html") | {
+        "groups": groups, "stat_labels": [label for _, label, _ in STATISTICS], "resamples": sb.resamples,
+        "random_exact": RANDOM_EXACT, "oracle_best": ORACLE_BEST, "n_rows_text": n_rows_text,
+        "downloads_list": sb.downloads_of("ranking"),
+    }
+
+
+__all__ = ["clean", "diverging", "footnote", "matrix_context", "ranking_context"]

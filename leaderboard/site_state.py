@@ -1,0 +1,51 @@
+"""What the page builders share during one site build: inputs, and which files ended up in the site."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from leaderboard.aggregate import Group, Leaderboard
+from leaderboard.figures import FigureSet
+
+#: The pages every page links to in its header (path from the site root, label).
+NAV = (("index.html", "Table 1"), ("ranking.html", "Ranking"), ("runs/index.html", "All runs"))
+
+
+@dataclass
+class SiteBuild:
+    """Inputs of the build and the site-relative paths of everything copied or drawn into it."""
+
+    lb: Leaderboard
+    results_dir: Path
+    results_name: str
+    figures: FigureSet
+    out: Path
+    stamp: str = ""
+    stats: Any = None  # leaderboard.stats.LeaderboardStats, or None when the statistics were not computed
+    resamples: int = 0
+    gifs: dict[str, str] = field(default_factory=dict)  # run id -> path relative to site root
+    gif_choices: dict[tuple[Group, str, str, str], dict[str, Any]] = field(default_factory=dict)
+    layouts: dict[str, str] = field(default_factory=dict)  # scenario -> image path relative to site root
+    layout_notes: dict[str, str] = field(default_factory=dict)  # scenario -> why there is no image
+    learn: dict[str, str] = field(default_factory=dict)  # run id -> curve path relative to site root
+    updates: dict[str, str] = field(default_factory=dict)  # run id -> diagnostics image relative to site root
+    #: (group, chain, scenario) -> {"curves": path, "curves_note": text, "tradeoff": path}
+    row_figures: dict[tuple[Group, str, str], dict[str, str]] = field(default_factory=dict)
+    #: group -> [(kind, path relative to site root)] of the ranking figures
+    ranking_figures: dict[Group, list[tuple[str, str]]] = field(default_factory=dict)
+    #: page kind ("table1", "ranking", "scenario", "runs") -> [(label, path relative to site root)]
+    downloads: dict[str, list[tuple[str, str]]] = field(default_factory=dict)
+    pages: int = 0
+
+    def colour(self, learner: str) -> str:
+        return self.figures.colours.get(learner, "#999999")
+
+    def downloads_of(self, kind: str) -> list[tuple[str, str]]:
+        return list(self.downloads.get(kind, []))
+
+    def common(self, title: str, root: str, current: str) -> dict[str, Any]:
+        """The context every page's frame (``base.html``) needs."""
+        return {"title": title, "root": root, "current": current, "nav": NAV, "stamp": self.stamp,
+                "results_name": self.results_name}
