@@ -54,7 +54,7 @@ from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, cons
 from runners.identity import PER_RUN_KEYS, PROVENANCE_KEY, config_key, run_identity
 from runners.manifest import manifests_dir, plan_hash
 from runners.migrations import MIGRATIONS, Migration, MigrationError, migrate_config, migrate_sidecar, unmigrate_config
-from runners.schema import atomic_write_table, learn_path, run_files, run_path, runs_dir, updates_path
+from runners.schema import atomic_write_table, learn_path, read_jsonl, run_files, run_path, runs_dir, updates_path
 
 JOURNAL_DIR = "migrations"
 JOURNAL = "journal.jsonl"
@@ -155,19 +155,7 @@ def journal_path(results: Path) -> Path:
 
 def read_journal(results: Path) -> list[dict[str, Any]]:
     """The journal's entries (a torn last line, from a kill while writing it, is ignored)."""
-    try:
-        lines = journal_path(results).read_text().splitlines()
-    except OSError:
-        return []
-    out = []
-    for line in lines:
-        try:
-            entry = json.loads(line)
-        except ValueError:
-            continue
-        if isinstance(entry, dict):
-            out.append(entry)
-    return out
+    return read_jsonl(journal_path(results))
 
 
 def _journal(results: Path, **entry: Any) -> None:

@@ -26,7 +26,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from runners.schema import run_path, runs_dir
+from runners.schema import read_jsonl, run_path, runs_dir
 
 QUARANTINE = ".quarantine"
 INDEX = "index.jsonl"
@@ -139,20 +139,7 @@ def check_run_files(results_dir: str | Path, run_ids: list[str]) -> list[Quarant
 
 def quarantined_files(results_dir: str | Path) -> list[dict[str, str]]:
     """The entries of ``runs/.quarantine/index.jsonl`` (what sweeps moved aside, oldest first)."""
-    index = quarantine_dir(results_dir) / INDEX
-    out: list[dict[str, str]] = []
-    try:
-        lines = index.read_text().splitlines()
-    except OSError:
-        return out
-    for line in lines:
-        try:
-            entry = json.loads(line)
-        except ValueError:
-            continue
-        if isinstance(entry, dict):
-            out.append({k: str(v) for k, v in entry.items()})
-    return out
+    return [{k: str(v) for k, v in entry.items()} for entry in read_jsonl(quarantine_dir(results_dir) / INDEX)]
 
 
 __all__ = ["QUARANTINE", "Quarantined", "check_run_files", "quarantine", "quarantine_dir", "quarantined_files",

@@ -223,6 +223,29 @@ def read_updates(results_dir: str | Path, run_id: str) -> "Any":
     return pq.read_table(path).to_pandas()
 
 
+def read_jsonl(path: str | Path) -> list[dict[str, Any]]:
+    """The JSON objects of an append-only ``.jsonl`` log (quarantine index, migration journal).
+
+    A missing file is empty; a torn or foreign line (a kill while appending) is skipped rather than
+    failing the reader, because these logs are written line by line by processes that may die.
+    """
+    import json
+
+    try:
+        lines = Path(path).read_text().splitlines()
+    except OSError:
+        return []
+    out = []
+    for line in lines:
+        try:
+            entry = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(entry, dict):
+            out.append(entry)
+    return out
+
+
 def run_files(results_dir: str | Path) -> list[Path]:
     """The main run files ``runs/<run_id>.parquet`` (not ``<run_id>.<kind>.parquet`` side files)."""
     return [p for p in sorted(runs_dir(results_dir).glob("*.parquet")) if "." not in p.stem]
