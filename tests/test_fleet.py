@@ -7,8 +7,8 @@
 * Runs of a fleet do not influence each other: in a fleet of three runs on different variants
   and chains, changing one run's seed leaves the other two *bit for bit* unchanged, and each run
   matches its own single run.
-* :class:`BatchedAdam` and the per-run clipping are ``torch.optim.Adam`` and ``clip_grad_norm_``
-  slice by slice, bit for bit, with per-run learning rates and masks.
+* :class:`BatchedAdam` and the per-run clipping are ``torch.optim.Adam(fused=True)`` and
+  ``clip_grad_norm_`` slice by slice, bit for bit, with per-run learning rates and masks.
 
 Budgets are tiny (rollouts of 64 steps x 8 envs, few epochs) so the whole file runs in seconds.
 """
@@ -176,7 +176,7 @@ def test_batched_adam_and_clipping_are_torch_per_slice(groups: list[list[int]] |
     stacked = [th.randn(k_runs, *s, generator=gen) for s in shapes]
     inner = [t.clone() for t in stacked]
     singles = [[th.nn.Parameter(t[k].clone()) for t in stacked] for k in range(k_runs)]
-    torch_adams = [th.optim.Adam(ps, lr=1.0, eps=1e-5) for ps in singles]
+    torch_adams = [th.optim.Adam(ps, lr=1.0, eps=1e-5, fused=True) for ps in singles]
     fleet_adam = BatchedAdam(stacked, k_runs, eps=1e-5)
     inner_adam = BatchedAdam(inner, k_runs, eps=1e-5)
     lrs = np.array([3e-4, 1e-3, 2e-4, 5e-5])

@@ -14,7 +14,9 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from morality_gym.baselines.fleet.base import FleetTrainer, categorical
+from morality_gym.baselines.fleet.base import FleetTrainer
+from morality_gym.baselines.fleet.losses import Policy, mse
+from morality_gym.baselines.fleet.nets import Runs
 from morality_gym.baselines.fleet.optim import BatchedAdam
 from morality_gym.baselines.safe.functional import normalize_advantages
 
@@ -65,43 +67,38 @@ class FleetCostTrainer(FleetTrainer):
             runs = [normalize_advantages(np.ascontiguousarray(raw[:, k * e : (k + 1) * e]), mode).T.reshape(-1) for k in range(self.n_runs)]
             setattr(ro, field, th.from_numpy(np.stack(runs)))
 
-    def _full_batch(self, *names: str) -> list[th.Tensor]:
-        """Each run's whole rollout (the named fields) in the order of its single run's
-        ``_full_batch``, which draws a permutation: it only changes the order of sums, but the draw
-        must be mirrored to keep the run's random stream."""
+    def _draw_full_batch_order(self) -> None:
+        """The permutation the single run's ``_full_batch`` draws. Its whole-rollout computations
+        are sums over the rollout, whose order changes only float rounding (here they run over
+        :meth:`distinct_states`), but the draw must be mirrored to keep each run's random stream."""
         ro = self.rollout
         assert ro is not None
-        return ro.gather(self.permutations(ro.actions.shape[1]), *names)
+        self.permutations(ro.actions.shape[1])
 
-    def _critic_loss(
-        self, obs: th.Tensor, returns: th.Tensor, cost_returns: th.Tensor, runs: th.Tensor | None = None
-    ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
-        """Per run ``[K]`` (or per run of ``runs``): ``(MSE(V, R) + MSE(V_c, R_c), MSE(V, R), MSE(V_c, R_c))``.
-
-        The single learner's loss also has ``critic_l2_coef * sum ||theta_critic||^2``; its gradient
-        is added by :meth:`_with_l2` instead of being differentiated (the loss value itself is
-        never logged)."""
-        values = self.nets("vf", obs, runs)[..., 0]
-        cost_values = self.nets("cf", obs, runs)[..., 0]
-        value_loss = ((values - returns) ** 2).mean(dim=1)
-        cost_value_loss = ((cost_values - cost_returns) ** 2).mean(dim=1)
-        return value_loss + cost_value_loss, value_loss, cost_value_loss
-
-    def _with_l2(self, grads: Sequence[th.Tensor]) -> list[th.Tensor]:
-        """The critics' gradients plus that of ``critic_l2_coef * sum ||theta||^2``.
-
-        Autograd computes that term's gradient as ``coef * (2 * theta)`` in float32 (``mul``, then
-        ``pow``'s backward) and adds it to the MSE path's gradient; so does this, and float addition
-        and multiplication commute, so the sum is bit for bit autograd's, for a dozen fewer
-        operations forward and backward per minibatch."""
-        coef = th.tensor(float(self.model.critic_l2_coef), dtype=th.float32)
-        return [g + coef * (2 * p.detach()) for g, p in zip(grads, self.critic_params)]
+    def _critic_grads(
+        self, obs: th.Tensor, returns: th.Tensor, cost_returns: th.Tensor, runs: Runs = None
+    ) -> tuple[list[th.Tensor], th.Tensor, th.Tensor]:
+        """Both critics' gradients of ``MSE(V, R) + MSE(V_c, R_c)`` (``vf`` then ``cf`` tensors, one
+        row per computed run) and the two MSEs (``[R]``) of every run (or of ``runs``). The loss's
+        L2 term is added by the optimiser step (:meth:`_step_critics`)."""
+        reward, cost = self.nets.trace("vf", obs, runs), self.nets.trace("cf", obs, runs)
+        value_loss, dvalues = mse(reward.out[:, 0], returns)
+        cost_value_loss, dcost_values = mse(cost.out[:, 0], cost_returns)
+        grads = self.nets.backward(reward, dvalues) + self.nets.backward(cost, dcost_values)
+        return grads, value_loss, cost_value_loss
 
     def _step_critics(self, grads: Sequence[th.Tensor], critic_lr: float, mask: np.ndarray | None = None) -> None:
-        """Clip the critics' gradients (``critic_grad_clip``) per run and take one Adam step."""
+        """Add the gradient of the critic loss's ``critic_l2_coef * sum ||theta||^2``, clip per run
+        (``critic_grad_clip``) and take one Adam step.
+
+        Autograd computes that L2 gradient as ``coef * (2 * theta)`` in float32 (``mul``, then
+        ``pow``'s backward) and adds it to the MSE path's gradient; the optimiser does the same on
+        its flat buffers (``l2``): two operations instead of three per tensor."""
         n, total = len(self.reward_critic_params), len(self.critic_params)
         groups = [range(n), range(n, total)] if self.model.critic_grad_clip == "per_critic" else None
-        self.critic_optimizer.step(grads, critic_lr, mask, max_norm=float(self.model.max_grad_norm), clip_groups=groups)
+        self.critic_optimizer.step(
+            grads, critic_lr, mask, max_norm=float(self.model.max_grad_norm), clip_groups=groups, l2=float(self.model.critic_l2_coef)
+        )
 
     def _train_critics(self) -> tuple[np.ndarray, np.ndarray]:
         """``n_critic_updates`` passes of minibatch regression of both critics; per-run mean losses."""
@@ -109,19 +106,29 @@ class FleetCostTrainer(FleetTrainer):
         assert ro is not None
         _, critic_lr = self._learning_rates(actor=False)
         size, batch = ro.actions.shape[1], int(self.model.batch_size)
-        value_losses, cost_value_losses = [], []
+        losses = []
         for _ in range(int(self.model.n_critic_updates)):
             for obs, returns, cost_returns in ro.minibatches(self.permutations(size), batch, "obs", "returns", "cost_returns"):
-                loss, value_loss, cost_value_loss = self._critic_loss(obs, returns, cost_returns)
-                grads = self._with_l2(th.autograd.grad(loss.sum(), self.critic_params))
+                grads, value_loss, cost_value_loss = self._critic_grads(obs, returns, cost_returns)
                 self._step_critics(grads, critic_lr)
-                value_losses.append(value_loss.detach().numpy().astype(np.float64))
-                cost_value_losses.append(cost_value_loss.detach().numpy().astype(np.float64))
-        return np.mean(value_losses, axis=0), np.mean(cost_value_losses, axis=0)
+                losses.append(th.stack([value_loss, cost_value_loss]))
+        per_batch = th.stack(losses).double().numpy()  # [batches, 2, K]
+        return per_batch[:, 0].mean(axis=0), per_batch[:, 1].mean(axis=0)
 
-    def _logits(self, obs: th.Tensor, runs: th.Tensor | None = None) -> th.Tensor:
-        """Normalised logits (``dist.distribution.logits``) of every run's actor (or of ``runs``)."""
-        return categorical(self.nets("pi", obs, runs))[0]
+    def _policies(self, runs: Sequence[int] | None = None) -> dict[int, Policy]:
+        """The current actor of every run (or of ``runs``) at its rollout's distinct observations."""
+        states = self.distinct_states()
+        return {
+            k: Policy.of(self.nets("pi", states[k].obs.unsqueeze(0), slice(k, k + 1)))
+            for k in (range(self.n_runs) if runs is None else runs)
+        }
+
+    def _kl_sums(self, old: dict[int, Policy], runs: Sequence[int]) -> dict[int, float]:
+        """Per run of ``runs``: the KL of its current actor from ``old``, summed over its rollout's
+        transitions (a mean over them is this divided by the rollout size)."""
+        states = self.distinct_states()
+        new = self._policies(runs)
+        return {k: float((new[k].kl_from(old[k])[0] * states[k].counts).sum(dtype=th.float64)) for k in runs}
 
     def _row(self, k: int, ep_cost: float, actor_lr: float | None, critic_lr: float, **fields: Any) -> None:
         """Append run ``k``'s diagnostics row (``CostOnPolicyAlgorithm._record_update``)."""

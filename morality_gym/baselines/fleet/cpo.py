@@ -3,144 +3,148 @@
 Per run, as the single learner: the reward and cost surrogate gradients ``g`` and ``b``, conjugate
 gradients on Fisher-vector products for ``v = H^-1 g`` and ``w = H^-1 b``, the case and full step
 of :mod:`~morality_gym.baselines.safe.cpo_dual` (``dual_solution``), the backtracking line search
-with its acceptance rule, then the critics' regression.
+with its acceptance rule, then the critics' regression (batched over the runs).
 
-Batched: the Fisher-vector products of all runs are one forward-mode and one backward pass
-(:meth:`FleetCPO._fisher_vector_product`; the runs' parameters are disjoint slices, so each slice
-of the gradient is its run's own);
-conjugate gradients run for all runs together and each run stops on its own residual (a stopped
-run's solution is frozen); every line-search candidate is evaluated for all runs still searching in
-one forward pass, each run with its own step fraction, acceptance and bookkeeping. The case logic
-and the dual solutions are the single learner's functions, called per run.
+The actor step works on each run's rollout as its distinct observations (:mod:`.dedup`): every
+whole-rollout quantity of CPO is a mean over transitions of something that depends on the state
+only through the actor's logits there, so it is computed at the distinct observations and weighted
+by their counts:
+
+* ``g`` and ``b``: the surrogates' gradients with respect to the logits are summed per distinct
+  observation (``(A_t rho_t / N) (onehot(a_t) - p)`` over its transitions), then back-propagated
+  through the actor once, both at once;
+* ``H v``: at the current actor (where the single learner's double backward through the mean KL
+  is taken) the Hessian of the mean KL is the Fisher matrix ``sum_s w_s J_s^T (diag p_s - p_s
+  p_s^T) J_s``, ``J_s`` the Jacobian of the logits at observation ``s`` and ``w_s`` its share of the
+  rollout; it is applied as a forward-mode product ``J v`` (:meth:`~.nets.FleetNetworks.jvp`), the
+  per-state matrix, and one backward pass, for ``g`` and ``b``'s solves together;
+* the line search's surrogates and KL, and the diagnostics' ``kl_mean``.
+
+The same matrices and vectors as the single learner's, up to the order of float additions, on a
+tenth to a hundredth of the rows: the conjugate gradients, which dominated a CPO update, no longer
+do. Each run is computed on its own (its number of distinct observations is its own), so no run's
+arithmetic depends on another's.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 import torch as th
 
-from morality_gym.baselines.fleet.base import categorical
 from morality_gym.baselines.fleet.cost_base import FleetCostTrainer
-from morality_gym.baselines.fleet.nets import forward
+from morality_gym.baselines.fleet.dedup import DistinctStates
+from morality_gym.baselines.fleet.losses import Policy
+from morality_gym.baselines.fleet.nets import Trace
 from morality_gym.baselines.safe.cpo_dual import CPOCase, CPOScalars, CPOStep, exact_direction, omnisafe_direction
-from morality_gym.baselines.safe.functional import categorical_kl
 from morality_gym.baselines.specs import CPO
+
+Operator = Callable[[th.Tensor], th.Tensor]
+
+
+@dataclass
+class RunBatch:
+    """One run's rollout for its actor step: its distinct observations and, per transition, the
+    action, the rollout's log-probability and the (normalised) reward and cost advantages."""
+
+    k: int
+    states: DistinctStates
+    actions: th.Tensor
+    old_log_prob: th.Tensor
+    advantages: th.Tensor
+    cost_advantages: th.Tensor
+
+    @property
+    def size(self) -> int:
+        return int(self.actions.shape[0])
+
+    def log_prob(self, policy: Policy) -> th.Tensor:
+        """``[N]``: each transition's action log-probability under ``policy`` (at the distinct states)."""
+        return policy.logp[0][self.actions, self.states.inverse]
+
+
+@dataclass
+class Evaluation:
+    """The actor of one run at its distinct states: its policy, the surrogates ``L_r`` and ``L_c``,
+    and whether its distribution can be built (no NaN log-probabilities; the single learner's
+    ``Categorical`` raises ``ValueError`` there)."""
+
+    policy: Policy
+    reward: float
+    cost: float
+    valid: bool
 
 
 class FleetCPO(FleetCostTrainer):
     algorithm = CPO
-    #: Runs per conjugate-gradient batch (see :meth:`_step_directions`).
-    CG_CHUNK = 4
 
     # ------------------------------------------------------------------ flat actor vectors
-    def _flat(self, tensors: list[th.Tensor] | tuple[th.Tensor, ...]) -> th.Tensor:
-        """``[K, D]`` (or one row per run of a chunk): each run's slices of the actor tensors, concatenated."""
+    def _flat(self, tensors: list[th.Tensor]) -> th.Tensor:
+        """``[R, D]``: per row, the actor tensors (one row each) concatenated, in the order of
+        :attr:`actor_params` (the layout of the actor's flat parameter buffer)."""
         return th.cat([t.reshape(t.shape[0], -1) for t in tensors], dim=1)
 
-    @th.no_grad()
-    def _set_actor(self, flat: th.Tensor) -> None:
-        start = 0
-        for p in self.actor_params:
-            n = p[0].numel()
-            p.copy_(flat[:, start : start + n].reshape(p.shape))
-            start += n
+    def _split(self, vectors: th.Tensor) -> list[th.Tensor]:
+        """The inverse of :meth:`_flat`: ``[R, D]`` as actor-shaped tangents ``[R, out, in]``, ``[R, out, 1]``."""
+        shapes = [p.shape[1:] for p in self.actor_params]
+        sizes = [int(np.prod(s)) for s in shapes]
+        rows = vectors.shape[0]
+        return [t.reshape(rows, *s) for t, s in zip(th.split(vectors, sizes, dim=1), shapes)]
 
-    # ------------------------------------------------------------------ step direction
-    def _step_directions(
-        self, obs: th.Tensor, actions: th.Tensor, old_log_prob: th.Tensor, adv: th.Tensor, cadv: th.Tensor,
-        old_logits: th.Tensor, c: np.ndarray,
-    ) -> tuple[list[CPOStep], th.Tensor, list[CPOScalars], th.Tensor]:
-        """Every run's ``(step, g, scalars)`` of ``CPO._step_direction``; also the ``[K, D]`` directions.
+    def _actor(self, k: int) -> th.Tensor:
+        """Run ``k``'s actor parameters as one vector (a view: writing it moves the actor)."""
+        return self.actor_optimizer.flat[k]
 
-        Runs are taken :attr:`CG_CHUNK` at a time: each run's conjugate gradients already work on
-        whole ``[n_steps * n_envs, 64]`` matrices, so more runs per product gain nothing, while
-        smaller operands stay in cache (measured: K = 36 in one chunk ran slower per run than 12)."""
-        m = self.model
-        steps: list[CPOStep] = []
-        scalars: list[CPOScalars] = []
-        gs, directions = [], []
-        for start in range(0, self.n_runs, self.CG_CHUNK):
-            runs = th.arange(start, min(start + self.CG_CHUNK, self.n_runs))
-            # The chunk's actor as fresh leaves: gradients come out for the chunk's runs only.
-            layers = [(w[runs].detach().requires_grad_(), b[runs].detach().requires_grad_()) for w, b in self.nets.heads["pi"]]
-            params = [t for layer in layers for t in layer]
-            raw = forward(layers, obs[runs], self.nets.activation)
-            norm, probs = categorical(raw)
-            log_prob = norm.gather(-1, actions[runs].unsqueeze(-1))[..., 0]
-            ratio = th.exp(log_prob - old_log_prob[runs])
-            g = self._flat(th.autograd.grad((ratio * adv[runs]).mean(dim=1).sum(), params, retain_graph=True))
-            b = self._flat(th.autograd.grad((ratio * cadv[runs]).mean(dim=1).sum(), params, retain_graph=True))
-            fvp = self._fisher_vector_product(obs[runs], layers, raw, probs.detach(), float(m.cg_damping))
-            v = self._conjugate_gradient(fvp, g)
-            vhv = (v * fvp(v)).sum(dim=1)
-            w = self._conjugate_gradient(fvp, b)
-            r, s, bb = (g * w).sum(dim=1), (b * w).sum(dim=1), (b * b).sum(dim=1)
-            direction_of = omnisafe_direction if m.dual_solution == "omnisafe" else exact_direction
-            chunk_steps = []
-            for i, k in enumerate(runs.tolist()):
-                sc = CPOScalars(q=vhv[i].item(), r=r[i].item(), s=s[i].item(), c=float(c[k]), delta=float(m.target_kl), bb=bb[i].item())
-                chunk_steps.append(direction_of(v[i], w[i], sc, vhv[i].item()))
-                scalars.append(sc)
-            chunk_dirs = th.stack([st.direction.to(th.float32) for st in chunk_steps])
-            if m.trust_region_rescale:
-                quad = (chunk_dirs * fvp(chunk_dirs)).sum(dim=1)
-                for i, st in enumerate(chunk_steps):
-                    if st.direction.abs().sum() > 0 and quad[i].item() > 2 * m.target_kl:
-                        scaled = st.direction * math.sqrt(2 * m.target_kl / quad[i].item())
-                        chunk_steps[i] = CPOStep(scaled, st.case, st.lam, st.nu, st.A, st.B)
-                chunk_dirs = th.stack([st.direction.to(th.float32) for st in chunk_steps])
-            steps += chunk_steps
-            gs.append(g.detach())
-            directions.append(chunk_dirs)
-        return steps, th.cat(gs), scalars, th.cat(directions)
+    # ------------------------------------------------------------------ per run
+    def _batch(self, k: int) -> RunBatch:
+        ro = self.rollout
+        assert ro is not None and ro.cost_advantages is not None
+        return RunBatch(k, self.distinct_states()[k], ro.actions[k], ro.log_probs[k], ro.advantages[k], ro.cost_advantages[k])
 
-    def _fisher_vector_product(
-        self, obs: th.Tensor, layers: list[tuple[th.Tensor, th.Tensor]], raw_logits: th.Tensor, probs: th.Tensor, damping: float
-    ) -> Any:
-        """``v -> H v + damping * v`` for every run, ``H`` the Hessian of the mean KL at the current actor.
+    def _evaluate(self, data: RunBatch) -> Evaluation:
+        """``CPO._surrogate_losses`` of run ``data.k``'s current actor."""
+        policy = Policy.of(self.nets("pi", data.states.obs.unsqueeze(0), slice(data.k, data.k + 1)))
+        ratio = th.exp(data.log_prob(policy) - data.old_log_prob)
+        valid = not bool(th.isnan(policy.logp).any())
+        return Evaluation(policy, (ratio * data.advantages).mean().item(), (ratio * data.cost_advantages).mean().item(), valid)
 
-        The single learner differentiates the KL's gradient a second time. At the current actor
-        (where ``pi_old = pi_theta``) that Hessian is the Fisher matrix ``J^T M J / N``, ``J`` the
-        Jacobian of the logits and ``M = diag(p) - p p^T`` per state, which is computed here as a
-        forward-mode product ``J v`` through the stacked MLP, ``M`` per state, and one backward pass
-        through the logits' graph: the same matrix, at about a third of the cost; the two differ
-        by float rounding only (tested against the single learner).
-        """
-        relu = self.nets.activation is th.relu
-        with th.no_grad():
-            inputs = [obs]
-            for w, b in layers[:-1]:
-                inputs.append(self.nets.activation(th.baddbmm(b, inputs[-1], w)))
-        params = [t for layer in layers for t in layer]
-        shapes = [p.shape for p in params]
-        sizes = [p[0].numel() for p in params]
-        n_states = obs.shape[1]
+    def _mean_kl(self, data: RunBatch, old: Policy, new: Policy) -> float:
+        """The mean over the rollout's transitions of ``KL(old || new)`` at their states."""
+        return (new.kl_from(old)[0] * data.states.weights).sum().item()
 
-        def fvp(vector: th.Tensor) -> th.Tensor:
-            with th.no_grad():
-                parts = [t.reshape(shape) for t, shape in zip(th.split(vector, sizes, dim=1), shapes)]
-                dh: th.Tensor | None = None
-                for i, (w, _) in enumerate(layers):
-                    dw, db = parts[2 * i], parts[2 * i + 1]
-                    dz = th.baddbmm(db, inputs[i], dw)
-                    if dh is not None:
-                        dz = dz + th.bmm(dh, w)
-                    if i < len(layers) - 1:
-                        h = inputs[i + 1]
-                        dh = dz * (h > 0) if relu else dz * (1 - h * h)
-                pdl = probs * dz
-                u = (pdl - probs * pdl.sum(dim=-1, keepdim=True)) / n_states
-            hv = th.autograd.grad(raw_logits, params, grad_outputs=u, retain_graph=True)
-            return self._flat(hv) + damping * vector
+    def _gradients(self, data: RunBatch, actor: Trace, policy: Policy) -> th.Tensor:
+        """``[2, D]``: ``g`` and ``b``, the gradients of ``mean(rho A_r)`` and ``mean(rho A_c)`` at
+        the current actor (``rho = exp(log pi - log pi_rollout)``, about 1 there), as one
+        back-propagation of both logit gradients summed per distinct observation."""
+        n_actions, n_states = policy.p.shape[1], data.states.n
+        ratio = th.exp(data.log_prob(policy) - data.old_log_prob)
+        coef = th.stack([ratio * data.advantages, ratio * data.cost_advantages]) / data.size  # d L / d log pi(a_t|s_t)
+        cell = data.actions * n_states + data.states.inverse
+        onehot = th.zeros(2, n_actions * n_states).index_add_(1, cell, coef).view(2, n_actions, n_states)
+        per_state = th.zeros(2, n_states).index_add_(1, data.states.inverse, coef)
+        dlogits = onehot.sub_(policy.p * per_state.unsqueeze(1))
+        return self._flat(self.nets.backward(actor, dlogits))
 
-        return fvp
+    def _fisher_product(self, data: RunBatch, actor: Trace, policy: Policy, damping: float) -> Operator:
+        """``V -> H V + damping V`` for vectors ``V`` (``[R, D]``), ``H`` the Fisher matrix of the
+        mean KL at the current actor (the module docstring)."""
+        p = policy.p  # [1, A, U]
+        weights = data.states.weights.view(1, 1, -1)
 
-    def _conjugate_gradient(self, fvp: Any, b: th.Tensor) -> th.Tensor:
-        """:func:`~morality_gym.baselines.safe.functional.conjugate_gradient` for every run, each
-        stopping on its own residual."""
+        def product(vectors: th.Tensor) -> th.Tensor:
+            dz = self.nets.jvp(actor, self._split(vectors))  # J V, [R, A, U]
+            pdz = p * dz
+            u = (pdz - p * pdz.sum(dim=1, keepdim=True)).mul_(weights)  # w_s (diag p - p p^T) J V
+            return self._flat(self.nets.backward(actor, u)).add_(vectors, alpha=damping)
+
+        return product
+
+    def _conjugate_gradient(self, fvp: Operator, b: th.Tensor) -> th.Tensor:
+        """:func:`~morality_gym.baselines.safe.functional.conjugate_gradient` for every row of
+        ``b`` (``[R, D]``), each stopping on its own residual (a stopped row's solution is frozen)."""
         m = self.model
         eps, tol = float(m.cg_eps), float(m.cg_residual_tol)
         x = th.zeros_like(b)
@@ -164,15 +168,25 @@ class FleetCPO(FleetCostTrainer):
                 break
         return x
 
-    # ------------------------------------------------------------------ line search
-    @th.no_grad()
-    def _surrogates(self, obs: th.Tensor, actions: th.Tensor, old_log_prob: th.Tensor, adv: th.Tensor, cadv: th.Tensor) -> tuple[th.Tensor, np.ndarray, np.ndarray, np.ndarray]:
-        """``(logits, L_r, L_c, valid)`` of every run's current actor (``valid``: its distribution
-        can be built, i.e. no NaN logits, where the single learner gets a ``ValueError``)."""
-        norm, _ = categorical(self.nets("pi", obs))
-        ratio = th.exp(norm.gather(-1, actions.unsqueeze(-1))[..., 0] - old_log_prob)
-        valid = ~th.isnan(norm).reshape(self.n_runs, -1).any(dim=1)
-        return norm, (ratio * adv).mean(dim=1).double().numpy(), (ratio * cadv).mean(dim=1).double().numpy(), valid.numpy()
+    def _step_direction(self, data: RunBatch, c: float) -> tuple[CPOStep, th.Tensor, CPOScalars, Policy]:
+        """``CPO._step_direction`` for one run: ``(step, g, scalars, the policy at theta_old)``."""
+        m = self.model
+        actor = self.nets.trace("pi", data.states.obs.unsqueeze(0), slice(data.k, data.k + 1))
+        policy = Policy.of(actor.out)
+        gb = self._gradients(data, actor, policy)
+        fvp = self._fisher_product(data, actor, policy, float(m.cg_damping))
+        vw = self._conjugate_gradient(fvp, gb)  # v = H^-1 g and w = H^-1 b, solved together
+        g, b, v, w = gb[0], gb[1], vw[0], vw[1]
+        vhv = (v @ fvp(v.unsqueeze(0))[0]).item()
+        sc = CPOScalars(q=vhv, r=(g @ w).item(), s=(b @ w).item(), c=c, delta=float(m.target_kl), bb=(b @ b).item())
+        direction_of = omnisafe_direction if m.dual_solution == "omnisafe" else exact_direction
+        step = direction_of(v, w, sc, vhv)
+        if m.trust_region_rescale and step.direction.abs().sum() > 0:
+            quad = (step.direction @ fvp(step.direction.unsqueeze(0))[0]).item()
+            if quad > 2 * m.target_kl:
+                scaled = step.direction * math.sqrt(2 * m.target_kl / quad)
+                step = CPOStep(scaled, step.case, step.lam, step.nu, step.A, step.B)
+        return step, g, sc, policy
 
     def _accepts(self, step: CPOStep, d_reward: float, d_cost: float, kl: float, c: float, expected: float) -> bool:
         m = self.model
@@ -184,46 +198,38 @@ class FleetCPO(FleetCostTrainer):
             return d_cost < 0
         return d_reward > 0 if expected > 0 else d_cost < 0
 
-    def _line_search(self, data: list[th.Tensor], old_logits: th.Tensor, steps: list[CPOStep], directions: th.Tensor, g: th.Tensor, c: np.ndarray) -> list[dict[str, Any]]:
-        """``CPO._line_search`` for every run; leaves each run's actor at its accepted point (or unchanged)."""
-        m, k_runs = self.model, self.n_runs
-        theta_old = self._flat([p.detach() for p in self.actor_params]).clone()
-        _, reward_old, cost_old, _ = self._surrogates(*data)
-        expected = (g * directions).sum(dim=1).double().numpy()
-        results = [{"accept_step": 0, "fraction": 0.0, "kl": math.nan, "tried": 0, "d_reward": 0.0, "d_cost": 0.0} for _ in range(k_runs)]
-        fraction = np.ones(k_runs)
-        searching = np.ones(k_runs, dtype=bool)
+    def _line_search(self, data: RunBatch, old: Policy, step: CPOStep, g: th.Tensor, c: float) -> dict[str, float]:
+        """``CPO._line_search`` for one run; leaves its actor at the accepted point (or unchanged)."""
+        m = self.model
+        theta = self._actor(data.k)
+        theta_old = theta.clone()
+        start = self._evaluate(data)
+        expected = (g @ step.direction).item()
+        result = {"accept_step": 0, "fraction": 0.0, "kl": math.nan, "tried": 0, "d_reward": 0.0, "d_cost": 0.0}
+        fraction = 1.0
         shrink = float(m.line_search_shrinking_factor)
         for j in range(int(m.line_search_max_iter)):
-            if not searching.any():
-                break
-            # Runs that are done sit at fraction 0 (their old point) while the others are tried.
-            frac32 = th.as_tensor(np.where(searching, fraction, 0.0), dtype=th.float32).unsqueeze(1)
-            self._set_actor(theta_old + frac32 * directions)
-            logits, reward_new, cost_new, valid = self._surrogates(*data)
-            kls = categorical_kl(old_logits, logits).mean(dim=1).double().numpy()
-            for k in np.flatnonzero(searching):
-                res = results[k]
-                res["tried"] = j + 1
-                if not valid[k]:
-                    fraction[k] *= shrink
-                    continue
-                kl, d_reward, d_cost = float(kls[k]), float(reward_new[k] - reward_old[k]), float(cost_new[k] - cost_old[k])
-                res.update(kl=kl, d_reward=d_reward, d_cost=d_cost)
-                if not math.isfinite(kl):
-                    if m.line_search_accept != "omnisafe":
-                        fraction[k] *= shrink
-                    continue
-                if self._accepts(steps[k], d_reward, d_cost, kl, float(c[k]), float(expected[k])):
-                    res.update(accept_step=j + 1, fraction=float(fraction[k]))
-                    searching[k] = False
-                    continue
-                fraction[k] *= shrink
-        for k in np.flatnonzero(searching):
-            results[k].update(d_reward=0.0, d_cost=0.0)
-        accepted = th.as_tensor([r["fraction"] for r in results], dtype=th.float32).unsqueeze(1)
-        self._set_actor(theta_old + accepted * directions)
-        return results
+            theta.copy_(theta_old + fraction * step.direction)
+            result["tried"] = j + 1
+            new = self._evaluate(data)
+            if not new.valid:
+                fraction *= shrink
+                continue
+            kl = self._mean_kl(data, old, new.policy)
+            d_reward, d_cost = new.reward - start.reward, new.cost - start.cost
+            result.update(kl=kl, d_reward=d_reward, d_cost=d_cost)
+            if not math.isfinite(kl):
+                if m.line_search_accept != "omnisafe":
+                    fraction *= shrink
+                continue  # OmniSafe retries the same fraction
+            if self._accepts(step, d_reward, d_cost, kl, c, expected):
+                result.update(accept_step=j + 1, fraction=fraction)
+                theta.copy_(theta_old + fraction * step.direction)
+                return result
+            fraction *= shrink
+        theta.copy_(theta_old)
+        result.update(d_reward=0.0, d_cost=0.0)
+        return result
 
     # ------------------------------------------------------------------ update
     def _train(self) -> None:
@@ -232,25 +238,26 @@ class FleetCPO(FleetCostTrainer):
         mean_ep_costs = self.mean_episode_costs()
         c = mean_ep_costs - float(m.cost_limit)
         self._normalize_advantages()
-        data = self._full_batch("obs", "actions", "log_probs", "advantages", "cost_advantages")
+        self._draw_full_batch_order()
+        rows = []
         with th.no_grad():
-            old_logits = self._logits(data[0])
-        steps, g, scalars, directions = self._step_directions(*data, old_logits, c)
-        search = self._line_search(data, old_logits, steps, directions, g, c)
-        with th.no_grad():
-            kl_mean = categorical_kl(old_logits, self._logits(data[0])).mean(dim=1).double().numpy()
+            for k in range(self.n_runs):
+                data = self._batch(k)
+                step, g, sc, old = self._step_direction(data, float(c[k]))
+                search = self._line_search(data, old, step, g, float(c[k]))
+                kl_mean = self._mean_kl(data, old, self._evaluate(data).policy)
+                rows.append((step, g, sc, search, kl_mean))
         value_loss, cost_value_loss = self._train_critics()
-        for k in range(self.n_runs):
-            step, sc, res = steps[k], scalars[k], search[k]
-            taken = res["fraction"] * directions[k]
+        for k, (step, g, sc, search, kl_mean) in enumerate(rows):
+            taken = search["fraction"] * step.direction
             self._row(
                 k, mean_ep_costs[k], None, critic_lr,
-                kl=res["kl"],
-                kl_mean=float(kl_mean[k]),
+                kl=search["kl"],
+                kl_mean=kl_mean,
                 cpo_case=int(step.case),
-                accept_step=int(res["accept_step"]),
-                line_search_tried=int(res["tried"]),
-                step_fraction=res["fraction"],
+                accept_step=int(search["accept_step"]),
+                line_search_tried=int(search["tried"]),
+                step_fraction=search["fraction"],
                 lambda_star=step.lam,
                 nu_star=step.nu,
                 A=step.A,
@@ -260,11 +267,11 @@ class FleetCPO(FleetCostTrainer):
                 s=sc.s,
                 c=float(c[k]),
                 b_norm=math.sqrt(max(sc.bb, 0.0)),
-                full_step_norm=directions[k].norm().item(),
+                full_step_norm=step.direction.norm().item(),
                 step_norm=taken.norm().item(),
-                expected_reward_change=(g[k] @ taken).item(),
-                surrogate_reward_change=res["d_reward"],
-                surrogate_cost_change=res["d_cost"],
+                expected_reward_change=(g @ taken).item(),
+                surrogate_reward_change=search["d_reward"],
+                surrogate_cost_change=search["d_cost"],
                 value_loss=float(value_loss[k]),
                 cost_value_loss=float(cost_value_loss[k]),
             )

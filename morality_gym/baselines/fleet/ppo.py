@@ -5,7 +5,9 @@ Per epoch each run draws its own permutation of its rollout (its single run's
 run's advantages are standardised over its minibatch (``normalize_advantage``), and its loss
 ``policy + ent_coef * entropy + vf_coef * value`` is differentiated with respect to its own slice
 of the stacked actor and critic, clipped by its own gradient norm over all of its parameters
-(SB3's ``clip_grad_norm_(policy.parameters())``) and stepped by its own Adam (SB3's eps 1e-5).
+(SB3's ``clip_grad_norm_(policy.parameters())``) and stepped by its own Adam (SB3's eps 1e-5). The
+gradients are the loss's closed-form gradient with respect to the logits and values
+(:mod:`.losses`), back-propagated by hand through the stacked networks (:mod:`.nets`).
 PPO-Shaped differs from PPO only in the reward the environment hands out (:mod:`.env`).
 
 As the single learner, PPO logs no per-update diagnostics rows.
@@ -18,7 +20,8 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from morality_gym.baselines.fleet.base import FleetTrainer, categorical, entropy
+from morality_gym.baselines.fleet.base import FleetTrainer
+from morality_gym.baselines.fleet.losses import Policy, clipped_surrogate, mse
 from morality_gym.baselines.fleet.optim import BatchedAdam
 from morality_gym.baselines.specs import SB3_PPO
 
@@ -53,21 +56,23 @@ class FleetPPO(FleetTrainer):
         assert ro is not None
         lr = np.full(self.n_runs, float(m.lr_schedule(self.progress_remaining)))
         clip_range = float(m.clip_range(self.progress_remaining))
+        ent_coef, vf_coef = float(m.ent_coef), float(m.vf_coef)
         size = ro.actions.shape[1]
         batch = int(m.batch_size)
         for _ in range(int(m.n_epochs)):
             for obs, actions, old_log_prob, advantages, returns in ro.minibatches(
                 self.permutations(size), batch, "obs", "actions", "log_probs", "advantages", "returns"
             ):
-                norm, probs = categorical(self.nets("pi", obs))
-                log_prob = norm.gather(-1, actions.unsqueeze(-1))[..., 0]
-                values = self.nets("vf", obs)[..., 0]
+                actor = self.nets.trace("pi", obs)
+                critic = self.nets.trace("vf", obs)
+                policy = Policy.of(actor.out)
                 if m.normalize_advantage and advantages.shape[1] > 1:
                     advantages = (advantages - advantages.mean(dim=1, keepdim=True)) / (advantages.std(dim=1, keepdim=True) + 1e-8)
-                ratio = th.exp(log_prob - old_log_prob)
-                policy_loss = -th.min(advantages * ratio, advantages * th.clamp(ratio, 1 - clip_range, 1 + clip_range)).mean(dim=1)
-                value_loss = ((returns - values) ** 2).mean(dim=1)
-                entropy_loss = -entropy(norm, probs).mean(dim=1)
-                loss = policy_loss + m.ent_coef * entropy_loss + m.vf_coef * value_loss
-                grads = th.autograd.grad(loss.sum(), self.params)
+                ratio = th.exp(policy.log_prob(actions) - old_log_prob)
+                _, dratio = clipped_surrogate(ratio, advantages, clip_range)
+                # loss = policy + ent_coef * (-mean entropy) + vf_coef * value
+                dentropy = th.full_like(ratio, -ent_coef / ratio.shape[1]) if ent_coef else None
+                dlogits = policy.dlogits(actions, dratio * ratio, dentropy)
+                _, dvalues = mse(critic.out[:, 0], returns)
+                grads = self.nets.backward(actor, dlogits) + self.nets.backward(critic, dvalues.mul_(vf_coef))
                 self.optimizer.step(grads, lr, max_norm=float(m.max_grad_norm))  # clipped per run over all parameters

@@ -15,10 +15,9 @@ from __future__ import annotations
 import numpy as np
 import torch as th
 
-from morality_gym.baselines.fleet.base import categorical, entropy
 from morality_gym.baselines.fleet.cost_base import FleetCostTrainer
+from morality_gym.baselines.fleet.losses import Policy, clipped_surrogate
 from morality_gym.baselines.fleet.optim import BatchedAdam
-from morality_gym.baselines.safe.functional import categorical_kl
 from morality_gym.baselines.specs import PPO_LAG
 
 
@@ -61,26 +60,24 @@ class FleetPPOLag(FleetCostTrainer):
         mean_ep_costs = self.mean_episode_costs()
         lam = self._update_multipliers(mean_ep_costs)
         self._normalize_advantages()
-        (full_obs,) = self._full_batch("obs")
-        with th.no_grad():
-            old_logits = self._logits(full_obs)
+        self._draw_full_batch_order()
+        old_policies = self._policies()
         lam32 = th.as_tensor(lam, dtype=th.float32).unsqueeze(1)
         one_plus = th.as_tensor(1.0 + lam, dtype=th.float32).unsqueeze(1)
         size, batch = ro.actions.shape[1], int(m.batch_size)
-        clip_range, max_norm = float(m.clip_range), float(m.max_grad_norm)
+        clip_range, max_norm, ent_coef = float(m.clip_range), float(m.max_grad_norm), float(m.ent_coef)
 
         active = np.ones(k_runs, dtype=bool)
         passes = np.zeros(k_runs, dtype=np.int64)
         early = np.zeros(k_runs, dtype=bool)
         kl_tested = np.zeros(k_runs)
         kl_mean = np.zeros(k_runs)
-        stats: dict[str, list[np.ndarray]] = {key: [] for key in ("policy", "value", "cost_value", "entropy", "clip_fraction")}
-        stat_masks: list[np.ndarray] = []
+        stats: list[tuple[np.ndarray, th.Tensor]] = []  # (runs computed, [5, R] policy/value/cost_value/entropy/clip_fraction)
         for _ in range(int(m.n_epochs)):
             if not active.any():
                 break
             # Only the runs still passing are computed (``runs``: their indices); the stopped ones
-            # get zero gradients and are masked out of the optimiser steps.
+            # are masked out of the optimiser steps.
             idx = np.flatnonzero(active)
             mask, runs = (None, None) if active.all() else (active.copy(), th.from_numpy(idx))
             sub = slice(None) if runs is None else runs
@@ -88,43 +85,35 @@ class FleetPPOLag(FleetCostTrainer):
             for obs, actions, old_log_prob, adv, cadv, returns, cost_returns in ro.minibatches(
                 order, batch, "obs", "actions", "log_probs", "advantages", "cost_advantages", "returns", "cost_returns", runs=runs
             ):
-                norm, probs = categorical(self.nets("pi", obs, runs))
-                log_prob = norm.gather(-1, actions.unsqueeze(-1))[..., 0]
-                ent = entropy(norm, probs)
+                actor = self.nets.trace("pi", obs, runs)
+                policy = Policy.of(actor.out)
+                ent = policy.entropy()
                 advantages = (adv - lam32[sub] * cadv) / one_plus[sub]
-                ratio = th.exp(log_prob - old_log_prob)
-                clipped = th.clamp(ratio, 1.0 - clip_range, 1.0 + clip_range)
-                policy_loss = -th.min(ratio * advantages, clipped * advantages).mean(dim=1)
-                entropy_mean = ent.mean(dim=1)
-                critic_loss, value_loss, cost_value_loss = self._critic_loss(obs, returns, cost_returns, runs)
-                total = policy_loss - m.ent_coef * entropy_mean + critic_loss
-                grads = th.autograd.grad(total.sum(), self.actor_params + self.critic_params)
-                n_actor = len(self.actor_params)
-                self._step_critics(self._with_l2(grads[n_actor:]), critic_lr, mask)
-                self.actor_optimizer.step(grads[:n_actor], actor_lr, mask, max_norm=max_norm)  # type: ignore[arg-type]
-
-                with th.no_grad():
-                    clip_fraction = ((ratio - 1.0).abs() > clip_range).float().mean(dim=1)
-                    for key, value in (("policy", policy_loss), ("value", value_loss), ("cost_value", cost_value_loss),
-                                       ("entropy", entropy_mean), ("clip_fraction", clip_fraction)):
-                        row = np.zeros(k_runs)
-                        row[idx] = value.double().numpy()
-                        stats[key].append(row)
-                stat_masks.append(active.copy())
+                ratio = th.exp(policy.log_prob(actions) - old_log_prob)
+                policy_loss, dratio = clipped_surrogate(ratio, advantages, clip_range)
+                # total = policy_loss - ent_coef * mean(entropy) + critic losses
+                dentropy = th.full_like(ratio, -ent_coef / ratio.shape[1]) if ent_coef else None
+                actor_grads = self.nets.backward(actor, policy.dlogits(actions, dratio * ratio, dentropy))
+                critic_grads, value_loss, cost_value_loss = self._critic_grads(obs, returns, cost_returns, runs)
+                self._step_critics(critic_grads, critic_lr, mask)
+                self.actor_optimizer.step(actor_grads, actor_lr, mask, max_norm=max_norm)  # type: ignore[arg-type]
+                clip_fraction = ((ratio - 1.0).abs() > clip_range).float().mean(dim=1)
+                stats.append((idx, th.stack([policy_loss, value_loss, cost_value_loss, ent.mean(dim=1), clip_fraction])))
             passes += active
-            with th.no_grad():
-                per_state = categorical_kl(old_logits[sub], self._logits(full_obs[sub], runs))
-                tested = (per_state.sum(dim=1) if m.kl_early_stop_reduction == "sum" else per_state.mean(dim=1)).double().numpy()
-                means = per_state.mean(dim=1).double().numpy()
-            kl_tested[idx] = tested
-            kl_mean[idx] = means
+            kl_sums = self._kl_sums(old_policies, idx.tolist())
+            for k, total in kl_sums.items():
+                kl_mean[k] = total / size
+                kl_tested[k] = total if m.kl_early_stop_reduction == "sum" else total / size
             if m.target_kl is not None:
                 stop = active & (kl_tested > m.target_kl)
                 early |= stop
                 active &= ~stop
 
-        weights = np.stack(stat_masks).astype(np.float64)  # [batches, K]
-        means = {key: (np.stack(v) * weights).sum(axis=0) / weights.sum(axis=0) for key, v in stats.items()}
+        sums, counts = np.zeros((5, k_runs)), np.zeros(k_runs)
+        for idx, values in stats:
+            sums[:, idx] += values.double().numpy()
+            counts[idx] += 1
+        means = dict(zip(("policy", "value", "cost_value", "entropy", "clip_fraction"), sums / counts))
         for k in range(k_runs):
             self._row(
                 k, mean_ep_costs[k], actor_lr, critic_lr,
