@@ -156,7 +156,10 @@ class FleetNetworks:
         for i in range(n - 1, -1, -1):
             w, _ = tr.layers[i]
             h = tr.inputs[i]
-            grads[2 * i] = th.matmul(dz, h.transpose(1, 2))
+            if h.shape[1] >= dz.shape[1]:
+                grads[2 * i] = th.matmul(dz, h.transpose(1, 2))
+            else:  # a narrow input (the observations): the transposed product has the wider output
+                grads[2 * i] = th.matmul(h, dz.transpose(1, 2)).transpose(1, 2)
             grads[2 * i + 1] = dz.sum(dim=2, keepdim=True)
             if i > 0:
                 dz = self._act_backward(th.matmul(w.transpose(1, 2), dz), h)

@@ -97,7 +97,7 @@ class BatchedAdam:
         # From here on ``g``'s rows are the active runs'.
         if l2:
             params = self.flat if len(runs) == self.n_runs else self.flat[th.from_numpy(runs)]
-            g.add_(th.tensor(l2, dtype=g.dtype) * (2 * params))
+            g.add_(params * (2.0 * l2))  # = l2 * (2 * theta) exactly: doubling is exact in binary floats
         if max_norm is not None:
             self._clip(g, max_norm, clip_groups)
         flat, avg, avg_sq = self._rows
