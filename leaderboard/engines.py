@@ -1,0 +1,234 @@
+"""``python -m leaderboard.engines SINGLE FLEET``: the same Table 1 trained by two engines, side by side.
+
+The fleet engine (``engine=fleet``) trains many runs at once and reproduces each run's arithmetic to
+float tolerance, not bit for bit (batched products round differently; a near-tie in an action draw
+can then go the other way, and the two trainings part). So the claim to check on real sweeps is
+statistical: a Table 1 trained by the fleet is the single engine's Table 1 up to seed noise. A
+fleet run has the run id of its single run (the engine is not part of a run's identity), so the two
+results directories of the same plan pair up run by run.
+
+Output (Markdown, to stdout or ``--out``), per (protocol, preset):
+
+* per Table 1 cell (complete on both sides): each engine's mean with its spread over seeds (the
+  standard deviation of the per-seed means, as the leaderboard computes it), the difference, how
+  many of the paired runs ended at the same metric (to 3 decimals), and a two-sided Wilcoxon
+  signed-rank test of the paired runs' differences (``scipy.stats.wilcoxon``);
+* per learner: mean and largest |difference| over its cells, the cells whose difference exceeds
+  the larger of the two seed spreads, the share of identical runs, the test over all its paired
+  runs, and the compute each engine spent (the runs' ``wall_time_s`` summed: a fleet run's is its
+  share of the fleet's training plus its own evaluation);
+* the wall-clock span of each side's sweep (first run started to last run finished).
+
+Neither directory is written to.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from leaderboard.aggregate import aggregate, learner_order, row_order
+from leaderboard.build import load
+from leaderboard.tables import fmt, md_escape
+from morality_gym.clitools import UserError, run_cli
+
+_CELL = ["protocol", "preset", "chain", "scenario", "learner"]
+#: Two metrics closer than this print the same at 3 decimals: the runs are counted as identical.
+SAME = 5e-4
+
+
+@dataclass
+class Results:
+    """One engine's results: its Table 1 learner cells and its counted runs."""
+
+    source: Path
+    cells: pd.DataFrame
+    runs: pd.DataFrame
+
+
+def load_results(path: Path) -> Results:
+    """A results directory, aggregated by the leaderboard's own rules."""
+    if not path.is_dir():
+        raise UserError(f"{path}: not a results directory")
+    runs, planned, _skipped = load(path)
+    if runs.empty:
+        raise UserError(f"{path}: no readable runs (expected run files in {path / 'runs'})")
+    lb = aggregate(runs, planned)
+    cells = lb.table.loc[lb.table["kind"] == "learner"].reset_index(drop=True)
+    counted = lb.runs.loc[lb.runs["ok"]].copy()
+    return Results(path, cells, counted)
+
+
+def paired_runs(single: pd.DataFrame, fleet: pd.DataFrame) -> pd.DataFrame:
+    """The runs both sides counted, by run id: cell keys, seed, both metrics, both wall times."""
+    keep = [*_CELL, "run_id", "seed", "metric", "wall_time_s", "engine"]
+    merged = single[keep].merge(fleet[["run_id", "metric", "wall_time_s", "engine"]], on="run_id", suffixes=("_single", "_fleet"))
+    merged["diff"] = merged["metric_fleet"] - merged["metric_single"]
+    return merged
+
+
+def wilcoxon_p(diffs: np.ndarray) -> float:
+    """Two-sided Wilcoxon signed-rank p-value of paired differences (1.0 when all are zero, NaN
+    with fewer than two non-zero differences)."""
+    nonzero = diffs[np.abs(diffs) > 0]
+    if len(nonzero) == 0:
+        return 1.0
+    if len(nonzero) < 2:
+        return math.nan
+    return float(stats.wilcoxon(nonzero).pvalue)
+
+
+def _cell(row: pd.Series | None) -> str:
+    if row is None or pd.isna(row["mean"]):
+        return "–"
+    spread = "" if pd.isna(row["std"]) else f" ± {row['std']:.3f}"
+    text = f"{row['mean']:.3f}{spread}"
+    if not bool(row["complete"]):
+        text += f" ⚠ {row['n_variants']}/{row['n_variants_expected']} variants, {row['n_seeds']}/{row['n_seeds_expected']} seeds"
+    return text
+
+
+def _usable(row: pd.Series | None) -> bool:
+    return row is not None and bool(row["complete"]) and not pd.isna(row["mean"])
+
+
+def _span(runs: pd.DataFrame) -> float:
+    if runs.empty:
+        return math.nan
+    start = pd.to_datetime(runs["started_at"], utc=True).min()
+    end = pd.to_datetime(runs["finished_at"], utc=True).max()
+    return float((end - start).total_seconds())
+
+
+def _duration(seconds: float) -> str:
+    if not math.isfinite(seconds):
+        return "–"
+    minutes, secs = divmod(round(seconds), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours}h{minutes:02d}m{secs:02d}s" if hours else f"{minutes}m{secs:02d}s"
+
+
+def group_report(single: Results, fleet: Results, protocol: str, preset: str) -> list[str]:
+    """The table, the per-learner summary and the wall times of one (protocol, preset)."""
+    def select(frame: pd.DataFrame) -> pd.DataFrame:
+        return frame.loc[(frame["protocol"] == protocol) & (frame["preset"] == preset)]
+
+    s_cells, f_cells = select(single.cells), select(fleet.cells)
+    pairs = paired_runs(select(single.runs), select(fleet.runs))
+    learners = learner_order(set(s_cells["learner"]) | set(f_cells["learner"]))
+    index_s = {tuple(r[c] for c in ("chain", "scenario", "learner")): r for _, r in s_cells.iterrows()}
+    index_f = {tuple(r[c] for c in ("chain", "scenario", "learner")): r for _, r in f_cells.iterrows()}
+    lines = [
+        "| chain | scenario | learner | single mean ± seed sd | fleet mean ± seed sd | fleet − single | runs identical | Wilcoxon p |",
+        "|---|---|---|---:|---:|---:|---:|---:|",
+    ]
+    verdicts = []
+    keys = list(zip(s_cells["chain"], s_cells["scenario"])) + list(zip(f_cells["chain"], f_cells["scenario"]))
+    for chain, scenario in row_order(keys):
+        for learner in learners:
+            s, f = index_s.get((chain, scenario, learner)), index_f.get((chain, scenario, learner))
+            if s is None and f is None:
+                continue
+            mine = pairs.loc[(pairs["chain"] == chain) & (pairs["scenario"] == scenario) & (pairs["learner"] == learner)]
+            diff_text, same_text, p_text = "", "", ""
+            if _usable(s) and _usable(f):
+                diff = float(f["mean"] - s["mean"])
+                diff_text = f"{diff:+.3f}"
+                spread = np.nanmax([s["std"], f["std"]]) if not (pd.isna(s["std"]) and pd.isna(f["std"])) else math.nan
+                verdicts.append({"learner": learner, "diff": diff, "spread": spread})
+            if len(mine):
+                same_text = f"{int((mine['diff'].abs() < SAME).sum())}/{len(mine)}"
+                p = wilcoxon_p(mine["diff"].to_numpy())
+                p_text = "–" if math.isnan(p) else f"{p:.2f}"
+            lines.append(f"| {md_escape(chain)} | {md_escape(scenario)} | {md_escape(learner)} | {_cell(s)} | {_cell(f)} | "
+                         f"{diff_text} | {same_text} | {p_text} |")
+    lines += ["", "Per learner (cells complete on both sides; runs paired by run id):", ""]
+    lines += [
+        ("| learner | cells | mean abs(fleet − single) | largest | cells beyond the seed spread | runs identical | "
+         "Wilcoxon p (all runs) | single compute | fleet compute | single / fleet |"),
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    table = pd.DataFrame(verdicts, columns=["learner", "diff", "spread"])
+    for learner in learners:
+        mine = table.loc[table["learner"] == learner]
+        runs = pairs.loc[pairs["learner"] == learner]
+        beyond = int((mine["diff"].abs() > mine["spread"]).sum())
+        p = wilcoxon_p(runs["diff"].to_numpy()) if len(runs) else math.nan
+        s_runs, f_runs = select(single.runs), select(fleet.runs)
+        s_time = float(s_runs.loc[s_runs["learner"] == learner, "wall_time_s"].sum())
+        f_time = float(f_runs.loc[f_runs["learner"] == learner, "wall_time_s"].sum())
+        cells = [
+            md_escape(learner),
+            str(len(mine)),
+            fmt(mine["diff"].abs().mean()) if len(mine) else "–",
+            fmt(mine["diff"].abs().max()) if len(mine) else "–",
+            str(beyond),
+            f"{int((runs['diff'].abs() < SAME).sum())}/{len(runs)}" if len(runs) else "–",
+            "–" if math.isnan(p) else f"{p:.2f}",
+            _duration(s_time),
+            _duration(f_time),
+            f"{s_time / f_time:.1f}x" if f_time > 0 else "–",
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+    engines_s = ", ".join(sorted(select(single.runs)["engine"].dropna().unique()))
+    engines_f = sorted(select(fleet.runs)["engine"].dropna().unique())
+    fleets = [e for e in engines_f if e.startswith("fleet:")]
+    sizes = sorted(int(e.split(":")[1]) for e in fleets)
+    lines += [
+        "",
+        f"Wall-clock span of the sweeps (first run started to last finished): single "
+        f"{_duration(_span(select(single.runs)))} ({len(select(single.runs))} runs; engines: {engines_s}), fleet "
+        f"{_duration(_span(select(fleet.runs)))} ({len(select(fleet.runs))} runs"
+        + (f"; fleets of {sizes[0]}-{sizes[-1]} runs" if sizes else "") + ").",
+        "",
+    ]
+    return lines
+
+
+def report(single: Results, fleet: Results, protocols: Sequence[str] | None = None) -> str:
+    """The whole Markdown report (see the module docstring)."""
+    lines = [f"# Table 1 by engine: {single.source} (single) and {fleet.source} (fleet)", ""]
+    groups = pd.concat([single.cells, fleet.cells])[["protocol", "preset"]].drop_duplicates().sort_values(["protocol", "preset"])
+    if protocols:
+        groups = groups.loc[groups["protocol"].isin(protocols)]
+    if groups.empty:
+        raise UserError("no learner cells" + (f" for protocol {', '.join(protocols)}" if protocols else ""))
+    for protocol, preset in groups.itertuples(index=False):
+        lines += [f"## Protocol `{protocol}`, preset `{preset}`", ""]
+        lines += group_report(single, fleet, protocol, preset)
+    return "\n".join(lines)
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python -m leaderboard.engines", description=__doc__.split("\n\n")[0])
+    parser.add_argument("single", type=Path, help="results directory of the sweep run with engine=single")
+    parser.add_argument("fleet", type=Path, help="results directory of the same sweep run with engine=fleet")
+    parser.add_argument("--protocol", action="append", help="protocol to show (repeatable); default: all")
+    parser.add_argument("--out", type=Path, help="write the Markdown here instead of stdout")
+    parser.add_argument("--debug", action="store_true", help="show the traceback of an error")
+    return parser.parse_args(argv)
+
+
+def run(args: argparse.Namespace) -> int:
+    text = report(load_results(args.single), load_results(args.fleet), args.protocol)
+    if args.out:
+        args.out.write_text(text + "\n")
+        print(f"wrote {args.out}")
+    else:
+        print(text)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return run_cli(lambda: run(parse_args(argv)), (), argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
