@@ -78,6 +78,7 @@ class SweepConfig:
     name: str
     engine: str  # fleet | single (runners/fleet.py; default: runners.schemas.Sweep)
     fleet_size: int  # most runs trained together in one fleet
+    device: str = "cpu"  # where fleets train (runners.schemas.Sweep)
     chain_files: Mapping[str, str] = field(default_factory=dict)  # chain name -> config option name
     warnings: tuple[str, ...] = ()  # shown with the plan: valid, but probably not what the user meant
 
@@ -488,6 +489,17 @@ def validate(cfg: DictConfig) -> SweepConfig:
     if engine not in ENGINES:
         raise ConfigError(f"engine: expected fleet or single, got {engine!r}{_hint(str(engine), list(ENGINES))}")
     fleet_size = _int("fleet_size", cfg.get("fleet_size"), 1)
+    device = str(cfg.get("device"))
+    if device != "cpu":
+        if engine != "fleet":
+            raise ConfigError(f"device={device}: only the fleet engine trains off the CPU; use engine=fleet or device=cpu")
+        from morality_gym.baselines.fleet.base import fleet_device
+        from morality_gym.baselines.specs import SpecError
+
+        try:
+            fleet_device(device)
+        except SpecError as exc:
+            raise ConfigError(str(exc)) from exc
     if cfg.get("mlflow") and not cfg.get("dry_run"):
         from runners.tracking import TrackingError, check_reachable
 
@@ -525,5 +537,6 @@ def validate(cfg: DictConfig) -> SweepConfig:
         chain_files={chain.name: option for option, chain in chains.items()},
         engine=str(engine),
         fleet_size=fleet_size,
+        device=device,
         warnings=warnings,
     )

@@ -178,12 +178,13 @@ def execute_job(
     results_dir: str | Path,
     gif: bool = True,
     engine: str = "single",
+    device: str = "cpu",
 ) -> Iterator[Summary]:
     """Execute a job's runs, yielding each run's summary as soon as its result is written.
 
     Each run is locked first (a run another live process holds is yielded as ``busy``; one already
     finished ``ok`` as skipped); the rest are trained together when ``engine == "fleet"`` and more
-    than one remains, else one by one.
+    than one remains, else one by one. A fleet's networks and updates run on ``device``.
     """
     results_dir = Path(results_dir)
     locks: list[RunLock] = []
@@ -200,7 +201,7 @@ def execute_job(
                 continue
             mine.append((run_id, config))
         if engine == "fleet" and len(mine) > 1:
-            yield from _train_fleet(mine, results_dir, gif)
+            yield from _train_fleet(mine, results_dir, gif, device)
         else:
             for run_id, config in mine:
                 yield _execute_locked(config, run_id, results_dir, gif)
@@ -210,15 +211,16 @@ def execute_job(
 
 
 def execute_job_all(
-    items: Sequence[tuple[str, dict[str, Any]]], results_dir: str, gif: bool = True, engine: str = "single"
+    items: Sequence[tuple[str, dict[str, Any]]], results_dir: str, gif: bool = True, engine: str = "single", device: str = "cpu"
 ) -> list[Summary]:
     """:func:`execute_job` as one list (what a SLURM array task returns to the parent)."""
-    return list(execute_job(items, results_dir, gif, engine))
+    return list(execute_job(items, results_dir, gif, engine, device))
 
 
-def _train_fleet(mine: list[tuple[str, dict[str, Any]]], results_dir: Path, gif: bool) -> Iterator[Summary]:
+def _train_fleet(mine: list[tuple[str, dict[str, Any]]], results_dir: Path, gif: bool, device: str = "cpu") -> Iterator[Summary]:
     """Train the locked runs ``mine`` as one fleet, then record them one after the other."""
     from morality_gym.baselines.fleet import FleetRun, build_fleet
+    from morality_gym.baselines.fleet.base import fleet_device
     from morality_gym.baselines.specs import SpecError
 
     limit_threads()
@@ -226,9 +228,16 @@ def _train_fleet(mine: list[tuple[str, dict[str, Any]]], results_dir: Path, gif:
     engine = f"fleet:{len(mine)}"
     first = mine[0][1]
     try:
+        fleet_device(device)
+    except SpecError as exc:  # e.g. a SLURM node without the GPU the submitting host had: a failure, not a silent CPU run
+        for run_id, config in mine:
+            yield record_outcome(config, run_id, results_dir, gif, None, [], started, t0, engine=engine, error=exc)
+        return
+    try:
         spec, protocol = _spec_and_protocol(first)
         fleet = build_fleet(
-            spec, [FleetRun(bound_chain(c), int(c["seed"])) for _, c in mine], protocol, max_steps=first["max_steps"]
+            spec, [FleetRun(bound_chain(c), int(c["seed"])) for _, c in mine], protocol, max_steps=first["max_steps"],
+            device=device,
         )
     except SpecError:
         # A setting the fleet does not reproduce (e.g. a learner option it has no batched form

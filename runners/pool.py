@@ -39,7 +39,7 @@ def _die_with_parent() -> None:
         pass
 
 
-def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int) -> None:
+def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int, device: str = "cpu") -> None:
     _die_with_parent()
     if os.getppid() != parent_pid:  # the parent died before prctl took effect
         os._exit(1)
@@ -60,7 +60,7 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int)
         if message is None:
             return
         items, engine = message
-        for summary in execute_job(items, results_dir, gif, engine):
+        for summary in execute_job(items, results_dir, gif, engine, device):
             conn.send(("done", summary))
         conn.send(("free", None))
 
@@ -76,17 +76,19 @@ class _Worker:
 class WorkerPool:
     """Run planned runs on ``n_workers`` processes; ``on_result`` is called in the parent."""
 
-    def __init__(self, n_workers: int, results_dir: Path, gif: bool) -> None:
+    def __init__(self, n_workers: int, results_dir: Path, gif: bool, device: str = "cpu") -> None:
         self.n_workers = n_workers
         self.results_dir = str(results_dir)
         self.gif = gif
+        self.device = device
         self._ctx = mp.get_context("spawn")
         self._workers: list[_Worker] = []
 
     def _start(self) -> _Worker:
         parent, child = self._ctx.Pipe()
         process = self._ctx.Process(
-            target=_worker_main, args=(child, self.results_dir, self.gif, os.getpid()), daemon=True, name="morality-gym-worker"
+            target=_worker_main, args=(child, self.results_dir, self.gif, os.getpid(), self.device), daemon=True,
+            name="morality-gym-worker"
         )
         process.start()
         child.close()

@@ -218,7 +218,9 @@ class Sweep:
     ``gif``: a GIF of one evaluation episode per run; ``name``: the manifest's sweep name (null:
     derived from the selection); ``engine``: ``fleet`` trains the runs that differ only in variant,
     chain and seed together, up to ``fleet_size`` per fleet (the gain saturates by about 12,
-    BENCHMARKS.md), ``single`` trains one run per process (:mod:`runners.fleet`).
+    BENCHMARKS.md), ``single`` trains one run per process (:mod:`runners.fleet`); ``device``: where
+    a fleet's networks and updates run (``cpu``, or ``cuda`` when torch sees a GPU; single runs and
+    every run's evaluation stay on the CPU).
     """
 
     scenario: Mapping[str, ScenarioFile] = field(default_factory=dict)
@@ -240,6 +242,7 @@ class Sweep:
     name: str | None = None
     engine: str = "fleet"
     fleet_size: int = 36
+    device: str = "cpu"
 
 
 @dataclass(frozen=True)

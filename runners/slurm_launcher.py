@@ -28,6 +28,7 @@ def run_on_slurm(
     sweep_name: str,
     on_result: Callable[[PlannedRun, dict[str, Any]], None],
     on_failure: Callable[[PlannedRun, str], None],
+    device: str = "cpu",
 ) -> None:
     import submitit
 
@@ -52,6 +53,7 @@ def run_on_slurm(
         [str(results_dir)] * len(jobs_),
         [gif] * len(jobs_),
         [j.engine for j in jobs_],
+        [device] * len(jobs_),
     )
     pending = dict(zip(range(len(jobs_)), jobs))
     poll = float(launcher.get("poll_s", 2.0))

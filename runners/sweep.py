@@ -161,11 +161,11 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
             if sweep.launcher["name"] == "slurm":
                 from runners.slurm_launcher import run_on_slurm
 
-                run_on_slurm(jobs, sweep.launcher, sweep.results_dir, sweep.gif, sweep.name, finish, fail)
+                run_on_slurm(jobs, sweep.launcher, sweep.results_dir, sweep.gif, sweep.name, finish, fail, sweep.device)
             else:
                 from runners.pool import WorkerPool
 
-                WorkerPool(workers, sweep.results_dir, sweep.gif).run(jobs, finish, fail)
+                WorkerPool(workers, sweep.results_dir, sweep.gif, sweep.device).run(jobs, finish, fail)
     if tracker is not None:
         for r in runs:
             if finished_status(sweep.results_dir, r.run_id) is not None:

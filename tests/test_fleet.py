@@ -247,3 +247,15 @@ def test_fleet_learners_save_and_load_like_single_runs(tmp_path: Any) -> None:
     state = loaded.policy.critic_optimizer.state_dict()["state"]
     assert state and all(float(s["step"]) == learner.update_diagnostics()[-1]["passes"] * (512 // 64) for s in state.values())
     assert np.isfinite(learner.final_evaluation(5).metric)  # evaluates as a single run
+
+
+@pytest.mark.skipif(not th.cuda.is_available(), reason="needs a GPU (device=cuda); this machine has none")
+@pytest.mark.parametrize(("name", "protocol"), [("ppo", "paper"), ("ppo_lag", "corrected"), ("cpo", "paper")])
+def test_a_fleet_on_the_gpu_trains_as_on_the_cpu(name: str, protocol: str) -> None:
+    spec = small_spec(name)
+    runs = [FleetRun(bound(), 1), FleetRun(bound("PushOrSwitch-Animal-v1"), 2)]
+    on_cpu, on_gpu = build_fleet(spec, runs, protocol), build_fleet(spec, runs, protocol, device="cuda")
+    on_cpu.learn(2 * ROLLOUT)
+    on_gpu.learn(2 * ROLLOUT)
+    for a, b in zip(on_cpu.learners(), on_gpu.learners()):
+        assert_same_run(a, b, atol=1e-4)  # type: ignore[arg-type]

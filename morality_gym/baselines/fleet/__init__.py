@@ -59,9 +59,12 @@ def build_fleet(
     runs: Sequence[FleetRun],
     protocol: ProtocolSpec | str = "paper",
     max_steps: int | None = DEFAULT_MAX_STEPS,
+    device: str = "cpu",
 ) -> FleetTrainer:
-    """The fleet trainer for ``runs`` of the learner ``spec`` under ``protocol``."""
-    return fleet_class(spec.target)(spec, runs, protocol=protocol, max_steps=max_steps)
+    """The fleet trainer for ``runs`` of the learner ``spec`` under ``protocol``, its networks and
+    updates on ``device`` (``cpu``, or ``cuda`` when torch sees a GPU; the simulator, the sampling
+    streams and the single-run learners it hands back stay on the CPU)."""
+    return fleet_class(spec.target)(spec, runs, protocol=protocol, max_steps=max_steps, device=device)
 
 
 __all__ = ["FleetRun", "FleetTrainer", "build_fleet", "fleet_class"]

@@ -79,7 +79,7 @@ class Rollout:
         """The named fields at per-run positions ``index`` (``[K, B]``; with ``runs``, ``index`` has
         one row per listed run). One ``index_select`` over the runs' rows laid end to end (4x
         faster than indexing by run and position)."""
-        rows = (th.arange(index.shape[0]) if runs is None else runs).unsqueeze(1)
+        rows = (th.arange(index.shape[0], device=index.device) if runs is None else runs).unsqueeze(1)
         fields = [getattr(self, n) for n in names]
         size = fields[0].shape[1]
         flat = (index + rows * size).reshape(-1)
@@ -111,6 +111,19 @@ def flatten_runs(arr: np.ndarray, n_runs: int) -> np.ndarray:
     return np.ascontiguousarray(out).reshape(n_runs, e * t, *arr.shape[2:])
 
 
+def fleet_device(device: str | th.device) -> th.device:
+    """``device`` as a torch device, refused (:class:`SpecError`) when torch cannot use it here."""
+    try:
+        dev = th.device(device)
+    except RuntimeError as exc:
+        raise SpecError(f"device={device!r}: not a torch device ({exc}); use cpu or cuda") from None
+    if dev.type == "cuda" and not th.cuda.is_available():
+        raise SpecError(f"device={device!r}: torch sees no GPU here (torch.cuda.is_available() is False); use device=cpu")
+    if dev.type not in ("cpu", "cuda"):
+        raise SpecError(f"device={device!r}: the fleet engine runs on cpu or cuda")
+    return dev
+
+
 class FleetTrainer:
     """Base of the fleet trainers (see the module docstring). Subclasses set :attr:`algorithm` (the
     import path of the single-run class they reproduce) and :attr:`heads` and implement :meth:`_train` (one update of every run from :attr:`rollout`)."""
@@ -126,7 +139,9 @@ class FleetTrainer:
         runs: Sequence[FleetRun],
         protocol: ProtocolSpec | str = "paper",
         max_steps: int | None = DEFAULT_MAX_STEPS,
+        device: str | th.device = "cpu",
     ) -> None:
+        self.device = fleet_device(device)
         self.protocol = protocol_spec(protocol)
         self.spec = self.protocol.apply(spec)
         if resolve(self.spec.target) is not resolve(self.algorithm):
@@ -167,7 +182,8 @@ class FleetTrainer:
         self._check_supported()
         outputs = {"pi": 6, "vf": 1, "cf": 1}
         self.nets = FleetNetworks(
-            self.n_runs, self.env.obs_dim, list(self.spec.net_arch), {h: outputs[h] for h in self.heads}, self.spec.activation
+            self.n_runs, self.env.obs_dim, list(self.spec.net_arch), {h: outputs[h] for h in self.heads}, self.spec.activation,
+            device=self.device,
         )
         for k, learner in enumerate(self._learners):
             self.nets.load_run(k, learner.model.policy)
@@ -212,9 +228,9 @@ class FleetTrainer:
             if float(state["step"]) == 0:
                 continue
             torch_adam.state[param] = {
-                "step": state["step"],
-                "exp_avg": state["exp_avg"].reshape(param.shape).clone(),  # biases are stored [out, 1]
-                "exp_avg_sq": state["exp_avg_sq"].reshape(param.shape).clone(),
+                "step": state["step"].cpu(),
+                "exp_avg": state["exp_avg"].reshape(param.shape).cpu().clone(),  # biases are stored [out, 1]
+                "exp_avg_sq": state["exp_avg_sq"].reshape(param.shape).cpu().clone(),
             }
 
     # ------------------------------------------------------------------ learning
@@ -298,7 +314,7 @@ class FleetTrainer:
         against ``torch.multinomial``), and turns K sampling calls per step into one ``argmax``.
         """
         shape = (self.n_steps, self.n_envs, 6)
-        self._action_noise = th.stack([th.empty(shape).exponential_(1, generator=g) for g in self.torch_generators])
+        self._action_noise = th.stack([th.empty(shape).exponential_(1, generator=g) for g in self.torch_generators]).to(self.device)
 
     def _policy_step(self, obs: th.Tensor, t: int) -> tuple[th.Tensor, ...]:
         """Actions (sampled per run from its own noise, step ``t`` of the rollout), values,
@@ -343,8 +359,8 @@ class FleetTrainer:
         self._rollout_nets = self.nets.fused(self.heads)
         for t in range(t_steps):
             with th.no_grad():
-                actions, values, log_probs, cost_values = self._policy_step(th.from_numpy(self._last_obs).view(k_runs, e, d), t)
-            act = actions.reshape(n).numpy()
+                actions, values, log_probs, cost_values = self._policy_step(self._tensor(self._last_obs).view(k_runs, e, d), t)
+            act = actions.reshape(n).cpu().numpy()
             step = self.env.step(act)
             self.num_timesteps += e
             self._evaluate_if_due()
@@ -355,10 +371,10 @@ class FleetTrainer:
                 self._track_episode_costs(costs, step.dones)
             if bootstrap is not None and bootstrap.any():
                 with th.no_grad():
-                    final = th.from_numpy(step.final_obs).view(k_runs, e, d)
-                    v_end = self.nets("vf", final).reshape(n)
+                    final = self._tensor(step.final_obs).view(k_runs, e, d)
+                    v_end = self.nets("vf", final).reshape(n).cpu()
                     if self.cost_aware:
-                        vc_end = self.nets("cf", final).reshape(n)
+                        vc_end = self.nets("cf", final).reshape(n).cpu()
                 if self.cost_aware:
                     # rewards[i] += gamma * V.item(): a float64 product added to a float32 (NEP 50).
                     rewards = np.where(bootstrap, rewards + (self.gamma * v_end.double().numpy()).astype(np.float32), rewards)
@@ -370,20 +386,20 @@ class FleetTrainer:
             act_buf[t] = act
             rew_buf[t] = rewards
             start_buf[t] = self._last_starts
-            val_buf[t] = values.reshape(n).numpy()
-            logp_buf[t] = log_probs.reshape(n).numpy()
+            val_buf[t] = values.reshape(n).cpu().numpy()
+            logp_buf[t] = log_probs.reshape(n).cpu().numpy()
             if self.cost_aware:
                 cost_buf[t] = costs
-                cval_buf[t] = cost_values.reshape(n).numpy()  # type: ignore[union-attr]
+                cval_buf[t] = cost_values.reshape(n).cpu().numpy()  # type: ignore[union-attr]
             self._last_obs = step.obs
             self._last_starts = step.dones
 
         from morality_gym.baselines.safe.functional import gae
 
         with th.no_grad():
-            last = th.from_numpy(step.obs).view(k_runs, e, d)
-            last_v = self.nets("vf", last).reshape(n).numpy()
-            last_vc = self.nets("cf", last).reshape(n).numpy() if self.cost_aware else None
+            last = self._tensor(step.obs).view(k_runs, e, d)
+            last_v = self.nets("vf", last).reshape(n).cpu().numpy()
+            last_vc = self.nets("cf", last).reshape(n).cpu().numpy() if self.cost_aware else None
         adv, ret = gae(rew_buf, val_buf, start_buf, last_v, step.dones, self.gamma, self.gae_lambda)
         fields: dict[str, np.ndarray] = {
             "obs": obs_buf, "actions": act_buf, "values": val_buf, "log_probs": logp_buf, "advantages": adv, "returns": ret,
@@ -394,14 +410,14 @@ class FleetTrainer:
             )
             fields.update(cost_values=cval_buf, cost_advantages=cadv, cost_returns=cret)
             self._rollout_raw = {"advantages": adv, "cost_advantages": cadv}  # (T, K*E), for per-run normalisation
-        self.rollout = Rollout(**{name: th.from_numpy(flatten_runs(arr, k_runs)) for name, arr in fields.items()})
+        self.rollout = Rollout(**{name: self._tensor(flatten_runs(arr, k_runs)) for name, arr in fields.items()})
         self._distinct: list[DistinctStates] | None = None
 
     def distinct_states(self) -> list[DistinctStates]:
         """Each run's rollout as distinct observations (:mod:`.dedup`), computed once per rollout."""
         if self._distinct is None:
             assert self.rollout is not None
-            self._distinct = [DistinctStates.of(self.rollout.obs[k]) for k in range(self.n_runs)]
+            self._distinct = [DistinctStates.of(self.rollout.obs[k], self.device) for k in range(self.n_runs)]
         return self._distinct
 
     def _track_episode_costs(self, costs: np.ndarray, dones: np.ndarray) -> None:
@@ -423,5 +439,9 @@ class FleetTrainer:
 
     def permutations(self, size: int) -> th.Tensor:
         """``[K, size]``: every run's next permutation."""
-        return th.from_numpy(np.stack([self.permutation(k, size) for k in range(self.n_runs)]))
+        return self._tensor(np.stack([self.permutation(k, size) for k in range(self.n_runs)]))
+
+    def _tensor(self, arr: np.ndarray) -> th.Tensor:
+        """A numpy array as a tensor on the fleet's device (shared memory on the CPU)."""
+        return th.from_numpy(arr).to(self.device)
 

@@ -65,7 +65,7 @@ class FleetCostTrainer(FleetTrainer):
         for field, mode in (("advantages", m.reward_advantage_normalization), ("cost_advantages", m.cost_advantage_normalization)):
             raw = self._rollout_raw[field]
             runs = [normalize_advantages(np.ascontiguousarray(raw[:, k * e : (k + 1) * e]), mode).T.reshape(-1) for k in range(self.n_runs)]
-            setattr(ro, field, th.from_numpy(np.stack(runs)))
+            setattr(ro, field, self._tensor(np.stack(runs)))
 
     def _draw_full_batch_order(self) -> None:
         """The permutation the single run's ``_full_batch`` draws. Its whole-rollout computations
@@ -112,7 +112,7 @@ class FleetCostTrainer(FleetTrainer):
                 grads, value_loss, cost_value_loss = self._critic_grads(obs, returns, cost_returns)
                 self._step_critics(grads, critic_lr)
                 losses.append(th.stack([value_loss, cost_value_loss]))
-        per_batch = th.stack(losses).double().numpy()  # [batches, 2, K]
+        per_batch = th.stack(losses).double().cpu().numpy()  # [batches, 2, K]
         return per_batch[:, 0].mean(axis=0), per_batch[:, 1].mean(axis=0)
 
     def _policies(self, runs: Sequence[int] | None = None) -> dict[int, Policy]:

@@ -123,8 +123,8 @@ class FleetCPO(FleetCostTrainer):
         ratio = th.exp(data.log_prob(policy) - data.old_log_prob)
         coef = th.stack([ratio * data.advantages, ratio * data.cost_advantages]) / data.size  # d L / d log pi(a_t|s_t)
         cell = data.actions * n_states + data.states.inverse
-        onehot = th.zeros(2, n_actions * n_states).index_add_(1, cell, coef).view(2, n_actions, n_states)
-        per_state = th.zeros(2, n_states).index_add_(1, data.states.inverse, coef)
+        onehot = th.zeros(2, n_actions * n_states, device=coef.device).index_add_(1, cell, coef).view(2, n_actions, n_states)
+        per_state = th.zeros(2, n_states, device=coef.device).index_add_(1, data.states.inverse, coef)
         dlogits = onehot.sub_(policy.p * per_state.unsqueeze(1))
         return self._flat(self.nets.backward(actor, dlogits))
 
@@ -151,7 +151,7 @@ class FleetCPO(FleetCostTrainer):
         residual = b.clone()
         direction = residual.clone()
         rdotr = (residual * residual).sum(dim=1)
-        done = th.zeros(b.shape[0], dtype=th.bool)
+        done = th.zeros(b.shape[0], dtype=th.bool, device=b.device)
         for _ in range(int(m.cg_max_steps)):
             h_direction = fvp(direction)
             alpha = (rdotr / ((direction * h_direction).sum(dim=1) + eps)).unsqueeze(1)

@@ -33,16 +33,17 @@ class DistinctStates:
     weights: th.Tensor
 
     @classmethod
-    def of(cls, obs: th.Tensor) -> DistinctStates:
+    def of(cls, obs: th.Tensor, device: th.device | str | None = None) -> DistinctStates:
         """The distinct rows of ``obs`` (``[M, d]`` float32), in the byte order of the rows (so the
-        result depends on this run's observations only)."""
-        arr = np.ascontiguousarray(obs.numpy())
+        result depends on this run's observations only), on ``device`` (default: ``obs``'s)."""
+        device = obs.device if device is None else device
+        arr = np.ascontiguousarray(obs.cpu().numpy())
         rows = arr.view(np.dtype((np.void, arr.dtype.itemsize * arr.shape[1])))[:, 0]
         _, index, inverse, counts = np.unique(rows, return_index=True, return_inverse=True, return_counts=True)
-        counts_t = th.from_numpy(counts.astype(np.float32))
+        counts_t = th.from_numpy(counts.astype(np.float32)).to(device)
         return cls(
-            obs=th.from_numpy(arr[index]),
-            inverse=th.from_numpy(inverse.reshape(-1).astype(np.int64)),
+            obs=th.from_numpy(arr[index]).to(device),
+            inverse=th.from_numpy(inverse.reshape(-1).astype(np.int64)).to(device),
             counts=counts_t,
             weights=counts_t / float(len(arr)),
         )

@@ -102,7 +102,9 @@ class Trace:
 class FleetNetworks:
     """The stacked parameters of ``n_runs`` runs' heads (see the module docstring)."""
 
-    def __init__(self, n_runs: int, obs_dim: int, hidden: Sequence[int], outputs: dict[str, int], activation: str) -> None:
+    def __init__(
+        self, n_runs: int, obs_dim: int, hidden: Sequence[int], outputs: dict[str, int], activation: str, device: th.device | str = "cpu"
+    ) -> None:
         if activation not in ACTIVATIONS:
             raise ValueError(f"activation {activation!r} is not one of {', '.join(ACTIVATIONS)}")
         self.n_runs = n_runs
@@ -111,7 +113,9 @@ class FleetNetworks:
         self.heads: dict[str, Layers] = {}
         for head, out in outputs.items():
             sizes = [obs_dim, *hidden, out]
-            self.heads[head] = [(th.zeros(n_runs, o, i), th.zeros(n_runs, o, 1)) for i, o in itertools.pairwise(sizes)]
+            self.heads[head] = [
+                (th.zeros(n_runs, o, i, device=device), th.zeros(n_runs, o, 1, device=device)) for i, o in itertools.pairwise(sizes)
+            ]
 
     def params(self, *heads: str) -> list[th.Tensor]:
         """The stacked tensors of the given heads, ``W0, b0, W1, b1, ...`` head after head."""

@@ -46,7 +46,7 @@ class BatchedAdam:
         sizes = [p[0].numel() for p in self.params]
         #: Column range of each parameter in the ``[K, P]`` buffers.
         self._columns = list(zip(np.cumsum([0, *sizes])[:-1].tolist(), np.cumsum(sizes).tolist()))
-        self.flat = th.empty(n_runs, int(sum(sizes)), dtype=self.params[0].dtype)
+        self.flat = th.empty(n_runs, int(sum(sizes)), dtype=self.params[0].dtype, device=self.params[0].device)
         with th.no_grad():
             for p, (a, b) in zip(self.params, self._columns):
                 view = self.flat[:, a:b].view(p.shape)
@@ -55,7 +55,7 @@ class BatchedAdam:
         self.exp_avg = th.zeros_like(self.flat)
         self.exp_avg_sq = th.zeros_like(self.flat)
         #: Each run's step count, as the float tensor ``torch.optim.Adam`` keeps in its state.
-        self._steps = [th.zeros((), dtype=th.float32) for _ in range(n_runs)]
+        self._steps = [th.zeros((), dtype=th.float32, device=self.flat.device) for _ in range(n_runs)]
         # Row views, one per run: the fused kernel walks a list of tensors.
         self._rows = [[buf[k] for k in range(n_runs)] for buf in (self.flat, self.exp_avg, self.exp_avg_sq)]
 

@@ -32,7 +32,7 @@ class FleetPPOLag(FleetCostTrainer):
         d = lagrange.optimizer.defaults
         self.lagrange_lr = float(d["lr"])
         self.lagrange_upper = lagrange.upper_bound
-        self.lagrange = th.stack([learner.model.lagrange.value_param.detach().clone() for learner in self._learners])
+        self.lagrange = th.stack([learner.model.lagrange.value_param.detach().clone() for learner in self._learners]).to(self.device)
         self.lagrange_optimizer = BatchedAdam([self.lagrange], self.n_runs, betas=d["betas"], eps=d["eps"])
 
     def _export_optimisers(self, k: int, model: object) -> None:
@@ -41,17 +41,17 @@ class FleetPPOLag(FleetCostTrainer):
         with th.no_grad():
             lag.value_param.copy_(self.lagrange[k])
         lag.optimizer.state.clear()
-        state = self.lagrange_optimizer.state_of(k)[0]
+        state = {key: value.cpu() for key, value in self.lagrange_optimizer.state_of(k)[0].items()}
         if float(state["step"]) > 0:
             lag.optimizer.state[lag.value_param] = state
 
     def _update_multipliers(self, mean_ep_costs: np.ndarray) -> np.ndarray:
         """``LagrangeMultiplier.update`` per run; returns every run's new ``lambda`` (float64)."""
-        violation = th.as_tensor(mean_ep_costs - float(self.model.cost_limit), dtype=th.float32)
+        violation = th.as_tensor(mean_ep_costs - float(self.model.cost_limit), dtype=th.float32, device=self.device)
         self.lagrange_optimizer.step([-violation], self.lagrange_lr)  # d(-lambda * v)/d lambda
         with th.no_grad():
             self.lagrange.clamp_(min=0.0, max=self.lagrange_upper)
-        return self.lagrange.double().numpy().copy()
+        return self.lagrange.double().cpu().numpy().copy()
 
     def _train(self) -> None:
         m, ro, k_runs = self.model, self.rollout, self.n_runs
@@ -62,8 +62,8 @@ class FleetPPOLag(FleetCostTrainer):
         self._normalize_advantages()
         self._draw_full_batch_order()
         old_policies = self._policies()
-        lam32 = th.as_tensor(lam, dtype=th.float32).unsqueeze(1)
-        one_plus = th.as_tensor(1.0 + lam, dtype=th.float32).unsqueeze(1)
+        lam32 = th.as_tensor(lam, dtype=th.float32, device=self.device).unsqueeze(1)
+        one_plus = th.as_tensor(1.0 + lam, dtype=th.float32, device=self.device).unsqueeze(1)
         size, batch = ro.actions.shape[1], int(m.batch_size)
         clip_range, max_norm, ent_coef = float(m.clip_range), float(m.max_grad_norm), float(m.ent_coef)
 
@@ -79,9 +79,9 @@ class FleetPPOLag(FleetCostTrainer):
             # Only the runs still passing are computed (``runs``: their indices); the stopped ones
             # are masked out of the optimiser steps.
             idx = np.flatnonzero(active)
-            mask, runs = (None, None) if active.all() else (active.copy(), th.from_numpy(idx))
+            mask, runs = (None, None) if active.all() else (active.copy(), self._tensor(idx))
             sub = slice(None) if runs is None else runs
-            order = th.from_numpy(np.stack([self.permutation(k, size) for k in idx]))
+            order = self._tensor(np.stack([self.permutation(k, size) for k in idx]))
             for obs, actions, old_log_prob, adv, cadv, returns, cost_returns in ro.minibatches(
                 order, batch, "obs", "actions", "log_probs", "advantages", "cost_advantages", "returns", "cost_returns", runs=runs
             ):
@@ -111,7 +111,7 @@ class FleetPPOLag(FleetCostTrainer):
 
         sums, counts = np.zeros((5, k_runs)), np.zeros(k_runs)
         for idx, values in stats:
-            sums[:, idx] += values.double().numpy()
+            sums[:, idx] += values.double().cpu().numpy()
             counts[idx] += 1
         means = dict(zip(("policy", "value", "cost_value", "entropy", "clip_fraction"), sums / counts))
         for k in range(k_runs):
