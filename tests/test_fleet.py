@@ -259,3 +259,15 @@ def test_a_fleet_on_the_gpu_trains_as_on_the_cpu(name: str, protocol: str) -> No
     on_gpu.learn(2 * ROLLOUT)
     for a, b in zip(on_cpu.learners(), on_gpu.learners()):
         assert_same_run(a, b, atol=1e-4)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(("name", "arch"), [("ppo", {"net_arch": [32], "activation": "relu"}), ("cpo", {"net_arch": [48, 24, 16]})])
+def test_fleet_of_one_matches_other_architectures(name: str, arch: dict[str, Any]) -> None:
+    """Other depths, widths and ReLU: the hand-written gradients and the fused rollout network are
+    not tied to the default two tanh layers of 64."""
+    spec = learner_spec(name, {"hparams": SMALL[name], **arch})
+    single = build_learner(spec, bound(), "paper", seed=4)
+    single.learn(2 * ROLLOUT, eval_every=0)
+    fleet = build_fleet(spec, [FleetRun(bound(), 4)], "paper")
+    fleet.learn(2 * ROLLOUT)
+    assert_same_run(single, fleet.learners()[0])  # type: ignore[arg-type]

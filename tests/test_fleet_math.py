@@ -83,9 +83,13 @@ def test_backward_and_jvp_of_one_run_take_several_vectors() -> None:
         assert lhs.item() == pytest.approx(rhs.item(), rel=1e-4, abs=1e-5)
 
 
-def test_fused_heads_are_the_heads() -> None:
-    nets = networks()
-    x = th.randn(3, 8, 7, generator=th.Generator().manual_seed(5))
+@pytest.mark.parametrize("hidden", [[16, 16], [16], []])
+def test_fused_heads_are_the_heads(hidden: list[int]) -> None:
+    nets = FleetNetworks(3, 7, hidden, {"pi": 6, "vf": 1, "cf": 1}, "tanh")
+    gen = th.Generator().manual_seed(5)
+    for t in nets.params("pi", "vf", "cf"):
+        t.copy_(th.randn(t.shape, generator=gen) * 0.5)
+    x = th.randn(3, 8, 7, generator=gen)
     fused = nets.fused(["pi", "vf", "cf"])(x)
     for head, out in zip(["pi", "vf", "cf"], fused):
         np.testing.assert_allclose(out.numpy(), nets(head, x).numpy(), rtol=0, atol=2e-6)

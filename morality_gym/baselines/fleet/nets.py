@@ -183,8 +183,11 @@ class FleetNetworks:
         assert dz is not None
         return dz
 
-    def fused(self, heads: Sequence[str]) -> FusedHeads:
-        """The given heads, at their current weights, as one network for inference (:class:`FusedHeads`)."""
+    def fused(self, heads: Sequence[str]) -> Callable[[th.Tensor], list[th.Tensor]]:
+        """The given heads, at their current weights, as one network for inference
+        (:class:`FusedHeads`; heads without a hidden layer are evaluated one by one)."""
+        if len(self.heads[heads[0]]) < 2:
+            return lambda x: [self(head, x) for head in heads]
         return FusedHeads(self, heads)
 
     @th.no_grad()
@@ -225,7 +228,7 @@ class FusedHeads:
         self._act = nets._act
         stacks = [nets.heads[h] for h in self.heads]
         depth = len(stacks[0])
-        if depth < 2 or any(len(layers) != depth for layers in stacks) or len({layers[0][0].shape[1] for layers in stacks}) != 1:
+        if depth < 2 or any(len(layers) != depth for layers in stacks):
             raise ValueError("fused heads need the same hidden layers (at least one)")
         self.outputs = [layers[-1][0].shape[1] for layers in stacks]
         self.hidden = stacks[0][0][0].shape[1]
