@@ -24,7 +24,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -179,12 +179,14 @@ def execute_job(
     gif: bool = True,
     engine: str = "single",
     device: str = "cpu",
+    progress: Callable[[int, int], None] | None = None,
 ) -> Iterator[Summary]:
     """Execute a job's runs, yielding each run's summary as soon as its result is written.
 
     Each run is locked first (a run another live process holds is yielded as ``busy``; one already
     finished ``ok`` as skipped); the rest are trained together when ``engine == "fleet"`` and more
-    than one remains, else one by one. A fleet's networks and updates run on ``device``.
+    than one remains, else one by one. A fleet's networks and updates run on ``device``, and it
+    calls ``progress(steps, total)`` as it trains.
     """
     results_dir = Path(results_dir)
     locks: list[RunLock] = []
@@ -201,7 +203,7 @@ def execute_job(
                 continue
             mine.append((run_id, config))
         if engine == "fleet" and len(mine) > 1:
-            yield from _train_fleet(mine, results_dir, gif, device)
+            yield from _train_fleet(mine, results_dir, gif, device, progress)
         else:
             for run_id, config in mine:
                 yield _execute_locked(config, run_id, results_dir, gif)
@@ -217,7 +219,13 @@ def execute_job_all(
     return list(execute_job(items, results_dir, gif, engine, device))
 
 
-def _train_fleet(mine: list[tuple[str, dict[str, Any]]], results_dir: Path, gif: bool, device: str = "cpu") -> Iterator[Summary]:
+def _train_fleet(
+    mine: list[tuple[str, dict[str, Any]]],
+    results_dir: Path,
+    gif: bool,
+    device: str = "cpu",
+    progress: Callable[[int, int], None] | None = None,
+) -> Iterator[Summary]:
     """Train the locked runs ``mine`` as one fleet, then record them one after the other."""
     from morality_gym.baselines.fleet import FleetRun, build_fleet
     from morality_gym.baselines.fleet.base import fleet_device
@@ -256,6 +264,7 @@ def _train_fleet(mine: list[tuple[str, dict[str, Any]]], results_dir: Path, gif:
             eval_every=int(first["learn_eval_every"]),
             eval_episodes=int(first["learn_eval_episodes"]),
             on_eval=lambda k, row: learn_rows[k].append(row),
+            on_progress=progress,
         )
     except Exception as exc:  # noqa: BLE001
         for run_id, config in mine:

@@ -28,6 +28,17 @@ from runners.fleet import Job
 from runners.plan import PlannedRun
 
 ResultHook = Callable[[PlannedRun, dict[str, Any]], None]
+
+
+class JobProgress:
+    """What the pool tells about jobs while they run (the default tells nothing): a fleet's training
+    steps as it trains (``update``), and that a job is over (``end``)."""
+
+    def update(self, job: Job, steps: int, total: int) -> None:
+        """``job`` (a fleet) has trained ``steps`` of ``total`` steps per run."""
+
+    def end(self, job: Job) -> None:
+        """``job`` is over (all its runs reported, or its worker died)."""
 _PR_SET_PDEATHSIG = 1
 
 
@@ -60,9 +71,22 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int,
         if message is None:
             return
         items, engine = message
-        for summary in execute_job(items, results_dir, gif, engine, device):
+        for summary in execute_job(items, results_dir, gif, engine, device, _throttled_progress(conn)):
             conn.send(("done", summary))
         conn.send(("free", None))
+
+
+def _throttled_progress(conn: Connection, every_s: float = 1.0) -> Callable[[int, int], None]:
+    """A fleet's ``progress(steps, total)`` sent to the parent at most once per ``every_s`` (and at the end)."""
+    last = [0.0]
+
+    def send(steps: int, total: int) -> None:
+        now = time.monotonic()
+        if steps >= total or now - last[0] >= every_s:
+            last[0] = now
+            conn.send(("progress", (steps, total)))
+
+    return send
 
 
 @dataclass
@@ -94,8 +118,16 @@ class WorkerPool:
         child.close()
         return _Worker(process, parent)
 
-    def run(self, jobs: list[Job], on_result: ResultHook, on_failure: Callable[[PlannedRun, str], None]) -> None:
-        """Execute ``jobs``; a worker that dies takes only its job's unreported runs with it (``on_failure``)."""
+    def run(
+        self,
+        jobs: list[Job],
+        on_result: ResultHook,
+        on_failure: Callable[[PlannedRun, str], None],
+        progress: JobProgress | None = None,
+    ) -> None:
+        """Execute ``jobs``; a worker that dies takes only its job's unreported runs with it
+        (``on_failure``); ``progress`` hears of fleets' training steps."""
+        progress = progress or JobProgress()
         queue: deque[Job] = deque(jobs)
         self._workers = [self._start() for _ in range(min(self.n_workers, max(1, len(jobs))))]
         ready: set[int] = set()
@@ -129,7 +161,13 @@ class WorkerPool:
                         ready.add(id(worker))
                         continue
                     if message is not None and message[0] == "free":
+                        if worker.job is not None:
+                            progress.end(worker.job)
                         worker.job, worker.pending = None, {}
+                        continue
+                    if message is not None and message[0] == "progress":
+                        if worker.job is not None:
+                            progress.update(worker.job, *message[1])
                         continue
                     if message is not None and message[0] == "done":
                         summary = message[1]
@@ -149,6 +187,8 @@ class WorkerPool:
                         f"a fleet of {len(worker.job.runs)} runs including this configuration"
                     for run in worker.pending.values():
                         on_failure(run, f"worker process died ({reason}) while running {what}")
+                    if worker.job is not None:
+                        progress.end(worker.job)
                     worker.job, worker.pending = None, {}
                     self._workers.remove(worker)
                     ready.discard(id(worker))

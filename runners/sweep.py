@@ -52,6 +52,28 @@ def _workers(sweep: SweepConfig) -> int:
     return int(sweep.launcher.get("workers") or len(os.sched_getaffinity(0)) or 1)
 
 
+class FleetBars:
+    """One progress bar per fleet while it trains (steps per run), under the sweep's bar of runs:
+    at the paper's budget a fleet trains for many minutes before its first run is written.
+    (A :class:`runners.pool.JobProgress`; SLURM jobs train on other nodes and show none.)"""
+
+    def __init__(self, progress: Any) -> None:
+        self.progress = progress
+        self.tasks: dict[int, Any] = {}
+
+    def update(self, job: Any, steps: int, total: int) -> None:
+        if id(job) not in self.tasks:
+            config = job.runs[0].config
+            label = f"  fleet: {len(job.runs)} {config['algo']['label']} runs on {config['scenario']}"
+            self.tasks[id(job)] = self.progress.add_task(escape(label), total=total, note="steps per run")
+        self.progress.update(self.tasks[id(job)], completed=steps, total=total)
+
+    def end(self, job: Any) -> None:
+        task = self.tasks.pop(id(job), None)
+        if task is not None:
+            self.progress.remove_task(task)
+
+
 def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
     """Plan and execute a validated sweep; returns the exit status."""
     from rich.console import Console
@@ -133,13 +155,13 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
         TextColumn("[bold]{task.description}"),
         BarColumn(),
         MofNCompleteColumn(),
-        TextColumn("{task.fields[failed]} failed"),
+        TextColumn("{task.fields[note]}"),
         TimeElapsedColumn(),
         TimeRemainingColumn(),
         console=console,
         transient=False,
     ) as progress:
-        task = progress.add_task(sweep.name, total=len(todo), failed=0)
+        task = progress.add_task(sweep.name, total=len(todo), note="0 failed")
 
         def finish(run: PlannedRun, summary: dict[str, Any]) -> None:
             if summary["status"] != "ok":
@@ -151,7 +173,7 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
                     tracker.sync(run.run_id)
                 except Exception as exc:  # noqa: BLE001 - tracking must never lose a result
                     console.print(f"[yellow]MLflow mirror of {run.run_id} failed ({exc}); it is retried next time[/yellow]")
-            progress.update(task, advance=1, failed=len(failures))
+            progress.update(task, advance=1, note=f"{len(failures)} failed")
 
         def fail(run: PlannedRun, error: str) -> None:
             record_failure(run.config, run.run_id, sweep.results_dir, error)
@@ -165,7 +187,7 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
             else:
                 from runners.pool import WorkerPool
 
-                WorkerPool(workers, sweep.results_dir, sweep.gif, sweep.device).run(jobs, finish, fail)
+                WorkerPool(workers, sweep.results_dir, sweep.gif, sweep.device).run(jobs, finish, fail, FleetBars(progress))
     if tracker is not None:
         for r in runs:
             if finished_status(sweep.results_dir, r.run_id) is not None:

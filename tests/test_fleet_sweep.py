@@ -171,6 +171,36 @@ def test_a_fleet_job_writes_every_run_as_the_single_engine_does(tmp_path: Path) 
         assert (results / "runs" / f"{r.run_id}.learn.parquet").is_file()
 
 
+def test_the_pool_reports_a_fleets_training_steps_while_it_trains(tmp_path: Path) -> None:
+    """A local worker sends the fleet's steps to the parent as it trains (at most once a second,
+    and at the end), and the job's end; the sweep shows them as a bar per fleet."""
+    from runners.pool import JobProgress, WorkerPool
+
+    sweep = _sweep_config(tmp_path, "algo=ppo_lag", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
+                          "seed=[1]", "variant=[HumanA,HumanB]")
+    (job,) = make_jobs(plan(sweep), "fleet", 36, 1)
+
+    class Record(JobProgress):
+        def __init__(self) -> None:
+            self.updates: list[tuple[int, int]] = []
+            self.ended: list[int] = []
+
+        def update(self, job_: object, steps: int, total: int) -> None:
+            assert job_ is job
+            self.updates.append((steps, total))
+
+        def end(self, job_: object) -> None:
+            self.ended.append(id(job_))
+
+    record, results = Record(), []
+    WorkerPool(1, tmp_path / "r", gif=False).run([job], lambda run, summary: results.append(summary["status"]),
+                                                  lambda run, error: results.append(error), record)
+    assert results == ["ok", "ok"]
+    assert record.updates and record.updates[-1][0] == record.updates[-1][1] > 0
+    assert [s for s, _ in record.updates] == sorted(s for s, _ in record.updates)
+    assert record.ended == [id(job)]
+
+
 def test_a_resumed_fleet_trains_only_its_unfinished_runs(tmp_path: Path) -> None:
     sweep = _sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
                           "seed=[1]", "variant=[HumanA,HumanB,AnimalA,AnimalB]")

@@ -244,10 +244,12 @@ class FleetTrainer:
         eval_every: int = 0,
         eval_episodes: int = LEARN_EVAL_EPISODES,
         on_eval: FleetEvalHook | None = None,
+        on_progress: Callable[[int, int], None] | None = None,
     ) -> int:
         """Train every run on ``budget`` environment steps (as :meth:`SB3Learner.learn` counts
-        them); learn-time evaluations as the single runs make them when ``eval_every > 0``.
-        Returns the steps each run trained."""
+        them); learn-time evaluations as the single runs make them when ``eval_every > 0``;
+        ``on_progress(steps, total)`` after every update (a fleet at the paper's budget trains for
+        many minutes before its first run is written). Returns the steps each run trained."""
         self.total_timesteps = training_steps(self.spec, budget)
         self._start_evaluations(eval_every, eval_episodes, on_eval)
         self.num_timesteps = 0
@@ -262,6 +264,8 @@ class FleetTrainer:
             self._collect_rollout()
             self.progress_remaining = 1.0 - float(self.num_timesteps) / float(self.total_timesteps)
             self._train()
+            if on_progress is not None:
+                on_progress(self.num_timesteps, self.total_timesteps)
         self._finish()
         return self.num_timesteps
 
