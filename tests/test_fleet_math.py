@@ -176,3 +176,20 @@ def test_fisher_product_on_distinct_states_is_the_double_backward_of_the_mean_kl
     product = fleet._fisher_product(data, tr, Policy.of(tr.out), damping=0.0)
     mine = product(fleet._flat([v for v in vector]))[0]
     np.testing.assert_allclose(mine.numpy(), expected.numpy(), rtol=1e-4, atol=1e-6)
+
+
+@pytest.mark.parametrize("batch", [64, 8])
+def test_a_run_computes_the_same_bits_alone_or_with_the_others(batch: int) -> None:
+    """Whether the other runs of a fleet are computed too (all K) or left out (a gathered subset,
+    as PPO-Lag does once most runs have stopped) does not change a run's numbers: runs stay
+    independent bit for bit, whatever the others do."""
+    nets = networks(runs=5)
+    gen = th.Generator().manual_seed(9)
+    x = th.randn(5, batch, 7, generator=gen)
+    picked = th.tensor([1, 3])
+    for head in ("pi", "vf"):
+        full, sub = nets.trace(head, x), nets.trace(head, x[picked], picked)
+        assert th.equal(full.out[picked], sub.out)
+        dout = th.randn(full.out.shape, generator=gen)
+        for a, b in zip(nets.backward(full, dout), nets.backward(sub, dout[picked])):
+            assert th.equal(a[picked], b)

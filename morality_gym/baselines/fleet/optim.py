@@ -54,15 +54,16 @@ class BatchedAdam:
                 p.data = view
         self.exp_avg = th.zeros_like(self.flat)
         self.exp_avg_sq = th.zeros_like(self.flat)
-        #: Each run's step count, as the float tensor ``torch.optim.Adam`` keeps in its state.
-        self._steps = [th.zeros((), dtype=th.float32, device=self.flat.device) for _ in range(n_runs)]
+        #: Each run's step count (float, as ``torch.optim.Adam`` keeps it), and one 0-d view per run.
+        self._step_counts = th.zeros(n_runs, dtype=th.float32, device=self.flat.device)
+        self._steps = list(self._step_counts.unbind())
         # Row views, one per run: the fused kernel walks a list of tensors.
-        self._rows = [[buf[k] for k in range(n_runs)] for buf in (self.flat, self.exp_avg, self.exp_avg_sq)]
+        self._rows = [list(buf.unbind()) for buf in (self.flat, self.exp_avg, self.exp_avg_sq)]
 
     @property
     def steps(self) -> np.ndarray:
         """``[K]`` int: each run's number of steps taken."""
-        return np.array([int(s) for s in self._steps], dtype=np.int64)
+        return self._step_counts.cpu().numpy().astype(np.int64)
 
     @th.no_grad()
     def step(
@@ -100,16 +101,21 @@ class BatchedAdam:
             g.add_(params * (2.0 * l2))  # = l2 * (2 * theta) exactly: doubling is exact in binary floats
         if max_norm is not None:
             self._clip(g, max_norm, clip_groups)
+        # As torch.optim.Adam: the step count first, then the kernel.
+        if len(runs) == self.n_runs:
+            self._step_counts.add_(1.0)
+        else:
+            self._step_counts[th.from_numpy(runs).to(self._step_counts.device)] += 1.0
         flat, avg, avg_sq = self._rows
-        for rate in np.unique(lr[runs]):
-            group = [i for i, k in enumerate(runs) if lr[k] == rate]
-            members = runs[group].tolist()
-            steps = [self._steps[k] for k in members]
-            th._foreach_add_(steps, 1.0)  # as torch.optim.Adam: the count first, then the kernel
+        g_rows = g.unbind()
+        rates = lr[runs]
+        for rate in (rates[:1] if (rates == rates[0]).all() else np.unique(rates)):
+            group = range(len(runs)) if len(rates) == 1 or (rates == rate).all() else np.flatnonzero(rates == rate).tolist()
+            members = runs[list(group)].tolist()
             th._fused_adam_(
-                [flat[k] for k in members], [g[i] for i in group], [avg[k] for k in members], [avg_sq[k] for k in members],
-                [], steps, lr=float(rate), beta1=self.beta1, beta2=self.beta2, weight_decay=0.0, eps=self.eps,
-                amsgrad=False, maximize=False,
+                [flat[k] for k in members], [g_rows[i] for i in group], [avg[k] for k in members], [avg_sq[k] for k in members],
+                [], [self._steps[k] for k in members], lr=float(rate), beta1=self.beta1, beta2=self.beta2, weight_decay=0.0,
+                eps=self.eps, amsgrad=False, maximize=False,
             )
 
     def _clip(self, g: th.Tensor, max_norm: float, groups: Sequence[Sequence[int]] | None) -> None:

@@ -6,7 +6,8 @@ up to ``n_epochs`` passes of clipped-surrogate minibatches with the combined adv
 their own clipping. After each pass each run tests its own KL (summed or averaged over its states);
 a run whose KL exceeds ``target_kl`` is masked out of the passes that follow (no parameter, Adam
 moment or step count of it changes, and it draws no further permutation) while the others go on;
-the passes that follow compute only the runs still going.
+once fewer than half the runs go on, the passes compute only those. The KL is computed on each
+rollout's distinct observations (:mod:`.dedup`).
 The loop ends when every run has stopped or ``n_epochs`` passes are done.
 """
 
@@ -76,12 +77,20 @@ class FleetPPOLag(FleetCostTrainer):
         for _ in range(int(m.n_epochs)):
             if not active.any():
                 break
-            # Only the runs still passing are computed (``runs``: their indices); the stopped ones
-            # are masked out of the optimiser steps.
+            # The stopped runs are masked out of the optimiser steps. While at least half the runs
+            # go on, every run is computed (a stopped run on its rollout in order, its results
+            # dropped): cheaper than gathering the others' weights for every minibatch. Past that,
+            # only the runs still passing are (``runs``: their indices). A stopped run draws no
+            # further permutation either way.
             idx = np.flatnonzero(active)
-            mask, runs = (None, None) if active.all() else (active.copy(), self._tensor(idx))
+            every = 2 * len(idx) >= k_runs
+            mask = None if active.all() else active.copy()
+            runs = None if every else self._tensor(idx)
             sub = slice(None) if runs is None else runs
-            order = self._tensor(np.stack([self.permutation(k, size) for k in idx]))
+            keep = self._tensor(idx) if every and mask is not None else None  # the computed runs' columns to record
+            perms = {k: self.permutation(k, size) for k in idx}
+            computed = range(k_runs) if every else idx
+            order = self._tensor(np.stack([perms[k] if k in perms else np.arange(size) for k in computed]))
             for obs, actions, old_log_prob, adv, cadv, returns, cost_returns in ro.minibatches(
                 order, batch, "obs", "actions", "log_probs", "advantages", "cost_advantages", "returns", "cost_returns", runs=runs
             ):
@@ -98,7 +107,8 @@ class FleetPPOLag(FleetCostTrainer):
                 self._step_critics(critic_grads, critic_lr, mask)
                 self.actor_optimizer.step(actor_grads, actor_lr, mask, max_norm=max_norm)  # type: ignore[arg-type]
                 clip_fraction = ((ratio - 1.0).abs() > clip_range).float().mean(dim=1)
-                stats.append((idx, th.stack([policy_loss, value_loss, cost_value_loss, ent.mean(dim=1), clip_fraction])))
+                values = th.stack([policy_loss, value_loss, cost_value_loss, ent.mean(dim=1), clip_fraction])
+                stats.append((idx, values if keep is None else values[:, keep]))
             passes += active
             kl_sums = self._kl_sums(old_policies, idx.tolist())
             for k, total in kl_sums.items():
