@@ -25,7 +25,8 @@ from typing import Any
 from runners.schema import MF_PREFIX, SCHEMA_VERSION, run_path, runs_dir, write_learn, write_run, write_updates
 
 
-def _now() -> str:
+def utc_now() -> str:
+    """The time now, UTC, to the second (ISO 8601): the rows' ``started_at`` / ``finished_at``."""
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
@@ -149,12 +150,12 @@ def execute(config: dict[str, Any], run_id: str, results_dir: str | Path, gif: b
     try:
         if finished_status(results_dir, run_id) == "ok":
             return {"run_id": run_id, "status": "ok", "skipped": True}
-        return _execute_locked(config, run_id, results_dir, gif)
+        return execute_locked(config, run_id, results_dir, gif)
     finally:
         lock.release()
 
 
-def _spec_and_protocol(config: dict[str, Any]) -> tuple[Any, Any]:
+def spec_and_protocol(config: dict[str, Any]) -> tuple[Any, Any]:
     """The learner spec and protocol of a run config (JSON lists back to the spec's tuples)."""
     from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec
 
@@ -173,13 +174,15 @@ def bound_chain(config: dict[str, Any]) -> Any:
     return bind_chain(_chain(config), config["env_id"], config["beta"])
 
 
-def _execute_locked(config: dict[str, Any], run_id: str, results_dir: Path, gif: bool) -> dict[str, Any]:
+def execute_locked(config: dict[str, Any], run_id: str, results_dir: Path, gif: bool) -> dict[str, Any]:
+    """Train, evaluate and record one run whose lock the caller holds (the single engine's unit,
+    and the fleet engine's fallback for what it does not reproduce)."""
     limit_threads()
-    started, t0 = _now(), time.perf_counter()
+    started, t0 = utc_now(), time.perf_counter()
     try:
         from morality_gym.baselines.learners import build_learner
 
-        spec, protocol = _spec_and_protocol(config)
+        spec, protocol = spec_and_protocol(config)
         learner = build_learner(spec, bound_chain(config), protocol, seed=config["seed"], max_steps=config["max_steps"])
         learn_rows: list[dict[str, Any]] = []
         learner.learn(
@@ -276,7 +279,7 @@ def record_outcome(
             **_EMPTY_RESULT,
             **{f"{MF_PREFIX}{n}": None for n in norms},
         )
-    row.update(started_at=started, finished_at=_now(), wall_time_s=time.perf_counter() - t0)
+    row.update(started_at=started, finished_at=utc_now(), wall_time_s=time.perf_counter() - t0)
     write_run(results_dir, row, norms)
     return {"run_id": run_id, "status": row["status"], "error": row["error"], "metric": row["metric"], "wall_time_s": row["wall_time_s"]}
 
@@ -295,7 +298,7 @@ def record_failure(config: dict[str, Any], run_id: str, results_dir: str | Path,
         return
     norms = [n for n, _ in config["chain"]["norms"]]
     row = _base_row(config, run_id, engine)
-    now = _now()
+    now = utc_now()
     row.update(
         status="failed", error=error, traceback=trace or None, started_at=now, finished_at=now, wall_time_s=0.0,
         **_EMPTY_RESULT, **{f"{MF_PREFIX}{n}": None for n in norms},

@@ -32,13 +32,13 @@ from typing import Any
 
 from runners.execute import (
     RunLock,
-    _execute_locked,
-    _now,
-    _spec_and_protocol,
     bound_chain,
+    execute_locked,
     finished_status,
     limit_threads,
     record_outcome,
+    spec_and_protocol,
+    utc_now,
 )
 from runners.plan import PlannedRun
 from runners.schemas import ENGINES
@@ -206,7 +206,7 @@ def execute_job(
             yield from _train_fleet(mine, results_dir, gif, device, progress)
         else:
             for run_id, config in mine:
-                yield _execute_locked(config, run_id, results_dir, gif)
+                yield execute_locked(config, run_id, results_dir, gif)
     finally:
         for lock in locks:
             lock.release()
@@ -232,7 +232,7 @@ def _train_fleet(
     from morality_gym.baselines.specs import SpecError
 
     limit_threads()
-    started, t0 = _now(), time.perf_counter()
+    started, t0 = utc_now(), time.perf_counter()
     engine = f"fleet:{len(mine)}"
     first = mine[0][1]
     try:
@@ -242,7 +242,7 @@ def _train_fleet(
             yield record_outcome(config, run_id, results_dir, gif, None, [], started, t0, engine=engine, error=exc)
         return
     try:
-        spec, protocol = _spec_and_protocol(first)
+        spec, protocol = spec_and_protocol(first)
         fleet = build_fleet(
             spec, [FleetRun(bound_chain(c), int(c["seed"])) for _, c in mine], protocol, max_steps=first["max_steps"],
             device=device,
@@ -251,7 +251,7 @@ def _train_fleet(
         # A setting the fleet does not reproduce (e.g. a learner option it has no batched form
         # of): the runs are trained one by one, as the single engine would.
         for run_id, config in mine:
-            yield _execute_locked(config, run_id, results_dir, gif)
+            yield execute_locked(config, run_id, results_dir, gif)
         return
     except Exception as exc:  # noqa: BLE001 - recorded for every run of the fleet
         for run_id, config in mine:
