@@ -494,7 +494,6 @@ def validate(cfg: DictConfig) -> SweepConfig:
         if engine != "fleet":
             raise ConfigError(f"device={device}: only the fleet engine trains off the CPU; use engine=fleet or device=cpu")
         from morality_gym.baselines.fleet.base import fleet_device
-        from morality_gym.baselines.specs import SpecError
 
         try:
             fleet_device(device)

@@ -17,7 +17,7 @@ import socket
 import subprocess
 import time
 import traceback
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -27,7 +27,7 @@ from runners.schema import MF_PREFIX, SCHEMA_VERSION, run_path, runs_dir, write_
 
 def utc_now() -> str:
     """The time now, UTC, to the second (ISO 8601): the rows' ``started_at`` / ``finished_at``."""
-    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+    return datetime.now(UTC).isoformat(timespec="seconds")
 
 
 @lru_cache(maxsize=1)

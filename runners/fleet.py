@@ -26,7 +26,7 @@ import math
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -63,7 +63,7 @@ class Job:
         return [(r.run_id, r.config) for r in self.runs]
 
 
-@lru_cache(maxsize=None)
+@cache
 def fleet_trains(target: str) -> bool:
     """True if the fleet engine reproduces the learner class at ``target``."""
     from morality_gym.baselines.fleet import fleet_class

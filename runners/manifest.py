@@ -29,7 +29,7 @@ import json
 import os
 import tempfile
 from collections.abc import Iterable, Mapping, Sequence
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -73,7 +73,7 @@ def write_manifest(results_dir: str | Path, name: str, runs: Sequence[Mapping[st
     existing = _read(path) if path.is_file() else None
     if dry_run and existing is not None and not existing.get("dry_run", False):
         return path  # the same selection was launched for real: keep that record
-    now = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    now = datetime.now(UTC).isoformat(timespec="seconds")
     body = {
         "name": name,
         "created_at": now,

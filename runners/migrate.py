@@ -43,14 +43,15 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, console as make_console, run_cli
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
+from morality_gym.clitools import console as make_console
 from runners.identity import PER_RUN_KEYS, PROVENANCE_KEY, config_key, run_identity
 from runners.manifest import manifests_dir, plan_hash
 from runners.migrations import MIGRATIONS, Migration, MigrationError, migrate_config, migrate_sidecar, unmigrate_config
@@ -161,7 +162,7 @@ def read_journal(results: Path) -> list[dict[str, Any]]:
 def _journal(results: Path, **entry: Any) -> None:
     path = journal_path(results)
     path.parent.mkdir(parents=True, exist_ok=True)
-    entry = {"at": datetime.now(timezone.utc).isoformat(timespec="seconds"), **entry}
+    entry = {"at": datetime.now(UTC).isoformat(timespec="seconds"), **entry}
     with open(path, "a") as fh:
         fh.write(json.dumps(entry, sort_keys=True) + "\n")
         fh.flush()
@@ -495,7 +496,7 @@ def move_manifest(results: Path, path: Path, name: str, body: dict[str, Any], st
         except (OSError, ValueError):
             existing = None
         if isinstance(existing, dict):
-            rank = lambda b: (not b.get("dry_run", False), str(b.get("created_at", "")))  # noqa: E731
+            rank = lambda b: (not b.get("dry_run", False), str(b.get("created_at", "")))
             firsts = [str(b.get("first_created_at") or b.get("created_at") or "") for b in (existing, body)]
             base = existing if rank(existing) >= rank(body) else body
             body = {**base, "first_created_at": min(f for f in firsts if f) if any(firsts) else base.get("first_created_at")}
@@ -567,7 +568,14 @@ def _open_tracker(results: Path, todo: list[RunMove]) -> Any:
 def _run_moves(results: Path, todo: list[RunMove], tracker: Any, step: Step, console: Any, show: bool) -> None:
     if not todo:
         return
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
 
     columns = (TextColumn("migrating"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn())
     with Progress(*columns, console=console, transient=True, disable=not show) as bar:

@@ -14,13 +14,13 @@ and with them torch) so that the leaderboard can learn a preset's seeds quickly.
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 from morality_gym.baselines.specs import CONF_DIR  # re-exported: defined once, there
 
 
-@lru_cache(maxsize=None)
+@cache
 def preset_seeds(preset: str) -> tuple[int, ...] | None:
     """The seeds of ``conf/preset/<preset>.yaml`` (None if there is no such preset or it is invalid)."""
     from runners.schemas import PresetError, load_preset
@@ -55,7 +55,7 @@ def source_dir(source: str) -> Path | None:
             return None
         locations = list(spec.submodule_search_locations or []) if spec else []
         return Path(locations[0]) if locations else None
-    path = source[len("file://"):] if source.startswith("file://") else source
+    path = source.removeprefix("file://")
     return Path(path).expanduser().resolve() if path else None
 
 

@@ -59,8 +59,9 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int,
     from runners.fleet import execute_job
 
     limit_threads()
-    import morality_gym  # noqa: F401 - warm imports before the first run
     import stable_baselines3  # noqa: F401
+
+    import morality_gym  # noqa: F401 - warm imports before the first run
 
     conn.send(("ready", os.getpid()))
     while True:

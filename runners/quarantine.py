@@ -20,7 +20,7 @@ import json
 import os
 import sys
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import pyarrow as pa
@@ -75,7 +75,7 @@ def quarantine(results_dir: str | Path, path: Path, reason: str, announce: bool 
     results_dir = Path(results_dir)
     directory = quarantine_dir(results_dir)
     directory.mkdir(parents=True, exist_ok=True)
-    stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S%fZ")
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S%fZ")
     target = directory / path.name
     if target.exists():
         target = directory / f"{stamp}-{path.name}"
@@ -92,7 +92,7 @@ def quarantine(results_dir: str | Path, path: Path, reason: str, announce: bool 
     record = Quarantined(path, target, reason)
     entry = {"file": str(path.relative_to(results_dir)) if path.is_relative_to(results_dir) else str(path),
              "moved_to": str(target.relative_to(results_dir)), "reason": reason,
-             "at": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+             "at": datetime.now(UTC).isoformat(timespec="seconds")}
     with open(directory / INDEX, "a") as fh:
         fh.write(json.dumps(entry) + "\n")
     if announce:

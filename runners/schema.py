@@ -213,7 +213,7 @@ def write_updates(results_dir: str | Path, run_id: str, rows: list[Mapping[str, 
     return path
 
 
-def read_updates(results_dir: str | Path, run_id: str) -> "Any":
+def read_updates(results_dir: str | Path, run_id: str) -> Any:
     """One run's per-update diagnostics as a DataFrame (empty if the run has none)."""
     import pandas as pd
 
@@ -251,7 +251,7 @@ def run_files(results_dir: str | Path) -> list[Path]:
     return [p for p in sorted(runs_dir(results_dir).glob("*.parquet")) if "." not in p.stem]
 
 
-def read_runs(results_dir: str | Path, skipped: list[dict[str, str]] | None = None) -> "Any":
+def read_runs(results_dir: str | Path, skipped: list[dict[str, str]] | None = None) -> Any:
     """All run rows under ``results_dir`` as one pandas DataFrame (columns unified by name).
 
     A file that cannot be read, or is of another schema version, raises, unless ``skipped`` is
@@ -279,7 +279,7 @@ def read_runs(results_dir: str | Path, skipped: list[dict[str, str]] | None = No
     return pd.concat(frames, ignore_index=True, sort=False)
 
 
-def read_learn(results_dir: str | Path) -> "Any":
+def read_learn(results_dir: str | Path) -> Any:
     import pandas as pd
 
     frames = [pq.read_table(p).to_pandas() for p in sorted(runs_dir(results_dir).glob("*.learn.parquet"))]

@@ -20,7 +20,6 @@ from __future__ import annotations
 import os
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import hydra
@@ -30,7 +29,7 @@ from rich.markup import escape
 from morality_gym.clitools import DEBUG_ENV, debug_enabled, one_line, run_cli
 from runners.config import ConfigError, SweepConfig, validate  # also stores the schemas (runners.schemas)
 from runners.execute import finished_status, record_failure
-from runners.fleet import make_jobs, jobs_estimate
+from runners.fleet import jobs_estimate, make_jobs
 from runners.manifest import manifest_name, write_manifest
 from runners.paths import CONF_DIR
 from runners.plan import PlannedRun, describe, plan
@@ -77,7 +76,14 @@ class FleetBars:
 def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
     """Plan and execute a validated sweep; returns the exit status."""
     from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
     from rich.table import Table
 
     console = console or Console(stderr=True)
@@ -115,7 +121,7 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
             "one by one (engine=single trains every run on its own)"
         )
     elif todo_runs:
-        console.print(f"engine [bold]single[/bold]: every run trains on its own" + (
+        console.print("engine [bold]single[/bold]: every run trains on its own" + (
             "" if sweep.engine == "single" else " (no two runs to do can share a fleet)"))
     tracker = None
     if sweep.mlflow and not sweep.dry_run:

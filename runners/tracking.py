@@ -26,7 +26,6 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
 
-
 from runners.schema import MF_PREFIX, UPDATE_COLUMNS, learn_path, run_path, updates_path
 
 EXPERIMENT = "morality-gym"
@@ -126,7 +125,7 @@ class Tracker:
                         EXPERIMENT, artifact_location=(self.results_dir / "mlartifacts").as_uri())
                 else:
                     self.experiment_id = exp.experiment_id
-        except Exception as exc:  # noqa: BLE001 - SQLAlchemy, HTTP and MLflow errors alike
+        except Exception as exc:  # SQLAlchemy, HTTP and MLflow errors alike
             first = str(exc).strip().splitlines()[0][:300] if str(exc).strip() else ""
             raise TrackingError(f"cannot open the MLflow store {uri} ({type(exc).__name__}: {first}); {_FIX}") from exc
 

@@ -33,4 +33,4 @@ def one_torch_thread():
     torch.set_num_threads(before)
 
 
-from tests.slurm_cluster import slurm_cluster  # noqa: E402,F401 - session fixture for the SLURM tests
+from tests.slurm_cluster import slurm_cluster  # noqa: F401 - session fixture for the SLURM tests

@@ -81,9 +81,9 @@ def test_paper_hyper_parameters() -> None:
 
 
 def test_step_budgets_as_the_reference_ran_them() -> None:
-    from morality_gym.baselines.specs import training_steps
-
     import math
+
+    from morality_gym.baselines.specs import training_steps
 
     for name, budget, expected in (("ppo", 1_000_000, 1_015_808), ("ppo", 500_000, 507_904),
                                    ("ppo_lag", 1_000_000, 999_424), ("cpo", 500_000, 499_712)):

@@ -131,7 +131,7 @@ def test_exact_of_deterministic_table_equals_one_episode() -> None:
 
 
 def test_policy_kinds_for_evaluation() -> None:
-    stay = lambda obs: 4  # noqa: E731
+    stay = lambda obs: 4
     r = evaluate(stay, "SwitchStandard-HumanA-v1", "Utility", n_episodes=3, max_steps=200)
     assert r.mean_length == 201 and r.truncation_rate == 1.0 and r.metric == 0.0
     e = exact_evaluate(lambda obs: np.eye(6)[4], "SwitchStandard-HumanA-v1", "Utility")

@@ -443,8 +443,8 @@ def test_11_episodes_must_be_positive() -> None:
 
 def test_11_a_policy_returning_an_invalid_action_is_named() -> None:
     import morality_gym
-    from morality_gym.envs.trolley import InvalidActionError
     from morality_gym import exact_evaluate
+    from morality_gym.envs.trolley import InvalidActionError
 
     bound = morality_gym.bind_chain("Utility", "SwitchStandard-HumanA-v1")
     with pytest.raises(InvalidActionError, match=r"returned action 9; valid actions are the integers 0-5"):

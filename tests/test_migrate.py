@@ -26,7 +26,15 @@ import pytest
 from runners.identity import config_key, run_id_of
 from runners.manifest import manifest_name, read_manifests
 from runners.migrate import MigrateError, migrate, read_journal
-from runners.migrations import LEARNER_TARGET, MIGRATIONS, MigrationError, migrate_config, unmigrate_config, unmigrate_sidecar, vocabulary_only
+from runners.migrations import (
+    LEARNER_TARGET,
+    MIGRATIONS,
+    MigrationError,
+    migrate_config,
+    unmigrate_config,
+    unmigrate_sidecar,
+    vocabulary_only,
+)
 from runners.schema import learn_path, run_path, runs_dir, updates_path
 from tests.sweep_tools import run_files
 

@@ -23,7 +23,6 @@ from morality_gym.baselines.safe import CPO, CPOCase, CPOScalars, PPOLag, exact_
 from morality_gym.baselines.safe.functional import conjugate_gradient, normalize_advantages, reduce_kl
 from tests.cmdp_toy import TwoRouteCMDP
 
-
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
@@ -227,7 +226,7 @@ def _q26_reference(x: th.Tensor, p: th.Tensor, q: float, r: float, s: float, c: 
                    bb: float) -> tuple[int, th.Tensor, float, float]:
     """Q26 transcribed in torch (float64, so that only the formulas can differ, not the rounding of
     OmniSafe's float32): (case, direction, lambda*, nu*)."""
-    f = lambda value: th.tensor(value, dtype=th.float64)  # noqa: E731
+    f = lambda value: th.tensor(value, dtype=th.float64)
     q_, r_, s_ = f(q), f(r), f(s)
     if bb <= 1e-6 and c < 0:
         case, a_, b_ = 4, f(0.0), f(0.0)

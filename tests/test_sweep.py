@@ -58,6 +58,7 @@ def mlflow_run_ids(results: Path) -> list[str]:
         (["algo=random", "beta=2"], "beta"),
         (["algo=random", "max_steps=many"], "max_steps"),
         (["algo=ppo", "+algo.ppo.planning.speed=3"], "unknown planning key(s) ['speed']"),
+        (["algo=random", "+protocol.bogus=1"], "bogus"),  # was an UnboundLocalError (a later local import shadowed SpecError)
     ],
 )
 def test_bad_input_fails_before_any_run(tmp_path: Path, args: list[str], message: str) -> None:
@@ -219,7 +220,7 @@ def test_sigkill_of_a_worker_fails_one_run_and_resume_finishes(tmp_path: Path) -
 @pytest.mark.slow
 def test_sweep_through_real_slurm_with_a_failing_run(slurm_cluster, tmp_path: Path) -> None:
     args = ["launcher=slurm", f"launcher.partition={slurm_cluster.partition}", "launcher.timeout_min=10",
-            f"launcher.cpus_per_task=1", "launcher.mem_gb=2", "launcher.array_parallelism=2", "launcher.poll_s=0.5",
+            "launcher.cpus_per_task=1", "launcher.mem_gb=2", "launcher.array_parallelism=2", "launcher.poll_s=0.5",
             "algo=[random,ppo]", "algo.ppo.hparams.n_steps=1", "algo.ppo.n_envs=1",
             "chain=utility", "scenario=[switch_standard]", "variant=[HumanA,HumanB]", "seed=[41]", "preset=smoke",
             "engine=single"]  # one array task per run (the fleet engine on SLURM: the next test)

@@ -27,7 +27,7 @@ import types
 import typing
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 from typing import Any
 
 from morality_gym.baselines.specs import LearnerSpec, SpecError
@@ -111,7 +111,7 @@ def algorithm_class(target: str) -> type:
     return resolve(target)
 
 
-@lru_cache(maxsize=None)
+@cache
 def accepted_hparams(target: str) -> dict[str, inspect.Parameter]:
     """The constructor parameters a sweep may set for the class at ``target``.
 

@@ -78,7 +78,7 @@ def load_model(path: str | Path) -> Any:
                          "restore the .zip saved with it or retrain the run")
     try:
         return cls.load(zip_path, device="cpu")
-    except Exception as exc:  # noqa: BLE001 - zipfile, torch and pickle each raise their own kinds
+    except Exception as exc:  # zipfile, torch and pickle each raise their own kinds
         raise ModelError(f"{zip_path}: cannot be loaded as a {cls.__name__} model ({type(exc).__name__}: {exc}); "
                          "the file is damaged or was not saved by Learner.save: restore it or retrain the run") from exc
 

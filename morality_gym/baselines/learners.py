@@ -16,6 +16,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from morality_gym.baselines.learn_evals import EvalHook, learn_eval_row
+from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, protocol_spec, training_steps
+from morality_gym.baselines.targets import import_root
 from morality_gym.envs.registry import parse_env_id
 from morality_gym.envs.trolley import DEFAULT_MAX_STEPS, TrolleyEnv
 from morality_gym.evaluation.exact import exact_evaluate
@@ -23,9 +26,6 @@ from morality_gym.evaluation.montecarlo import evaluate, evaluate_sequential
 from morality_gym.evaluation.policies import PolicyAdapter, sample_actions
 from morality_gym.evaluation.result import EvaluationResult
 from morality_gym.norms.metric import BoundChain
-from morality_gym.baselines.learn_evals import EvalHook, learn_eval_row
-from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, protocol_spec, training_steps
-from morality_gym.baselines.targets import import_root
 
 if TYPE_CHECKING:  # imported when used: it loads SB3 and torch, which the random learner never needs
     from morality_gym.baselines.callbacks import MoralityEvalCallback

@@ -122,7 +122,7 @@ class LearnerSpec:
             shape_reward=self.shape_reward,
         )
 
-    def with_overrides(self, overrides: Mapping[str, Any], where: str = "") -> "LearnerSpec":
+    def with_overrides(self, overrides: Mapping[str, Any], where: str = "") -> LearnerSpec:
         """A copy with some fields (and ``hparams`` entries) replaced; unknown keys and wrong types raise.
 
         ``_target_`` (the key of the YAML files) is accepted for ``target``.
@@ -135,7 +135,7 @@ class LearnerSpec:
         return _typed(LearnerSpec, dataclasses.asdict(self), overrides, where=where)
 
     @classmethod
-    def from_mapping(cls, values: Mapping[str, Any], name: str, where: str = "") -> "LearnerSpec":
+    def from_mapping(cls, values: Mapping[str, Any], name: str, where: str = "") -> LearnerSpec:
         """A spec from an algo file's values (``_target_`` names the class; every field left out
         takes this class's default, ``label`` defaults to ``name``)."""
         values = _rename_target(values)
@@ -235,7 +235,7 @@ class ProtocolSpec:
             raise SpecError(f"protocol {self.name!r}: render_episode_steps must be an integer >= 0, got {self.render_episode_steps!r}")
 
     @classmethod
-    def from_mapping(cls, values: Mapping[str, Any], where: str = "") -> "ProtocolSpec":
+    def from_mapping(cls, values: Mapping[str, Any], where: str = "") -> ProtocolSpec:
         """A protocol from a protocol file's values over this class's defaults."""
         where = where or f"protocol {values.get('name', '?')!r}"
         _check_keys(where, values, typed.valid_keys(cls))

@@ -46,7 +46,7 @@ def resolve(target: str, where: str = "_target_", search: Iterable[str | Path] =
 
     try:
         cls = get_class(target)
-    except Exception as exc:  # noqa: BLE001 - hydra wraps ImportError/AttributeError in its own kinds
+    except Exception as exc:  # hydra wraps ImportError/AttributeError in its own kinds
         cause = exc.__cause__ or exc
         module = target.rsplit(".", 1)[0].split(".")[0]
         raise TargetError(

@@ -25,7 +25,7 @@ import os
 import threading
 import warnings
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 import yaml
@@ -46,7 +46,7 @@ SCENARIOS_ENV = "MORALITY_GYM_SCENARIOS"
 
 _scenarios: dict[str, Scenario] = {}
 _extra_dirs: list[Path] = []
-_skipped: list["SkippedScenario"] = []
+_skipped: list[SkippedScenario] = []
 _lock = threading.Lock()
 
 
@@ -107,7 +107,7 @@ def _load_dir(directory: Path, user: bool = False) -> dict[str, Scenario]:
 def _skip(path: Path, error: str) -> None:
     """Remember a skipped user file and say so on one line (the warning's location is the file)."""
     prefix = f"{path}: "
-    message = error[len(prefix):] if error.startswith(prefix) else error
+    message = error.removeprefix(prefix)
     _skipped.append(SkippedScenario(path, _declared_name(path) if path.is_file() else None, error))
     warnings.warn_explicit(f"skipped this scenario file: {message}", ScenarioFileWarning, str(path), 1)
 
@@ -248,7 +248,7 @@ def parse_env_id(env_id: str) -> tuple[Scenario, str]:
     raise UnknownEnvError(f"Unknown MoralityGym env id {env_id!r}. {hint}.")
 
 
-@lru_cache(maxsize=None)
+@cache
 def _cached_graph(scenario_name: str, variant: str, overrides: Overrides | None, normalise: bool) -> StateGraph:
     scenario = scenarios()[scenario_name]
     world = World(scenario, variant, overrides)

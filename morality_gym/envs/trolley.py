@@ -248,4 +248,4 @@ class TrolleyEnv(gym.Env[Any, int]):
         return f"<TrolleyEnv {self.env_id} max_steps={self.max_steps} obs_type={self.obs_type}>"
 
 
-__all__ = ["TrolleyEnv", "InvalidActionError", "DEFAULT_MAX_STEPS"]
+__all__ = ["DEFAULT_MAX_STEPS", "InvalidActionError", "TrolleyEnv"]

@@ -60,13 +60,13 @@ class EvaluationResult:
     @classmethod
     def from_aggregates(
         cls,
-        bound: "BoundChain",
+        bound: BoundChain,
         *,
         exact: bool,
         event_freq: Mapping[str, float],
         utility_mean: Mapping[str, float],
         **stats: Any,
-    ) -> "EvaluationResult":
+    ) -> EvaluationResult:
         """Morality functions and metric from event frequencies and mean utility totals (spec 4.2-4.3).
 
         Exact and Monte-Carlo evaluation differ only in how they obtain these aggregates; ``stats``

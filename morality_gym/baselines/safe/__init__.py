@@ -16,7 +16,14 @@ rollout buffer), :mod:`.base` (cost-aware rollouts), :mod:`.lagrange` (the multi
 from morality_gym.baselines.safe.base import COST_INFO_KEY, CostOnPolicyAlgorithm, MissingCostError
 from morality_gym.baselines.safe.buffers import CostRolloutBuffer, CostRolloutBufferSamples
 from morality_gym.baselines.safe.cpo import CPO
-from morality_gym.baselines.safe.cpo_dual import CPOCase, CPOScalars, CPOStep, cpo_direction, exact_direction, omnisafe_direction
+from morality_gym.baselines.safe.cpo_dual import (
+    CPOCase,
+    CPOScalars,
+    CPOStep,
+    cpo_direction,
+    exact_direction,
+    omnisafe_direction,
+)
 from morality_gym.baselines.safe.lagrange import LagrangeMultiplier
 from morality_gym.baselines.safe.policies import CostActorCriticPolicy, MlpPolicy
 from morality_gym.baselines.safe.ppo_lag import PPOLag

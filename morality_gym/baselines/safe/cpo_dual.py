@@ -92,11 +92,11 @@ class CPOScalars:
     bb: float  # b^T b
 
     @property
-    def A(self) -> float:  # noqa: N802 - the paper's name
+    def A(self) -> float:  # the paper's name
         return self.q - self.r**2 / (self.s + GUARD)
 
     @property
-    def B(self) -> float:  # noqa: N802 - the paper's name
+    def B(self) -> float:  # the paper's name
         return 2 * self.delta - self.c**2 / (self.s + GUARD)
 
 
@@ -108,8 +108,8 @@ class CPOStep:
     case: CPOCase
     lam: float  # lambda*: trust-region multiplier as reported (OmniSafe's convention per case)
     nu: float  # nu*: cost-constraint multiplier as reported
-    A: float = 0.0  # noqa: N815
-    B: float = 0.0  # noqa: N815
+    A: float = 0.0  # the paper's names
+    B: float = 0.0
 
 
 def determine_case(sc: CPOScalars) -> tuple[CPOCase, float, float]:
