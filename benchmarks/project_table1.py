@@ -1,0 +1,205 @@
+"""Project a whole Table 1 sweep's wall time from rows of it that were actually run.
+
+Why this exists: the sweep planner's estimate comes from per-learner rates fitted once
+(``planning`` in ``conf/algo``) and a fleet speed-up measured on one scenario; at the paper's
+budget a Table 1 takes hours, so a claim such as "the paper preset fits a workstation" should rest
+on runs that were measured, not on the planner alone. This tool reads the finished runs of a
+results directory (a few Table 1 rows run at the preset in question), measures each learner's
+core-seconds per training step (every run's ``wall_time_s``: its share of its fleet's training
+plus its own evaluations and writes), and prices every job of the full Table 1 plan with it. The
+jobs are those the sweep itself would make (:func:`runners.fleet.make_jobs`, fleets of up to
+``fleet_size``), handed to ``W`` workers in plan order as each becomes free, as the local pool
+does, so the projection includes the tail where one long fleet keeps a worker busy.
+
+Usage::
+
+    python -m benchmarks.project_table1 RESULTS_DIR [--preset paper] [--protocol paper]
+        [--engine fleet] [--workers 2 8] [--set KEY=VALUE ...] [--out FILE.md]
+
+A learner with no measured run keeps the planner's estimate and is marked so in the output.
+"""
+
+from __future__ import annotations
+
+import argparse
+import heapq
+import json
+import sys
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Rate:
+    """Measured cost of one learner's runs: core-seconds per training step of one run."""
+
+    runs: int
+    steps: int
+    core_seconds: float
+    rows: tuple[str, ...]
+    fleet_sizes: tuple[int, ...]
+
+    @property
+    def seconds_per_step(self) -> float:
+        return self.core_seconds / max(self.steps, 1)
+
+
+def _target(config: str, algo: str) -> str:
+    """The learner class a run was trained with: its recorded config's, else its algo file's."""
+    from morality_gym.baselines.specs import learner_spec
+
+    try:
+        return str(json.loads(config)["algo"]["target"])
+    except (TypeError, ValueError, KeyError):
+        return learner_spec(algo).target
+
+
+def measured_rates(results_dir: Path, protocol: str, preset: str, engine: str) -> dict[str, Rate]:
+    """Per algo name: what its finished runs under ``protocol``/``preset``/``engine`` cost.
+
+    Random trains nothing, so its cost is per run, not per step: its ``steps`` are its runs, and
+    its runs count whatever ``engine`` says (a run without training never joins a fleet).
+    """
+    import pandas as pd
+
+    from runners.fleet import fleet_trains
+    from runners.schema import read_runs
+
+    frame = read_runs(results_dir, skipped=[])
+    if frame.empty:
+        return {}
+    frame = frame[(frame["status"] == "ok") & (frame["protocol"] == protocol) & (frame["preset"] == preset)]
+    kind = frame["engine"].fillna("single").astype(str).str.split(":").str[0]
+    # a run that trains nothing, or whose learner the fleet engine does not reproduce, is never a fleet's
+    alone = [budget <= 0 or not fleet_trains(_target(config, algo))
+             for budget, config, algo in zip(frame["budget"], frame["config"], frame["algo"], strict=True)]
+    frame = frame[(kind == engine) | pd.Series(alone, index=frame.index)]
+    rates: dict[str, Rate] = {}
+    for algo, group in frame.groupby("algo"):
+        trained = int(group["budget"].max()) > 0
+        sizes = sorted({int(e.split(":")[1]) for e in group["engine"].fillna("single").astype(str) if ":" in e})
+        rates[str(algo)] = Rate(
+            runs=len(group),
+            steps=int(group["budget"].sum()) if trained else len(group),
+            core_seconds=float(group["wall_time_s"].sum()),
+            rows=tuple(sorted({f"{c} / {s}" for c, s in zip(group["chain"], group["scenario"], strict=True)})),
+            fleet_sizes=tuple(sizes),
+        )
+    return rates
+
+
+def table1_jobs(preset: str, protocol: str, engine: str, workers: int, scratch: Path,
+                extra: Sequence[str] = ()) -> tuple[list[Any], Any]:
+    """The full Table 1 plan cut into the jobs a sweep with ``workers`` workers would run."""
+    from hydra import compose, initialize_config_dir
+
+    from runners.config import validate
+    from runners.fleet import make_jobs
+    from runners.paths import CONF_DIR
+    from runners.plan import plan
+
+    overrides = ["experiment=table1", f"protocol={protocol}", f"preset={preset}", f"engine={engine}",
+                 f"results_dir={scratch}", "mlflow=false", "dry_run=true", f"launcher.workers={workers}"]
+    if protocol == "corrected":  # the corrected table re-runs only the learners the fixes touch
+        overrides.append("algo=[random,ppo_lag,cpo]")
+    overrides += list(extra)
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=overrides)
+    sweep = validate(cfg)
+    runs = plan(sweep)
+    speedups = {a.spec.name: a.fleet_speedup for a in sweep.algos}
+    return make_jobs(runs, sweep.engine, sweep.fleet_size, workers, speedups), sweep
+
+
+def job_seconds(job: Any, rates: dict[str, Rate]) -> tuple[float, bool]:
+    """A job's projected seconds, and whether every run in it was priced from measurements."""
+    total, measured = 0.0, True
+    for run in job.runs:
+        algo, budget = run.config["algo"]["name"], int(run.config["budget"])
+        rate = rates.get(algo)
+        if rate is None:
+            measured = False
+            total += run.est_seconds if job.engine == "single" else job.est_seconds / len(job.runs)
+        else:
+            total += rate.seconds_per_step * (budget if budget > 0 else 1)
+    return total, measured
+
+
+def makespan(durations: Iterable[float], workers: int) -> float:
+    """Wall time when ``workers`` take the jobs in order, each the next job as soon as it is free."""
+    free = [0.0] * max(1, workers)
+    heapq.heapify(free)
+    for d in durations:
+        heapq.heappush(free, heapq.heappop(free) + d)
+    return max(free)
+
+
+def hms(seconds: float) -> str:
+    seconds = round(seconds)
+    h, rem = divmod(seconds, 3600)
+    m, s = divmod(rem, 60)
+    return f"{h}h{m:02d}m{s:02d}s" if h else f"{m}m{s:02d}s"
+
+
+def report(results_dir: Path, preset: str, protocol: str, engine: str, workers: Sequence[int],
+           extra: Sequence[str] = ()) -> str:
+    """The measured rates and the projection, as Markdown."""
+    import tempfile
+
+    from morality_gym.baselines.specs import learner_spec
+
+    rates = measured_rates(results_dir, protocol, preset, engine)
+    title = f" ({', '.join(extra)})" if extra else ""
+    lines = [f"### Measured: `{results_dir}` ({preset} preset, {protocol} protocol, engine {engine})", "",
+             "| learner | runs | rows | fleet sizes | core time | core-s per run per 1M steps |",
+             "|---|---:|---|---|---:|---:|"]
+    for algo, rate in sorted(rates.items()):
+        per = f"per run: {rate.seconds_per_step:.1f} s" if rate.steps == rate.runs else f"{rate.seconds_per_step * 1e6:,.0f}"
+        rows = "; ".join(rate.rows) if len(rate.rows) <= 3 else f"{len(rate.rows)} rows"
+        lines.append(f"| {learner_spec(algo).label} | {rate.runs} | {rows} | "
+                     f"{', '.join(map(str, rate.fleet_sizes)) or 'single'} | {hms(rate.core_seconds)} | {per} |")
+    lines += ["", f"### Projected: the whole Table 1 ({preset} preset, {protocol} protocol, engine {engine}){title}", "",
+              "| workers (cores) | runs | jobs | core time | projected wall time | planner's estimate | unmeasured learners |",
+              "|---:|---:|---:|---:|---:|---:|---|"]
+    with tempfile.TemporaryDirectory() as scratch:
+        for w in workers:
+            jobs, sweep = table1_jobs(preset, protocol, engine, w, Path(scratch), extra)
+            priced = [job_seconds(j, rates) for j in jobs]
+            from runners.fleet import jobs_estimate
+
+            missing = sorted({a.spec.label for a in sweep.algos if a.spec.name not in rates})
+            lines.append(f"| {w} | {sum(len(j.runs) for j in jobs):,} | {len(jobs)} | {hms(sum(p for p, _ in priced))} | "
+                         f"**{hms(makespan((p for p, _ in priced), w))}** | {hms(jobs_estimate(jobs, set(), w))} | "
+                         f"{', '.join(missing) or 'none'} |")
+    lines += ["", ("Each job is priced at the measured core-seconds per step of its learner times its runs' budgets "
+                   "(evaluations included, as they are in each run's wall time); the workers take the jobs in plan order. "
+                   "The planner's estimate is what `dry_run=true` prints for the same sweep.")]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.project_table1", description=__doc__.split("\n\n")[0])
+    parser.add_argument("results_dir", type=Path, help="a results directory holding finished runs of some Table 1 rows")
+    parser.add_argument("--preset", default="paper")
+    parser.add_argument("--protocol", default="paper", choices=("paper", "corrected"))
+    parser.add_argument("--engine", default="fleet", choices=("fleet", "single"))
+    parser.add_argument("--workers", type=int, nargs="+", default=[2, 8])
+    parser.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
+                        help="a further sweep override for the projected plan, e.g. --set 'preset.seeds=[41,42,43]'")
+    parser.add_argument("--out", type=Path, help="also write the Markdown here")
+    args = parser.parse_args(argv)
+    if not (args.results_dir / "runs").is_dir():
+        parser.error(f"{args.results_dir}: no runs/ directory (not a results directory)")
+    if any(w < 1 for w in args.workers):
+        parser.error("--workers: each count must be >= 1")
+    text = report(args.results_dir, args.preset, args.protocol, args.engine, args.workers, args.extra)
+    print(text)
+    if args.out:
+        args.out.write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

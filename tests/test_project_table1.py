@@ -1,0 +1,71 @@
+"""``python -m benchmarks.project_table1``: measured per-learner cost, priced over the full plan.
+
+The measured side is the leaderboard tests' synthetic results directory (quick preset, three
+Table 1 rows, five learners), whose wall times are known, so every rate the tool prints can be
+recomputed here; the projection is checked against the plan the sweep itself makes.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from benchmarks.project_table1 import job_seconds, makespan, measured_rates, table1_jobs
+from tests.leaderboard_data import REPO, make_results
+
+
+@pytest.fixture(scope="module")
+def measured(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[dict]]:
+    base = tmp_path_factory.mktemp("projection")
+    synthetic = make_results(base / "r")
+    return base / "r", synthetic.ok_records
+
+
+def test_makespan_takes_jobs_in_order_on_the_first_free_worker() -> None:
+    assert makespan([5, 1, 1, 1], 2) == 5  # the three short jobs share the second worker
+    assert makespan([1, 1, 1, 5], 2) == 6  # plan order matters: the long job starts last (5 if it went first)
+    assert makespan([3, 3, 3], 1) == 9
+    assert makespan([], 4) == 0
+
+
+def test_rates_are_the_runs_core_seconds_per_step(measured: tuple[Path, list[dict]]) -> None:
+    results, records = measured
+    rates = measured_rates(results, "paper", "quick", "single")
+    ppo = [r for r in records if r["algo"] == "ppo" and r["protocol"] == "paper"]
+    assert rates["ppo"].runs == len(ppo)
+    assert rates["ppo"].seconds_per_step == pytest.approx(sum(r["wall_time_s"] for r in ppo) / sum(r["budget"] for r in ppo))
+    randoms = [r for r in records if r["algo"] == "random" and r["protocol"] == "paper"]
+    per = max(r["budget"] for r in randoms) > 0 and sum(r["budget"] for r in randoms) or len(randoms)  # real sweeps: budget 0
+    assert rates["random"].seconds_per_step == pytest.approx(sum(r["wall_time_s"] for r in randoms) / per)
+    assert measured_rates(results, "paper", "quick", "fleet").keys() == {"random"}  # no trained run was a fleet's
+
+
+def test_projection_prices_every_planned_run(measured: tuple[Path, list[dict]], tmp_path: Path) -> None:
+    results, _ = measured
+    rates = measured_rates(results, "paper", "quick", "single")
+    jobs, _sweep = table1_jobs("quick", "paper", "fleet", 2, tmp_path / "scratch")
+    assert sum(len(j.runs) for j in jobs) == 630  # the quick Table 1: 126 pairs x 5 learners, one seed
+    priced = [job_seconds(j, rates) for j in jobs]
+    assert all(ok for _, ok in priced)
+    expected = sum(rates[r.config["algo"]["name"]].seconds_per_step * max(int(r.config["budget"]), 1)
+                   for j in jobs for r in j.runs)
+    assert sum(p for p, _ in priced) == pytest.approx(expected)
+    del rates["cpo"]  # an unmeasured learner keeps the planner's estimate and is said to
+    assert not all(ok for _, ok in (job_seconds(j, rates) for j in jobs))
+
+
+def test_cli(measured: tuple[Path, list[dict]], tmp_path: Path) -> None:
+    results, _ = measured
+    out = tmp_path / "projection.md"
+    done = subprocess.run([sys.executable, "-m", "benchmarks.project_table1", str(results), "--preset", "quick",
+                           "--engine", "single", "--workers", "2", "8", "--out", str(out)],
+                          cwd=REPO, capture_output=True, text=True, timeout=600, check=False)
+    assert done.returncode == 0, done.stderr
+    text = out.read_text()
+    assert "| 2 | 630 |" in text and "| 8 | 630 |" in text and "| none |" in text
+    bad = subprocess.run([sys.executable, "-m", "benchmarks.project_table1", str(tmp_path)], cwd=REPO,
+                         capture_output=True, text=True, timeout=120, check=False)
+    assert bad.returncode == 2 and "not a results directory" in bad.stderr
