@@ -15,8 +15,9 @@ Output (Markdown, to stdout or ``--out``), per (protocol, preset):
   signed-rank test of the paired runs' differences (``scipy.stats.wilcoxon``);
 * per learner: mean and largest |difference| over its cells, the cells whose difference exceeds
   the larger of the two seed spreads, the share of identical runs, the test over all its paired
-  runs, and the compute each engine spent (the runs' ``wall_time_s`` summed: a fleet run's is its
-  share of the fleet's training plus its own evaluation);
+  runs, and the compute each engine spent on the runs both sides finished (the runs'
+  ``wall_time_s`` summed: a fleet run's is its share of the fleet's training plus its own
+  evaluation), so an unfinished side is compared on what it did;
 * the wall-clock span of each side's sweep (first run started to last run finished).
 
 Neither directory is written to.
@@ -152,7 +153,7 @@ def group_report(single: Results, fleet: Results, protocol: str, preset: str) ->
     lines += ["", "Per learner (cells complete on both sides; runs paired by run id):", ""]
     lines += [
         ("| learner | cells | mean abs(fleet − single) | largest | cells beyond the seed spread | runs identical | "
-         "Wilcoxon p (all runs) | single compute | fleet compute | single / fleet |"),
+         "Wilcoxon p (all runs) | single compute (paired runs) | fleet compute (paired runs) | single / fleet |"),
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     table = pd.DataFrame(verdicts, columns=["learner", "diff", "spread"])
@@ -161,9 +162,8 @@ def group_report(single: Results, fleet: Results, protocol: str, preset: str) ->
         runs = pairs.loc[pairs["learner"] == learner]
         beyond = int((mine["diff"].abs() > mine["spread"]).sum())
         p = wilcoxon_p(runs["diff"].to_numpy()) if len(runs) else math.nan
-        s_runs, f_runs = select(single.runs), select(fleet.runs)
-        s_time = float(s_runs.loc[s_runs["learner"] == learner, "wall_time_s"].sum())
-        f_time = float(f_runs.loc[f_runs["learner"] == learner, "wall_time_s"].sum())
+        # over the paired runs only: a side that has not finished must not look cheaper or dearer
+        s_time, f_time = float(runs["wall_time_s_single"].sum()), float(runs["wall_time_s_fleet"].sum())
         cells = [
             md_escape(learner),
             str(len(mine)),
@@ -186,7 +186,8 @@ def group_report(single: Results, fleet: Results, protocol: str, preset: str) ->
         f"Wall-clock span of the sweeps (first run started to last finished): single "
         f"{_duration(_span(select(single.runs)))} ({len(select(single.runs))} runs; engines: {engines_s}), fleet "
         f"{_duration(_span(select(fleet.runs)))} ({len(select(fleet.runs))} runs"
-        + (f"; fleets of {sizes[0]}-{sizes[-1]} runs" if sizes else "") + ").",
+        + (f"; fleets of {sizes[0]}-{sizes[-1]} runs" if sizes else "") + "). A span includes any time a sweep "
+        "was paused or stopped before it was resumed; the compute columns do not.",
         "",
     ]
     return lines

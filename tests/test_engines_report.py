@@ -93,3 +93,17 @@ def test_cli_writes_the_report_and_refuses_a_bad_directory(sides: tuple[Path, Pa
                          check=False, cwd=REPO, capture_output=True, text=True)
     assert bad.returncode == 2
     assert "not a results directory" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_compute_compares_the_same_runs_when_one_side_is_unfinished(sides: tuple[Path, Path, list[dict]], tmp_path: Path) -> None:
+    single, fleet, records = sides
+    partial = tmp_path / "partial"
+    shutil.copytree(single, partial)
+    ppo = sorted(r["run_id"] for r in records if r["learner"] == "PPO")
+    for run_id in ppo[: len(ppo) // 2]:  # half the single engine's PPO runs not finished yet
+        for path in (partial / "runs").glob(f"{run_id}*"):
+            shutil.rmtree(path) if path.is_dir() else path.unlink()
+    text = report(load_results(partial), load_results(fleet), ["paper"])
+    summary = text.split("Per learner", 1)[1]
+    row = next(line for line in summary.splitlines() if line.startswith("| PPO |"))
+    assert row.strip("|").split("|")[9].strip() == "4.0x"  # not 2.0x: the fleet's extra runs are left out
