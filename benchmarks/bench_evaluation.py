@@ -19,10 +19,10 @@ def _clear_graph_caches() -> None:
 def evaluation_speed(ctx: Context) -> Section:
     import numpy as np
 
+    from morality_gym.envs.trolley import TrolleyEnv
     from morality_gym.evaluation.exact import exact_evaluate
     from morality_gym.evaluation.montecarlo import evaluate, evaluate_sequential
     from morality_gym.evaluation.oracle import oracle
-    from morality_gym.envs.trolley import TrolleyEnv
     from morality_gym.norms.metric import bind_chain
     from morality_gym.paper import table1, table1_pairs
 

@@ -8,8 +8,9 @@ results directory (a few Table 1 rows run at the preset in question), measures e
 core-seconds per training step (every run's ``wall_time_s``: its share of its fleet's training
 plus its own evaluations and writes), and prices every job of the full Table 1 plan with it. The
 jobs are those the sweep itself would make (:func:`runners.fleet.make_jobs`, fleets of up to
-``fleet_size``), handed to ``W`` workers in plan order as each becomes free, as the local pool
-does, so the projection includes the tail where one long fleet keeps a worker busy.
+``fleet_size``), handed to ``W`` workers in the sweep's dispatch order (longest estimated job
+first) as each becomes free, as the local pool does, so the projection includes the tail where
+one long fleet keeps a worker busy.
 
 Usage::
 
@@ -22,10 +23,9 @@ A learner with no measured run keeps the planner's estimate and is marked so in 
 from __future__ import annotations
 
 import argparse
-import heapq
 import json
 import sys
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -127,15 +127,6 @@ def job_seconds(job: Any, rates: dict[str, Rate]) -> tuple[float, bool]:
     return total, measured
 
 
-def makespan(durations: Iterable[float], workers: int) -> float:
-    """Wall time when ``workers`` take the jobs in order, each the next job as soon as it is free."""
-    free = [0.0] * max(1, workers)
-    heapq.heapify(free)
-    for d in durations:
-        heapq.heappush(free, heapq.heappop(free) + d)
-    return max(free)
-
-
 def hms(seconds: float) -> str:
     seconds = round(seconds)
     h, rem = divmod(seconds, 3600)
@@ -149,6 +140,7 @@ def report(results_dir: Path, preset: str, protocol: str, engine: str, workers: 
     import tempfile
 
     from morality_gym.baselines.specs import learner_spec
+    from runners.fleet import dispatch_order, jobs_estimate, makespan
 
     rates = measured_rates(results_dir, protocol, preset, engine)
     title = f" ({', '.join(extra)})" if extra else ""
@@ -166,15 +158,15 @@ def report(results_dir: Path, preset: str, protocol: str, engine: str, workers: 
     with tempfile.TemporaryDirectory() as scratch:
         for w in workers:
             jobs, sweep = table1_jobs(preset, protocol, engine, w, Path(scratch), extra)
+            jobs = dispatch_order(jobs, w)  # the order the sweep's workers take them
             priced = [job_seconds(j, rates) for j in jobs]
-            from runners.fleet import jobs_estimate
 
             missing = sorted({a.spec.label for a in sweep.algos if a.spec.name not in rates})
             lines.append(f"| {w} | {sum(len(j.runs) for j in jobs):,} | {len(jobs)} | {hms(sum(p for p, _ in priced))} | "
                          f"**{hms(makespan((p for p, _ in priced), w))}** | {hms(jobs_estimate(jobs, set(), w))} | "
                          f"{', '.join(missing) or 'none'} |")
     lines += ["", ("Each job is priced at the measured core-seconds per step of its learner times its runs' budgets "
-                   "(evaluations included, as they are in each run's wall time); the workers take the jobs in plan order. "
+                   "(evaluations included, as they are in each run's wall time); the workers take the jobs in the sweep's order (longest estimated first), each as soon as it is free. "
                    "The planner's estimate is what `dry_run=true` prints for the same sweep.")]
     return "\n".join(lines) + "\n"
 

@@ -29,7 +29,7 @@ from rich.markup import escape
 from morality_gym.clitools import DEBUG_ENV, debug_enabled, one_line, run_cli
 from runners.config import ConfigError, SweepConfig, validate  # also stores the schemas (runners.schemas)
 from runners.execute import finished_status, record_failure
-from runners.fleet import jobs_estimate, make_jobs
+from runners.fleet import dispatch_order, jobs_estimate, make_jobs
 from runners.manifest import manifest_name, write_manifest
 from runners.paths import CONF_DIR
 from runners.plan import PlannedRun, describe, plan
@@ -96,7 +96,8 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
     workers = _workers(sweep)
     info = describe(runs, done, workers)
     todo_runs = [r for r in runs if r.run_id not in done]
-    jobs = make_jobs(todo_runs, sweep.engine, sweep.fleet_size, workers, {a.spec.name: a.fleet_speedup for a in sweep.algos})
+    jobs = dispatch_order(make_jobs(todo_runs, sweep.engine, sweep.fleet_size, workers,
+                                    {a.spec.name: a.fleet_speedup for a in sweep.algos}), workers)
     info["est_seconds"] = jobs_estimate(jobs, done, workers)
     fleets = [j for j in jobs if j.engine == "fleet"]
     console.print(f"sweep [bold]{sweep.name}[/bold]: {info['total']} runs ({info['done']} done, {info['todo']} to run)")

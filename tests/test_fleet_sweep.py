@@ -17,7 +17,7 @@ import pytest
 
 from runners.config import validate
 from runners.execute import RunLock, finished_status
-from runners.fleet import execute_job, fleet_speedup, fleet_trains, jobs_estimate, make_jobs
+from runners.fleet import dispatch_order, execute_job, fleet_speedup, fleet_trains, jobs_estimate, make_jobs, makespan
 from runners.plan import plan
 from runners.schema import read_runs, read_updates
 from tests.sweep_tools import run_files, wait_for_results
@@ -101,6 +101,22 @@ def test_estimate_uses_the_measured_fleet_speedup(tmp_path: Path) -> None:
     overhead = sum(r.overhead_s for r in runs)
     assert overhead > 0 and fleet == pytest.approx(overhead + (single - overhead) / measured)
     assert jobs_estimate(make_jobs(runs, "fleet", 36, 1, speedups), {r.run_id for r in runs}, 1) == 0.0
+
+
+def test_several_workers_take_the_longest_jobs_first(tmp_path: Path) -> None:
+    sweep = _sweep_config(tmp_path, "algo=[random,ppo,cpo]", "chain=utility", "scenario=[switch_standard,switch5]",
+                          "preset=smoke", "seed=[1,2,3]")
+    jobs = make_jobs(plan(sweep), "fleet", 36, 2, {a.spec.name: a.fleet_speedup for a in sweep.algos})
+    assert dispatch_order(jobs, 1) == jobs  # one worker: the plan's order (results arrive row by row)
+    ordered = dispatch_order(jobs, 2)
+    assert sorted(map(id, ordered)) == sorted(map(id, jobs))
+    estimates = [j.est_seconds for j in ordered]
+    assert estimates == sorted(estimates, reverse=True) and estimates != [j.est_seconds for j in jobs]
+    # the estimate is the makespan of that order, never below the longest job or the even split
+    est = jobs_estimate(jobs, set(), 2)
+    assert est == pytest.approx(makespan(estimates, 2))
+    assert est >= max(estimates) and est >= sum(estimates) / 2 - 1e-9
+    assert makespan([1, 1, 1, 5], 2) == 6 and makespan(sorted([1, 1, 1, 5], reverse=True), 2) == 5
 
 
 def test_only_learners_the_fleet_reproduces_are_grouped() -> None:

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.project_table1 import job_seconds, makespan, measured_rates, table1_jobs
+from benchmarks.project_table1 import job_seconds, measured_rates, table1_jobs
+from runners.fleet import makespan
 from tests.leaderboard_data import REPO, make_results
 
 
