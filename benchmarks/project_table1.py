@@ -15,7 +15,7 @@ one long fleet keeps a worker busy.
 Usage::
 
     python -m benchmarks.project_table1 RESULTS_DIR [--preset paper] [--protocol paper]
-        [--engine fleet] [--workers 2 8] [--set KEY=VALUE ...] [--out FILE.md]
+        [--engine fleet] [--workers 2 8] [--set KEY=VALUE ...] [--relative-to RESULTS_DIR] [--out FILE.md]
 
 A learner with no measured run keeps the planner's estimate and is marked so in the output.
 """
@@ -40,6 +40,7 @@ class Rate:
     core_seconds: float
     rows: tuple[str, ...]
     fleet_sizes: tuple[int, ...]
+    scenarios: tuple[str, ...] = ()
 
     @property
     def seconds_per_step(self) -> float:
@@ -56,11 +57,11 @@ def _target(config: str, algo: str) -> str:
         return learner_spec(algo).target
 
 
-def measured_rates(results_dir: Path, protocol: str, preset: str, engine: str) -> dict[str, Rate]:
-    """Per algo name: what its finished runs under ``protocol``/``preset``/``engine`` cost.
+def finished_runs(results_dir: Path, protocol: str, preset: str | None, engine: str) -> Any:
+    """The ``ok`` runs under ``protocol`` (and ``preset``, unless None) trained by ``engine``.
 
-    Random trains nothing, so its cost is per run, not per step: its ``steps`` are its runs, and
-    its runs count whatever ``engine`` says (a run without training never joins a fleet).
+    A run that trains nothing, or whose learner the fleet engine does not reproduce, counts
+    whatever ``engine`` says: it never joins a fleet.
     """
     import pandas as pd
 
@@ -69,13 +70,25 @@ def measured_rates(results_dir: Path, protocol: str, preset: str, engine: str) -
 
     frame = read_runs(results_dir, skipped=[])
     if frame.empty:
-        return {}
-    frame = frame[(frame["status"] == "ok") & (frame["protocol"] == protocol) & (frame["preset"] == preset)]
+        return frame
+    keep = (frame["status"] == "ok") & (frame["protocol"] == protocol)
+    if preset is not None:
+        keep &= frame["preset"] == preset
+    frame = frame[keep]
     kind = frame["engine"].fillna("single").astype(str).str.split(":").str[0]
-    # a run that trains nothing, or whose learner the fleet engine does not reproduce, is never a fleet's
     alone = [budget <= 0 or not fleet_trains(_target(config, algo))
              for budget, config, algo in zip(frame["budget"], frame["config"], frame["algo"], strict=True)]
-    frame = frame[(kind == engine) | pd.Series(alone, index=frame.index)]
+    return frame[(kind == engine) | pd.Series(alone, index=frame.index)]
+
+
+def measured_rates(results_dir: Path, protocol: str, preset: str, engine: str) -> dict[str, Rate]:
+    """Per algo name: what its finished runs under ``protocol``/``preset``/``engine`` cost.
+
+    Random trains nothing, so its cost is per run, not per step: its ``steps`` are its runs.
+    """
+    frame = finished_runs(results_dir, protocol, preset, engine)
+    if frame.empty:
+        return {}
     rates: dict[str, Rate] = {}
     for algo, group in frame.groupby("algo"):
         trained = int(group["budget"].max()) > 0
@@ -86,8 +99,35 @@ def measured_rates(results_dir: Path, protocol: str, preset: str, engine: str) -
             core_seconds=float(group["wall_time_s"].sum()),
             rows=tuple(sorted({f"{c} / {s}" for c, s in zip(group["chain"], group["scenario"], strict=True)})),
             fleet_sizes=tuple(sizes),
+            scenarios=tuple(sorted(set(group["scenario"]))),
         )
     return rates
+
+
+def scenario_factors(reference_dir: Path, protocol: str, engine: str, rates: dict[str, Rate]) -> dict[tuple[str, str], float]:
+    """How much dearer per step each (learner, scenario) is than the scenarios ``rates`` measured.
+
+    Why: a step's cost depends on the scenario (observation size, how many distinct states CPO's
+    and PPO-Lag's whole-rollout arithmetic sees, how often norms fire); in the quick Table 1 the
+    dearest scenarios cost about twice the cheapest per step. Rows measured at the paper's budget
+    are few, so each scenario's cost relative to the measured ones is taken from a sweep that ran
+    every scenario with the same engine (any preset, e.g. the quick Table 1), and the measured
+    rate is scaled by it. Pairs the reference does not have keep a factor of 1.
+    """
+    frame = finished_runs(reference_dir, protocol, None, engine)
+    frame = frame[frame["budget"] > 0] if not frame.empty else frame
+    factors: dict[tuple[str, str], float] = {}
+    for algo, rate in rates.items():
+        mine = frame[frame["algo"] == algo] if not frame.empty else frame
+        if mine.empty or rate.steps == rate.runs:
+            continue
+        per_step = mine.groupby("scenario")["wall_time_s"].sum() / mine.groupby("scenario")["budget"].sum()
+        base_rows = mine[mine["scenario"].isin(rate.scenarios)]
+        if base_rows.empty:
+            continue
+        base = float(base_rows["wall_time_s"].sum() / base_rows["budget"].sum())
+        factors.update({(algo, str(scenario)): float(value) / base for scenario, value in per_step.items()})
+    return factors
 
 
 def table1_jobs(preset: str, protocol: str, engine: str, workers: int, scratch: Path,
@@ -113,8 +153,11 @@ def table1_jobs(preset: str, protocol: str, engine: str, workers: int, scratch: 
     return make_jobs(runs, sweep.engine, sweep.fleet_size, workers, speedups), sweep
 
 
-def job_seconds(job: Any, rates: dict[str, Rate]) -> tuple[float, bool]:
-    """A job's projected seconds, and whether every run in it was priced from measurements."""
+def job_seconds(job: Any, rates: dict[str, Rate], factors: dict[tuple[str, str], float] | None = None) -> tuple[float, bool]:
+    """A job's projected seconds, and whether every run in it was priced from measurements.
+
+    ``factors`` (:func:`scenario_factors`) scale a learner's measured rate to each scenario."""
+    factors = factors or {}
     total, measured = 0.0, True
     for run in job.runs:
         algo, budget = run.config["algo"]["name"], int(run.config["budget"])
@@ -123,7 +166,7 @@ def job_seconds(job: Any, rates: dict[str, Rate]) -> tuple[float, bool]:
             measured = False
             total += run.est_seconds if job.engine == "single" else job.est_seconds / len(job.runs)
         else:
-            total += rate.seconds_per_step * (budget if budget > 0 else 1)
+            total += rate.seconds_per_step * (budget if budget > 0 else 1) * factors.get((algo, run.config["scenario"]), 1.0)
     return total, measured
 
 
@@ -135,14 +178,15 @@ def hms(seconds: float) -> str:
 
 
 def report(results_dir: Path, preset: str, protocol: str, engine: str, workers: Sequence[int],
-           extra: Sequence[str] = ()) -> str:
-    """The measured rates and the projection, as Markdown."""
+           extra: Sequence[str] = (), reference: Path | None = None) -> str:
+    """The measured rates and the projection (scenarios weighted by ``reference``'s sweep, if given), as Markdown."""
     import tempfile
 
     from morality_gym.baselines.specs import learner_spec
     from runners.fleet import dispatch_order, jobs_estimate, makespan
 
     rates = measured_rates(results_dir, protocol, preset, engine)
+    factors = scenario_factors(reference, protocol, engine, rates) if reference else {}
     title = f" ({', '.join(extra)})" if extra else ""
     lines = [f"### Measured: `{results_dir}` ({preset} preset, {protocol} protocol, engine {engine})", "",
              "| learner | runs | rows | fleet sizes | core time | core-s per run per 1M steps |",
@@ -159,15 +203,24 @@ def report(results_dir: Path, preset: str, protocol: str, engine: str, workers: 
         for w in workers:
             jobs, sweep = table1_jobs(preset, protocol, engine, w, Path(scratch), extra)
             jobs = dispatch_order(jobs, w)  # the order the sweep's workers take them
-            priced = [job_seconds(j, rates) for j in jobs]
+            priced = [job_seconds(j, rates, factors) for j in jobs]
 
             missing = sorted({a.spec.label for a in sweep.algos if a.spec.name not in rates})
             lines.append(f"| {w} | {sum(len(j.runs) for j in jobs):,} | {len(jobs)} | {hms(sum(p for p, _ in priced))} | "
                          f"**{hms(makespan((p for p, _ in priced), w))}** | {hms(jobs_estimate(jobs, set(), w))} | "
                          f"{', '.join(missing) or 'none'} |")
     lines += ["", ("Each job is priced at the measured core-seconds per step of its learner times its runs' budgets "
-                   "(evaluations included, as they are in each run's wall time); the workers take the jobs in the sweep's order (longest estimated first), each as soon as it is free. "
-                   "The planner's estimate is what `dry_run=true` prints for the same sweep.")]
+                   "(evaluations included, as they are in each run's wall time); the workers take the jobs in the sweep's "
+                   "order (longest estimated first), each as soon as it is free. The planner's estimate is what "
+                   "`dry_run=true` prints for the same sweep.")]
+    if factors:
+        lines += ["", (f"Each scenario's cost per step relative to the measured scenarios is that of `{reference}` "
+                       "(same protocol and engine), per learner:"), "",
+                  "| learner | " + " | ".join(sorted({sc for _, sc in factors})) + " |",
+                  "|---|" + "---:|" * len({sc for _, sc in factors})]
+        for algo in sorted({a for a, _ in factors}):
+            lines.append(f"| {learner_spec(algo).label} | "
+                         + " | ".join(f"{factors.get((algo, sc), 1.0):.2f}" for sc in sorted({sc for _, sc in factors})) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -180,13 +233,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, nargs="+", default=[2, 8])
     parser.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
                         help="a further sweep override for the projected plan, e.g. --set 'preset.seeds=[41,42,43]'")
+    parser.add_argument("--relative-to", dest="reference", type=Path, metavar="RESULTS_DIR",
+                        help="a sweep of every Table 1 scenario (e.g. the quick Table 1) whose per-scenario costs "
+                             "weight the measured rates: the rows measured may be cheaper or dearer than the rest")
     parser.add_argument("--out", type=Path, help="also write the Markdown here")
     args = parser.parse_args(argv)
     if not (args.results_dir / "runs").is_dir():
         parser.error(f"{args.results_dir}: no runs/ directory (not a results directory)")
     if any(w < 1 for w in args.workers):
         parser.error("--workers: each count must be >= 1")
-    text = report(args.results_dir, args.preset, args.protocol, args.engine, args.workers, args.extra)
+    if args.reference is not None and not (args.reference / "runs").is_dir():
+        parser.error(f"--relative-to {args.reference}: no runs/ directory (not a results directory)")
+    text = report(args.results_dir, args.preset, args.protocol, args.engine, args.workers, args.extra, args.reference)
     print(text)
     if args.out:
         args.out.write_text(text)

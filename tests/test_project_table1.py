@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.project_table1 import job_seconds, measured_rates, table1_jobs
+from benchmarks.project_table1 import job_seconds, measured_rates, scenario_factors, table1_jobs
 from runners.fleet import makespan
 from tests.leaderboard_data import REPO, make_results
 
@@ -70,3 +70,19 @@ def test_cli(measured: tuple[Path, list[dict]], tmp_path: Path) -> None:
     bad = subprocess.run([sys.executable, "-m", "benchmarks.project_table1", str(tmp_path)], cwd=REPO,
                          capture_output=True, text=True, timeout=120, check=False)
     assert bad.returncode == 2 and "not a results directory" in bad.stderr
+
+
+def test_scenario_factors_weight_the_rates_by_the_reference_sweep(measured: tuple[Path, list[dict]], tmp_path: Path) -> None:
+    results, records = measured
+    rates = measured_rates(results, "paper", "quick", "single")
+    factors = scenario_factors(results, "paper", "single", rates)
+    ppo = [r for r in records if r["algo"] == "ppo" and r["protocol"] == "paper"]
+    per_step = {sc: sum(r["wall_time_s"] for r in ppo if r["scenario"] == sc) / sum(r["budget"] for r in ppo if r["scenario"] == sc)
+                for sc in {r["scenario"] for r in ppo}}
+    overall = sum(r["wall_time_s"] for r in ppo) / sum(r["budget"] for r in ppo)
+    for scenario, value in per_step.items():  # the reference is the measured sweep itself: relative to its mean
+        assert factors[("ppo", scenario)] == pytest.approx(value / overall)
+    jobs, _sweep = table1_jobs("quick", "paper", "fleet", 1, tmp_path / "scratch")
+    plain = sum(job_seconds(j, rates)[0] for j in jobs)
+    weighted = sum(job_seconds(j, rates, factors)[0] for j in jobs)
+    assert weighted != pytest.approx(plain)
