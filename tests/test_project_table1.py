@@ -83,6 +83,8 @@ def test_scenario_factors_weight_the_rates_by_the_reference_sweep(measured: tupl
     for scenario, value in per_step.items():  # the reference is the measured sweep itself: relative to its mean
         assert factors[("ppo", scenario)] == pytest.approx(value / overall)
     jobs, _sweep = table1_jobs("quick", "paper", "fleet", 1, tmp_path / "scratch")
-    plain = sum(job_seconds(j, rates)[0] for j in jobs)
     weighted = sum(job_seconds(j, rates, factors)[0] for j in jobs)
-    assert weighted != pytest.approx(plain)
+    expected = sum(rates[r.config["algo"]["name"]].seconds_per_step * max(int(r.config["budget"]), 1)
+                   * factors.get((r.config["algo"]["name"], r.config["scenario"]), 1.0) for j in jobs for r in j.runs)
+    assert weighted == pytest.approx(expected)
+    assert any(abs(f - 1.0) > 1e-6 for f in factors.values())  # the weighting is not a no-op here
