@@ -191,7 +191,15 @@ def test_ctrl_c_in_a_real_terminal_restores_it() -> None:
     import subprocess
     import sys
 
+    import termios
+
     master, slave = pty.openpty()
+    # NOFLSH: on Ctrl-C the kernel would otherwise discard the terminal's pending output, and it does
+    # so after signalling, so on a busy machine it can throw away what the child already printed in
+    # response ("interrupted", EXIT): a CI run failed that way. The child's own handling is unchanged.
+    attrs = termios.tcgetattr(slave)
+    attrs[3] |= termios.NOFLSH
+    termios.tcsetattr(slave, termios.TCSANOW, attrs)
     child = subprocess.Popen(
         [sys.executable, "-c", _CTRL_C_CHILD], stdin=slave, stdout=slave, stderr=slave, start_new_session=True
     )
