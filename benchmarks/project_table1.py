@@ -30,6 +30,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from morality_gym.clitools import duration
+
 
 @dataclass(frozen=True)
 class Rate:
@@ -130,27 +132,38 @@ def scenario_factors(reference_dir: Path, protocol: str, engine: str, rates: dic
     return factors
 
 
-def table1_jobs(preset: str, protocol: str, engine: str, workers: int, scratch: Path,
-                extra: Sequence[str] = ()) -> tuple[list[Any], Any]:
-    """The full Table 1 plan cut into the jobs a sweep with ``workers`` workers would run."""
+def table1_plan(preset: str, protocol: str, engine: str, scratch: Path, extra: Sequence[str] = ()) -> tuple[list[Any], Any]:
+    """The full Table 1 plan (its runs and validated sweep), composed as the sweep would compose it."""
     from hydra import compose, initialize_config_dir
 
     from runners.config import validate
-    from runners.fleet import make_jobs
     from runners.paths import CONF_DIR
     from runners.plan import plan
 
     overrides = ["experiment=table1", f"protocol={protocol}", f"preset={preset}", f"engine={engine}",
-                 f"results_dir={scratch}", "mlflow=false", "dry_run=true", f"launcher.workers={workers}"]
+                 f"results_dir={scratch}", "mlflow=false", "dry_run=true"]
     if protocol == "corrected":  # the corrected table re-runs only the learners the fixes touch
         overrides.append("algo=[random,ppo_lag,cpo]")
     overrides += list(extra)
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = compose("config", overrides=overrides)
     sweep = validate(cfg)
-    runs = plan(sweep)
+    return plan(sweep), sweep
+
+
+def plan_jobs(runs: list[Any], sweep: Any, workers: int) -> list[Any]:
+    """The plan cut into the jobs a sweep with ``workers`` workers runs, in the order they take them."""
+    from runners.fleet import dispatch_order, make_jobs
+
     speedups = {a.spec.name: a.fleet_speedup for a in sweep.algos}
-    return make_jobs(runs, sweep.engine, sweep.fleet_size, workers, speedups), sweep
+    return dispatch_order(make_jobs(runs, sweep.engine, sweep.fleet_size, workers, speedups), workers)
+
+
+def table1_jobs(preset: str, protocol: str, engine: str, workers: int, scratch: Path,
+                extra: Sequence[str] = ()) -> tuple[list[Any], Any]:
+    """The full Table 1 plan cut into the jobs a sweep with ``workers`` workers would run."""
+    runs, sweep = table1_plan(preset, protocol, engine, scratch, extra)
+    return plan_jobs(runs, sweep, workers), sweep
 
 
 def job_seconds(job: Any, rates: dict[str, Rate], factors: dict[tuple[str, str], float] | None = None) -> tuple[float, bool]:
@@ -170,20 +183,13 @@ def job_seconds(job: Any, rates: dict[str, Rate], factors: dict[tuple[str, str],
     return total, measured
 
 
-def hms(seconds: float) -> str:
-    seconds = round(seconds)
-    h, rem = divmod(seconds, 3600)
-    m, s = divmod(rem, 60)
-    return f"{h}h{m:02d}m{s:02d}s" if h else f"{m}m{s:02d}s"
-
-
 def report(results_dir: Path, preset: str, protocol: str, engine: str, workers: Sequence[int],
            extra: Sequence[str] = (), reference: Path | None = None) -> str:
     """The measured rates and the projection (scenarios weighted by ``reference``'s sweep, if given), as Markdown."""
     import tempfile
 
     from morality_gym.baselines.specs import learner_spec
-    from runners.fleet import dispatch_order, jobs_estimate, makespan
+    from runners.fleet import jobs_estimate, makespan
 
     rates = measured_rates(results_dir, protocol, preset, engine)
     factors = scenario_factors(reference, protocol, engine, rates) if reference else {}
@@ -195,19 +201,19 @@ def report(results_dir: Path, preset: str, protocol: str, engine: str, workers: 
         per = f"per run: {rate.seconds_per_step:.1f} s" if rate.steps == rate.runs else f"{rate.seconds_per_step * 1e6:,.0f}"
         rows = "; ".join(rate.rows) if len(rate.rows) <= 3 else f"{len(rate.rows)} rows"
         lines.append(f"| {learner_spec(algo).label} | {rate.runs} | {rows} | "
-                     f"{', '.join(map(str, rate.fleet_sizes)) or 'single'} | {hms(rate.core_seconds)} | {per} |")
+                     f"{', '.join(map(str, rate.fleet_sizes)) or 'single'} | {duration(rate.core_seconds)} | {per} |")
     lines += ["", f"### Projected: the whole Table 1 ({preset} preset, {protocol} protocol, engine {engine}){title}", "",
               "| workers (cores) | runs | jobs | core time | projected wall time | planner's estimate | unmeasured learners |",
               "|---:|---:|---:|---:|---:|---:|---|"]
     with tempfile.TemporaryDirectory() as scratch:
+        runs, sweep = table1_plan(preset, protocol, engine, Path(scratch), extra)  # composed and planned once
         for w in workers:
-            jobs, sweep = table1_jobs(preset, protocol, engine, w, Path(scratch), extra)
-            jobs = dispatch_order(jobs, w)  # the order the sweep's workers take them
+            jobs = plan_jobs(runs, sweep, w)
             priced = [job_seconds(j, rates, factors) for j in jobs]
 
             missing = sorted({a.spec.label for a in sweep.algos if a.spec.name not in rates})
-            lines.append(f"| {w} | {sum(len(j.runs) for j in jobs):,} | {len(jobs)} | {hms(sum(p for p, _ in priced))} | "
-                         f"**{hms(makespan((p for p, _ in priced), w))}** | {hms(jobs_estimate(jobs, set(), w))} | "
+            lines.append(f"| {w} | {sum(len(j.runs) for j in jobs):,} | {len(jobs)} | {duration(sum(p for p, _ in priced))} | "
+                         f"**{duration(makespan((p for p, _ in priced), w))}** | {duration(jobs_estimate(jobs, set(), w))} | "
                          f"{', '.join(missing) or 'none'} |")
     lines += ["", ("Each job is priced at the measured core-seconds per step of its learner times its runs' budgets "
                    "(evaluations included, as they are in each run's wall time); the workers take the jobs in the sweep's "

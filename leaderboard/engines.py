@@ -38,7 +38,7 @@ from scipy import stats
 from leaderboard.aggregate import aggregate, learner_order, row_order
 from leaderboard.build import load
 from leaderboard.tables import fmt, md_escape
-from morality_gym.clitools import UserError, run_cli
+from morality_gym.clitools import UserError, duration, run_cli
 
 _CELL = ["protocol", "preset", "chain", "scenario", "learner"]
 #: Two metrics closer than this print the same at 3 decimals: the runs are counted as identical.
@@ -108,14 +108,6 @@ def _span(runs: pd.DataFrame) -> float:
     return float((end - start).total_seconds())
 
 
-def _duration(seconds: float) -> str:
-    if not math.isfinite(seconds):
-        return "–"
-    minutes, secs = divmod(round(seconds), 60)
-    hours, minutes = divmod(minutes, 60)
-    return f"{hours}h{minutes:02d}m{secs:02d}s" if hours else f"{minutes}m{secs:02d}s"
-
-
 def group_report(single: Results, fleet: Results, protocol: str, preset: str) -> list[str]:
     """The table, the per-learner summary and the wall times of one (protocol, preset)."""
     def select(frame: pd.DataFrame) -> pd.DataFrame:
@@ -172,8 +164,8 @@ def group_report(single: Results, fleet: Results, protocol: str, preset: str) ->
             str(beyond),
             f"{int((runs['diff'].abs() < SAME).sum())}/{len(runs)}" if len(runs) else "–",
             "–" if math.isnan(p) else f"{p:.2f}",
-            _duration(s_time),
-            _duration(f_time),
+            duration(s_time),
+            duration(f_time),
             f"{s_time / f_time:.1f}x" if f_time > 0 else "–",
         ]
         lines.append("| " + " | ".join(cells) + " |")
@@ -184,8 +176,8 @@ def group_report(single: Results, fleet: Results, protocol: str, preset: str) ->
     lines += [
         "",
         f"Wall-clock span of the sweeps (first run started to last finished): single "
-        f"{_duration(_span(select(single.runs)))} ({len(select(single.runs))} runs; engines: {engines_s}), fleet "
-        f"{_duration(_span(select(fleet.runs)))} ({len(select(fleet.runs))} runs"
+        f"{duration(_span(select(single.runs)))} ({len(select(single.runs))} runs; engines: {engines_s}), fleet "
+        f"{duration(_span(select(fleet.runs)))} ({len(select(fleet.runs))} runs"
         + (f"; fleets of {sizes[0]}-{sizes[-1]} runs" if sizes else "") + "). A span includes any time a sweep "
         "was paused or stopped before it was resumed; the compute columns do not.",
         "",

@@ -111,6 +111,18 @@ def add_debug_flag(parser: argparse.ArgumentParser) -> None:
                         help=f"show tracebacks of user errors too (or set {DEBUG_ENV}=1)")
 
 
+def duration(seconds: float) -> str:
+    """``seconds`` as ``1h02m03s`` / ``2m03s`` (rounded to the second; ``–`` if not finite): the one
+    way sweeps, plans and reports print a duration, so their figures read alike."""
+    import math
+
+    if not math.isfinite(seconds):
+        return "–"
+    minutes, secs = divmod(round(seconds), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours}h{minutes:02d}m{secs:02d}s" if hours else f"{minutes}m{secs:02d}s"
+
+
 def positive_int(text: str) -> int:
     """An argparse type: an integer >= 1."""
     try:

@@ -26,7 +26,7 @@ import hydra
 from omegaconf import DictConfig
 from rich.markup import escape
 
-from morality_gym.clitools import DEBUG_ENV, debug_enabled, one_line, run_cli
+from morality_gym.clitools import DEBUG_ENV, debug_enabled, duration, one_line, run_cli
 from runners.config import ConfigError, SweepConfig, validate  # also stores the schemas (runners.schemas)
 from runners.execute import finished_status, record_failure
 from runners.fleet import dispatch_order, jobs_estimate, make_jobs
@@ -36,13 +36,6 @@ from runners.plan import PlannedRun, describe, plan
 from runners.quarantine import check_run_files, read_table_or_quarantine
 
 _EXIT = {"code": 0, "entered": 0}
-
-
-def _fmt_duration(seconds: float) -> str:
-    seconds = int(round(seconds))
-    h, rem = divmod(seconds, 3600)
-    m, s = divmod(rem, 60)
-    return f"{h}h{m:02d}m{s:02d}s" if h else f"{m}m{s:02d}s"
 
 
 def _workers(sweep: SweepConfig) -> int:
@@ -112,7 +105,7 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
     console.print(
         f"protocol [bold]{sweep.protocol.name}[/bold], preset [bold]{sweep.preset.name}[/bold], seeds {list(sweep.seeds)}, "
         f"launcher [bold]{sweep.launcher['name']}[/bold] ({workers} parallel), results in {sweep.results_dir}; "
-        f"estimated time for what remains: [bold]{_fmt_duration(info['est_seconds'])}[/bold]"
+        f"estimated time for what remains: [bold]{duration(info['est_seconds'])}[/bold]"
     )
     if fleets:
         in_fleets = sum(len(j.runs) for j in fleets)
@@ -206,7 +199,7 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
     failed = [r for r in runs if final[r.run_id] == "failed"]
     missing = [r for r in runs if final[r.run_id] is None]
     console.print(
-        f"finished in {_fmt_duration(time.perf_counter() - started)}: {sum(s == 'ok' for s in final.values())} ok, "
+        f"finished in {duration(time.perf_counter() - started)}: {sum(s == 'ok' for s in final.values())} ok, "
         f"{len(failed)} failed, {len(missing)} missing (of {len(runs)})"
     )
     if failed:
