@@ -15,6 +15,9 @@ comma := ,
 empty :=
 space := $(empty) $(empty)
 PYTEST_ARGS ?=
+# The shipped results releases (releases/<name>/) are shown beside your own runs; RELEASES= shows none.
+RELEASES ?= all
+RELEASE_ARGS := $(foreach r,$(RELEASES),--release $(r))
 # Debian packages the tests use: a real single-node SLURM (with accounting) and headless Chromium.
 DEBIAN_PACKAGES := slurm-wlm munge slurmdbd mariadb-server chromium
 
@@ -66,12 +69,13 @@ reproduce-table1: venv
 	@code=0; $(PY) -m runners.table1 preset=$(PRESET) launcher=$(LAUNCHER) results_dir=$(RESULTS) \
 	  protocols=[$(subst $(space),$(comma),$(strip $(PROTOCOLS)))] || code=$$?; \
 	if [ $$code = 2 ]; then exit 2; fi; \
-	$(PY) -m leaderboard.build --results $(RESULTS) --site leaderboard/site || exit $$?; \
+	$(PY) -m leaderboard.build --results $(RESULTS) --site leaderboard/site $(RELEASE_ARGS) || exit $$?; \
 	echo "Table 1: $(RESULTS)/table1.md   leaderboard: leaderboard/site/index.html"; \
 	exit $$code
 
 leaderboard: venv
-	$(PY) -m leaderboard.build --results $(RESULTS) --site leaderboard/site
+	@mkdir -p $(RESULTS)
+	$(PY) -m leaderboard.build --results $(RESULTS) --site leaderboard/site $(RELEASE_ARGS)
 
 mlflow-ui: venv
 	$(VENV)/bin/mlflow ui --backend-store-uri sqlite:///$(abspath $(RESULTS))/mlflow.db --port 5000

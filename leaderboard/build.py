@@ -23,6 +23,9 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from leaderboard.aggregate import Leaderboard, aggregate, compute_reference, reference_requests, with_reference
+from leaderboard.release import MANIFEST, Release, ReleaseError, find_releases
+from leaderboard.release import load as load_release
+from leaderboard.sources import Sources, load_sources
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
 
 REFERENCE_CACHE = Path("cache") / "reference_rows.json"
@@ -52,6 +55,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help="skip the exact Random and oracle reference rows (they are cached once computed)")
     parser.add_argument("--protocol", help="protocol of the primary table (table1.csv/.tex); default: automatic")
     parser.add_argument("--preset", help="preset of the primary table; default: automatic")
+    parser.add_argument("--release", action="append", metavar="DIR|all",
+                        help="also show a results release (releases/<name>; 'all': every release in releases/); "
+                             "repeatable. Runs of the results directory win over a release's copy of the same run")
     add_debug_flag(parser)
     args = parser.parse_args(argv)
     if args.out is None:
@@ -77,19 +83,32 @@ def check_writable(directory: Path, what: str, fix: str) -> None:
 
 def load(results: Path) -> tuple[Any, dict[str, dict[str, Any]], list[dict[str, str]]]:
     """All readable run rows, all planned runs of a results directory, and what could not be read."""
-    from runners.manifest import planned_runs
-    from runners.schema import read_runs
-
-    skipped: list[dict[str, str]] = []
-    runs = read_runs(results, skipped=skipped)
-    planned = planned_runs(results, skipped=skipped)
-    return runs, planned, skipped
+    sources = load_sources(results, [])
+    return sources.runs.drop(columns="source"), sources.planned, sources.skipped
 
 
-def build(args: argparse.Namespace, runs: Any, planned: dict[str, dict[str, Any]],
-          skipped: list[dict[str, str]] | None = None, quarantined: list[dict[str, str]] | None = None,
+def releases_of(args: argparse.Namespace) -> list[Release]:
+    """The releases named by ``--release`` (``all``: every release in the checkout's ``releases/``),
+    each verified: a damaged or edited one stops the build with one line naming the file."""
+    paths: list[Path] = []
+    for item in args.release or []:
+        paths.extend(find_releases() if item == "all" else [Path(item)])
+    out = []
+    for path in dict.fromkeys(paths):
+        if not (path / MANIFEST).is_file():
+            known = ", ".join(p.name for p in find_releases()) or "none in releases/"
+            raise UserError(f"--release {path}: no {MANIFEST} there (releases: {known})")
+        try:
+            out.append(load_release(path))
+        except ReleaseError as exc:
+            raise UserError(str(exc)) from exc
+    return out
+
+
+def build(args: argparse.Namespace, sources: Sources, quarantined: list[dict[str, str]] | None = None,
           ) -> tuple[Leaderboard, dict[str, Any]]:
     """Run every stage on loaded runs; returns the leaderboard and what was written (for the summary)."""
+    runs, planned, skipped = sources.runs, sources.planned, sources.skipped
     from leaderboard.figures import write_figures, write_learn_curves
     from leaderboard.intervals import with_intervals
     from leaderboard.site import build_site
@@ -97,9 +116,7 @@ def build(args: argparse.Namespace, runs: Any, planned: dict[str, dict[str, Any]
     from leaderboard.stat_figures import write_stat_figures
     from leaderboard.stats import DEFAULT_RESAMPLES, compute_stats
     from leaderboard.tables import write_tables
-    from runners.schema import read_learn
 
-    results: Path = args.results
     out_dir: Path = args.out
     timings: dict[str, float] = {}
     start = time.perf_counter()
@@ -113,27 +130,27 @@ def build(args: argparse.Namespace, runs: Any, planned: dict[str, dict[str, Any]
     timings["aggregate"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    stats = compute_stats(lb.runs, lb.table if reference is not None else None, read_learn(results),
+    stats = compute_stats(lb.runs, lb.table if reference is not None else None, sources.learn(),
                           n_resamples=DEFAULT_RESAMPLES)
     lb = with_intervals(lb, stats.cells)
     timings["statistics"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    tables = write_tables(lb, out_dir, str(results), stamp)
+    tables = write_tables(lb, out_dir, sources.name, stamp)
     timings["tables"] = time.perf_counter() - start
 
     start = time.perf_counter()
     figures = write_figures(lb, out_dir / "figures", progress)
-    write_learn_curves(lb, results, out_dir / "figures" / "learn", figures, progress)
+    write_learn_curves(lb, sources, out_dir / "figures" / "learn", figures, progress)
     stat_figures = write_stat_figures(lb, stats, out_dir / "figures", figures.colours, progress)
     timings["figures"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    site = build_site(lb, results, args.site, figures, str(results), progress, stats=stats, stat_figures=stat_figures,
+    site = build_site(lb, sources, args.site, figures, sources.name, progress, stats=stats, stat_figures=stat_figures,
                       stamp=stamp, resamples=DEFAULT_RESAMPLES)
     timings["site"] = time.perf_counter() - start
     return lb, {"tables": tables, "figures": figures, "stat_figures": stat_figures, "site": site,
-                "reference": reference, "timings": timings}
+                "reference": reference, "timings": timings, "sources": sources}
 
 
 def summary(lb: Leaderboard, out: dict[str, Any], args: argparse.Namespace) -> str:
@@ -147,6 +164,12 @@ def summary(lb: Leaderboard, out: dict[str, Any], args: argparse.Namespace) -> s
         + (f"; {len(lb.superseded)} superseded by a newer run of the same slot, not counted (see table1.md)"
            if len(lb.superseded) else "")),
     ]
+    sources: Sources = out["sources"]
+    for release in sources.releases:
+        shown = int((lb.runs["source"] == release.name).sum()) if "source" in lb.runs.columns else 0
+        lines.append(f"{release.label}: {shown} of its {len(release.runs)} run(s) shown"
+                     + (f" ({len(release.runs) - shown} replaced by runs of {args.results} or superseded)"
+                        if shown < len(release.runs) else ""))
     ref = out["reference"]
     if ref is None:
         lines.append("reference rows: skipped (--no-reference)")
@@ -184,7 +207,8 @@ def run(args: argparse.Namespace) -> int:
     except StampError as exc:
         raise UserError(str(exc)) from exc
     results: Path = args.results
-    if not results.is_dir():
+    releases = releases_of(args)
+    if not results.is_dir() and not releases:
         raise UserError(f"results directory {results} does not exist (pass --results DIR)")
     try:
         check_target(args.site)  # a wrong --site must fail before anything is written
@@ -193,7 +217,8 @@ def run(args: argparse.Namespace) -> int:
     check_writable(args.out, "output directory", "pass --out DIR to write the tables, figures and cache elsewhere")
     check_writable(args.site.parent if not args.site.exists() else args.site, "site directory",
                    "pass --site DIR to write the site elsewhere")
-    runs, planned, skipped = load(results)
+    sources = load_sources(results, releases)
+    runs, planned, skipped = sources.runs, sources.planned, sources.skipped
     if len(runs) == 0 and not planned:
         if skipped:
             raise UserError(f"{results}: no readable run and no readable manifest ({len(skipped)} file(s) unreadable, "
@@ -201,7 +226,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"{results} holds no runs ({results / 'runs'}/*.parquet) and no sweep manifests "
                         f"({results / 'manifests'}/*.json): nothing to build")
     try:
-        lb, out = build(args, runs, planned, skipped, quarantined_files(results))
+        lb, out = build(args, sources, quarantined_files(results) if results.is_dir() else [])
     except (SiteError, StampError) as exc:
         raise UserError(str(exc)) from exc
     except PermissionError as exc:

@@ -23,6 +23,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from leaderboard.aggregate import Group, Leaderboard, safe_name
+from leaderboard.sources import SideFile, Sources
 
 #: Okabe-Ito colours (distinguishable with the common colour-vision deficiencies) for the paper's learners.
 LEARNER_COLOURS = {
@@ -285,25 +286,25 @@ def write_figures(lb: Leaderboard, out_dir: Path, progress: Progress | None = No
     return figures
 
 
-def _per_run_figures(lb: Leaderboard, source_of: Callable[[str], Path], out_dir: Path, suffix: str,
-                     draw: Callable[[dict[str, Any], Path, Path], Any], found: dict[str, Path],
+def _per_run_figures(lb: Leaderboard, source_of: Callable[[str], SideFile | None], out_dir: Path, suffix: str,
+                     draw: Callable[[dict[str, Any], pd.DataFrame, Path], Any], found: dict[str, Path],
                      errors: dict[str, str], label: str, progress: Progress | None) -> None:
-    """A small PNG per run that has a source file; a PNG newer than its source is reused (a full
-    sweep has thousands of runs), and one unreadable file is reported, never fatal."""
+    """A small PNG per run that has a side table; a PNG newer than its table is reused (a full
+    sweep has thousands of runs), and one unreadable table is reported, never fatal."""
     todo = []
     for record in lb.runs[["run_id", "metric", "chain", "scenario", "variant", "learner", "seed"]].to_dict("records"):
         source = source_of(str(record["run_id"]))
-        if not source.is_file():
+        if source is None:
             continue
         target = out_dir / f"{safe_name(str(record['run_id']))}{suffix}.png"
         found[str(record["run_id"])] = target
-        if not target.is_file() or target.stat().st_mtime < source.stat().st_mtime:
+        if not target.is_file() or target.stat().st_mtime < source.mtime:
             todo.append((record, source, target))
     iterator: Iterable[Any] = progress(todo, label, len(todo)) if progress and todo else todo
     for record, source, target in iterator:
         run_id = str(record["run_id"])
         try:
-            draw(record, source, target)
+            draw(record, source.read(), target)
         except Exception as exc:  # noqa: BLE001 - one unreadable file must not sink the whole build
             found.pop(run_id, None)
             errors[run_id] = f"{source.name}: {type(exc).__name__}: {exc}"
@@ -313,22 +314,19 @@ def _run_title(record: dict[str, Any]) -> str:
     return f"{record['learner']} · {record['scenario']}-{record['variant']} · seed {record['seed']}"
 
 
-def write_learn_curves(lb: Leaderboard, results_dir: Path, out_dir: Path, figures: FigureSet,
+def write_learn_curves(lb: Leaderboard, sources: Sources, out_dir: Path, figures: FigureSet,
                        progress: Progress | None = None) -> None:
-    """A learning-curve PNG per run with a ``.learn.parquet``, and a per-update diagnostics PNG per
-    run with an ``.updates.parquet`` (PPO-Lag and CPO)."""
-    import pyarrow.parquet as pq
+    """A learning-curve PNG per run with learn-time evaluations, and a per-update diagnostics PNG
+    per run with update diagnostics (PPO-Lag and CPO), from a results directory or a release."""
 
-    from runners.schema import learn_path, updates_path
-
-    def draw_learn(record: dict[str, Any], source: Path, target: Path) -> None:
+    def draw_learn(record: dict[str, Any], frame: pd.DataFrame, target: Path) -> None:
         final = float(record["metric"]) if record["metric"] is not None else math.nan
-        learn_curve(pq.read_table(source).to_pandas(), final, _run_title(record), target)
+        learn_curve(frame, final, _run_title(record), target)
 
-    def draw_updates(record: dict[str, Any], source: Path, target: Path) -> None:
-        updates_figure(pq.read_table(source).to_pandas(), _run_title(record), target)
+    def draw_updates(record: dict[str, Any], frame: pd.DataFrame, target: Path) -> None:
+        updates_figure(frame, _run_title(record), target)
 
-    _per_run_figures(lb, lambda run_id: learn_path(results_dir, run_id), out_dir, "", draw_learn,
+    _per_run_figures(lb, sources.learn_of, out_dir, "", draw_learn,
                      figures.learn, figures.learn_errors, "learning curves", progress)
-    _per_run_figures(lb, lambda run_id: updates_path(results_dir, run_id), out_dir, ".updates", draw_updates,
+    _per_run_figures(lb, sources.updates_of, out_dir, ".updates", draw_updates,
                      figures.updates, figures.updates_errors, "update diagnostics", progress)

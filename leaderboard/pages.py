@@ -17,6 +17,7 @@ from leaderboard.aggregate import ORACLE_BEST, ORACLE_WORST, RANDOM_EXACT, STD_D
 from leaderboard.figures import chain_title, norm_abbreviation, norm_label
 from leaderboard.intervals import BOLD_RULE
 from leaderboard.render import clean, clean_records, is_missing, run_href, scenario_href, section_id
+from leaderboard.sources import RESULTS_SOURCE
 from leaderboard.site_state import SiteBuild
 from leaderboard.tables import fmt
 
@@ -159,7 +160,24 @@ def index_context(sb: SiteBuild) -> dict[str, Any]:
         "mx": matrix_context(sb, ""),
         "figure2": figure2_context(sb, ""),
         "scenarios": scenarios_context(sb, ""),
+        "sources": sources_context(sb),
     }
+
+
+def sources_context(sb: SiteBuild) -> list[dict[str, Any]]:
+    """Where the numbers come from, one entry per source that contributed runs: a release with its
+    name, title, commit and date (so shipped numbers are labelled as such), and the results directory."""
+    counts = sb.lb.runs["source"].value_counts().to_dict() if "source" in sb.lb.runs.columns else {}
+    out = []
+    if sb.sources.has_results_runs:
+        out.append({"kind": "results", "label": str(sb.sources.results), "title": "your runs",
+                    "runs": int(counts.get(RESULTS_SOURCE, 0)), "commit": "", "created": "", "shadowed": 0})
+    for release in sb.sources.releases:
+        m = release.manifest
+        out.append({"kind": "release", "label": release.name, "title": str(m.get("title", "")),
+                    "runs": int(counts.get(release.name, 0)), "commit": str(m.get("commit", ""))[:7],
+                    "created": str(m.get("created", ""))[:10], "shadowed": len(release.runs) - int(counts.get(release.name, 0))})
+    return out
 
 
 # ---------------------------------------------------------------------------------------- runs index
@@ -190,7 +208,7 @@ METRICS = [
 INFO = [("budget", "Training budget (steps)"), ("total_steps", "Steps trained"), ("eval_episodes", "Evaluation episodes"),
         ("beta", "beta"), ("max_steps", "max_steps"), ("wall_time_s", "Wall time (s)"), ("started_at", "Started"),
         ("finished_at", "Finished"), ("hostname", "Host"), ("git_commit", "Git commit"), ("model_path", "Model"),
-        ("gif_path", "GIF")]
+        ("gif_path", "GIF"), ("source", "Source (results directory or release)")]
 
 
 def pretty_json(text: Any) -> str:
@@ -202,9 +220,12 @@ def pretty_json(text: Any) -> str:
         return str(text)
 
 
-def tracking_info(results_dir: Path, run_id: str) -> tuple[str, str | None]:
-    """(``mlflow_run_id`` or a reason, ``experiment_id``) from ``<results>/tracking/<run_id>.json``."""
-    path = results_dir / "tracking" / f"{safe_name(run_id)}.json"
+def tracking_info(tracking_dir: Path | None, run_id: str) -> tuple[str, str | None]:
+    """(``mlflow_run_id`` or a reason, ``experiment_id``) from ``<results>/tracking/<run_id>.json``
+    (``tracking_dir`` None: the run came from a release, which carries no MLflow store)."""
+    if tracking_dir is None:
+        return "from a release (no MLflow store)", None
+    path = tracking_dir / f"{safe_name(run_id)}.json"
     if not path.is_file():
         return "not synced", None
     try:
@@ -236,7 +257,7 @@ def run_context(sb: SiteBuild, record: dict[str, Any]) -> dict[str, Any]:
     norms = [n for n in chain_norm_order(str(record["chain"])) if f"{MF_PREFIX}{n}" in record]
     norms += sorted(k[len(MF_PREFIX):] for k in record if str(k).startswith(MF_PREFIX)
                     and k[len(MF_PREFIX):] not in norms and not is_missing(record[k]))
-    mlflow_id, experiment = tracking_info(sb.results_dir, run_id)
+    mlflow_id, experiment = tracking_info(sb.sources.tracking_dir(run_id), run_id)
     run = {
         "run_id": run_id, "ok": bool(record["ok"]), "state": "ok" if record["ok"] else "failed",
         "status": record["status"], "chain": record["chain"], "scenario": record["scenario"],

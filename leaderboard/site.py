@@ -38,6 +38,7 @@ from typing import Any
 from leaderboard.aggregate import Group, Leaderboard, safe_name
 from leaderboard.figures import FigureSet
 from leaderboard.render import STATIC, STATIC_FILES, render
+from leaderboard.sources import Sources
 from leaderboard.site_state import SiteBuild
 
 SITE_MARKER = ".leaderboard-site"
@@ -52,13 +53,6 @@ def _copy(src: Path, dst: Path) -> None:
     dst.parent.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(src, dst)
 
-
-def _inside(path: Path, root: Path) -> bool:
-    try:
-        path.resolve().relative_to(root.resolve())
-        return True
-    except ValueError:
-        return False
 
 
 def copy_figures(sb: SiteBuild) -> None:
@@ -99,11 +93,11 @@ def copy_stat_figures(sb: SiteBuild, stat_figures: Any) -> None:
         sb.row_figures.setdefault(key, {})["tradeoff"] = place(key[0], path)
 
 
-def gif_choices(lb: Leaderboard, results_dir: Path) -> dict[tuple[Group, str, str, str], dict[str, Any]]:
+def gif_choices(lb: Leaderboard, sources: Sources) -> dict[tuple[Group, str, str, str], dict[str, Any]]:
     """One evaluation-episode GIF per (group, chain, scenario, learner): first variant, lowest seed.
 
-    Only runs whose GIF exists inside the results directory qualify (a path pointing elsewhere is
-    ignored rather than copied: the site must not pick up arbitrary files).
+    Only runs whose GIF exists inside their results directory or release qualify (a path pointing
+    elsewhere is ignored rather than copied: the site must not pick up arbitrary files).
     """
     from morality_gym.envs.registry import scenario_named
 
@@ -117,8 +111,8 @@ def gif_choices(lb: Leaderboard, results_dir: Path) -> dict[tuple[Group, str, st
                 variant_rank[scenario] = {v: i for i, v in enumerate(scenario_named(scenario).variants)}
             except KeyError:
                 variant_rank[scenario] = {}
-        path = results_dir / str(record["gif_path"])
-        if not path.is_file() or not _inside(path, results_dir):
+        path = sources.gif_of(str(record["run_id"]), record["gif_path"])
+        if path is None:
             continue
         key = (Group(record["protocol"], record["preset"]), str(record["chain"]), scenario, str(record["learner"]))
         rank = (variant_rank[scenario].get(record["variant"], 999), str(record["variant"]), int(record["seed"]))
@@ -200,7 +194,7 @@ def _write(path: Path, text: str) -> None:
     path.write_text(text, encoding="utf-8")
 
 
-def build_site(lb: Leaderboard, results_dir: Path, site_dir: Path, figures: FigureSet, results_name: str | None = None,
+def build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: FigureSet, results_name: str | None = None,
                progress: Progress | None = None, *, stats: Any = None, stat_figures: Any = None, stamp: str = "",
                resamples: int = 0) -> SiteBuild:
     """Write the whole site into ``site_dir`` (replacing a previous build); returns what was written.
@@ -215,14 +209,14 @@ def build_site(lb: Leaderboard, results_dir: Path, site_dir: Path, figures: Figu
 
     tmp = _prepare_target(site_dir)
     try:
-        sb = SiteBuild(lb=lb, results_dir=results_dir, results_name=results_name or str(results_dir),
+        sb = SiteBuild(lb=lb, sources=sources, results_name=results_name or sources.name,
                        figures=figures, out=tmp, stamp=stamp, stats=stats, resamples=resamples)
         (tmp / SITE_MARKER).write_text("built by leaderboard.site; this whole directory is replaced on every build\n")
         for name in STATIC_FILES:
             _copy(STATIC / name, tmp / "assets" / name)
         copy_figures(sb)
         copy_stat_figures(sb, stat_figures)
-        copy_gifs(sb, gif_choices(lb, results_dir))
+        copy_gifs(sb, gif_choices(lb, sources))
         sb.downloads = write_downloads(lb, stats, tmp)
         scenarios = sorted({s for _, s in lb.pairs()})
         render_layouts(sb, scenarios)

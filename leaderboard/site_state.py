@@ -8,6 +8,7 @@ from typing import Any
 
 from leaderboard.aggregate import Group, Leaderboard
 from leaderboard.figures import FigureSet
+from leaderboard.sources import Sources
 
 #: The pages every page links to in its header (path from the site root, label).
 NAV = (("index.html", "Table 1"), ("ranking.html", "Ranking"), ("runs/index.html", "All runs"))
@@ -18,7 +19,7 @@ class SiteBuild:
     """Inputs of the build and the site-relative paths of everything copied or drawn into it."""
 
     lb: Leaderboard
-    results_dir: Path
+    sources: Sources
     results_name: str
     figures: FigureSet
     out: Path

@@ -1,0 +1,356 @@
+"""Results releases: a finished sweep frozen into a few checksummed files that live in the repository.
+
+Why: the paper-budget Table 1 costs hours of CPU. A release lets every clone show it (``make
+leaderboard`` with no runs of one's own) and lets a user put a new agent beside the baselines
+without recomputing them: the leaderboard reads a release exactly as it reads a results directory
+(:mod:`leaderboard.sources`), and a user's runs of the same protocol, preset and chain land in the
+same cells, rankings and pages.
+
+A release is ``releases/<name>/``::
+
+    release.json      name, title, created, commit, machine, the sweeps (command, protocol, preset,
+                      first start / last finish, wall span, compute per learner), config keys, the run
+                      schema version, how updates were thinned, and {file: sha256, bytes} of every file
+    runs.parquet      every run row, all columns of the run schema (model paths dropped: no models)
+    learn.parquet     every learn-time evaluation row
+    updates.parquet   the per-update diagnostics, every ``stride``-th update and each run's last
+    manifests/*.json  the sweep manifests (planned runs: a missing run stays visible as missing)
+    table1.{csv,md,tex}
+    gifs/*.gif        one evaluation-episode GIF per (learner, scenario)
+
+Files are written into a temporary directory beside the target and renamed into place, so an
+interrupted ``create`` leaves no half release. :func:`verify` recomputes every checksum: a damaged or
+edited release is refused with one line naming the first file that fails.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import platform
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from leaderboard.aggregate import safe_name
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
+from runners.identity import config_key
+from runners.manifest import manifests_dir, read_manifests
+from runners.schema import SCHEMA_VERSION, learn_path, read_runs, run_files, updates_path
+
+#: Where a checkout keeps its releases; the leaderboard shows every release found here by default.
+RELEASES_DIR = Path(__file__).resolve().parents[1] / "releases"
+MANIFEST = "release.json"
+RUNS, LEARN, UPDATES = "runs.parquet", "learn.parquet", "updates.parquet"
+TABLES = ("table1.csv", "table1.md", "table1.tex")
+#: Bump when the layout above changes meaning (a reader refuses releases of another version).
+RELEASE_FORMAT = 1
+#: Default thinning of the per-update diagnostics: every 8th update and each run's last keeps a
+#: 1M-step PPO-Lag/CPO run's 488 updates as 62 rows (the curves' shape, a release under 25 MB).
+DEFAULT_UPDATE_STRIDE = 8
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
+_CHUNK = 1 << 20
+
+
+class ReleaseError(ValueError):
+    """A release that cannot be read or created; the message is one line naming the file."""
+
+
+# ---------------------------------------------------------------------------------------- checksums
+def sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while chunk := fh.read(_CHUNK):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def read_manifest(release: Path) -> dict[str, Any]:
+    """``release.json`` of ``release``, checked for the fields a reader relies on."""
+    path = release / MANIFEST
+    try:
+        body = json.loads(path.read_text())
+    except OSError as exc:
+        raise ReleaseError(f"{path}: cannot read the release manifest ({exc.strerror or exc})") from exc
+    except ValueError as exc:
+        raise ReleaseError(f"{path}: not valid JSON ({exc}); the release is damaged") from exc
+    if not isinstance(body, dict) or not isinstance(body.get("files"), dict):
+        raise ReleaseError(f"{path}: no 'files' table; not a release manifest")
+    if body.get("format") != RELEASE_FORMAT:
+        raise ReleaseError(f"{path}: release format {body.get('format')!r}, this code reads format {RELEASE_FORMAT}")
+    if body.get("schema_version") != SCHEMA_VERSION:
+        raise ReleaseError(f"{path}: run schema version {body.get('schema_version')!r}, this code reads "
+                           f"{SCHEMA_VERSION} (python -m runners.migrate explains upgrades)")
+    return body
+
+
+def verify(release: Path) -> dict[str, Any]:
+    """The manifest of ``release`` after checking every listed file's size and SHA-256.
+
+    Raises :class:`ReleaseError` naming the first file that is missing or differs, so a damaged
+    download or a hand edit never shows as published numbers.
+    """
+    body = read_manifest(release)
+    root = release.resolve()
+    for name, entry in sorted(body["files"].items()):
+        path = (release / name).resolve()
+        if not path.is_relative_to(root):
+            raise ReleaseError(f"{release / MANIFEST}: file entry {name!r} points outside the release")
+        if not path.is_file():
+            raise ReleaseError(f"release {body.get('name')}: {release / name} is missing (listed in {MANIFEST})")
+        if path.stat().st_size != entry.get("bytes") or sha256(path) != entry.get("sha256"):
+            raise ReleaseError(f"release {body.get('name')}: {release / name} fails its checksum (damaged or edited; "
+                               f"restore it, e.g. git checkout -- {release / name})")
+    return body
+
+
+# ---------------------------------------------------------------------------------------- reading
+@dataclass
+class Release:
+    """A verified release, read: its manifest and tables (:func:`load`)."""
+
+    path: Path
+    manifest: dict[str, Any]
+    runs: pd.DataFrame
+    learn: pd.DataFrame
+    updates: pd.DataFrame
+
+    @property
+    def name(self) -> str:
+        return str(self.manifest["name"])
+
+    @property
+    def label(self) -> str:
+        """``release <name> (commit abc1234, 2026-11-26)``: how pages name where numbers come from."""
+        commit = str(self.manifest.get("commit") or "unknown")[:7]
+        return f"release {self.name} (commit {commit}, {str(self.manifest.get('created', ''))[:10]})"
+
+
+def load(release: Path) -> Release:
+    """Verify, then read, the release at ``release``."""
+    body = verify(release)
+    try:
+        runs = pq.read_table(release / RUNS).to_pandas()
+        learn = pq.read_table(release / LEARN).to_pandas() if (release / LEARN).is_file() else pd.DataFrame()
+        updates = pq.read_table(release / UPDATES).to_pandas() if (release / UPDATES).is_file() else pd.DataFrame()
+    except (pa.ArrowException, OSError) as exc:
+        raise ReleaseError(f"release {body['name']}: cannot read its tables ({exc})") from exc
+    return Release(release, body, runs, learn, updates)
+
+
+def find_releases(root: Path = RELEASES_DIR) -> list[Path]:
+    """Every release directory under ``root`` (a folder holding ``release.json``), by name."""
+    if not root.is_dir():
+        return []
+    return sorted(p for p in root.iterdir() if (p / MANIFEST).is_file())
+
+
+# ---------------------------------------------------------------------------------------- creating
+def git_commit(results: Path) -> str:
+    """The commit the runs were made at (their ``git_commit`` when all agree), else ``mixed:...``."""
+    runs = read_runs(results)
+    commits = sorted({str(c) for c in runs.get("git_commit", pd.Series(dtype=str)).dropna()})
+    if len(commits) == 1:
+        return commits[0]
+    return "mixed:" + ",".join(c[:7] for c in commits) if commits else "unknown"
+
+
+def machine() -> dict[str, Any]:
+    """What the release was computed on: CPU model, cores, memory, OS, Python."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    memory = None
+    try:
+        memory = round(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30, 1)
+    except (ValueError, OSError, AttributeError):
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "memory_gib": memory, "os": platform.platform(),
+            "python": platform.python_version(), "hostnames": []}
+
+
+def sweeps_summary(results: Path, runs: pd.DataFrame) -> list[dict[str, Any]]:
+    """Per launched sweep manifest: its command, protocol, preset, planned runs, and of its runs with
+    a result: first start, last finish, the wall span between them and compute per learner
+    (the sum of ``wall_time_s``, i.e. core-seconds, since every run or fleet share uses one core)."""
+    out = []
+    for manifest in read_manifests(results):
+        if manifest.get("dry_run"):
+            continue
+        ids = {r["run_id"] for r in manifest.get("runs", []) if isinstance(r, dict) and "run_id" in r}
+        mine = runs.loc[runs["run_id"].isin(ids)]
+        started = pd.to_datetime(mine["started_at"], errors="coerce", utc=True).dropna()
+        finished = pd.to_datetime(mine["finished_at"], errors="coerce", utc=True).dropna()
+        compute = {str(k): round(float(v), 1) for k, v in mine.groupby("learner")["wall_time_s"].sum().items()}
+        out.append({
+            "manifest": manifest.get("_file") or manifest.get("name"), "command": manifest.get("command"),
+            "protocol": manifest.get("protocol"), "preset": manifest.get("preset"), "planned": len(ids),
+            "with_result": int(len(mine)), "ok": int((mine["status"] == "ok").sum()),
+            "first_start": started.min().isoformat() if len(started) else None,
+            "last_finish": finished.max().isoformat() if len(finished) else None,
+            "wall_span_s": round((finished.max() - started.min()).total_seconds(), 1) if len(started) and len(finished) else None,
+            "compute_s_per_learner": compute,
+        })
+    return out
+
+
+def _concat_side_files(paths: Sequence[Path]) -> pa.Table | None:
+    tables = [pq.read_table(p) for p in paths if p.is_file()]
+    if not tables:
+        return None
+    return pa.concat_tables(tables, promote_options="permissive")
+
+
+def thin_updates(table: pa.Table | None, stride: int) -> pa.Table | None:
+    """Every ``stride``-th update of each run (updates 1, 1 + stride, ...) and each run's last."""
+    if table is None or stride <= 1:
+        return table
+    frame = table.to_pandas()
+    last = frame.groupby("run_id")["update"].transform("max")
+    keep = ((frame["update"] - 1) % stride == 0) | (frame["update"] == last)
+    return pa.Table.from_pandas(frame.loc[keep].reset_index(drop=True), schema=table.schema, preserve_index=False)
+
+
+def choose_gifs(runs: pd.DataFrame, results: Path) -> dict[str, str]:
+    """run id -> release GIF name: per (protocol, preset, learner, scenario) the first run (chain,
+    variant, seed order) whose GIF exists in the results directory."""
+    chosen: dict[str, str] = {}
+    taken: set[tuple[str, ...]] = set()
+    candidates = runs.loc[(runs["status"] == "ok") & runs["gif_path"].notna()]
+    for record in candidates.sort_values(["chain", "variant", "seed", "run_id"]).to_dict("records"):
+        key = (str(record["protocol"]), str(record["preset"]), str(record["learner"]), str(record["scenario"]))
+        if key in taken or not (results / str(record["gif_path"])).is_file():
+            continue
+        taken.add(key)
+        chosen[str(record["run_id"])] = "gifs/" + safe_name("__".join(key)) + ".gif"
+    return chosen
+
+
+def write_tables(results: Path, out: Path) -> None:
+    """``table1.{csv,md,tex}`` of the results, as ``python -m leaderboard.build`` writes them."""
+    with tempfile.TemporaryDirectory(prefix="release-build-") as tmp:
+        cmd = [sys.executable, "-m", "leaderboard.build", "--results", str(results), "--out", tmp,
+               "--site", str(Path(tmp) / "site")]
+        done = subprocess.run(cmd, capture_output=True, text=True)
+        if done.returncode != 0:
+            raise ReleaseError(f"building Table 1 of {results} failed: {(done.stderr or done.stdout).strip()[-300:]}")
+        for name in TABLES:
+            shutil.copy2(Path(tmp) / name, out / name)
+
+
+def create(results: Path, name: str, root: Path = RELEASES_DIR, title: str = "", stride: int = DEFAULT_UPDATE_STRIDE,
+           tables: bool = True) -> Path:
+    """Freeze the runs of ``results`` into ``root/name``; returns the release directory.
+
+    Refuses an existing release of that name (a release is immutable: publish a new name) and a
+    results directory without runs. Failed runs are kept (they are part of what happened); the
+    leaderboard reports them as it reports a results directory's.
+    """
+    if not _NAME.match(name):
+        raise ReleaseError(f"release name {name!r}: use letters, digits, '.', '_' or '-' (at most 64), e.g. paper-table1-v1")
+    target = root / name
+    if target.exists():
+        raise ReleaseError(f"{target} exists; a release is never rewritten: choose another name")
+    if not run_files(results):
+        raise ReleaseError(f"{results} holds no runs ({results / 'runs'}/*.parquet): nothing to release")
+    runs = read_runs(results)
+    root.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{name}.create-", dir=root))
+    try:
+        gifs = choose_gifs(runs, results)
+        (tmp / "gifs").mkdir()
+        for run_id, rel in gifs.items():
+            source = runs.loc[runs["run_id"] == run_id, "gif_path"].iloc[0]
+            shutil.copy2(results / str(source), tmp / rel)
+        released = runs.assign(model_path=None, gif_path=runs["run_id"].map(gifs))
+        pq.write_table(pa.Table.from_pandas(released, preserve_index=False), tmp / RUNS, compression="zstd")
+        ids = list(runs["run_id"])
+        learn = _concat_side_files([learn_path(results, i) for i in ids])
+        if learn is not None:
+            pq.write_table(learn, tmp / LEARN, compression="zstd")
+        updates = thin_updates(_concat_side_files([updates_path(results, i) for i in ids]), stride)
+        if updates is not None:
+            pq.write_table(updates, tmp / UPDATES, compression="zstd")
+        (tmp / "manifests").mkdir()
+        for manifest in sorted(manifests_dir(results).glob("*.json")):
+            shutil.copy2(manifest, tmp / "manifests" / manifest.name)
+        if tables:
+            write_tables(results, tmp)
+        configs = sorted({config_key(json.loads(c)) for c in runs["config"].dropna()})
+        host = machine() | {"hostnames": sorted({str(h) for h in runs["hostname"].dropna()})}
+        files = {str(p.relative_to(tmp)): {"sha256": sha256(p), "bytes": p.stat().st_size}
+                 for p in sorted(tmp.rglob("*")) if p.is_file()}
+        body = {
+            "format": RELEASE_FORMAT, "name": name, "title": title or name,
+            "created": datetime.now(UTC).isoformat(timespec="seconds"), "commit": git_commit(results),
+            "schema_version": SCHEMA_VERSION, "machine": host, "runs": len(runs),
+            "runs_ok": int((runs["status"] == "ok").sum()), "sweeps": sweeps_summary(results, runs),
+            "config_keys": configs, "updates_stride": stride, "files": files,
+        }
+        (tmp / MANIFEST).write_text(json.dumps(body, indent=1, sort_keys=True) + "\n")
+        tmp.chmod(0o755)  # mkdtemp's 0700 would make a committed release unreadable to others
+        os.replace(tmp, target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return target
+
+
+# ---------------------------------------------------------------------------------------- command line
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    parser = OneLineParser(prog="python -m leaderboard.release", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    make = sub.add_parser("create", help="freeze a results directory into releases/<name>/")
+    make.add_argument("--results", type=Path, required=True, help="the results directory of the sweep(s)")
+    make.add_argument("--name", required=True, help="release name, e.g. paper-table1-v1")
+    make.add_argument("--title", default="", help="one line shown on the leaderboard")
+    make.add_argument("--root", type=Path, default=RELEASES_DIR, help=f"where releases live (default: {RELEASES_DIR})")
+    make.add_argument("--update-stride", type=int, default=DEFAULT_UPDATE_STRIDE,
+                      help=f"keep every Nth update's diagnostics and each run's last (default {DEFAULT_UPDATE_STRIDE})")
+    check = sub.add_parser("verify", help="check every file of a release against its checksum")
+    check.add_argument("release", type=Path)
+    add_debug_flag(parser)
+    return parser.parse_args(argv)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        if args.command == "create":
+            target = create(args.results, args.name, args.root, args.title, args.update_stride)
+            body = verify(target)
+            size = sum(e["bytes"] for e in body["files"].values())
+            print(f"release {body['name']}: {body['runs']} runs ({body['runs_ok']} ok), {len(body['files'])} files, "
+                  f"{size / 2**20:.1f} MiB in {target}")
+        else:
+            body = verify(args.release)
+            print(f"release {body['name']}: {len(body['files'])} files, every checksum matches")
+    except ReleaseError as exc:
+        raise UserError(str(exc)) from exc
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    return run_cli(lambda: run(parse_args(argv)), (), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
