@@ -17,8 +17,8 @@ from leaderboard.aggregate import ORACLE_BEST, ORACLE_WORST, RANDOM_EXACT, STD_D
 from leaderboard.figures import chain_title, norm_abbreviation, norm_label
 from leaderboard.intervals import BOLD_RULE
 from leaderboard.render import clean, clean_records, is_missing, run_href, scenario_href, section_id
-from leaderboard.sources import RESULTS_SOURCE
 from leaderboard.site_state import SiteBuild
+from leaderboard.sources import RESULTS_SOURCE
 from leaderboard.tables import fmt
 
 #: |ours - paper| from which the difference is highlighted on the site.

@@ -38,8 +38,8 @@ from typing import Any
 from leaderboard.aggregate import Group, Leaderboard, safe_name
 from leaderboard.figures import FigureSet
 from leaderboard.render import STATIC, STATIC_FILES, render
-from leaderboard.sources import Sources
 from leaderboard.site_state import SiteBuild
+from leaderboard.sources import Sources
 
 SITE_MARKER = ".leaderboard-site"
 Progress = Callable[[Iterable[Any], str, int], Iterable[Any]]
