@@ -67,7 +67,7 @@ class Sources:
         """How pages name where the numbers come from: ``results + release X (commit, date)``."""
         parts = [str(self.results)] if self.results is not None and self.has_results_runs else []
         parts += [r.label for r in self.releases]
-        return " + ".join(parts) if parts else str(self.results)
+        return " + ".join(parts) if parts else str(self.results or "no runs")
 
     @property
     def has_results_runs(self) -> bool:

@@ -1,0 +1,367 @@
+"""``python -m leaderboard.reproduction``: every Table 1 cell beside the paper's, a verdict by a stated
+rule, and the evidence behind each cell that does not reproduce (``docs/reproduction.md``).
+
+Why a generator and not a hand-written page: the page must say the same thing as the runs it is
+built from (a release or a results directory), every time they change, and a reader must be able
+to check each claim against data. What the data cannot say, what we believe the paper's runs did
+differently, is curated by a person in ``docs/reproduction_notes.yaml`` (keyed by chain, scenario
+and learner) and printed beside the evidence, marked as our reading.
+
+The verdict of a cell (:func:`verdict`) is decided by :data:`RULE`; nothing is tuned to hit the
+paper. Figure 2 is drawn from the same runs and checked against the paper's own description of it
+(``morality_gym/data/paper/figure2_claims.yaml``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shutil
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from leaderboard.aggregate import (
+    ORACLE_BEST,
+    ORACLE_WORST,
+    RANDOM_EXACT,
+    Group,
+    Leaderboard,
+    aggregate,
+    compute_reference,
+    learner_order,
+    paper_rows,
+    paper_values,
+    reference_requests,
+    safe_name,
+    with_reference,
+)
+from leaderboard.figures import norm_label, write_figures
+from leaderboard.intervals import with_intervals
+from leaderboard.release import ReleaseError, find_releases
+from leaderboard.release import load as load_release
+from leaderboard.sources import Sources, load_sources
+from leaderboard.stats import DEFAULT_RESAMPLES, compute_stats
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
+
+CLAIMS_FILE = Path(__file__).resolve().parents[1] / "morality_gym" / "data" / "paper" / "figure2_claims.yaml"
+NOTES_FILE = Path(__file__).resolve().parents[1] / "docs" / "reproduction_notes.yaml"
+PAPER = Group("paper", "paper")
+CORRECTED = Group("corrected", "paper")
+#: The rule, as printed on the page.
+RULE = ("**reproduces**: the paper's value lies inside our 95% bootstrap interval of the cell mean; "
+        "**close**: outside it, but within two seed standard deviations of our mean; "
+        "**deviates**: farther; **not run**: the cell lacks runs (no verdict on a partial cell).")
+VERDICTS = ("reproduces", "close", "deviates", "not run")
+#: A learning curve still "rising" gained at least this much metric over its last quarter of training.
+RISING = 0.02
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One learner cell of Table 1 with its numbers and verdict."""
+
+    chain: str
+    scenario: str
+    learner: str
+    mean: float
+    ci_low: float
+    ci_high: float
+    sd: float
+    n_runs: int
+    n_expected: int
+    paper: float
+    verdict: str
+
+
+def verdict(mean: float, low: float, high: float, sd: float, paper: float, complete: bool) -> str:
+    """The cell's verdict under :data:`RULE`."""
+    if not complete or math.isnan(mean):
+        return "not run"
+    if not math.isnan(low) and low - 1e-12 <= paper <= high + 1e-12:
+        return "reproduces"
+    if not math.isnan(sd) and abs(mean - paper) <= 2 * sd + 1e-12:
+        return "close"
+    return "deviates"
+
+
+def _num(value: Any) -> float:
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        return math.nan
+    return out
+
+
+def cells(lb: Leaderboard, group: Group) -> list[Cell]:
+    """Every (chain, scenario, learner) of the paper's Table 1 in ``group``, in the paper's order."""
+    table = lb.table.loc[(lb.table["protocol"] == group.protocol) & (lb.table["preset"] == group.preset)
+                         & (lb.table["kind"] == "learner")]
+    paper = paper_values()
+    out = []
+    for chain, scenario in paper_rows():
+        for learner in learner_order(paper[(chain, scenario)]):
+            row = table.loc[(table["chain"] == chain) & (table["scenario"] == scenario) & (table["learner"] == learner)]
+            r = row.iloc[0].to_dict() if len(row) else {}
+            mean, low, high, sd = (_num(r.get(k)) for k in ("mean", "ci_low", "ci_high", "std"))
+            value = paper[(chain, scenario)][learner]
+            complete = bool(r.get("complete", False))
+            out.append(Cell(chain, scenario, learner, mean, low, high, sd, int(_num(r.get("n_runs")) or 0) if r else 0,
+                            int(_num(r.get("n_expected")) or 0) if r else 0, value,
+                            verdict(mean, low, high, sd, value, complete)))
+    return out
+
+
+# ---------------------------------------------------------------------------------------- evidence
+def reference_over(lb: Leaderboard, chain: str, scenario: str, variants: Sequence[str]) -> dict[str, dict[str, float]]:
+    """Per variant: exact Random, oracle best and worst (``lb.reference``), for the variants a cell covers."""
+    for entry in lb.reference.values():
+        if entry.get("chain") == chain and entry.get("scenario") == scenario:
+            per = entry.get("variants", {})
+            return {v: {"random": per[v]["random_exact"], "best": per[v]["oracle_best"], "worst": per[v]["oracle_worst"]}
+                    for v in variants if v in per}
+    return {}
+
+
+def curve_summary(learn: pd.DataFrame, run_ids: Sequence[str]) -> tuple[list[tuple[int, float]], float] | None:
+    """The mean learn-time metric of the runs at each evaluation step, and its gain over the last
+    quarter of training (how much the curve still rose when training stopped)."""
+    part = learn.loc[learn["run_id"].isin(run_ids)]
+    if part.empty:
+        return None
+    column = "exact_metric" if "exact_metric" in part and part["exact_metric"].notna().any() else "metric"
+    curve = part.groupby("step")[column].mean().sort_index()
+    steps = curve.index.to_numpy()
+    last = steps[-1]
+    before = curve.loc[steps[steps <= 0.75 * last]]
+    gain = float(curve.iloc[-1] - before.iloc[-1]) if len(before) else math.nan
+    return [(int(s), float(v)) for s, v in curve.items()], gain
+
+
+def updates_summary(sources: Sources, run_ids: Sequence[str]) -> str:
+    """One line on what the constrained learner did at its updates (CPO's dual cases and accepted
+    line-search steps; PPO-Lag's passes and Lagrange multiplier), over the cell's runs."""
+    frames = []
+    for run_id in run_ids:
+        side = sources.updates_of(run_id)
+        if side is not None:
+            frames.append(side.read())
+    if not frames:
+        return ""
+    u = pd.concat(frames, ignore_index=True)
+    if "cpo_case" in u and u["cpo_case"].notna().any():
+        cases = u["cpo_case"].value_counts(normalize=True).sort_index()
+        shares = ", ".join(f"case {int(c)} {s:.0%}" for c, s in cases.items())
+        accepted = float((u["accept_step"] > 0).mean())
+        return f"CPO updates: {shares}; a line-search step accepted in {accepted:.0%} of updates"
+    if "lagrange_multiplier" in u and u["lagrange_multiplier"].notna().any():
+        last = u.sort_values("update").groupby("run_id").tail(1)
+        one = float((u["passes"] == 1).mean()) if "passes" in u else math.nan
+        return (f"PPO-Lag updates: {one:.0%} stopped after one pass; final Lagrange multiplier "
+                f"mean {last['lagrange_multiplier'].mean():.3f} (range {last['lagrange_multiplier'].min():.3f}-"
+                f"{last['lagrange_multiplier'].max():.3f})")
+    return ""
+
+
+def diagnosis(cell: Cell, lb: Leaderboard, sources: Sources, learn: pd.DataFrame, group: Group) -> list[str]:
+    """The evidence section of one deviating (or close) cell, as Markdown lines."""
+    v = lb.variants
+    mine = v.loc[(v["protocol"] == group.protocol) & (v["preset"] == group.preset) & (v["chain"] == cell.chain)
+                 & (v["scenario"] == cell.scenario) & (v["learner"] == cell.learner)]
+    refs = reference_over(lb, cell.chain, cell.scenario, list(mine["variant"]))
+    best = float(np.mean([r["best"] for r in refs.values()])) if refs else math.nan
+    worst = float(np.mean([r["worst"] for r in refs.values()])) if refs else math.nan
+    rand = float(np.mean([r["random"] for r in refs.values()])) if refs else math.nan
+    lines = [f"### {cell.chain} / {cell.scenario} / {cell.learner}: {cell.verdict}", ""]
+    gap = cell.mean - cell.paper
+    reach = ""
+    if not math.isnan(best) and (cell.paper > best + 1e-9 or cell.paper < worst - 1e-9):
+        reach = " The paper's value lies outside what any policy can score on these variants."
+    lines.append(f"Ours {cell.mean:.3f} [{cell.ci_low:.3f}, {cell.ci_high:.3f}] (seed sd {cell.sd:.3f}, {cell.n_runs} runs) "
+                 f"vs the paper's {cell.paper:.3f}: {'+' if gap >= 0 else ''}{gap:.3f}. Reachable range over these variants: "
+                 f"oracle worst {worst:.3f}, Random (exact) {rand:.3f}, oracle best {best:.3f}.{reach}")
+    lines += ["", "| variant | ours (mean over seeds) | per seed | oracle best | Random (exact) | regret (best - ours) |",
+              "|---|---:|---|---:|---:|---:|"]
+    rows = []
+    for record in mine.to_dict("records"):
+        r = refs.get(record["variant"], {})
+        runs = lb.runs.loc[lb.runs["run_id"].isin(record["run_ids"])].sort_values("seed")
+        seeds = ", ".join(f"{m:.2f}" for m in runs["metric"])
+        regret = r.get("best", math.nan) - float(record["mean"])
+        rows.append((regret, f"| {record['variant']} | {record['mean']:.3f} | {seeds} | {r.get('best', math.nan):.3f} | "
+                             f"{r.get('random', math.nan):.3f} | {regret:.3f} |"))
+    lines += [text for _, text in sorted(rows, key=lambda x: -x[0])]
+    norms = lb.norms_by_scenario
+    ours = norms.loc[(norms["protocol"] == group.protocol) & (norms["preset"] == group.preset) & (norms["chain"] == cell.chain)
+                     & (norms["scenario"] == cell.scenario) & (norms["learner"] == cell.learner)].sort_values("rank")
+    if len(ours):
+        lines += ["", "Morality function per norm (chain order, over the runs where the norm is relevant): "
+                  + ", ".join(f"{norm_label(n)} {m:.3f}" for n, m in zip(ours["norm"], ours["mean"]))]
+    all_ids = [i for ids in mine["run_ids"] for i in ids]
+    summary = curve_summary(learn, all_ids)
+    if summary is not None:
+        points, gain = summary
+        shown = points if len(points) <= 6 else [points[i] for i in np.linspace(0, len(points) - 1, 6).round().astype(int)]
+        trend = ("still rising when training stopped" if gain >= RISING else "flat over the last quarter of training"
+                 if not math.isnan(gain) else "")
+        lines += ["", "Learning curve (mean learn-time metric over the cell's runs): "
+                  + ", ".join(f"{s // 1000}k: {m:.3f}" for s, m in shown) + (f"; {trend} ({gain:+.3f})" if trend else "")]
+    updates = updates_summary(sources, all_ids)
+    if updates:
+        lines += ["", updates + "."]
+    corrected = [c for c in cells(lb, CORRECTED) if (c.chain, c.scenario, c.learner) == (cell.chain, cell.scenario, cell.learner)]
+    if corrected and corrected[0].verdict != "not run":
+        c = corrected[0]
+        lines += ["", f"Corrected protocol: {c.mean:.3f} [{c.ci_low:.3f}, {c.ci_high:.3f}] ({c.verdict} against the paper)."]
+    return lines
+
+
+# ---------------------------------------------------------------------------------------- figure 2
+def figure2_claims(lb: Leaderboard, group: Group) -> list[tuple[str, str, str]]:
+    """(claim, our numbers, holds / does not hold / not run) for each statement of the paper about Figure 2."""
+    data = yaml.safe_load(CLAIMS_FILE.read_text())["claims"]
+    by_chain = lb.norms_by_chain
+    by_chain = by_chain.loc[(by_chain["protocol"] == group.protocol) & (by_chain["preset"] == group.preset)]
+    out = []
+    for claim in data:
+        def value(learner: str, claim: dict[str, Any] = claim) -> float:
+            row = by_chain.loc[(by_chain["chain"] == claim["chain"]) & (by_chain["learner"] == learner)
+                               & (by_chain["norm"] == claim["norm"])]
+            return float(row["mean"].iloc[0]) if len(row) else math.nan
+
+        mine = value(claim["learner"])
+        others = {name: value(name) for name in claim.get("than", [])}
+        if math.isnan(mine) or any(math.isnan(x) for x in others.values()):
+            out.append((claim["text"], "—", "not run"))
+            continue
+        kind = claim["kind"]
+        if kind == "at_least":
+            holds, numbers = mine >= claim["threshold"], f"{mine:.3f} (needs ≥ {claim['threshold']})"
+        elif kind == "at_most":
+            holds, numbers = mine <= claim["threshold"], f"{mine:.3f} (needs ≤ {claim['threshold']})"
+        else:
+            better = all(mine > x for x in others.values()) if kind == "above" else all(mine < x for x in others.values())
+            holds = better
+            numbers = f"{mine:.3f} vs " + ", ".join(f"{n} {x:.3f}" for n, x in others.items())
+        out.append((claim["text"], numbers, "holds" if holds else "does not hold"))
+    return out
+
+
+# ---------------------------------------------------------------------------------------- page
+def load_notes(path: Path) -> dict[tuple[str, str, str], str]:
+    """Curated readings keyed ``chain / scenario / learner`` (``docs/reproduction_notes.yaml``)."""
+    if not path.is_file():
+        return {}
+    raw = yaml.safe_load(path.read_text()) or {}
+    out = {}
+    for key, text in raw.items():
+        parts = [p.strip() for p in str(key).split("/")]
+        if len(parts) != 3:
+            raise UserError(f"{path}: key {key!r} must be 'chain / scenario / learner'")
+        out[(parts[0], parts[1], parts[2])] = str(text).strip()
+    return out
+
+
+def page(lb: Leaderboard, sources: Sources, learn: pd.DataFrame, figure_dir: Path, img_rel: str, notes: dict) -> str:
+    """The whole Markdown page."""
+    table = cells(lb, PAPER)
+    counts = {v: sum(c.verdict == v for c in table) for v in VERDICTS}
+    marks = {"reproduces": "✓", "close": "≈", "deviates": "✗", "not run": "…"}
+    lines = ["# Reproducing Table 1", "",
+             "Generated by `python -m leaderboard.reproduction` from " + sources.name + "; do not edit by hand "
+             "(curated readings live in `docs/reproduction_notes.yaml`).", "",
+             "Protocol `paper`, preset `paper` (1M steps, 500k for SwitchStandard and PushStandard, seeds 41-43, "
+             "100 evaluation episodes per run). Verdict per cell: " + RULE, "",
+             f"**{counts['reproduces']} of {len(table)} cells reproduce, {counts['close']} are close, "
+             f"{counts['deviates']} deviate, {counts['not run']} are not (fully) run.**", "",
+             "| chain | scenario | learner | ours | 95% interval | seed sd | runs | paper | verdict |",
+             "|---|---|---|---:|---|---:|---:|---:|---|"]
+    for c in table:
+        ours = f"{c.mean:.3f}" if not math.isnan(c.mean) else "—"
+        interval = f"[{c.ci_low:.3f}, {c.ci_high:.3f}]" if not math.isnan(c.ci_low) else "—"
+        sd = f"{c.sd:.3f}" if not math.isnan(c.sd) else "—"
+        runs = f"{c.n_runs}/{c.n_expected}" if c.n_expected else str(c.n_runs)
+        lines.append(f"| {c.chain} | {c.scenario} | {c.learner} | {ours} | {interval} | {sd} | {runs} | {c.paper:.3f} | "
+                     f"{marks[c.verdict]} {c.verdict} |")
+    off = [c for c in table if c.verdict in ("deviates", "close")]
+    lines += ["", "## Cells that do not reproduce", ""]
+    if not off:
+        lines.append("None among the cells run so far.")
+    for c in off:
+        lines += diagnosis(c, lb, sources, learn, PAPER)
+        note = notes.get((c.chain, c.scenario, c.learner))
+        if note:
+            lines += ["", f"*Our reading:* {note}"]
+        lines.append("")
+    lines += ["## Figure 2 from the same runs", "",
+              "The paper's Figure 2 shows, per chain, the mean morality function of each norm over the runs in which the norm "
+              "is relevant (error bars: sd over seeds). Ours, from the runs above:", ""]
+    for chain in ("Utility", "UtilityAgentHarm", "DualProcess", "DualProcessAgentHarm"):
+        src = figure_dir / f"bars_{safe_name(chain)}.png"
+        if src.is_file():
+            lines.append(f"![Figure 2, {chain}]({img_rel}/{src.name})")
+    lines += ["", "The paper's description of Figure 2, statement by statement, against our bars:", "",
+              "| the paper says | ours | on our runs |", "|---|---|---|"]
+    lines += [f"| {text} | {numbers} | {result} |" for text, numbers, result in figure2_claims(lb, PAPER)]
+    return "\n".join(lines) + "\n"
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    parser = OneLineParser(prog="python -m leaderboard.reproduction", description=__doc__.splitlines()[0])
+    parser.add_argument("--results", type=Path, default=None, help="a results directory (optional with --release)")
+    parser.add_argument("--release", action="append", metavar="DIR|all", help="a results release (repeatable)")
+    parser.add_argument("--out", type=Path, default=Path("docs") / "reproduction.md", help="the page (default docs/reproduction.md)")
+    parser.add_argument("--notes", type=Path, default=NOTES_FILE, help="curated readings (YAML)")
+    parser.add_argument("--cache", type=Path, default=Path("results") / "cache" / "reference_rows.json",
+                        help="reference-row cache (exact Random and oracle values)")
+    parser.add_argument("--resamples", type=int, default=DEFAULT_RESAMPLES, help="bootstrap resamples of the intervals")
+    add_debug_flag(parser)
+    return parser.parse_args(argv)
+
+
+def run(args: argparse.Namespace) -> int:
+    paths = [p for item in (args.release or []) for p in (find_releases() if item == "all" else [Path(item)])]
+    try:
+        releases = [load_release(p) for p in paths]
+    except ReleaseError as exc:
+        raise UserError(str(exc)) from exc
+    if args.results is None and not releases:
+        raise UserError("nothing to read: pass --results DIR and/or --release DIR")
+    if args.results is not None and not args.results.is_dir():
+        raise UserError(f"results directory {args.results} does not exist")
+    sources = load_sources(args.results, releases)
+    lb = aggregate(sources.runs, sources.planned)
+    reference = compute_reference(reference_requests(lb.table), args.cache, None)
+    lb = with_reference(lb, reference.entries, reference.errors, PAPER.protocol, PAPER.preset)
+    learn = sources.learn()
+    stats = compute_stats(lb.runs, lb.table, learn, n_resamples=args.resamples)
+    lb = with_intervals(lb, stats.cells)
+    img_dir = args.out.parent / "img" / "reproduction"
+    with_figures = write_figures(lb, args.out.parent / ".reproduction-figures", None)
+    img_dir.mkdir(parents=True, exist_ok=True)
+    for (group, chain), path in with_figures.bars.items():
+        if group == PAPER:
+            shutil.copyfile(path, img_dir / f"bars_{safe_name(chain)}.png")
+    shutil.rmtree(args.out.parent / ".reproduction-figures", ignore_errors=True)
+    text = page(lb, sources, learn, img_dir, "img/reproduction", load_notes(args.notes))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(text)
+    table = cells(lb, PAPER)
+    counts = ", ".join(f"{v} {sum(c.verdict == v for c in table)}" for v in VERDICTS)
+    print(f"wrote {args.out}: {len(table)} cells ({counts})")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    return run_cli(lambda: run(parse_args(argv)), (), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

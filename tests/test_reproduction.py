@@ -1,0 +1,87 @@
+"""``leaderboard.reproduction``: the verdict rule, the evidence of a deviating cell, Figure 2's claims,
+and the page as a whole, on a synthetic paper-preset Table 1 (all 70 cells, three seeds)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from leaderboard.aggregate import aggregate, compute_reference, reference_requests, with_reference
+from leaderboard.intervals import with_intervals
+from leaderboard.reproduction import PAPER, cells, figure2_claims, load_notes, page, verdict
+from leaderboard.sources import load_sources
+from leaderboard.stats import compute_stats
+from morality_gym.clitools import UserError
+from tests.stats_data import synthetic_runs
+
+
+def test_verdict_rule() -> None:
+    assert verdict(0.50, 0.45, 0.55, 0.02, 0.52, True) == "reproduces"  # inside the interval
+    assert verdict(0.50, 0.48, 0.52, 0.03, 0.55, True) == "close"  # outside it, within 2 sd
+    assert verdict(0.50, 0.48, 0.52, 0.01, 0.55, True) == "deviates"
+    assert verdict(0.50, 0.45, 0.55, 0.02, 0.52, False) == "not run"  # never a verdict on a partial cell
+    assert verdict(math.nan, math.nan, math.nan, math.nan, 0.52, True) == "not run"
+
+
+@pytest.fixture(scope="module")
+def board(tmp_path_factory: pytest.TempPathFactory):
+    runs, learn = synthetic_runs(seeds=(41, 42, 43), preset="paper")
+    runs["config"] = [json.dumps({"learner": name}) for name in runs["learner"]]
+    # one cell pushed far below the paper on two variants: its diagnosis must name them first
+    sel = (runs["chain"] == "Utility") & (runs["scenario"] == "Switch5") & (runs["learner"] == "CPO")
+    bad = sel & runs["variant"].isin(["Human", "HumanAnimal"])
+    runs.loc[bad, "metric"] = 0.05
+    lb = aggregate(runs, {})
+    cache = tmp_path_factory.mktemp("ref") / "reference_rows.json"
+    reference = compute_reference(reference_requests(lb.table), cache, None)
+    lb = with_reference(lb, reference.entries, reference.errors, "paper", "paper")
+    stats = compute_stats(lb.runs, lb.table, learn, n_resamples=200)
+    return with_intervals(lb, stats.cells), learn
+
+
+def test_every_cell_gets_a_verdict_and_the_page_explains_the_deviations(board, tmp_path: Path) -> None:
+    lb, learn = board
+    table = cells(lb, PAPER)
+    assert len(table) == 70 and all(c.verdict in ("reproduces", "close", "deviates") for c in table)
+    cpo = next(c for c in table if (c.chain, c.scenario, c.learner) == ("Utility", "Switch5", "CPO"))
+    assert cpo.verdict == "deviates" and cpo.mean < cpo.paper
+    sources = load_sources(None, [])
+    text = page(lb, sources, learn, tmp_path, "img", {("Utility", "Switch5", "CPO"): "A curated reading."})
+    counts = {v: sum(c.verdict == v for c in table) for v in ("reproduces", "close", "deviates")}
+    assert f"**{counts['reproduces']} of 70 cells reproduce, {counts['close']} are close, {counts['deviates']} deviate" in text
+    assert text.count("\n| ") >= 70
+    section = text.split("### Utility / Switch5 / CPO: deviates")[1].split("###")[0]
+    assert "Reachable range over these variants: oracle worst" in section
+    variant_rows = [line for line in section.splitlines() if line.startswith("| ") and "variant" not in line and "---" not in line]
+    assert {variant_rows[0].split("|")[1].strip(), variant_rows[1].split("|")[1].strip()} == {"Human", "HumanAnimal"}
+    assert "Learning curve (mean learn-time metric over the cell's runs): 0k:" in section
+    assert "*Our reading:* A curated reading." in section
+    assert "Morality function per norm" in section
+
+
+def test_figure2_claims_are_checked_against_the_bars(board) -> None:
+    lb, _ = board
+    claims = figure2_claims(lb, PAPER)
+    assert len(claims) == 12 and all(result in ("holds", "does not hold") for _, _, result in claims)
+    by_text = {text: (numbers, result) for text, numbers, result in claims}
+    # synthetic PPO Shaped is the best on its top norm everywhere (level 0.95 vs <= 0.80)
+    numbers, result = by_text["U: PPO Shaped achieves the highest score in minimising harm to humans"]
+    assert result == "holds" and "vs CPO" in numbers
+    frame = lb.norms_by_chain
+    ppo = frame.loc[(frame["chain"] == "Utility") & (frame["learner"] == "PPO") & (frame["norm"] == "n_human_harm"), "mean"]
+    expected = "holds" if float(ppo.iloc[0]) <= 0.1 else "does not hold"
+    assert by_text["U: standard PPO almost completely fails on Min Humans Harmed, scoring close to zero"][1] == expected
+
+
+def test_notes_keys_are_checked(tmp_path: Path) -> None:
+    good = tmp_path / "notes.yaml"
+    good.write_text("Utility / Switch5 / CPO: text\n")
+    assert load_notes(good) == {("Utility", "Switch5", "CPO"): "text"}
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("Utility Switch5 CPO: text\n")
+    with pytest.raises(UserError, match="must be 'chain / scenario / learner'"):
+        load_notes(bad)
+    assert load_notes(tmp_path / "absent.yaml") == {}
