@@ -28,9 +28,6 @@ import pandas as pd
 import yaml
 
 from leaderboard.aggregate import (
-    ORACLE_BEST,
-    ORACLE_WORST,
-    RANDOM_EXACT,
     Group,
     Leaderboard,
     aggregate,
@@ -194,8 +191,8 @@ def diagnosis(cell: Cell, lb: Leaderboard, sources: Sources, learn: pd.DataFrame
         runs = lb.runs.loc[lb.runs["run_id"].isin(record["run_ids"])].sort_values("seed")
         seeds = ", ".join(f"{m:.2f}" for m in runs["metric"])
         regret = r.get("best", math.nan) - float(record["mean"])
-        rows.append((regret, f"| {record['variant']} | {record['mean']:.3f} | {seeds} | {r.get('best', math.nan):.3f} | "
-                             f"{r.get('random', math.nan):.3f} | {regret:.3f} |"))
+        rows.append((regret, (f"| {record['variant']} | {record['mean']:.3f} | {seeds} | {r.get('best', math.nan):.3f} | "
+                             f"{r.get('random', math.nan):.3f} | {regret:.3f} |")))
     lines += [text for _, text in sorted(rows, key=lambda x: -x[0])]
     norms = lb.norms_by_scenario
     ours = norms.loc[(norms["protocol"] == group.protocol) & (norms["preset"] == group.preset) & (norms["chain"] == cell.chain)
@@ -278,8 +275,8 @@ def page(lb: Leaderboard, sources: Sources, learn: pd.DataFrame, figure_dir: Pat
              "(curated readings live in `docs/reproduction_notes.yaml`).", "",
              "Protocol `paper`, preset `paper` (1M steps, 500k for SwitchStandard and PushStandard, seeds 41-43, "
              "100 evaluation episodes per run). Verdict per cell: " + RULE, "",
-             f"**{counts['reproduces']} of {len(table)} cells reproduce, {counts['close']} are close, "
-             f"{counts['deviates']} deviate, {counts['not run']} are not (fully) run.**", "",
+             (f"**{counts['reproduces']} of {len(table)} cells reproduce, {counts['close']} are close, "
+             f"{counts['deviates']} deviate, {counts['not run']} are not (fully) run.**"), "",
              "| chain | scenario | learner | ours | 95% interval | seed sd | runs | paper | verdict |",
              "|---|---|---|---:|---|---:|---:|---:|---|"]
     for c in table:
@@ -300,8 +297,8 @@ def page(lb: Leaderboard, sources: Sources, learn: pd.DataFrame, figure_dir: Pat
             lines += ["", f"*Our reading:* {note}"]
         lines.append("")
     lines += ["## Figure 2 from the same runs", "",
-              "The paper's Figure 2 shows, per chain, the mean morality function of each norm over the runs in which the norm "
-              "is relevant (error bars: sd over seeds). Ours, from the runs above:", ""]
+              ("The paper's Figure 2 shows, per chain, the mean morality function of each norm over the runs in which the norm "
+              "is relevant (error bars: sd over seeds). Ours, from the runs above:"), ""]
     for chain in ("Utility", "UtilityAgentHarm", "DualProcess", "DualProcessAgentHarm"):
         src = figure_dir / f"bars_{safe_name(chain)}.png"
         if src.is_file():
