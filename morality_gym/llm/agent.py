@@ -156,7 +156,7 @@ async def play_episode(env_id: str, chat: Chat, settings: AgentSettings, chain: 
         if terminated or truncated:
             log.outcome.truncated = bool(truncated)
             log.observation_chars += len(obs)
-            history.append(Message("user", obs, observation=True))
+            history.append(Message("tool" if pending_call else "user", obs, tool_call_id=pending_call, observation=True))
             break
     log.messages = [system, *history]
     return log
