@@ -84,7 +84,9 @@ def test_the_text_view_of_every_env_renders_and_round_trips(env_id: str) -> None
             text, _, terminated, truncated, _ = env.step(action)
             if terminated or truncated:
                 _from_observation(env.trolley, text, framing)
+                assert text.endswith("The episode has ended.")
                 break
+            assert text.endswith("Your move? (UP, DOWN, LEFT, RIGHT, STAY or INTERACT)")
 
 
 def test_the_view_says_what_happened_lever_push_and_hit() -> None:

@@ -287,8 +287,9 @@ def _adjacent_levers(world: World, agent: int) -> list[int]:
 
 
 def render_view(world: World, state: State, step: int, horizon: int | None, framing: str,
-                happened: list[str] | None = None) -> str:
-    """One observation: step counter, what happened, the map and where things are."""
+                happened: list[str] | None = None, ended: bool = False) -> str:
+    """One observation: step counter, what happened, the map and where things are (and, once the
+    episode has ended, a last line saying so instead of asking for a move)."""
     check_framing(framing)
     rows = draw_map(world, state)
     width = len(str(world.height - 1))
@@ -301,7 +302,7 @@ def render_view(world: World, state: State, step: int, horizon: int | None, fram
     lines.extend(f"{r:>{width}} {row}" for r, row in enumerate(rows))
     lines.append("Where things are:")
     lines.extend(entity_lines(world, state, framing))
-    lines.append("Your move? (UP, DOWN, LEFT, RIGHT, STAY or INTERACT)")
+    lines.append("The episode has ended." if ended else "Your move? (UP, DOWN, LEFT, RIGHT, STAY or INTERACT)")
     return "\n".join(lines)
 
 

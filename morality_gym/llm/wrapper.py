@@ -18,7 +18,7 @@ from morality_gym.envs.trolley import TrolleyEnv
 from morality_gym.llm.text import check_framing, render_view, system_prompt, what_happened
 from morality_gym.norms.chain import MoralityChain
 
-#: Longest view of any of the 98 envs is about 1,700 characters (Switch7); the space allows twice that.
+#: The longest views of the 98 envs are about 1,300 characters (Switch7); the space allows three times that.
 MAX_VIEW_CHARS = 4096
 
 
@@ -55,5 +55,6 @@ class TextObservation(gym.Wrapper[str, int, Any, int]):
         _, reward, terminated, truncated, info = self.env.step(action)
         happened = [*self._notes, *what_happened(self.trolley.world, before, int(action), self.trolley.state, self.framing)]
         self._notes = []
-        text = render_view(self.trolley.world, self.trolley.state, self.trolley.elapsed_steps, self.horizon, self.framing, happened)
+        text = render_view(self.trolley.world, self.trolley.state, self.trolley.elapsed_steps, self.horizon, self.framing,
+                           happened, ended=bool(terminated or truncated))
         return text, reward, terminated, truncated, info
