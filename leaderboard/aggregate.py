@@ -79,6 +79,8 @@ _PRESET_RANK = {"paper": 0, "quick": 1, "smoke": 2}
 PROVENANCE_KEY = "provenance"
 #: ``algo`` of runs written by ``python -m leaderboard.submit`` (external policies).
 SUBMITTED_ALGO = "submitted"
+#: ``config["policy"]["kind"]`` of a submitted language-model episode (``python -m leaderboard.llm``).
+LLM_POLICY_KIND = "llm"
 _UNKNOWN = "unknown"
 _TOLERANCE = 1e-12
 
@@ -386,7 +388,7 @@ def submitted_learners(runs: pd.DataFrame) -> dict[str, str]:
             who.add(str(prov["submitter"]))
         if isinstance(policy, dict) and policy.get("sha256"):
             hashes.add(str(policy["sha256"])[:12])
-        if isinstance(policy, dict) and policy.get("kind") == "llm":  # python -m leaderboard.llm: no file to hash
+        if isinstance(policy, dict) and policy.get("kind") == LLM_POLICY_KIND:  # python -m leaderboard.llm: no file to hash
             hashes.add(f"language model {policy.get('model')}, framing {policy.get('framing')}, "
                        f"temperature {policy.get('temperature')}")
     return {learner: (f"external policy submitted by {', '.join(sorted(who)) or 'unknown'}"

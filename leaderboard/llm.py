@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from leaderboard.aggregate import LLM_POLICY_KIND
 from leaderboard.aggregate import PROVENANCE_KEY as PROVENANCE
 from leaderboard.aggregate import SUBMITTED_ALGO as SUBMITTED
 from leaderboard.submit import _submitter, check_name, code_version
@@ -41,6 +42,7 @@ from morality_gym.llm.settings import DEFAULT_PRESET, PRESETS, AgentSettings, Se
 from morality_gym.llm.text import FRAMINGS, FramingError
 from morality_gym.llm.tokens import estimate_tokens
 from morality_gym.norms.chain import ChainError, get_chain
+from morality_gym.norms.metric import DEFAULT_BETA
 from runners.execute import RunLock, finished_status, versions
 from runners.identity import run_id_of
 from runners.schema import MF_PREFIX, SCHEMA_VERSION, write_run
@@ -48,8 +50,6 @@ from runners.schema import MF_PREFIX, SCHEMA_VERSION, write_run
 # Inspect AI (the llm extra) is imported inside the functions that run or read it, so that
 # --help and the one-line errors work without the extra installed.
 
-#: ``config["policy"]["kind"]`` of a language-model run (leaderboard pages show these entries' details).
-LLM_KIND = "llm"
 DEFAULT_LOG_DIR = Path("logs") / "llm"
 
 
@@ -125,8 +125,8 @@ def episode_config(ep: Episode, meta: dict[str, Any], name: str, protocol: str, 
         "chain": {"name": chain.name, "norms": [[n.name, n.modality] for n in chain.norms]},
         "algo": {"name": SUBMITTED, "label": name},
         "protocol": {"name": protocol}, "preset": preset, "seed": ep.seed, "budget": 0,
-        "beta": 0.1, "max_steps": int(settings["max_steps"]), "eval_episodes": 1,
-        "policy": {"kind": LLM_KIND, "model": ep.model, **settings,
+        "beta": DEFAULT_BETA, "max_steps": int(settings["max_steps"]), "eval_episodes": 1,
+        "policy": {"kind": LLM_POLICY_KIND, "model": ep.model, **settings,
                    "llm_preset": meta.get("preset"), "episodes_per_variant": int(meta.get("episodes", 0))},
         PROVENANCE: {"submitter": submitter, "log": ep.log, "sample": ep.sample_id,
                      "calls": ep.record["calls"], "input_tokens": ep.record["input_tokens"],

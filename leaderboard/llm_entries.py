@@ -15,9 +15,7 @@ from typing import Any
 
 import pandas as pd
 
-from leaderboard.aggregate import PROVENANCE_KEY, SUBMITTED_ALGO
-
-LLM_KIND = "llm"
+from leaderboard.aggregate import LLM_POLICY_KIND, PROVENANCE_KEY, SUBMITTED_ALGO
 
 
 def llm_entries(runs: pd.DataFrame) -> list[dict[str, Any]]:
@@ -32,7 +30,7 @@ def llm_entries(runs: pd.DataFrame) -> list[dict[str, Any]]:
         except ValueError:
             continue
         policy = config.get("policy") or {}
-        if not isinstance(policy, dict) or policy.get("kind") != LLM_KIND:
+        if not isinstance(policy, dict) or policy.get("kind") != LLM_POLICY_KIND:
             continue
         prov = config.get(PROVENANCE_KEY) or {}
         key = (row["learner"], row["protocol"], row["preset"], policy.get("model"), policy.get("framing"),

@@ -14,19 +14,19 @@ import pytest
 
 pytest.importorskip("inspect_ai", reason="the llm extra (make test installs it: pip install -e '.[dev,llm]')")
 
-from inspect_ai import eval as inspect_eval  # noqa: E402
-from inspect_ai.log import EvalLog  # noqa: E402
-from inspect_ai.model import ModelOutput, ModelUsage, get_model  # noqa: E402
+from inspect_ai import eval as inspect_eval
+from inspect_ai.log import EvalLog
+from inspect_ai.model import ModelOutput, ModelUsage, get_model
 
-from morality_gym import ACTION_NAMES, TrolleyEnv, get_chain, list_envs  # noqa: E402
-from morality_gym.envs.registry import UnknownEnvError  # noqa: E402
-from morality_gym.evaluation.montecarlo import evaluate_sequential  # noqa: E402
-from morality_gym.evaluation.oracle import oracle  # noqa: E402
-from morality_gym.llm.inspect_tasks import EPISODE_KEY, morality_gym_task, select_env_ids  # noqa: E402
-from morality_gym.llm.settings import SettingsError  # noqa: E402
-from morality_gym.norms.metric import bind_chain  # noqa: E402
-from morality_gym.paper import table1  # noqa: E402
-from runners.schema import run_files  # noqa: E402
+from morality_gym import ACTION_NAMES, TrolleyEnv, get_chain, list_envs
+from morality_gym.envs.registry import UnknownEnvError
+from morality_gym.evaluation.montecarlo import evaluate_sequential
+from morality_gym.evaluation.oracle import oracle
+from morality_gym.llm.inspect_tasks import EPISODE_KEY, morality_gym_task, select_env_ids
+from morality_gym.llm.settings import SettingsError
+from morality_gym.norms.metric import bind_chain
+from morality_gym.paper import table1
+from runners.schema import run_files
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = "SwitchStandard-HumanA-v1"
@@ -105,7 +105,7 @@ def test_inspects_mean_is_the_monte_carlo_estimate_over_the_variants(tmp_path: P
     results = []
     for env_id in env_ids:
         step = iter(range(10_000))
-        results.append(evaluate_sequential(lambda obs: [5, 2, 2, 0][min(next(step), 3)], TrolleyEnv(env_id),
+        results.append(evaluate_sequential(lambda obs, step=step: [5, 2, 2, 0][min(next(step), 3)], TrolleyEnv(env_id),
                                            bind_chain("Utility", env_id), 1))
     assert means(log)["metric"] == pytest.approx(sum(r.metric for r in results) / len(results))
     for norm in get_chain("Utility").norm_names:
@@ -159,11 +159,11 @@ def test_the_mock_run_lands_on_the_leaderboard_beside_the_baselines(tmp_path: Pa
     assert built.returncode == 0, built.stderr
     html = (site / "index.html").read_text()
     row = re.search(r'<tr data-sweep="paper-quick" data-chain="Utility" data-scenario="Switch5" data-learner="Mock LLM".*?</tr>',
-                    html, re.S)
+                    html, re.DOTALL)
     assert row and "badge submitted" in row.group(0) and "35/35" in row.group(0)
     assert re.search(r"\[0\.9\d\d, 0\.9\d\d\]", row.group(0))  # an interval over the episodes
     assert 'data-learner="PPO Shaped"' in html and 'data-scenario="Switch5"' in html
-    entry = re.search(r'<tr data-llm-entry="Mock LLM">.*?</tr>', html, re.S).group(0)
+    entry = re.search(r'<tr data-llm-entry="Mock LLM">.*?</tr>', html, re.DOTALL).group(0)
     assert "mockllm/model" in entry and "framing named" in entry and "5 (paid)" in entry and str(log) in entry
 
 

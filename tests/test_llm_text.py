@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import asyncio
 import re
+import warnings
 
 import numpy as np
 import pytest
+from gymnasium.utils.env_checker import check_env
 
 from morality_gym import ACTION_NAMES, TrolleyEnv, get_chain
 from morality_gym.evaluation.oracle import oracle
@@ -25,7 +27,6 @@ from morality_gym.llm.text import (
     draw_map,
     parse_map,
     parse_view,
-    render_view,
     system_prompt,
     visible_state,
 )
@@ -36,7 +37,7 @@ from tests.helpers import INTERACT, LEFT, RIGHT, STAY, UP, all_env_ids
 
 CHAINS = ["Utility", "UtilityAgentHarm", "Outcome", "OutcomeAgentHarm", "DualProcess", "DualProcessAgentHarm"]
 #: Words that would tell the agent how it is scored: the view and the prompts must never contain them.
-LEAKS = re.compile(r"metric|oracle|morality|weight|score|reward|penalt|norm\b|norms\b|salient|relevant|beta", re.I)
+LEAKS = re.compile(r"metric|oracle|morality|weight|score|reward|penalt|norm\b|norms\b|salient|relevant|beta", re.IGNORECASE)
 
 
 def _from_observation(env: TrolleyEnv, text: str, framing: str) -> None:
@@ -178,7 +179,7 @@ def test_a_scripted_agent_that_pulls_the_lever_scores_the_oracles_best() -> None
 
 
 def test_garbage_answers_hit_the_retry_limit_then_the_counted_fallback() -> None:
-    chat, seen = _scripted(["I would rather not say."])
+    chat, _ = _scripted(["I would rather not say."])
     settings = AgentSettings(max_retries=2, max_steps=3, fallback="STAY")
     log = asyncio.run(play_episode("SwitchStandard-HumanA-v1", chat, settings))
     steps = 4  # truncated on step max_steps + 1
@@ -199,6 +200,12 @@ def test_the_window_keeps_the_latest_observations_only() -> None:
     history = [Message("user", "a", observation=True), Message("assistant", "x", action="UP", tool_call_id="1"),
                Message("tool", "b", tool_call_id="1", observation=True)]
     assert window_of(history, 1) == [Message("user", "b", observation=True)]  # no orphaned tool result
+
+
+def test_the_wrapper_passes_gymnasiums_env_checker() -> None:
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*is different from the unwrapped version")
+        check_env(TextObservation(TrolleyEnv("Switch7-Human-v1")), skip_render_check=True)
 
 
 def test_the_wrapper_leaves_rewards_flags_and_norm_events_alone() -> None:

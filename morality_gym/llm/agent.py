@@ -28,8 +28,8 @@ from morality_gym.world.rules import ACTION_NAMES
 RETRY_TEXT = ("I could not read an action in your answer. End your answer with one line "
               "'ACTION: <one of UP, DOWN, LEFT, RIGHT, STAY, INTERACT>'.")
 RETRY_TOOL_TEXT = "You did not call the act tool. Call it once with one of UP, DOWN, LEFT, RIGHT, STAY, INTERACT."
-_ACTION_LINE = re.compile(r"\baction\s*[:=]\s*\**\s*([a-z]+)", re.I)
-_WORD = re.compile(r"\b(" + "|".join(ACTION_NAMES) + r")\b", re.I)
+_ACTION_LINE = re.compile(r"\baction\s*[:=]\s*\**\s*([a-z]+)", re.IGNORECASE)
+_WORD = re.compile(r"\b(" + "|".join(ACTION_NAMES) + r")\b", re.IGNORECASE)
 
 
 @dataclass(frozen=True)

@@ -49,6 +49,7 @@ from morality_gym.norms.chain import ChainError, MoralityChain, get_chain
 from morality_gym.norms.metric import DEFAULT_BETA, bind_chain
 from morality_gym.paper import table1
 from morality_gym.world.rules import ACTION_NAMES
+from morality_gym.world.vocab import names_to_mask
 
 #: The key under which the solver leaves the episode for the scorer (and the log keeps it).
 EPISODE_KEY = "morality_gym_episode"
@@ -95,7 +96,7 @@ def select_env_ids(chain: MoralityChain, scenario: Any = None, variant: Any = No
                 out.append(scn.env_id(v))
     missing = wanted - found
     if missing:
-        raise UnknownEnvError(f"variant {sorted(missing)[0]!r} is in none of the scenarios {', '.join(names)}")
+        raise UnknownEnvError(f"variant {min(missing)!r} is in none of the scenarios {', '.join(names)}")
     if not out:
         raise ChainError(f"no norm of chain {chain.name} is relevant in any selected variant of {', '.join(names)}")
     return out
@@ -193,8 +194,6 @@ def morality_score(chain: MoralityChain, beta: float = DEFAULT_BETA):  # type: i
         record = state.store.get(EPISODE_KEY)
         if record is None:
             raise RuntimeError(f"sample {state.sample_id} has no played episode (the solver must be trolley_agent)")
-        from morality_gym.world.vocab import names_to_mask
-
         outcome = EpisodeOutcome(events=names_to_mask(record["events"]), utility=dict(record["utility"]),
                                  ret=record["return"], length=record["length"], truncated=record["truncated"],
                                  goal_reached=record["goal_reached"])
