@@ -91,6 +91,8 @@ def read_episodes(path: Path) -> tuple[list[Episode], dict[str, Any]]:
     if log.status != "success":
         raise UserError(f"{path}: the evaluation did not finish (status {log.status}); "
                         "rerun it (inspect eval-retry resumes it) and import the finished log")
+    # The temperature the calls used: the task's, else Inspect's --temperature, else the provider's default.
+    eval_temperature = log.plan.config.temperature if log.plan is not None else None
     episodes = []
     for sample in log.samples or []:
         score = (sample.scores or {}).get("morality_score")
@@ -99,6 +101,11 @@ def read_episodes(path: Path) -> tuple[list[Episode], dict[str, Any]]:
             raise UserError(f"{path}: sample {sample.id} has no score ({sample.error or 'not scored'}); "
                             "rerun the failed samples before importing")
         value = dict(score.value)  # type: ignore[arg-type]
+        record = dict(record)
+        settings = dict(record["settings"])
+        if settings.get("temperature") is None:
+            settings["temperature"] = eval_temperature if eval_temperature is not None else "provider default"
+        record["settings"] = settings
         episodes.append(Episode(
             sample_id=str(sample.id), env_id=str(sample.metadata["env_id"]), seed=int(sample.metadata["seed"]),
             chain=str(meta["chain"]), metric=float(value.pop("metric")),
@@ -275,7 +282,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     run.add_argument("--window", type=int, default=d.window, help=f"observations kept in the conversation (default {d.window}; 0 = all)")
     run.add_argument("--max-retries", type=int, default=d.max_retries, help=f"re-asks after an unreadable answer (default {d.max_retries})")
     run.add_argument("--fallback", default=d.fallback, help=f"action played after the retries (default {d.fallback})")
-    run.add_argument("--temperature", type=float, default=d.temperature, help=f"sampling temperature (default {d.temperature})")
+    run.add_argument("--temperature", type=float, default=d.temperature,
+                     help="sampling temperature (default: the provider's default, recorded with the entry as such)")
     run.add_argument("--seed", type=int, default=d.seed, help=f"episode k uses seed + k (default {d.seed})")
     run.add_argument("--max-tokens", type=int, default=d.max_tokens, help=f"longest answer (default {d.max_tokens})")
     run.add_argument("--max-connections", type=int, default=None, help="Inspect: concurrent model calls")

@@ -165,6 +165,30 @@ def test_the_mock_run_lands_on_the_leaderboard_beside_the_baselines(tmp_path: Pa
     assert 'data-learner="PPO Shaped"' in html and 'data-scenario="Switch5"' in html
     entry = re.search(r'<tr data-llm-entry="Mock LLM">.*?</tr>', html, re.DOTALL).group(0)
     assert "mockllm/model" in entry and "framing named" in entry and "5 (paid)" in entry and str(log) in entry
+    assert "temperature provider default" in entry
+
+
+def test_the_temperature_is_the_tasks_else_inspects_and_is_recorded(tmp_path: Path) -> None:
+    from leaderboard.llm import read_episodes
+
+    calls: list[tuple[float | None, int | None]] = []
+
+    def answer(messages, tools, tool_choice, config):  # type: ignore[no-untyped-def]
+        calls.append((config.temperature, config.seed))
+        out = ModelOutput.from_content(model="mockllm/model", content="ACTION: STAY")
+        out.usage = ModelUsage(input_tokens=1, output_tokens=1, total_tokens=2)
+        return out
+
+    model = get_model("mockllm/model", custom_outputs=answer, memoize=False)
+    task = morality_gym_task("Utility", env=ENV, episodes=2, max_steps=6, seed=7)
+    [log] = inspect_eval(task, model=model, log_dir=str(tmp_path / "a"), display="none", temperature=0.3)
+    assert set(calls) == {(0.3, 7), (0.3, 8)}  # Inspect's --temperature; episode k asks for seed + k
+    assert {e.record["settings"]["temperature"] for e in read_episodes(Path(log.location))[0]} == {0.3}
+    calls.clear()
+    task = morality_gym_task("Utility", env=ENV, episodes=1, max_steps=6, temperature=0.0)
+    [log] = inspect_eval(task, model=model, log_dir=str(tmp_path / "b"), display="none", temperature=0.3)
+    assert set(calls) == {(0.0, 41)}  # the task's setting wins
+    assert read_episodes(Path(log.location))[0][0].record["settings"]["temperature"] == 0.0
 
 
 @pytest.mark.parametrize("args,message", [

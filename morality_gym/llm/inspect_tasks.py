@@ -166,7 +166,8 @@ def trolley_agent(settings: AgentSettings, chain: MoralityChain, cache: bool = F
         tools = [ACT_TOOL] if settings.answer == "tool" else []
 
         async def chat(messages: list[Message]) -> Reply:
-            output = await model.generate(to_inspect(messages), tools=tools, config=config, cache=cache)
+            # cache only when asked, so that Inspect's own --cache applies otherwise
+            output = await model.generate(to_inspect(messages), tools=tools, config=config, **({"cache": True} if cache else {}))
             usage = output.usage
             calls = [c for c in (output.message.tool_calls or []) if c.function == ACT_TOOL.name]
             action = str(calls[0].arguments.get("action")) if calls else None

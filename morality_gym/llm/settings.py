@@ -24,8 +24,10 @@ class SettingsError(ValueError):
 class AgentSettings:
     """How the agent talks to the model.
 
-    ``temperature`` 1.0: the model's own sampled policy, as the paper evaluates the RL baselines'
-    stochastic policies (0 makes it the greedy policy). ``seed``: episode ``k`` of a variant asks the
+    ``temperature`` ``None``: the provider's default, or Inspect's ``--temperature`` (most hosted chat
+    models then sample at 1.0: the model's own stochastic policy, as the paper evaluates the RL
+    baselines' stochastic policies); a number sets it for every call. The value used is recorded with
+    the leaderboard entry either way. ``seed``: episode ``k`` of a variant asks the
     provider for seed ``seed + k`` (where the provider supports seeds), so episodes differ and reruns
     match. ``window``: how many of the latest observations (with the answers after them) the model
     sees besides the system message; ``None`` keeps the whole episode (a 201-step episode then costs
@@ -38,7 +40,7 @@ class AgentSettings:
     window: int | None = 8
     max_retries: int = 2
     fallback: str = "STAY"
-    temperature: float | None = 1.0
+    temperature: float | None = None
     seed: int = 41
     max_tokens: int | None = 512
     max_steps: int = DEFAULT_MAX_STEPS
