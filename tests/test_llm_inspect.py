@@ -166,6 +166,7 @@ def test_the_mock_run_lands_on_the_leaderboard_beside_the_baselines(tmp_path: Pa
     entry = re.search(r'<tr data-llm-entry="Mock LLM">.*?</tr>', html, re.DOTALL).group(0)
     assert "mockllm/model" in entry and "framing named" in entry and "5 (paid)" in entry and str(log) in entry
     assert "temperature provider default" in entry
+    assert '<td class="num">12.0</td>' in entry  # calls per episode: the 12 steps of the script, no retries
 
 
 def test_the_temperature_is_the_tasks_else_inspects_and_is_recorded(tmp_path: Path) -> None:
