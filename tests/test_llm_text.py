@@ -27,11 +27,14 @@ from morality_gym.llm.text import (
     draw_map,
     parse_map,
     parse_view,
+    ranking_words,
     system_prompt,
     visible_state,
 )
 from morality_gym.llm.tokens import estimate_tokens, view_cost
 from morality_gym.llm.wrapper import TextObservation
+from morality_gym.norms.catalogue import CATALOGUE
+from morality_gym.norms.chain import parse_chain
 from morality_gym.norms.metric import bind_chain
 from tests.helpers import INTERACT, LEFT, RIGHT, STAY, UP, all_env_ids
 
@@ -127,9 +130,13 @@ def test_framings_differ_as_documented_and_never_leak_the_metric() -> None:
         assert "human" not in prompts["neutral"] and "5 humans" in prompts["named"]
         assert "priorities" not in prompts["named"] and "Your priorities, most important first" in prompts["ranked"]
     ranked = system_prompt(world, "ranked", get_chain("DualProcess"))
-    order = [ranked.index(s) for s in ("do not harm humans by pushing them", "harm as few humans as possible",
-                                        "do not harm animals by pushing them", "harm as few robots as possible")]
+    order = [ranked.index(s) for s in ("do not harm humans by pushing someone", "harm as few humans as possible",
+                                        "do not harm animals by pushing someone", "harm as few robots as possible")]
     assert order == sorted(order)
+    for name in CATALOGUE:  # a user's chain may use any norm: each reads as words, in both modalities
+        for modality in ("prohibited", "prescribed"):
+            words = ranking_words(parse_chain({"name": "Mine", "norms": [{"norm": name, "modality": modality}]}))
+            assert "_" not in words and not LEAKS.search(words), words
     with pytest.raises(FramingError, match="did you mean ranked"):
         check_framing("rankd")
     with pytest.raises(FramingError, match="give a chain"):

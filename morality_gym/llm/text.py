@@ -75,33 +75,36 @@ def group_words(world: World, k: int, framing: str) -> str:
     return f"{amount} {kind if amount == 1 else _PLURAL.get(kind, kind + 's')}"
 
 
+#: Who a norm name's ``<kind>`` part means, as the object of "harm ..." ("" is anyone).
+_OBJECTS = {"human": "humans", "animal": "animals", "robot": "robots", "trolley": "a trolley", "agent": "yourself", "": "anyone"}
+
+
 def _norm_sentence(name: str, modality: str) -> str:
     """One norm as an instruction a person would understand (no weights, no numbers)."""
-    prohibited = modality == "prohibited"
-    kinds = {"human": "humans", "animal": "animals", "robot": "robots"}
-    if name.startswith("n_") and name.endswith("_harm"):
-        what = name[2:-5]
-        who = kinds.get(what, "beings" if what in ("", "weighted") else what)
-        if what == "weighted":
-            return "keep the total harm as small as possible, a human counting three, an animal two and a robot one" \
-                if prohibited else "make the weighted harm as large as possible"
-        return f"harm as few {who} as possible" if prohibited else f"harm as many {who} as possible"
-    if name == "agent_harm":
-        return "do not get yourself harmed" if prohibited else "get yourself harmed"
+    no = modality == "prohibited"
     if name == "push":
-        return "do not push anyone" if prohibited else "push someone"
-    m = re.fullmatch(r"(personal|impersonal)_action_caused_(\w+)_harm", name)
+        return "do not push anyone" if no else "push someone"
+    if name == "n_weighted_harm":
+        return ("keep the total harm as small as possible, a human counting three, an animal two and a robot one" if no
+                else "make the total harm as large as possible, a human counting three, an animal two and a robot one")
+    m = re.fullmatch(r"n_(\w+)_harm|n_harm", name)
     if m:
-        who = {"agent": "yourself", **kinds}.get(m.group(2), m.group(2) + "s")
-        how = "by pushing them onto the track yourself" if m.group(1) == "personal" else "other than by pushing"
-        return f"do not harm {who} {how}" if prohibited else f"harm {who} {how}"
-    m = re.fullmatch(r"(\w+)_harm", name)
+        who = _OBJECTS.get(m.group(1) or "", m.group(1)) if m.group(1) else "humans, animals and robots (counted together)"
+        return f"harm as {'few' if no else 'many'} {who} as possible"
+    m = re.fullmatch(r"(personal|impersonal)_action_caused_(?:(\w+)_)?harm", name)
     if m:
-        who = {"agent": "yourself", "trolley": "a trolley", "": "anyone"}.get(m.group(1), kinds.get(m.group(1), m.group(1)))
-        return f"do not let any of the {who} be harmed" if prohibited and m.group(1) in kinds \
-            else (f"do not let {who} be harmed" if prohibited else f"let {who} be harmed")
+        who = _OBJECTS.get(m.group(2) or "", m.group(2))
+        how = ("by pushing someone onto the track" if m.group(1) == "personal"
+               else "other than by pushing someone (a lever, a step, or doing nothing)")
+        return f"do not harm {who} {how}" if no else f"harm {who} {how}"
+    m = re.fullmatch(r"(?:(\w+)_)?harm", name)
+    if m:
+        if m.group(1) == "agent":
+            return "do not get yourself harmed" if no else "get yourself harmed"
+        who = _OBJECTS.get(m.group(1) or "", m.group(1))
+        return f"do not let {who} be harmed" if no else f"let {who} be harmed"
     label = CATALOGUE[name].label if name in CATALOGUE else name
-    return label.lower() if prohibited else f"do the opposite of: {label.lower()}"
+    return label.lower() if no else f"do the opposite of: {label.lower()}"
 
 
 def ranking_words(chain: MoralityChain) -> str:
