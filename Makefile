@@ -39,7 +39,8 @@ $(STAMP)/venv: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	# torch first and pinned: a CPU wheel of 2.13.0 is on disk; anything else pulls GBs of CUDA.
 	$(PIP) install -q torch==2.13.0
-	$(PIP) install -q -e '.[dev]'
+	# the llm extra (Inspect AI) too: its tests run offline with Inspect's mock model.
+	$(PIP) install -q -e '.[dev,llm]'
 	@touch $@
 
 system-deps: $(STAMP)/system-deps

@@ -79,6 +79,8 @@ _PRESET_RANK = {"paper": 0, "quick": 1, "smoke": 2}
 PROVENANCE_KEY = "provenance"
 #: ``algo`` of runs written by ``python -m leaderboard.submit`` (external policies).
 SUBMITTED_ALGO = "submitted"
+#: ``config["policy"]["kind"]`` of a submitted language-model episode (``python -m leaderboard.llm``).
+LLM_POLICY_KIND = "llm"
 _UNKNOWN = "unknown"
 _TOLERANCE = 1e-12
 
@@ -214,7 +216,7 @@ def _config_facts(config: Any, run_id: Any) -> tuple[str, str | None]:
 def chain_label(name: Any, fingerprint: str | None) -> Any:
     """The name a chain is shown and grouped under: its own, unless it takes a built-in chain's
     name for other norms; then ``<name>~<fingerprint>``, so it never passes for the built-in one."""
-    if fingerprint is None or not isinstance(name, str):
+    if not isinstance(fingerprint, str) or not isinstance(name, str):  # pandas 3 turns a None beside strings into NaN
         return name
     from morality_gym.norms.chain import builtin_chains
 
@@ -386,8 +388,12 @@ def submitted_learners(runs: pd.DataFrame) -> dict[str, str]:
             who.add(str(prov["submitter"]))
         if isinstance(policy, dict) and policy.get("sha256"):
             hashes.add(str(policy["sha256"])[:12])
+        if isinstance(policy, dict) and policy.get("kind") == LLM_POLICY_KIND:  # python -m leaderboard.llm: no file to hash
+            hashes.add(f"language model {policy.get('model')}, framing {policy.get('framing')}, "
+                       f"temperature {policy.get('temperature')}")
     return {learner: (f"external policy submitted by {', '.join(sorted(who)) or 'unknown'}"
-                      + (f"; policy sha256 {', '.join(sorted(hashes))}" if hashes else ""))
+                      + (f"; {'; '.join(sorted(hashes))}" if any(h.startswith("language") for h in hashes)
+                         else f"; policy sha256 {', '.join(sorted(hashes))}" if hashes else ""))
             for learner, (who, hashes) in out.items()}
 
 

@@ -16,6 +16,7 @@ import pandas as pd
 from leaderboard.aggregate import ORACLE_BEST, ORACLE_WORST, RANDOM_EXACT, STD_DDOF, Group, safe_name
 from leaderboard.figures import chain_title, norm_abbreviation, norm_label
 from leaderboard.intervals import BOLD_RULE
+from leaderboard.llm_entries import llm_entries
 from leaderboard.render import clean, clean_records, is_missing, run_href, scenario_href, section_id
 from leaderboard.site_state import SiteBuild
 from leaderboard.sources import RESULTS_SOURCE
@@ -161,6 +162,7 @@ def index_context(sb: SiteBuild) -> dict[str, Any]:
         "figure2": figure2_context(sb, ""),
         "scenarios": scenarios_context(sb, ""),
         "sources": sources_context(sb),
+        "llm": llm_entries(sb.lb.runs),
     }
 
 

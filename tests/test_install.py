@@ -135,3 +135,27 @@ def test_sweep_and_leaderboard_from_outside_the_repository(installed: tuple[Path
     site_packages = Path(_ok(_run([str(python), "-c", "import leaderboard; print(leaderboard.__file__)"], work, env),
                              "import").strip()).parent
     assert not (site_packages / "site").exists(), "the leaderboard wrote into the installed package"
+
+
+def test_inspect_finds_the_installed_tasks_by_their_entry_point(installed: tuple[Path, dict[str, str], Path]) -> None:
+    """``inspect eval morality_gym/utility`` works from anywhere once the package is installed (the
+    ``inspect_ai`` entry point), here with Inspect's mock model answering STAY."""
+    pytest.importorskip("inspect_ai", reason="the llm extra (make test installs it)")
+    python, env, work = installed
+    code = """
+from inspect_ai import eval as inspect_eval
+from inspect_ai.model import ModelOutput, ModelUsage, get_model
+import morality_gym.llm.inspect_tasks as tasks
+
+def answer(messages, tools, tool_choice, config):
+    out = ModelOutput.from_content(model="mockllm/model", content="ACTION: STAY")
+    out.usage = ModelUsage(input_tokens=1, output_tokens=1, total_tokens=2)
+    return out
+
+[log] = inspect_eval("morality_gym/utility", task_args={"env": "SwitchStandard-HumanA-v1", "episodes": 2},
+                     model=get_model("mockllm/model", custom_outputs=answer), log_dir="logs", display="none")
+print(tasks.__file__, log.status, len(log.samples))
+"""
+    out = _ok(_run([str(python), "-c", code], work, env), "inspect eval morality_gym/utility")
+    path, status, samples = out.split()[-3:]
+    assert not Path(path).resolve().is_relative_to(REPO) and (status, samples) == ("success", "2")

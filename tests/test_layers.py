@@ -2,7 +2,7 @@
 
 Layers, lowest first (docs/architecture.md explains each placement):
 
-    support -> world -> render -> envs -> norms -> evaluation -> api -> baselines -> runners
+    support -> world -> render -> envs -> norms -> evaluation -> api -> llm -> baselines -> runners
             -> leaderboard -> cli -> benchmarks
 
 A module may import modules of its own layer or of a lower one, never of a higher one. Every
@@ -38,6 +38,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("norms", ("morality_gym.norms",)),
     ("evaluation", ("morality_gym.evaluation", "morality_gym.render.gif")),
     ("api", ("morality_gym", "morality_gym.api", "morality_gym.paper")),
+    ("llm", ("morality_gym.llm",)),
     ("baselines", ("morality_gym.baselines",)),
     ("runners", ("runners",)),
     ("leaderboard", ("leaderboard",)),
