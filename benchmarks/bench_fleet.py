@@ -106,3 +106,62 @@ gain of the minibatch learners near 10x.
         ],
         compare=[h for h in headers if h.endswith("steps/s")],
     )
+
+
+@register("fleet_cost", "Fleet engine: the step-wise cost of 36 runs in one pass vs a loop over their groups", order=76)
+def fleet_cost(ctx: Context) -> Section:
+    """Why: a fleet's runs follow different (env id, chain) pairs; the cost was computed by one
+    VectorCost per pair in a Python loop at every step. StackedCost does all copies in one pass with
+    the same bits. Measured: the fleet simulator's step with its cost (random actions), and a short
+    PPO-Lag and PPO training of the fleet, each with the loop and with the stacked cost."""
+    import numpy as np
+    import torch
+
+    import morality_gym
+    from morality_gym.baselines.fleet import FleetRun, build_fleet
+    from morality_gym.baselines.specs import learner_spec
+
+    torch.set_num_threads(1)
+    ids = [e for e in morality_gym.list_envs() if e.startswith("PushOrSwitch-")]
+    runs = [FleetRun(morality_gym.bind_chain(c, i), 41) for c in ("DualProcess", "Utility", "Outcome") for i in ids][:36]
+    steps = 50 if ctx.quick else 500
+    rows = []
+    held: dict[str, Any] = {}
+    task = ctx.task("fleet_cost", 6)
+    for what, algo, budget in (("simulator + cost, 8 envs x 36 runs", None, steps),
+                               ("PPO-Lag training", "ppo_lag", 2048 * (2 if ctx.quick else 8)),
+                               ("PPO training", "ppo", 16384 * (1 if ctx.quick else 2))):
+        cells = [what]
+        for stacked in (False, True):
+
+            def build(held: dict[str, Any] = held, stacked: bool = stacked, algo: str | None = algo) -> None:
+                held["f"] = build_fleet(learner_spec(algo or "ppo_lag"), runs, "paper")
+                if not stacked:
+                    held["f"].env._stacked = None  # the per-group loop, as before StackedCost
+                held["f"].env.reset()
+
+            def work(held: dict[str, Any] = held, algo: str | None = algo, budget: int = budget) -> None:
+                fleet = held["f"]
+                if algo is None:
+                    rng = np.random.default_rng(0)
+                    for _ in range(budget):
+                        fleet.env.step(rng.integers(0, 6, size=fleet.n_runs * fleet.n_envs))
+                else:
+                    fleet.learn(budget)
+
+            timing = best_time(work, 1 if algo else ctx.repeats, setup=build)
+            cells.append(f"{timing.cpu:.2f}")
+            task.advance()
+        cells.append(f"{float(cells[1]) / float(cells[2]):.2f}x")
+        rows.append(cells)
+    task.done()
+    return Section(
+        intro=f"""
+PushOrSwitch, 36 runs (12 variants x DualProcess, Utility, Outcome: 36 (env id, chain) groups), 8 envs each, paper
+protocol, one thread; CPU seconds (best of the repeats for the simulator, one run for training). The first row steps the
+fleet's simulator {steps} times with random actions and computes the cost; the others train the fleet
+({'a short' if ctx.quick else '8 rollouts of PPO-Lag, 2 of PPO'} budget).
+""",
+        headers=["what", "loop over groups (s CPU)", "stacked (s CPU)", "speed-up"],
+        rows=rows,
+    )

@@ -209,3 +209,44 @@ def test_cli_oracle_and_errors() -> None:
     assert bad.returncode == 2 and "Human" in bad.stderr
     bad = _cli("eval", "--chain", "Utility", "--scenario", "PushOrSwitch", "--exact", "--seed", "1")
     assert bad.returncode == 2
+
+
+@pytest.mark.parametrize("mode,reset", [("minimal", "never"), ("full", "per_episode"), ("partial", "never")])
+def test_stacked_cost_is_each_groups_vector_cost_bit_for_bit(mode: str, reset: str) -> None:
+    """A fleet's one-pass cost over copies of different chains and env ids (StackedCost) gives every
+    copy the same bits as its group's own VectorCost, over real event and utility streams."""
+    from morality_gym.envs.mixed import MixedBatchedTrolleyEnv
+    from morality_gym.norms.cost import StackedCost
+
+    rng = np.random.default_rng(0)
+    pairs = [("DualProcessAgentHarm", "Push3SelfSacrifice-Human-v1"), ("Utility", "Push3SelfSacrifice-RobotB-v1"),
+             ("OutcomeAgentHarm", "Push3SelfSacrifice-HumanAnimalRobot-v1"), ("Outcome", "Push3SelfSacrifice-RobotA-v1"),
+             ("UtilityAgentHarm", "Push3SelfSacrifice-HumanRobot-v1"), ("DualProcess", "Push3SelfSacrifice-Animal-v1")]
+    n_envs = 5
+    sim = MixedBatchedTrolleyEnv([env for _, env in pairs for _ in range(n_envs)], max_steps=200)
+    groups = [(np.arange(k * n_envs, (k + 1) * n_envs), VectorCost(bind_chain(chain, env), n_envs, mode=mode, scale=2.0,
+                                                                  reset=reset))
+              for k, (chain, env) in enumerate(pairs)]
+    alone = [(copies, VectorCost(cost.bound, n_envs, mode=mode, scale=2.0, reset=reset)) for copies, cost in groups]
+    stacked = StackedCost.of_groups(groups, sim.num_envs)
+    assert stacked is not None
+    sim.reset()
+    nonzero = 0
+    for _ in range(600):
+        res = sim.step(rng.integers(0, 6, size=len(pairs) * n_envs))
+        utility, dones = sim.utility(res.transition), res.terminated | res.truncated
+        got = stacked(res.events, utility, dones)
+        want = np.empty_like(got)
+        for copies, cost in alone:
+            want[copies] = cost(res.events[copies], utility[copies], dones[copies])
+        assert got.tobytes() == want.tobytes()
+        nonzero += int((got != 0).sum())
+    assert nonzero > 100  # the streams did cost something
+
+
+def test_stacked_cost_declines_prescribed_norms() -> None:
+    from morality_gym.norms.cost import StackedCost
+
+    cost = VectorCost(bind_chain("Utility", "SwitchStandard-HumanA-v1"), 2)
+    cost._prescribed_events.append((0, 1.0))  # what a user chain with a prescribed event norm builds
+    assert StackedCost.of_groups([(np.arange(2), cost)], 2) is None

@@ -18,7 +18,7 @@ import numpy as np
 
 from morality_gym.envs.mixed import MixedBatchedTrolleyEnv
 from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
-from morality_gym.norms.cost import VectorCost
+from morality_gym.norms.cost import StackedCost, VectorCost
 from morality_gym.norms.metric import BoundChain
 from morality_gym.norms.wrappers import RewardCostSpec
 
@@ -53,6 +53,8 @@ class FleetEnv:
                 bounds[runs[0]], len(copies), mode=reward_cost.cost_mode, scale=reward_cost.cost_scale, reset=reward_cost.cost_reset
             )
             self._costs.append((copies, cost))
+        # all groups in one pass (the same bits as the loop over groups; None with a prescribed norm)
+        self._stacked = StackedCost.of_groups(self._costs, self.n_runs * n_envs)
         self._all = np.ones(self.n_runs * n_envs, dtype=bool)
 
     def copies_of(self, runs: np.ndarray) -> np.ndarray:
@@ -67,16 +69,22 @@ class FleetEnv:
         """
         mask = None if runs is None else self.copies_of(runs)
         if self.reward_cost.cost_reset == "per_episode":
-            for copies, cost in self._costs:
-                cost.reset(None if mask is None else mask[copies])
+            if self._stacked is not None:
+                self._stacked.reset(mask)
+            else:
+                for copies, cost in self._costs:
+                    cost.reset(None if mask is None else mask[copies])
         return self.sim.reset(mask)
 
     def step(self, actions: np.ndarray) -> FleetStep:
         res = self.sim.step(actions)
         dones = res.terminated | res.truncated
         utility = self.sim.utility(res.transition)
-        costs = np.empty(len(dones), dtype=np.float64)
-        for copies, cost in self._costs:
-            costs[copies] = cost(res.events[copies], utility[copies], dones[copies])
+        if self._stacked is not None:
+            costs = self._stacked(res.events, utility, dones)
+        else:
+            costs = np.empty(len(dones), dtype=np.float64)
+            for copies, cost in self._costs:
+                costs[copies] = cost(res.events[copies], utility[copies], dones[copies])
         rewards = np.asarray(self.reward_cost.transform(res.reward.astype(np.float64), costs), dtype=np.float32)
         return FleetStep(res.obs, rewards, costs, dones, res.truncated & ~res.terminated, res.final_obs)
