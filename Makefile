@@ -21,7 +21,7 @@ RELEASE_ARGS := $(foreach r,$(RELEASES),--release $(r))
 # Debian packages the tests use: a real single-node SLURM (with accounting) and headless Chromium.
 DEBIAN_PACKAGES := slurm-wlm munge slurmdbd mariadb-server chromium
 
-.PHONY: help venv system-deps test test-fast bench reproduce-table1 leaderboard mlflow-ui docs \
+.PHONY: help venv system-deps test test-fast bench reproduce-table1 leaderboard release reproduction mlflow-ui docs \
         slurm-up slurm-down clean
 
 help:
@@ -30,6 +30,8 @@ help:
 	@echo "make test            install everything and run the whole test suite"
 	@echo "make bench           measure speed; writes BENCHMARKS.md"
 	@echo "make leaderboard     rebuild results/table1.* and leaderboard/site from existing results"
+	@echo "make release NAME=x  freeze the runs under $(RESULTS)/ into releases/x/ (checksummed, for git)"
+	@echo "make reproduction    docs/reproduction.md: Table 1 vs the paper, cell by cell, from releases + $(RESULTS)/"
 	@echo "make mlflow-ui       browse the MLflow runs under $(RESULTS)/"
 	@echo "make docs            regenerate docs/envs/*.md from the scenario files"
 
@@ -77,6 +79,13 @@ reproduce-table1: venv
 leaderboard: venv
 	@mkdir -p $(RESULTS)
 	$(PY) -m leaderboard.build --results $(RESULTS) --site leaderboard/site $(RELEASE_ARGS)
+
+release: venv
+	@test -n "$(NAME)" || { echo "usage: make release NAME=paper-table1-v1 [RESULTS=dir] [TITLE='...']" >&2; exit 2; }
+	$(PY) -m leaderboard.release create --results $(RESULTS) --name $(NAME) --title "$(TITLE)"
+
+reproduction: venv
+	$(PY) -m leaderboard.reproduction --results $(RESULTS) $(RELEASE_ARGS)
 
 mlflow-ui: venv
 	$(VENV)/bin/mlflow ui --backend-store-uri sqlite:///$(abspath $(RESULTS))/mlflow.db --port 5000
