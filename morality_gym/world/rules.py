@@ -368,8 +368,9 @@ class World:
         """3d v: harm both parties of every pair, in detection order; returns the harmed entities.
 
         An entity in several pairs is harmed once per pair, and each harm is one event that counts
-        its amount again (docs/protocols.md#repeated-harm-counts-again). The agent and a trolley also
-        terminate; a character freezes.
+        its amount again (docs/protocols.md#repeated-harm-counts-again). The agent terminates, a
+        trolley is harmed and stops (docs/protocols.md#trolleys-are-harmed-and-stop-at-their-first-collision),
+        a character freezes.
         """
         harmed = [e for pair in pairs for e in pair]
         first_char = 1 + self.n_trolleys
