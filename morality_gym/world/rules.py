@@ -156,34 +156,14 @@ class World:
         self.variant = scenario.variants[variant]
         self.height, self.width = scenario.height, scenario.width
         w = self.width
-        overrides = overrides or Overrides()
 
         self.walkable = [[(r, c) not in scenario.walls for c in range(w)] for r in range(self.height)]
-        # Rails: a plain rail's next cell (or None at the end of the line); switches by lever state.
-        self.rail_next: dict[int, int | None] = {}
-        self.switch_exits: dict[int, tuple[int, tuple[int, ...]]] = {}
-        for (r, c), glyph in scenario.rails.items():
-            if glyph == "S":
-                continue
-            dr, dc = RAIL_DIRECTIONS[glyph]
-            nr, nc = r + dr, c + dc
-            inside = 0 <= nr < self.height and 0 <= nc < w
-            self.rail_next[r * w + c] = nr * w + nc if inside and (nr, nc) in scenario.rails else None
-        for sw in scenario.switches:
-            r, c = sw.at
-            exits = tuple((r + EXIT_DIRECTIONS[e][0]) * w + c + EXIT_DIRECTIONS[e][1] for e in sw.exits)
-            self.switch_exits[r * w + c] = (sw.lever, exits)
-
+        self.rail_next, self.switch_exits = self._compile_rails()
         self.levers_at: dict[int, list[int]] = {}
         for li, lever in enumerate(scenario.levers):
             self.levers_at.setdefault(lever.at[0] * w + lever.at[1], []).append(li)
         self.lever_states = tuple(lever.n_states for lever in scenario.levers)
 
-        start = overrides.player_start or scenario.player_start
-        char_starts = dict(overrides.character_starts or {})
-        unknown = set(char_starts) - {c.name for c in scenario.characters}
-        if unknown:
-            raise KeyError(f"unknown characters in overrides: {sorted(unknown)}")
         self.char_types = self.variant.types
         self.char_amounts = self.variant.amounts
         self.char_pushable = tuple(c.pushable for c in scenario.characters)
@@ -192,12 +172,41 @@ class World:
         self.landmark = scenario.landmark[0] * w + scenario.landmark[1]
         self.landmark_on_interact = scenario.landmark_mode == "interact"
         self.trolleys_wait = scenario.trolley_start == "landmark_reached"
+        self.initial_state: State = self._initial_state(overrides or Overrides())
 
+    def _compile_rails(self) -> tuple[dict[int, int | None], dict[int, tuple[int, tuple[int, ...]]]]:
+        """(rail_next, switch_exits): a plain rail cell's next cell (None at the end of the line),
+        and per switch cell its lever and its exit cells in state order."""
+        h, w = self.height, self.width
+        rails = self.scenario.rails
+        rail_next: dict[int, int | None] = {}
+        for (r, c), glyph in rails.items():
+            if glyph == "S":
+                continue
+            dr, dc = RAIL_DIRECTIONS[glyph]
+            nr, nc = r + dr, c + dc
+            inside = 0 <= nr < h and 0 <= nc < w
+            rail_next[r * w + c] = nr * w + nc if inside and (nr, nc) in rails else None
+        switch_exits: dict[int, tuple[int, tuple[int, ...]]] = {}
+        for sw in self.scenario.switches:
+            r, c = sw.at
+            exits = tuple((r + EXIT_DIRECTIONS[e][0]) * w + c + EXIT_DIRECTIONS[e][1] for e in sw.exits)
+            switch_exits[r * w + c] = (sw.lever, exits)
+        return rail_next, switch_exits
+
+    def _initial_state(self, overrides: Overrides) -> State:
+        """Everyone at their start (or the overridden one), unharmed; every lever at state 0."""
+        scenario, w = self.scenario, self.width
+        char_starts = dict(overrides.character_starts or {})
+        unknown = set(char_starts) - {c.name for c in scenario.characters}
+        if unknown:
+            raise KeyError(f"unknown characters in overrides: {sorted(unknown)}")
+        start = overrides.player_start or scenario.player_start
         chars = []
         for spec in scenario.characters:
             r, c = char_starts.get(spec.name, spec.start)
             chars.append((r * w + c, 0, r * w + c))
-        self.initial_state: State = (
+        return (
             start[0] * w + start[1],
             0,
             tuple(0 for _ in scenario.levers),
