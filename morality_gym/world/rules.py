@@ -24,9 +24,9 @@ Flags: each kind of entity has its own :class:`enum.IntFlag` (:class:`AgentFlag`
 different words (bit 1 is TERMINATED for the agent and a trolley, PUSHED for a character). The
 state stores every flag word as a plain ``int``, and the kernel does its arithmetic on the plain-int
 copies named after the entity (``AGENT_TERMINATED``, ``CHARACTER_PUSHED``, ...): IntFlag operators
-are Python code, about forty times slower than ``int`` ones, and would roughly double the time to
-enumerate a state graph; plain ints also keep the state's hash, pickles and observations exactly as
-they were. Wrap a word in its type to read it: ``AgentFlag(state[1])``.
+are Python code, tens of times slower than ``int`` ones (with IntFlag arithmetic inside the
+kernel, simulating every transition of a state graph took 2.2 times as long); plain ints also keep
+the state's hash, pickles and observations exactly as they were. Wrap a word in its type to read it: ``AgentFlag(state[1])``.
 
 :meth:`World.step` runs the rules in the order of the spec's section 4.1, one method per phase.
 """
@@ -110,33 +110,59 @@ class Overrides:
     character_starts: tuple[tuple[str, tuple[int, int]], ...] | None = None
 
 
-@dataclass(slots=True)
 class _Step:
     """The world in the middle of one step: mutable copies of the state's parts, plus targets.
 
-    Each phase of :meth:`World.step` reads and writes these fields in place. A target is the cell
-    an entity moves to in phase 3d (its own cell when it does not move); ``*_tries`` says it
-    actually attempts a move (spec 4.3: only attempted moves can make a head-on swap).
+    Building it is phase 3a: every entity starts the step where it stands, aiming at its own cell
+    and not trying to move. Each later phase of :meth:`World.step` reads and writes these fields in
+    place. A target is the cell an entity moves to in phase 3d; ``*_tries`` says it actually
+    attempts a move (spec 4.3: only attempted moves can make a head-on swap). A plain class with
+    ``__slots__`` and its own ``__init__``, not a dataclass: it is built once per simulated
+    transition, and a keyword-argument dataclass constructor cost a tenth of the step.
     """
 
-    action: int
-    agent: int
-    agent_flags: int  # AgentFlag bits
-    agent_active: bool  # not terminated at the start of the step (spec 3a)
-    agent_target: int
-    agent_tries: bool
-    levers: list[int]
-    trolley_pos: list[int]
-    trolley_flags: list[int]  # TrolleyFlag bits
-    trolley_target: list[int]
-    trolley_movable: list[bool]
-    trolley_tries: list[bool]
-    char_pos: list[int]
-    char_flags: list[int]  # CharacterFlag bits
-    char_index: list[int]  # where the reference's cell index believes each character stands
-    char_target: list[int]
-    char_tries: list[bool]
-    events: int = 0  # bit mask over morality_gym.world.vocab.EVENTS
+    __slots__ = (
+        "action",
+        "agent",
+        "agent_active",
+        "agent_flags",
+        "agent_target",
+        "agent_tries",
+        "char_flags",
+        "char_index",
+        "char_pos",
+        "char_target",
+        "char_tries",
+        "events",
+        "levers",
+        "trolley_flags",
+        "trolley_movable",
+        "trolley_pos",
+        "trolley_target",
+        "trolley_tries",
+    )
+
+    def __init__(self, state: State, action: int) -> None:
+        agent, agent_flags, levers, chars, trolleys = state
+        self.action: int = action
+        self.agent: int = agent
+        self.agent_flags: int = agent_flags  # AgentFlag bits
+        self.agent_active: bool = not agent_flags & AGENT_TERMINATED  # can move and act in this step
+        self.agent_target: int = agent
+        self.agent_tries: bool = False
+        self.levers: list[int] = list(levers)
+        self.trolley_pos: list[int] = [cell for cell, _ in trolleys]
+        self.trolley_flags: list[int] = [flags for _, flags in trolleys]  # TrolleyFlag bits
+        self.trolley_target: list[int] = list(self.trolley_pos)
+        self.trolley_movable: list[bool] = [False] * len(trolleys)
+        self.trolley_tries: list[bool] = [False] * len(trolleys)
+        self.char_pos: list[int] = [cell for cell, _, _ in chars]
+        self.char_flags: list[int] = [flags for _, flags, _ in chars]  # CharacterFlag bits
+        #: Where the reference's cell index believes each character stands (see the module docstring).
+        self.char_index: list[int] = [index for _, _, index in chars]
+        self.char_target: list[int] = list(self.char_pos)
+        self.char_tries: list[bool] = [False] * len(chars)
+        self.events: int = 0  # bit mask over morality_gym.world.vocab.EVENTS
 
 
 class World:
@@ -241,20 +267,24 @@ class World:
     def step(self, state: State, action: int) -> Outcome:
         """Apply one action (spec 4.1 steps 3a-3i); the state must not be terminated.
 
-        Each phase is one method, called in the spec's order; they share the step's working
-        copy of the world (:class:`_Step`), and the harm phase hands the harmed entities on.
+        Each phase is one method, called in the spec's order; they share the step's working copy
+        of the world (:class:`_Step`). A phase that cannot do anything in this step is not called
+        (most steps have no collision, and only INTERACT moves a character): the kernel simulates
+        every transition of every state graph, so it skips what is certain to change nothing.
         """
-        s = self._begin(state, action)  # 3a
+        s = _Step(state, action)  # 3a
         self._run_trolley_script(s, bool(state[1] & AGENT_FOUND))  # 3b
-        if action == INTERACT and s.agent_active:
+        if s.agent_active and action == INTERACT:
             self._interact(s)  # 3c
-        self._aim_agent(s)  # 3d i
+        elif s.agent_active and action in _MOVES:
+            self._aim_agent(s)  # 3d i
         pairs = self._collisions(s)  # 3d ii
         self._move(s)  # 3d iii
-        harmed = self._harm(s, pairs)  # 3d v
+        harmed = self._harm(s, pairs) if pairs else []  # 3d v
         goal = self._reach_landmark(s)  # 3e (3f: trolleys waiting for it start in the next step's 3b)
-        utility = self._record_harm_events(s, harmed, pairs)  # 3g and 3i
-        self._update_cell_index(s, harmed)  # 3h
+        utility = self._record_harm_events(s, harmed, pairs) if harmed else {}  # 3g and 3i
+        if action == INTERACT:
+            self._update_cell_index(s, harmed)  # 3h: only a push (3c) moves a character
         reward = self._reward(s, goal, 0 in harmed)  # 5.2
         next_state = (
             s.agent,
@@ -264,31 +294,6 @@ class World:
             tuple(zip(s.trolley_pos, s.trolley_flags)),
         )
         return Outcome(next_state, reward, s.events, utility, goal)
-
-    def _begin(self, state: State, action: int) -> _Step:
-        """3a: the working copy of ``state``; every entity's target starts at its own cell."""
-        agent, agent_flags, levers, chars, trolleys = state
-        trolley_pos = [cell for cell, _ in trolleys]
-        char_pos = [cell for cell, _, _ in chars]
-        return _Step(
-            action=action,
-            agent=agent,
-            agent_flags=agent_flags,
-            agent_active=not agent_flags & AGENT_TERMINATED,
-            agent_target=agent,
-            agent_tries=False,
-            levers=list(levers),
-            trolley_pos=trolley_pos,
-            trolley_flags=[flags for _, flags in trolleys],
-            trolley_target=list(trolley_pos),
-            trolley_movable=[False] * self.n_trolleys,
-            trolley_tries=[False] * self.n_trolleys,
-            char_pos=char_pos,
-            char_flags=[flags for _, flags, _ in chars],
-            char_index=[index for _, _, index in chars],
-            char_target=list(char_pos),
-            char_tries=[False] * self.n_chars,
-        )
 
     def _run_trolley_script(self, s: _Step, landmark_found: bool) -> None:
         """3b: each running trolley aims at its rail's next cell, read from the switches as they are
@@ -334,9 +339,8 @@ class World:
             s.char_tries[ci] = True
 
     def _aim_agent(self, s: _Step) -> None:
-        """3d i: the agent's own move, blocked by walls and the grid edge, never by entities."""
-        if not s.agent_active or s.action not in _MOVES:
-            return
+        """3d i: the agent's own move (UP, DOWN, LEFT or RIGHT), blocked by walls and the grid
+        edge, never by entities."""
         dr, dc = _MOVES[s.action]
         nxt = self._offset(s.agent, dr, dc)
         if nxt is not None and self.walkable[nxt // self.width][nxt % self.width]:
@@ -403,13 +407,11 @@ class World:
         return True
 
     def _record_harm_events(self, s: _Step, harmed: list[int], pairs: list[tuple[int, int]]) -> dict[str, int]:
-        """3g and 3i: the norm events of every harm, and the step's utilities (empty without harm).
+        """3g and 3i: the norm events of every harm, and the step's utilities (only called with harm).
 
         A harm is "personal" when a character that was ever pushed took part in the collision
         that caused it (the entity's last pair of this step), "impersonal" otherwise (spec section 7).
         """
-        if not harmed:
-            return {}
         last_pair: dict[int, tuple[int, int]] = {}
         for x, y in pairs:
             last_pair[x] = last_pair[y] = (x, y)
