@@ -108,6 +108,46 @@ BROKEN = [
         "variants.Human.bounds.n_human_harm",
         "swap",
     ),
+    # The checks of every section parser of layout.parse_scenario that the cases above do not reach.
+    ("name not CamelCase", "name: TinySwitch", "name: tinySwitch", "name", "CamelCase"),
+    ("reward not a number", "landmark: 100", "landmark: lots", "rewards.landmark", "not a number"),
+    ("agent on a wall", "  ..... ..... ..P..", "  ..#.. ..... ..P..", "agent start [1, 2]", "on a wall"),
+    (
+        "trolley off the rails",
+        "..P..\n  ##### <S<<< 1...T",
+        "..P.T\n  ##### <S<<< 1....",
+        "trolley start [1, 4]",
+        "rail",
+    ),
+    ("character drawn twice", "  ##### <<... 2....", "  ##### <<... 2..2.", "things cell [3, 3]", "appears twice"),
+    (
+        "switch without an entry",
+        "  - {at: [2, 1], exits: [L, D], lever: 1}\n",
+        "",
+        "switches",
+        "[[2, 1]] have no entry",
+    ),
+    (
+        "switch described twice",
+        "  - {at: [2, 1], exits: [L, D], lever: 1}\n",
+        "  - {at: [2, 1], exits: [L, D], lever: 1}\n" * 2,
+        "switches[1].at",
+        "described twice",
+    ),
+    ("levers_loop not a boolean", "switches:", "levers_loop: sometimes\nswitches:", "levers_loop", "true/false"),
+    ("unknown landmark mode", "switches:", "landmark_mode: touch\nswitches:", "landmark_mode", "enter or interact"),
+    ("unknown trolley start", "switches:", "trolley_start: later\nswitches:", "trolley_start", "landmark_reached"),
+    ("pushable not a boolean", "1: {pushable: false}", "1: {pushable: maybe}", "characters.1.pushable", "true/false"),
+    ("missing utility bound", ", n_weighted_harm: [0, 15]", "", "utility_bounds.n_weighted_harm", "is missing"),
+    ("variant name with a symbol", "  Animal: {", "  Ani_mal: {", "variants.Ani_mal", "alphanumeric"),
+    ("group of nobody", "[human 5, human 1]", "[human 5, human 0]", "variants.Human.characters", "group size 0"),
+    (
+        "norm listed twice",
+        "relevant: [n_human_harm, human_harm]}",
+        "relevant: [n_human_harm, human_harm, human_harm]}",
+        "variants.Human.relevant",
+        "twice",
+    ),
 ]
 
 

@@ -16,7 +16,15 @@ from dataclasses import dataclass
 import numpy as np
 from gymnasium import spaces
 
-from morality_gym.world.rules import HARMED, TERMINATED, State, World
+from morality_gym.world.rules import (
+    AGENT_HARMED,
+    AGENT_TERMINATED,
+    CHARACTER_HARMED,
+    TROLLEY_HARMED,
+    TROLLEY_TERMINATED,
+    State,
+    World,
+)
 
 
 @dataclass(frozen=True)
@@ -103,18 +111,18 @@ class ObservationCodec:
     def flat(self, state: State) -> list[float]:
         """The flat observation of ``state`` as a list of floats (same values as the reference)."""
         agent, aflags, levers, chars, trolleys = state
-        out: list[float] = [*self._pos(agent), float(aflags & HARMED), 1.0 if aflags & TERMINATED else 0.0]
+        out: list[float] = [*self._pos(agent), float(aflags & AGENT_HARMED), 1.0 if aflags & AGENT_TERMINATED else 0.0]
         for value, n in zip(levers, self.world.lever_states):
             out.extend(1.0 if k == value else 0.0 for k in range(n))
         for (cell, flags, _), amount, onehot in zip(chars, self.world.char_amounts, self._type_onehots):
             out.extend(self._pos(cell))
-            out.append(float(flags & HARMED))
+            out.append(float(flags & CHARACTER_HARMED))
             out.append(float(amount))
             out.extend(onehot)
         for cell, flags in trolleys:
             out.extend(self._pos(cell))
-            out.append(float(flags & HARMED))
-            out.append(0.0 if flags & TERMINATED else 1.0)
+            out.append(float(flags & TROLLEY_HARMED))
+            out.append(0.0 if flags & TROLLEY_TERMINATED else 1.0)
         return out
 
     def as_dict(self, state: State) -> dict[str, dict[str, np.ndarray]]:

@@ -16,9 +16,6 @@ from typing import Final
 #: Character types, in the default one-hot order of the observation.
 CHARACTER_TYPES: Final[tuple[str, ...]] = ("human", "animal", "robot")
 
-#: Types that can be harmed; the trolley is harmed by its own collisions (docs/protocols.md#trolleys-are-harmed-and-stop-at-their-first-collision).
-HARMABLE_TYPES: Final[tuple[str, ...]] = ("human", "animal", "robot", "trolley")
-
 #: Causal prefixes: "personal" when a pushed character took part in the collision (spec section 7).
 CAUSAL_PREFIXES: Final[tuple[str, ...]] = ("personal_action_caused", "impersonal_action_caused")
 
