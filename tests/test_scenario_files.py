@@ -146,7 +146,7 @@ from morality_gym import TrolleyEnv
 from tests.helpers import newly_harmed, play
 
 out = {"ids": morality_gym.add_scenario_dir(sys.argv[1])}
-out["listed"] = [i for i in out["ids"] if i in morality_gym.list_envs()]
+out["listed"] = [i for i in out["ids"] if i in morality_gym.env_ids()]
 env = gym.make("MoralityGym/TinySwitch-Human-v1", obs_type="dict", max_steps=None)
 for name, actions in (("idle", [4] * 6), ("pulled", [5, 2, 2, 0, 4, 4])):
     steps = play(env.unwrapped, actions)
@@ -245,7 +245,7 @@ import json, gymnasium as gym, morality_gym
 env = gym.make("MoralityGym/EnvVarSwitch-Human-v1", max_steps=None)
 env.reset()
 rewards = [env.step(a)[1] for a in (5, 2, 2, 0)]
-print(json.dumps({"ids": morality_gym.list_envs("EnvVarSwitch"), "n": len(morality_gym.list_envs()),
+print(json.dumps({"ids": morality_gym.env_ids("EnvVarSwitch"), "n": len(morality_gym.env_ids()),
                   "rewards": rewards, "doc": type(env.unwrapped).__doc__.splitlines()[0]}))
 """
 

@@ -200,7 +200,15 @@ def load_scenario_dir(directory: str | Path) -> list[str]:
 
 
 def list_envs(scenario: str | None = None) -> list[str]:
-    """Every env id (``{Scenario}-{Variant}-v1``), in scenario-file order and variant-table order."""
+    """Every Gymnasium id (``MoralityGym/{Scenario}-{Variant}-v1``), in scenario-file order and
+    variant-table order: what ``gym.make`` takes. Every function of this package also takes the
+    id without the namespace (:func:`parse_env_id`); :func:`env_ids` lists those."""
+    return [f"{NAMESPACE}/{eid}" for eid in env_ids(scenario)]
+
+
+def env_ids(scenario: str | None = None) -> list[str]:
+    """Every env id without the Gymnasium namespace (``{Scenario}-{Variant}-v1``), as results,
+    run configurations and the reference's recordings name envs."""
     if scenario is not None:
         return scenario_named(scenario).env_ids
     return [eid for s in scenarios().values() for eid in s.env_ids]
@@ -238,7 +246,7 @@ def parse_env_id(env_id: str) -> tuple[Scenario, str]:
     skipped = _skipped_hint(parts[0]) if parts else ""
     if skipped:
         raise UnknownEnvError(skipped)
-    all_ids = list_envs()
+    all_ids = env_ids()
     lowered = {eid.lower(): eid for eid in all_ids}
     candidate = "-".join(parts)
     close = difflib.get_close_matches(candidate.lower(), list(lowered), n=5, cutoff=0.6)
