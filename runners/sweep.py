@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import hydra
@@ -66,6 +67,16 @@ class FleetBars:
             self.progress.remove_task(task)
 
 
+def sweep_overheads(sweep: SweepConfig, n_todo: int) -> float:
+    """Seconds the sweep spends besides training its runs (:class:`runners.schemas.SweepOverheads`)."""
+    from runners.schemas import SweepOverheads
+    from runners.tracking import tracking_uri
+
+    uri = tracking_uri(sweep.results_dir)
+    new_store = uri.startswith("sqlite:///") and not Path(uri.removeprefix("sqlite:///")).exists()
+    return SweepOverheads().seconds(n_todo, new_store=new_store, mlflow=sweep.mlflow)
+
+
 def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
     """Plan and execute a validated sweep; returns the exit status."""
     from rich.console import Console
@@ -91,7 +102,7 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
     todo_runs = [r for r in runs if r.run_id not in done]
     jobs = dispatch_order(make_jobs(todo_runs, sweep.engine, sweep.fleet_size, workers,
                                     {a.spec.name: a.fleet_speedup for a in sweep.algos}), workers)
-    info["est_seconds"] = jobs_estimate(jobs, done, workers)
+    info["est_seconds"] = jobs_estimate(jobs, done, workers) + sweep_overheads(sweep, len(todo_runs))
     fleets = [j for j in jobs if j.engine == "fleet"]
     console.print(f"sweep [bold]{sweep.name}[/bold]: {info['total']} runs ({info['done']} done, {info['todo']} to run)")
     table = Table()
