@@ -22,7 +22,14 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
-from leaderboard.aggregate import Leaderboard, aggregate, compute_reference, reference_requests, with_reference
+from leaderboard.aggregate import (
+    Leaderboard,
+    aggregate,
+    chain_definitions,
+    compute_reference,
+    reference_requests,
+    with_reference,
+)
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
 
 REFERENCE_CACHE = Path("cache") / "reference_rows.json"
@@ -106,7 +113,8 @@ def build(args: argparse.Namespace, runs: Any, planned: dict[str, dict[str, Any]
     lb = aggregate(runs, planned, primary_protocol=args.protocol, primary_preset=args.preset)
     reference = None
     if not args.no_reference:
-        reference = compute_reference(reference_requests(lb.table), out_dir / REFERENCE_CACHE, progress)
+        reference = compute_reference(reference_requests(lb.table), out_dir / REFERENCE_CACHE, progress,
+                                      chain_definitions(lb.runs))
         lb = with_reference(lb, reference.entries, reference.errors, args.protocol, args.preset)
     lb.skipped, lb.quarantined = list(skipped or []), list(quarantined or [])
     stamp = stamp_text(lb.runs)
@@ -152,7 +160,8 @@ def summary(lb: Leaderboard, out: dict[str, Any], args: argparse.Namespace) -> s
         lines.append("reference rows: skipped (--no-reference)")
     else:
         lines.append(f"reference rows: {ref.computed} computed, {ref.cached} from cache"
-                     + (f", {len(ref.errors)} failed" if ref.errors else ""))
+                     + (f", {len(ref.errors)} failed (their rows have no Random exact / Oracle columns):" if ref.errors else ""))
+        lines += [f"  REFERENCE {key}: {reason}" for key, reason in sorted(ref.errors.items())]
     if lb.skipped:
         lines.append(f"unreadable files left out: {len(lb.skipped)} (listed in table1.md and on the site)")
         lines += [f"  SKIPPED {item['file']}: {item['reason']}" for item in lb.skipped[:5]]
