@@ -316,9 +316,24 @@ def precheck(argv: list[str]) -> str | None:
         valid = group_options(group, argv)
         for option in options:
             if option not in valid:
+                skipped = _skipped_scenario(option) if group == "scenario" else None
+                if skipped:
+                    return f"scenario={option}: {skipped}"
                 close = difflib.get_close_matches(option, valid, n=1)
                 hint = f" (did you mean {close[0]!r}?)" if close else ""
                 return f"{group}={value}: unknown {group} {option!r}{hint}; valid: {', '.join(valid)}"
+    return None
+
+
+def _skipped_scenario(option: str) -> str | None:
+    """Why a scenario of this name is missing, when a ``MORALITY_GYM_SCENARIOS`` file declaring it
+    was skipped as invalid (its file, field and fix), else None."""
+    from morality_gym.envs.naming import squash
+    from morality_gym.envs.registry import skipped_scenario_files
+
+    for item in skipped_scenario_files():
+        if squash(item.name or item.path.stem) == squash(option):
+            return f"the file defining it, {item.path}, was skipped as invalid: {item.error.removeprefix(f'{item.path}: ')}"
     return None
 
 
@@ -398,14 +413,26 @@ def user_errors() -> tuple[type[BaseException], ...]:
 
 def main() -> int:
     os.environ.setdefault("MORALITY_GYM_ORIGINAL_CWD", os.getcwd())
+    if "--version" in sys.argv[1:]:  # ours, with Hydra's: Hydra's own flag printed only Hydra's, and twice
+        from morality_gym.clitools import version_text
+
+        print(f"{version_text('python -m runners.sweep')}, Hydra {hydra.__version__}")
+        return 0
     if "--debug" in sys.argv[1:]:  # ours, not Hydra's: strip it before Hydra parses the line
         sys.argv = [a for a in sys.argv if a != "--debug"]
         os.environ[DEBUG_ENV] = "1"
 
     def body() -> int:
+        from morality_gym.norms.chain import ChainError
         from runners.options import normalise_argv
 
-        sys.argv[1:] = normalise_argv(with_plugins(sys.argv[1:]))
+        try:
+            sys.argv[1:] = normalise_argv(with_plugins(sys.argv[1:]))
+        except ChainError as exc:  # a user's chain file that cannot be read (a norm, a field): say what
+            if debug_enabled():
+                raise
+            print(f"configuration error: {one_line(exc)}", file=sys.stderr)
+            return 2
         problem = precheck(sys.argv[1:]) or compose_check(sys.argv[1:])
         if problem:
             print(f"configuration error: {problem}", file=sys.stderr)
