@@ -13,10 +13,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pandas as pd
 import pytest
 import yaml
 
 from leaderboard.aggregate import compute_reference
+from leaderboard.stats.ranking import ranking_rows
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.oracle import oracle
 from morality_gym.norms.chain import parse_chain
@@ -76,3 +78,19 @@ def test_a_users_chain_gets_reference_rows_and_failures_say_why(built: tuple[Pat
     # A row that cannot be computed is named with its reason (here: a scenario nobody registered).
     result = compute_reference([("Utility", "NoSuchScenario", 0.1, 200)], tmp_path / "cache.json")
     assert result.errors and "NoSuchScenario" in next(iter(result.errors.values()))
+
+
+def test_a_row_whose_learners_cover_different_variants_is_not_normalised() -> None:
+    """One reference cannot be over the variants of two cells that differ: such a row keeps its raw
+    metric in the ranking but gets no normalised score (it would be normalised by other variants)."""
+    runs = pd.DataFrame([
+        {"protocol": "paper", "preset": "smoke", "chain": "Utility", "scenario": "SwitchStandard", "learner": learner,
+         "variant": variant, "seed": 41, "metric": 0.5, "ok": True}
+        for learner, variants in (("Random", VARIANTS), ("Lever", VARIANTS[:1])) for variant in variants
+    ])
+    references = {("Utility", "SwitchStandard"): (0.2685, 1.0)}
+    rows = ranking_rows(runs, references)
+    assert not rows["normalised"].iloc[0] and "cover different variants" in rows["note"].iloc[0]
+    assert rows["in_metric"].iloc[0]
+    even = ranking_rows(runs.loc[runs["variant"] == "HumanA"], references)
+    assert even["normalised"].iloc[0]
