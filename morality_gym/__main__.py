@@ -123,8 +123,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
             "scenario": scenario_named(args.scenario).name,
             "beta": first.beta,
             "exact": bool(args.exact),
-            "seed": None if args.exact else args.seed,
-            "seed_drawn": drawn,
+            **({} if args.exact else {"seed": args.seed, "seed_drawn": drawn}),  # Monte Carlo: which draws
             "envs": {
                 env_id: {
                     "metric": r.metric,
