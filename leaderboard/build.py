@@ -93,6 +93,18 @@ def load(results: Path) -> tuple[Any, dict[str, dict[str, Any]], list[dict[str, 
     return runs, planned, skipped
 
 
+def check_primary_choice(args: argparse.Namespace, lb: Leaderboard) -> None:
+    """``--protocol`` / ``--preset`` must name a sweep of the results (a typo silently chose none)."""
+    import difflib
+
+    for flag, wanted, have in (("--protocol", args.protocol, {g.protocol for g in lb.groups}),
+                               ("--preset", args.preset, {g.preset for g in lb.groups})):
+        if wanted is not None and wanted not in have:
+            close = difflib.get_close_matches(wanted, sorted(have), n=1)
+            hint = f" (did you mean {close[0]}?)" if close else ""
+            raise UserError(f"{flag} {wanted}: no sweep in the results has it{hint}; they have: {', '.join(sorted(have))}")
+
+
 def build(args: argparse.Namespace, runs: Any, planned: dict[str, dict[str, Any]],
           skipped: list[dict[str, str]] | None = None, quarantined: list[dict[str, str]] | None = None,
           ) -> tuple[Leaderboard, dict[str, Any]]:
@@ -111,6 +123,7 @@ def build(args: argparse.Namespace, runs: Any, planned: dict[str, dict[str, Any]
     timings: dict[str, float] = {}
     start = time.perf_counter()
     lb = aggregate(runs, planned, primary_protocol=args.protocol, primary_preset=args.preset)
+    check_primary_choice(args, lb)
     reference = None
     if not args.no_reference:
         reference = compute_reference(reference_requests(lb.table), out_dir / REFERENCE_CACHE, progress,

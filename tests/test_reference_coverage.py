@@ -94,3 +94,15 @@ def test_a_row_whose_learners_cover_different_variants_is_not_normalised() -> No
     assert rows["in_metric"].iloc[0]
     even = ranking_rows(runs.loc[runs["variant"] == "HumanA"], references)
     assert even["normalised"].iloc[0]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("flag", "value", "hint"), [("--protocol", "papr", "did you mean paper?"), ("--preset", "smok", "did you mean smoke?")])
+def test_a_primary_table_choice_no_sweep_has_is_one_line(built: tuple[Path, str], tmp_path: Path, flag: str, value: str,
+                                                         hint: str) -> None:
+    """Sibling found while checking the build's options: a misspelt --protocol/--preset was accepted and chose nothing."""
+    results, _ = built
+    out = cli("leaderboard.build", "--results", str(results), "--out", str(tmp_path), "--no-reference", flag, value)
+    lines = out.stderr.strip().splitlines()
+    assert out.returncode == 2 and len(lines) == 1 and "Traceback" not in out.stderr, out.stderr
+    assert lines[0].startswith(f"error: {flag} {value}: no sweep in the results has it ({hint})")
