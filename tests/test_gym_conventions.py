@@ -12,6 +12,7 @@ import contextlib
 import copy
 import io
 import json
+import os
 import pickle
 import subprocess
 import sys
@@ -131,6 +132,36 @@ def test_an_env_of_a_users_scenario_unpickles_in_a_fresh_process(tmp_path: Path)
     assert loaded.returncode == 0, loaded.stderr.decode()
     out = json.loads(loaded.stdout.decode().strip().splitlines()[-1])
     assert out == {"class": "TinySwitchEnv", "steps": 1, "reward": -1.0}
+
+
+_ASYNC_USER_SCENARIO = """
+import sys
+from pathlib import Path
+import gymnasium as gym
+import numpy as np
+import morality_gym
+from tests.test_scenario_files import _tiny
+directory = Path(sys.argv[1])
+(directory / "tiny_switch.yaml").write_text(_tiny())
+morality_gym.add_scenario_dir(directory)
+if __name__ == "__main__":
+    venv = gym.make_vec("MoralityGym/TinySwitch-Human-v1", num_envs=2, vectorization_mode="async",
+                        vector_kwargs={"context": "spawn"})
+    venv.reset(seed=0)
+    print(venv.step(np.array([5, 4]))[1].tolist())
+    venv.close()
+"""
+
+
+def test_async_vector_envs_of_a_users_scenario_work_in_spawned_workers(tmp_path: Path) -> None:
+    """The workers import the package afresh: add_scenario_dir lists its directory for them."""
+    script = tmp_path / "run_async.py"
+    script.write_text(_ASYNC_USER_SCENARIO)
+    (tmp_path / "scenarios").mkdir()
+    out = subprocess.run([sys.executable, str(script), str(tmp_path / "scenarios")], cwd=REPO, capture_output=True,
+                         text=True, timeout=300, check=False, env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.strip().splitlines()[-1] == "[-1.0, -1.0]"
 
 
 # ---------------------------------------------------------------------------------------- spec

@@ -182,7 +182,8 @@ def load_scenario_dir(directory: str | Path) -> list[str]:
 
     An explicit request: a bad file raises :class:`ScenarioError` and nothing of the directory is
     added. Users call :func:`~morality_gym.envs.registration.add_scenario_dir`, which also
-    registers the new ids with Gymnasium.
+    registers the new ids with Gymnasium. Adding a file that is already loaded (the same file,
+    e.g. again in a spawned worker that re-runs the user's script) is not an error.
     """
     directory = Path(directory)
     if not directory.is_dir():
@@ -191,12 +192,31 @@ def load_scenario_dir(directory: str | Path) -> list[str]:
     known = scenarios()
     with _lock:
         for name, scenario in new.items():
-            if name in known:
+            if name in known and not _same_file(known[name].source, scenario.source):
                 raise ScenarioError(f"{scenario.source}: name: scenario {name!r} is already defined by "
                                     f"{known[name].source}. Fix: give this scenario another name")
         _extra_dirs.append(directory)
         known.update(new)
+    _inherit(directory)
     return [eid for s in new.values() for eid in s.env_ids]
+
+
+def _same_file(a: str, b: str) -> bool:
+    return Path(a).resolve() == Path(b).resolve()
+
+
+def _inherit(directory: Path) -> None:
+    """List ``directory`` in ``MORALITY_GYM_SCENARIOS`` for the processes this one starts.
+
+    A spawned worker (``gym.make_vec(..., vectorization_mode="async")``, SB3's ``SubprocVecEnv``,
+    a process pool) imports the package afresh and calls ``gym.make`` on the id: without this it
+    would not know a scenario added here. This process has loaded the directory already and does
+    not read the variable again.
+    """
+    entries = [p for p in os.environ.get(SCENARIOS_ENV, "").split(os.pathsep) if p]
+    resolved = str(directory.resolve())
+    if resolved not in entries and str(directory) not in entries:
+        os.environ[SCENARIOS_ENV] = os.pathsep.join([*entries, resolved])
 
 
 def list_envs(scenario: str | None = None) -> list[str]:
