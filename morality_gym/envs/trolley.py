@@ -71,9 +71,9 @@ class TrolleyEnv(gym.Env[Any, int]):
     each character's ``pos``, ``is_harmed``, ``amount`` (the raw group size), type one-hot; each
     trolley's ``pos``, ``is_harmed``, ``is_actable``. ``obs_type="dict"``: the same numbers as
     ``{entity: {component: array}}`` (the reference's nesting). ``obs_type="dict_flat"``: the same
-    numbers as one level ``{"entity.component": array}`` (``player.pos``, ``lever_1.curr_state``,
-    ...), the form Stable-Baselines3's ``MultiInputPolicy`` and Gymnasium's vector envs accept
-    (neither takes nested Dict spaces). ``normalise_obs=False`` gives raw integer positions.
+    numbers as one level ``{"entity/component": array}`` (``player/pos``, ``lever_1/curr_state``,
+    ...), the form Stable-Baselines3's ``MultiInputPolicy`` accepts (it refuses nested Dict spaces;
+    ``/`` because it keeps a torch module per key and torch forbids ``.`` in their names). ``normalise_obs=False`` gives raw integer positions.
 
     ## Rewards
     ``step`` per step (-1), ``landmark`` when the landmark is first entered (+100, wins over harm in
