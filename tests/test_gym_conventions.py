@@ -198,6 +198,19 @@ def test_sb3_check_env_is_silent(obs_type: str) -> None:
         sb3_check_env(gym.make(ENV, obs_type=obs_type).unwrapped)
 
 
+def test_sb3_refuses_the_nested_dict_which_is_why_dict_flat_exists() -> None:
+    """The nested form stays (the reference's); SB3 says it cannot take it, and takes dict_flat."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    nested = gym.make(ENV, obs_type="dict").unwrapped
+    with pytest.warns(UserWarning, match="Nested observation spaces are not supported"):
+        sb3_check_env(nested)
+    with pytest.raises(NotImplementedError):
+        PPO("MultiInputPolicy", nested, device="cpu")
+    PPO("MultiInputPolicy", gym.make(ENV, obs_type="dict_flat"), device="cpu")
+
+
 def test_the_flat_dict_holds_the_flat_vector() -> None:
     flat, _ = gym.make(ENV).reset()
     env = gym.make(ENV, obs_type="dict_flat")
