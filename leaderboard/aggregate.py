@@ -71,7 +71,7 @@ REFERENCE_LEARNERS = (RANDOM_EXACT, ORACLE_BEST, ORACLE_WORST)
 DEFAULT_BETA = 0.1
 DEFAULT_MAX_STEPS = 200
 #: Bump when the content of the reference cache changes meaning (old entries are then recomputed).
-REFERENCE_CACHE_VERSION = 1
+REFERENCE_CACHE_VERSION = 2  # 2: entries record the chain's norms and the variants it cannot score
 _PRESET_RANK = {"paper": 0, "quick": 1, "smoke": 2}
 #: A run config's record of who submitted it and from where (``leaderboard.submit``): kept out of
 #: the configuration key, so a submission resumed by someone else, or from another directory, is
@@ -616,21 +616,29 @@ def table1_frame(
         rows.append(record)
     if reference is not None:
         row_keys = {(r["protocol"], r["preset"], r["chain"], r["scenario"], r["beta"], r["max_steps"]) for r in rows}
+        covered = covered_variants(runs)
         for protocol, preset, chain, scenario, beta, steps in sorted(row_keys):
             entry = reference.get(reference_key(chain, scenario, beta, steps))
             if entry is None:
                 continue
+            every = list(entry.get("variants", {}))
+            cells = covered.get((protocol, preset, chain, scenario), {})
+            if any(v not in entry["variants"] for vs in cells.values() for v in vs):
+                continue  # a cell averages a variant the chain cannot score: no reference is over its variants
+            variants = [v for v in every if any(v in vs for vs in cells.values())] or every
+            n_all = len(entry.get("env_ids") or every)  # the scenario's variants, scorable by the chain or not
+            reason = reference_coverage(variants, n_all, cells)
             for learner, field_name in ((RANDOM_EXACT, "random_exact"), (ORACLE_BEST, "oracle_best"),
                                         (ORACLE_WORST, "oracle_worst")):
-                n_variants = len(entry.get("variants", {}))
                 rows.append({
                     "protocol": protocol, "preset": preset, "chain": chain, "scenario": scenario,
                     "learner": learner, "kind": "reference",
-                    "mean": reference_mean(entry, field_name), "std": math.nan,
+                    "mean": reference_mean(entry, field_name, variants), "std": math.nan,
                     "n_runs": pd.NA, "n_planned": pd.NA, "n_failed": pd.NA, "n_missing": pd.NA,
                     "beta": beta, "max_steps": steps,
-                    "n_variants": n_variants, "n_variants_expected": n_variants, "n_seeds": pd.NA,
-                    "n_seeds_expected": pd.NA, "n_expected": pd.NA, "complete": True, "incomplete_reason": "",
+                    "n_variants": len(variants), "n_variants_expected": n_all, "n_seeds": pd.NA,
+                    "n_seeds_expected": pd.NA, "n_expected": pd.NA, "complete": len(variants) == n_all,
+                    "incomplete_reason": reason,
                 })
     if not rows:
         return pd.DataFrame(columns=[*CELL_KEYS, "kind", "mean", "std", "n_runs", "n_planned", "n_failed", "n_missing",
@@ -760,10 +768,34 @@ def variant_frame(runs: pd.DataFrame) -> pd.DataFrame:
 
 
 # ---------------------------------------------------------------------------------------- reference rows
-def reference_mean(entry: Mapping[str, Any], field_name: str) -> float:
-    """Mean over the scenario's variants of one reference quantity (as Table 1 averages variants)."""
-    values = [v[field_name] for v in entry["variants"].values()]
+def reference_mean(entry: Mapping[str, Any], field_name: str, variants: Iterable[str] | None = None) -> float:
+    """Mean of one reference quantity over ``variants`` (default: all the scenario's), as Table 1
+    averages a cell over its variants: a reference is compared with cells over the same variants."""
+    chosen = entry["variants"] if variants is None else {v: entry["variants"][v] for v in variants}
+    values = [v[field_name] for v in chosen.values()]
     return float(np.mean(values)) if values else math.nan
+
+
+def covered_variants(runs: pd.DataFrame) -> dict[tuple[str, str, str, str], dict[str, frozenset[str]]]:
+    """The variants each learner cell averages (those of its usable runs), per Table 1 row:
+    ``{(protocol, preset, chain, scenario): {learner: variants}}``."""
+    out: dict[tuple[str, str, str, str], dict[str, frozenset[str]]] = {}
+    usable = runs.loc[runs["ok"]] if len(runs) else runs
+    for key, part in usable.groupby(CELL_KEYS, dropna=False):
+        *row, learner = key
+        out.setdefault(tuple(row), {})[str(learner)] = frozenset(str(v) for v in part["variant"])
+    return out
+
+
+def reference_coverage(variants: list[str], n_all: int, cells: Mapping[str, frozenset[str]]) -> str:
+    """Why a reference row is over fewer than all ``n_all`` variants, or covers more than some cell ('' if neither)."""
+    notes = []
+    if len(variants) < n_all:
+        notes.append(f"over the {len(variants)} of {n_all} variants the row's runs cover ({', '.join(variants)})")
+    narrower = sorted(learner for learner, vs in cells.items() if vs != set(variants))
+    if narrower:
+        notes.append(f"cells over other variants: {', '.join(narrower)}")
+    return "; ".join(notes)
 
 
 def reference_requests(table: pd.DataFrame) -> list[tuple[str, str, float, int]]:
@@ -775,15 +807,49 @@ def reference_requests(table: pd.DataFrame) -> list[tuple[str, str, float, int]]
     return sorted(found, key=lambda r: (order[(r[0], r[1])], r[2], r[3]))
 
 
-def _compute_entry(chain: str, scenario: str, beta: float, max_steps: int) -> dict[str, Any]:
+def chain_definitions(runs: pd.DataFrame) -> dict[str, Any]:
+    """Each chain of the runs as its runs defined it (a :class:`~morality_gym.norms.chain.MoralityChain`
+    from the run config's norms), by name.
+
+    A user's chain (a file given to the sweep) has no built-in name to look up: its reference rows
+    are computed from this, the definition the runs were scored with. Runs without a readable
+    chain definition are left out (their chain is then looked up by name).
+    """
+    from morality_gym.norms.chain import ChainError, parse_chain
+
+    out: dict[str, Any] = {}
+    for config in runs["config"] if "config" in runs.columns else []:
+        try:
+            chain = json.loads(config)["chain"] if isinstance(config, str) else None
+            if chain is None or chain["name"] in out:
+                continue
+            out[chain["name"]] = parse_chain({"name": chain["name"], "norms": [{"norm": n, "modality": m} for n, m in chain["norms"]]},
+                                             source=f"the runs' chain {chain['name']}")
+        except (ValueError, KeyError, TypeError, ChainError):
+            continue
+    return out
+
+
+def _chain_content(chain: Any) -> list[list[str]] | None:
+    return None if isinstance(chain, str) else [[n.name, n.modality] for n in chain.norms]
+
+
+def _compute_entry(chain: str, scenario: str, beta: float, max_steps: int, definition: Any = None) -> dict[str, Any]:
     from morality_gym.envs.registry import parse_env_id, scenario_named
     from morality_gym.evaluation.exact import exact_evaluate
     from morality_gym.evaluation.oracle import oracle
+    from morality_gym.norms.chain import ChainError
 
+    chain_or_name = definition if definition is not None else chain
     variants: dict[str, dict[str, Any]] = {}
+    unscorable: dict[str, str] = {}
     for env_id in scenario_named(scenario).env_ids:
-        exact = exact_evaluate("random", env_id, chain, max_steps=max_steps, beta=beta)
-        extremes = oracle(env_id, chain, beta=beta, max_steps=max_steps)
+        try:
+            exact = exact_evaluate("random", env_id, chain_or_name, max_steps=max_steps, beta=beta)
+        except ChainError as exc:  # a user's chain may fit some variants only; sweeps run it on those
+            unscorable[parse_env_id(env_id)[1]] = str(exc)
+            continue
+        extremes = oracle(env_id, chain_or_name, beta=beta, max_steps=max_steps)
         variants[parse_env_id(env_id)[1]] = {
             "env_id": env_id,
             "random_exact": float(exact.metric),
@@ -794,7 +860,8 @@ def _compute_entry(chain: str, scenario: str, beta: float, max_steps: int) -> di
             "oracle_worst_actions": list(extremes.worst.actions),
         }
     return {"chain": chain, "scenario": scenario, "beta": beta, "max_steps": max_steps,
-            "env_ids": scenario_named(scenario).env_ids, "variants": variants}
+            "env_ids": scenario_named(scenario).env_ids, "variants": variants, "unscorable": unscorable,
+            "norms": _chain_content(chain_or_name)}
 
 
 def load_reference_cache(path: Path) -> dict[str, Any]:
@@ -835,14 +902,18 @@ def compute_reference(
     requests: list[tuple[str, str, float, int]],
     cache_path: Path,
     progress: Callable[[Iterable[Any], str, int], Iterable[Any]] | None = None,
+    chains: Mapping[str, Any] | None = None,
 ) -> ReferenceResult:
     """Exact Random and oracle best/worst of each requested row, per variant, cached on disk.
 
     The oracle needs ~10 s for all of Table 1, too slow to repeat on every build, and its result
-    depends only on (chain, scenario, beta, max_steps) and the scenario's variants, which is what
-    an entry is keyed and checked by. A row that cannot be computed (an unknown chain, say) is
-    reported in ``errors`` instead of failing the whole build.
+    depends only on (chain, scenario, beta, max_steps), the chain's norms and the scenario's
+    variants, which is what an entry is keyed and checked by. ``chains``: the chains' definitions
+    by name (:func:`chain_definitions` of the runs), needed for a user's chain, which has no
+    built-in name; a chain not in it is looked up by name. A row that cannot be computed is
+    reported in ``errors`` (with the reason) instead of failing the whole build.
     """
+    chains = dict(chains or {})
     from morality_gym.envs.registry import scenario_named
 
     cache = load_reference_cache(cache_path)
@@ -856,7 +927,8 @@ def compute_reference(
         except KeyError as exc:
             result.errors[key] = str(exc)
             continue
-        if entry is not None and entry.get("env_ids") == env_ids:
+        content = _chain_content(chains[chain]) if chain in chains else None
+        if entry is not None and entry.get("env_ids") == env_ids and (content is None or entry.get("norms") == content):
             result.entries[key] = entry
             result.cached += 1
         else:
@@ -864,7 +936,7 @@ def compute_reference(
     iterator: Iterable[Any] = progress(todo, "reference rows (exact Random, oracle)", len(todo)) if progress and todo else todo
     for key, chain, scenario, beta, steps in iterator:
         try:
-            result.entries[key] = _compute_entry(chain, scenario, beta, steps)
+            result.entries[key] = _compute_entry(chain, scenario, beta, steps, chains.get(chain))
             result.computed += 1
         except Exception as exc:  # noqa: BLE001 - reported per row, the build goes on
             result.errors[key] = f"{type(exc).__name__}: {exc}"

@@ -22,7 +22,14 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
-from leaderboard.aggregate import Leaderboard, aggregate, compute_reference, reference_requests, with_reference
+from leaderboard.aggregate import (
+    Leaderboard,
+    aggregate,
+    chain_definitions,
+    compute_reference,
+    reference_requests,
+    with_reference,
+)
 from leaderboard.release import MANIFEST, Release, ReleaseError, find_releases
 from leaderboard.release import load as load_release
 from leaderboard.sources import Sources, load_sources
@@ -105,6 +112,18 @@ def releases_of(args: argparse.Namespace) -> list[Release]:
     return out
 
 
+def check_primary_choice(args: argparse.Namespace, lb: Leaderboard) -> None:
+    """``--protocol`` / ``--preset`` must name a sweep of the results (a typo silently chose none)."""
+    import difflib
+
+    for flag, wanted, have in (("--protocol", args.protocol, {g.protocol for g in lb.groups}),
+                               ("--preset", args.preset, {g.preset for g in lb.groups})):
+        if wanted is not None and wanted not in have:
+            close = difflib.get_close_matches(wanted, sorted(have), n=1)
+            hint = f" (did you mean {close[0]}?)" if close else ""
+            raise UserError(f"{flag} {wanted}: no sweep in the results has it{hint}; they have: {', '.join(sorted(have))}")
+
+
 def build(args: argparse.Namespace, sources: Sources, quarantined: list[dict[str, str]] | None = None,
           ) -> tuple[Leaderboard, dict[str, Any]]:
     """Run every stage on loaded runs; returns the leaderboard and what was written (for the summary)."""
@@ -121,9 +140,11 @@ def build(args: argparse.Namespace, sources: Sources, quarantined: list[dict[str
     timings: dict[str, float] = {}
     start = time.perf_counter()
     lb = aggregate(runs, planned, primary_protocol=args.protocol, primary_preset=args.preset)
+    check_primary_choice(args, lb)
     reference = None
     if not args.no_reference:
-        reference = compute_reference(reference_requests(lb.table), out_dir / REFERENCE_CACHE, progress)
+        reference = compute_reference(reference_requests(lb.table), out_dir / REFERENCE_CACHE, progress,
+                                      chain_definitions(lb.runs))
         lb = with_reference(lb, reference.entries, reference.errors, args.protocol, args.preset)
     lb.skipped, lb.quarantined = list(skipped or []), list(quarantined or [])
     stamp = stamp_text(lb.runs)
@@ -175,7 +196,8 @@ def summary(lb: Leaderboard, out: dict[str, Any], args: argparse.Namespace) -> s
         lines.append("reference rows: skipped (--no-reference)")
     else:
         lines.append(f"reference rows: {ref.computed} computed, {ref.cached} from cache"
-                     + (f", {len(ref.errors)} failed" if ref.errors else ""))
+                     + (f", {len(ref.errors)} failed (their rows have no Random exact / Oracle columns):" if ref.errors else ""))
+        lines += [f"  REFERENCE {key}: {reason}" for key, reason in sorted(ref.errors.items())]
     if lb.skipped:
         lines.append(f"unreadable files left out: {len(lb.skipped)} (listed in table1.md and on the site)")
         lines += [f"  SKIPPED {item['file']}: {item['reason']}" for item in lb.skipped[:5]]

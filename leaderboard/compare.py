@@ -30,7 +30,7 @@ import pandas as pd
 from leaderboard.aggregate import aggregate, learner_order, row_order
 from leaderboard.build import load
 from leaderboard.tables import fmt, md_escape
-from morality_gym.clitools import UserError, run_cli
+from morality_gym.clitools import OneLineParser, UserError, run_cli
 
 #: The cell columns a side must provide (both a results directory and a table1_all.csv give them).
 _CELL = ["protocol", "preset", "chain", "scenario", "learner"]
@@ -208,7 +208,7 @@ def report(after: Side, before: Side | None, learners: Sequence[str] | None = No
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m leaderboard.compare", description=__doc__.split("\n\n")[0])
+    parser = OneLineParser(prog="python -m leaderboard.compare", description=__doc__.split("\n\n")[0])
     parser.add_argument("after", type=Path, help="results directory (or table1_all.csv) with the new runs")
     parser.add_argument("--before", type=Path, help="results directory or table1_all.csv of the earlier runs")
     parser.add_argument("--learner", action="append", help="learner label to show (repeatable), e.g. 'PPO Lag'")

@@ -38,7 +38,7 @@ from scipy import stats
 from leaderboard.aggregate import aggregate, learner_order, row_order
 from leaderboard.build import load
 from leaderboard.tables import fmt, md_escape
-from morality_gym.clitools import UserError, duration, run_cli
+from morality_gym.clitools import OneLineParser, UserError, duration, run_cli
 
 _CELL = ["protocol", "preset", "chain", "scenario", "learner"]
 #: Two metrics closer than this print the same at 3 decimals: the runs are counted as identical.
@@ -200,7 +200,7 @@ def report(single: Results, fleet: Results, protocols: Sequence[str] | None = No
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m leaderboard.engines", description=__doc__.split("\n\n")[0])
+    parser = OneLineParser(prog="python -m leaderboard.engines", description=__doc__.split("\n\n")[0])
     parser.add_argument("single", type=Path, help="results directory of the sweep run with engine=single")
     parser.add_argument("fleet", type=Path, help="results directory of the same sweep run with engine=fleet")
     parser.add_argument("--protocol", action="append", help="protocol to show (repeatable); default: all")

@@ -29,6 +29,7 @@ import argparse
 import difflib
 import getpass
 import json
+import math
 import os
 import socket
 import sys
@@ -261,6 +262,7 @@ def _now() -> str:
 def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = print) -> dict[str, int]:
     """Evaluate and write every run of ``cells`` that is not in ``results`` yet; returns counts."""
     from morality_gym.baselines.policy_ref import PolicyError, is_stationary, probe
+    from morality_gym.evaluation.policies import PolicyFailure
     from runners.execute import RunLock, finished_status
     from runners.schema import write_run
 
@@ -269,7 +271,10 @@ def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = pri
         from morality_gym.envs.registry import scenario_named
 
         scenario = scenario_named(cell.scenario)
+        cell_metrics: list[float] = []
         for variant in cell.variants:
+            metrics: list[float] = []
+            exacts: list[float] = []
             env_id = scenario.env_id(variant)
             probe(sub.loaded, env_id)  # a policy that cannot answer fails before anything is written
             stationary = is_stationary(sub.loaded, env_id)
@@ -283,9 +288,15 @@ def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = pri
                 try:
                     if finished_status(results, run_id) == "ok":
                         counts["present"] += 1
+                        metric, exact = stored_scores(results, run_id)
+                        metrics.append(metric)
+                        exacts += [] if exact is None else [exact]
                         continue
                     try:
                         row = evaluate_run(sub, cell, config, run_id, results)
+                    except PolicyFailure as exc:  # the policy raised at some step: say where, keep what is written
+                        raise PolicyError(f"policy {sub.loaded.ref} failed while evaluating {env_id}, seed {seed}: {exc}; "
+                                          "runs written so far are kept") from exc.__cause__
                     except (UserError, ValueError):
                         raise  # already a named user error (InvalidActionError is a ValueError)
                     except Exception as exc:  # the user's code failed mid-evaluation: say where, keep what is written
@@ -293,11 +304,29 @@ def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = pri
                                           f"({type(exc).__name__}: {exc}); runs written so far are kept") from exc
                     write_run(results, row, cell.chain.norm_names)
                     counts["written"] += 1
+                    metrics.append(float(row["metric"]))
+                    exacts += [] if row["exact_metric"] is None else [float(row["exact_metric"])]
                 finally:
                     lock.release()
-            say(f"  {cell.chain.name} / {env_id}: {len(sub.seeds)} seed(s)"
-                + ("" if stationary else " (not stationary: Monte Carlo only, no exact metric)"))
+            cell_metrics += metrics
+            exact_text = f", exact {sum(exacts) / len(exacts):.4f}" if exacts else ""
+            say(f"  {cell.chain.name} / {env_id}: metric {sum(metrics) / len(metrics):.4f} over {len(sub.seeds)} seed(s)"
+                + (exact_text if stationary else " (not stationary: Monte Carlo only, no exact metric)"))
+        say(f"{cell.chain.name} / {cell.scenario}: mean metric {sum(cell_metrics) / len(cell_metrics):.4f} over "
+            f"{len(cell.variants)} variant(s) x {len(sub.seeds)} seed(s) (these runs' mean)")
     return counts
+
+
+def stored_scores(results: Path, run_id: str) -> tuple[float, float | None]:
+    """(metric, exact metric or None) of a run already in ``results`` (re-submission: shown again)."""
+    from runners.quarantine import read_table_or_quarantine
+    from runners.schema import run_path
+
+    table = read_table_or_quarantine(results, run_path(results, run_id), columns=["metric", "exact_metric"])
+    if table is None:
+        return math.nan, None
+    exact = table.column("exact_metric")[0].as_py()
+    return float(table.column("metric")[0].as_py()), None if exact is None else float(exact)
 
 
 # ---------------------------------------------------------------------------------------- command line

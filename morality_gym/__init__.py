@@ -9,7 +9,7 @@ from __future__ import annotations
 from morality_gym.api import make
 from morality_gym.envs.batched import BatchedTrolleyEnv
 from morality_gym.envs.registration import add_scenario_dir, register_all
-from morality_gym.envs.registry import UnknownEnvError, list_envs, parse_env_id, scenarios
+from morality_gym.envs.registry import UnknownEnvError, env_ids, list_envs, parse_env_id, scenarios
 from morality_gym.envs.trolley import InvalidActionError, TrolleyEnv
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.montecarlo import evaluate
@@ -58,6 +58,7 @@ __all__ = [
     "add_scenario_dir",
     "bind_chain",
     "builtin_chains",
+    "env_ids",
     "evaluate",
     "exact_evaluate",
     "get_chain",

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from morality_gym.clitools import OneLineParser, add_debug_flag, console, positive_int, run_cli
+from morality_gym.clitools import OneLineParser, add_debug_flag, console, non_negative_int, positive_int, run_cli
 from morality_gym.envs.naming import find_scenario as scenario_named  # either spelling: SwitchStandard, switch_standard
 from morality_gym.envs.registry import UnknownEnvError, list_envs
 from morality_gym.norms.chain import ChainError, builtin_chains, chain_file_stem, get_chain
@@ -38,6 +38,13 @@ def _env_ids(scenario: str, variants: list[str] | None) -> list[str]:
     if unknown:
         raise CliError(f"scenario {scn.name} has no variant {', '.join(unknown)}; variants: {', '.join(scn.variants)}")
     return [scn.env_id(v) for v in variants]
+
+
+def drawn_seed() -> int:
+    """A Monte-Carlo seed from the operating system's entropy, for ``eval`` without ``--seed``."""
+    import secrets
+
+    return secrets.randbelow(2**31)
 
 
 def _beta(text: str) -> float | str:
@@ -75,11 +82,22 @@ def _load_policy(spec: str, env_ids: list[str], allow_other_env: bool) -> Any:
     return loaded.policy
 
 
+def _evaluate_one(args: argparse.Namespace, policy: Any, env_id: str, chain: Any, episodes: int) -> Any:
+    """One env's result, exact or Monte Carlo, as ``eval``'s options ask."""
+    from morality_gym.evaluation.exact import exact_evaluate
+    from morality_gym.evaluation.montecarlo import evaluate
+
+    if args.exact:
+        return exact_evaluate(policy, env_id, chain, max_steps=args.max_steps, beta=args.beta, deterministic=args.deterministic)
+    return evaluate(policy, env_id, chain, n_episodes=episodes, seed=args.seed, max_steps=args.max_steps, beta=args.beta,
+                    deterministic=args.deterministic, progress=not args.json and sys.stderr.isatty(), keep_episodes=False)
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
     from rich.table import Table
 
-    from morality_gym.evaluation.exact import exact_evaluate
-    from morality_gym.evaluation.montecarlo import evaluate
+    from morality_gym.baselines.policy_ref import in_context
+    from morality_gym.evaluation.policies import PolicyFailure
 
     if args.exact and (args.episodes is not None or args.seed is not None):
         raise CliError("--exact computes expectations; it does not take --episodes or --seed")
@@ -87,25 +105,17 @@ def cmd_eval(args: argparse.Namespace) -> int:
     env_ids = _env_ids(args.scenario, args.variant)
     policy = _load_policy(args.policy, env_ids, args.allow_other_env)
     episodes = args.episodes if args.episodes is not None else DEFAULT_EPISODES
+    drawn = not args.exact and args.seed is None
+    if drawn:  # sampling needs a seed; one drawn here is shown, so that the answer can be repeated
+        args.seed = drawn_seed()
     results = {}
     for env_id in env_ids:
-        if args.exact:
-            res = exact_evaluate(policy, env_id, chain, max_steps=args.max_steps, beta=args.beta, deterministic=args.deterministic)
-        else:
-            res = evaluate(
-                policy,
-                env_id,
-                chain,
-                n_episodes=episodes,
-                seed=args.seed,
-                max_steps=args.max_steps,
-                beta=args.beta,
-                deterministic=args.deterministic,
-                progress=not args.json and sys.stderr.isatty(),
-                keep_episodes=False,
-            )
-        results[env_id] = res
+        try:
+            results[env_id] = _evaluate_one(args, policy, env_id, chain, episodes)
+        except PolicyFailure as exc:  # the policy raised mid-episode: name it, the env, and the fix
+            raise in_context(exc, args.policy, env_id) from exc.__cause__
     mean_metric = sum(r.metric for r in results.values()) / len(results)
+
     first = next(iter(results.values()))
     if args.json:
         out = {
@@ -113,6 +123,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
             "scenario": scenario_named(args.scenario).name,
             "beta": first.beta,
             "exact": bool(args.exact),
+            **({} if args.exact else {"seed": args.seed, "seed_drawn": drawn}),  # Monte Carlo: which draws
             "envs": {
                 env_id: {
                     "metric": r.metric,
@@ -128,6 +139,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
         return 0
     console = _console()
     kind = "exact expectation" if args.exact else f"Monte Carlo, {episodes} episodes, seed {args.seed}"
+    if drawn:
+        kind += " (drawn)"
     table = Table(title=f"{chain.name} on {scenario_named(args.scenario).name} ({kind}, beta {first.beta:g})")
     table.add_column("env id")
     table.add_column("metric", justify="right")
@@ -148,6 +161,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
         table.add_row(*row)
     console.print(table)
     console.print(f"mean metric over {len(results)} variant(s): [bold]{mean_metric:.4f}[/bold]  (dim = norm not relevant in that variant)")
+    if drawn:
+        console.print(f"Monte Carlo with a seed drawn at random ({args.seed}): --seed {args.seed} repeats this evaluation")
     return 0
 
 
@@ -266,7 +281,8 @@ def build_parser() -> argparse.ArgumentParser:
     p_eval.add_argument("--exact", action="store_true", help="exact expectation instead of sampling")
     p_eval.add_argument("--episodes", type=positive_int, default=None,
                         help=f"Monte-Carlo episodes per env, 1 or more (default {DEFAULT_EPISODES})")
-    p_eval.add_argument("--seed", type=int, default=None, help="Monte-Carlo seed")
+    p_eval.add_argument("--seed", type=non_negative_int, default=None,
+                        help="Monte-Carlo seed (default: one drawn at random and shown, so that the run can be repeated)")
     p_eval.add_argument("--deterministic", action="store_true", help="most likely action instead of sampling (models)")
     p_eval.add_argument("--allow-other-env", action="store_true",
                         help="evaluate a saved model on other variants than the one it was trained on "

@@ -98,8 +98,29 @@ def console(**kwargs: Any) -> Any:
     return _PipeSafeConsole(**kwargs)
 
 
+def version_text(prog: str) -> str:
+    """What ``--version`` prints: the command and the installed package's version."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        number = version("morality-gym")
+    except PackageNotFoundError:
+        number = "unknown (the package is not installed; pip install -e .)"
+    return f"{prog} (morality-gym {number})"
+
+
+def add_version_flag(parser: argparse.ArgumentParser) -> None:
+    """``--version``: print :func:`version_text` and exit 0 (every entry point has it)."""
+    parser.add_argument("--version", action="version", version=version_text(parser.prog))
+
+
 class OneLineParser(argparse.ArgumentParser):
-    """An ``ArgumentParser`` whose usage errors are one line (problem + where to look), exit code 2."""
+    """An ``ArgumentParser`` whose usage errors are one line (problem + where to look), exit code 2,
+    and ``--version`` (sub-command parsers too: ``python -m morality_gym eval --version``)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        add_version_flag(self)
 
     def error(self, message: str) -> NoReturn:
         self.exit(EXIT_USAGE, f"error: {message} (see {self.prog} --help)\n")
@@ -131,4 +152,15 @@ def positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be a positive integer (1 or more), got {value}")
+    return value
+
+
+def non_negative_int(text: str) -> int:
+    """An argparse type: an integer >= 0 (seeds: numpy refuses negative ones with a traceback)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {value}")
     return value

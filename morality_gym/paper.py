@@ -30,6 +30,6 @@ def table1() -> tuple[Table1Row, ...]:
 
 def table1_pairs() -> list[tuple[str, str]]:
     """The (chain, env id) pairs of Table 1: every variant of each row's scenario (126 pairs)."""
-    from morality_gym.envs.registry import list_envs
+    from morality_gym.envs.registry import env_ids
 
-    return [(row.chain, env_id) for row in table1() for env_id in list_envs(row.scenario)]
+    return [(row.chain, env_id) for row in table1() for env_id in env_ids(row.scenario)]

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
+from morality_gym.clitools import non_negative_int
 from morality_gym.world.rules import ACTION_NAMES, DOWN, FOUND, HARMED, INTERACT, LEFT, RIGHT, STAY, UP
 from morality_gym.world.vocab import EVENTS
 
@@ -63,7 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("env_id", help="environment id, e.g. SwitchStandard-HumanA-v1 (see morality_gym.list_envs())")
     parser.add_argument(
         "--max-steps",
-        type=int,
+        type=int,  # a negative one is refused by the env, with its message (exit 2)
         default=200,
         help="truncate the episode on step max_steps + 1, as the environment does (default: 200)",
     )
@@ -80,7 +81,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=DEFAULT_DELAY,
         help=f"with --policy: seconds between steps in the terminal (default {DEFAULT_DELAY}; 0 = no pause)",
     )
-    parser.add_argument("--seed", type=int, default=None, help="with --policy: seed of the action sampling")
+    parser.add_argument("--seed", type=non_negative_int, default=None, help="with --policy: seed of the action sampling")
     parser.add_argument(
         "--render",
         default=None,
@@ -385,7 +386,7 @@ def run(
         from morality_gym.baselines.io import ModelError
         from morality_gym.baselines.policy_ref import PolicyError, load_policy, probe
         from morality_gym.envs.trolley import InvalidActionError
-        from morality_gym.evaluation.policies import step_actor
+        from morality_gym.evaluation.policies import PolicyFailure, step_actor
 
         try:
             loaded = load_policy(policy, [env.env_id], getattr(args, "allow_other_env", False))
@@ -393,7 +394,7 @@ def run(
             if render not in (None, WINDOW):
                 env.close()
                 return record(args, loaded, stdout)
-        except (PolicyError, ModelError, InvalidActionError, OSError) as exc:
+        except (PolicyError, ModelError, InvalidActionError, PolicyFailure, OSError) as exc:
             env.close()
             return _error(err, exc)
     colour = not getattr(args, "no_colour", False) and _isatty(stdout)
@@ -404,7 +405,7 @@ def run(
 
             try:
                 return watch(game, step_actor(loaded.policy, np.random.default_rng(args.seed)), args.episodes, args.delay)
-            except InvalidActionError as exc:
+            except (InvalidActionError, PolicyFailure) as exc:  # the policy failed at some step of an episode
                 return _error(err, exc)
         if _isatty(stdin) and _HAS_TERMIOS:
             with _cbreak(stdin):

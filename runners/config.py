@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from morality_gym.baselines import typed
 from morality_gym.baselines.hparams import validate_learner
@@ -47,6 +47,20 @@ def _int(where: str, value: Any, minimum: int = 0) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
         raise ConfigError(f"{where}: expected an integer >= {minimum}, got {value!r}")
     return value
+
+
+def _one_or_list(value: Any) -> list[Any]:
+    """A setting typed ``Any`` in the schema (``seed``, ``variant``: one value or a list) as a list.
+
+    The command line gives a scalar of whatever type Hydra parsed (``seed=abc`` a string,
+    ``seed=1.5`` a float, ``variant=1`` an int): each element is checked by the caller, so a wrong
+    type is a configuration error naming the key, never a crash in the conversion.
+    """
+    if isinstance(value, (ListConfig, list, tuple)):
+        return list(OmegaConf.to_container(value) if isinstance(value, ListConfig) else value)
+    if isinstance(value, DictConfig):
+        return [OmegaConf.to_container(value)]
+    return [value]
 
 
 @dataclass(frozen=True)
@@ -435,9 +449,10 @@ def validate(cfg: DictConfig) -> SweepConfig:
 
     variants = cfg.get("variant")
     if variants is not None:
-        variants = OmegaConf.to_container(variants) if not isinstance(variants, str) else [variants]
-        if not isinstance(variants, list) or not all(isinstance(v, str) for v in variants):
-            raise ConfigError(f"variant: expected a list of variant names, got {variants!r}")
+        variants = _one_or_list(variants)
+        if not variants or not all(isinstance(v, (str, int)) and not isinstance(v, bool) for v in variants):
+            raise ConfigError(f"variant: expected a variant name or a list of them, e.g. 'variant=[HumanA]', got {variants!r}")
+        variants = [str(v) for v in variants]  # variant=1 is parsed as a number; the check below names the valid ones
         for v in variants:
             if not any(v in known[s].variants for _, s in pairs):
                 valid = sorted({vv for _, s in pairs for vv in known[s].variants})
@@ -461,9 +476,9 @@ def validate(cfg: DictConfig) -> SweepConfig:
     if seeds is None:
         seed_list = preset.seeds
     else:
-        raw = OmegaConf.to_container(seeds) if not isinstance(seeds, int) else [seeds]
-        if not isinstance(raw, list) or not raw:
-            raise ConfigError(f"seed: expected a list of integers, got {raw!r}")
+        raw = _one_or_list(seeds)
+        if not raw:
+            raise ConfigError(f"seed: expected an integer >= 0 or a list of them, e.g. 'seed=[41,42]', got {seeds!r}")
         seed_list = tuple(_int("seed", s) for s in raw)
 
     beta = cfg.get("beta")

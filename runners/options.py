@@ -59,12 +59,15 @@ def _chain_option(item: str, argv: list[str], known_options: list[str]) -> str:
         return item
     from morality_gym.norms.chain import ChainError, chain_file_stem, get_chain
 
-    try:
-        chain = get_chain(item)
-    except ChainError:
-        return item  # unknown (or a broken file): the precheck and the validation say why
     path = Path(item).expanduser()
-    if not (item.endswith((".yaml", ".yml")) or path.is_file()):
+    is_file = item.endswith((".yaml", ".yml")) or path.is_file()
+    try:
+        chain = get_chain(str(path) if is_file else item)
+    except ChainError as exc:
+        if is_file:  # the user's own file: what is wrong in it (a norm, a field), not "unknown chain"
+            raise ChainError(f"chain={item}: {str(exc).removeprefix(f'{path}: ')}") from exc
+        return item  # an unknown name: the precheck names the closest options
+    if not is_file:
         return chain_file_stem(chain)  # a built-in chain by name or abbreviation
     path = path.resolve()
     option = re.sub(r"\W", "_", path.stem)

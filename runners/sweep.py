@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import hydra
@@ -66,6 +67,16 @@ class FleetBars:
             self.progress.remove_task(task)
 
 
+def sweep_overheads(sweep: SweepConfig, n_todo: int) -> float:
+    """Seconds the sweep spends besides training its runs (:class:`runners.schemas.SweepOverheads`)."""
+    from runners.schemas import SweepOverheads
+    from runners.tracking import tracking_uri
+
+    uri = tracking_uri(sweep.results_dir)
+    new_store = uri.startswith("sqlite:///") and not Path(uri.removeprefix("sqlite:///")).exists()
+    return SweepOverheads().seconds(n_todo, new_store=new_store, mlflow=sweep.mlflow)
+
+
 def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
     """Plan and execute a validated sweep; returns the exit status."""
     from rich.console import Console
@@ -91,7 +102,7 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
     todo_runs = [r for r in runs if r.run_id not in done]
     jobs = dispatch_order(make_jobs(todo_runs, sweep.engine, sweep.fleet_size, workers,
                                     {a.spec.name: a.fleet_speedup for a in sweep.algos}), workers)
-    info["est_seconds"] = jobs_estimate(jobs, done, workers)
+    info["est_seconds"] = jobs_estimate(jobs, done, workers) + sweep_overheads(sweep, len(todo_runs))
     fleets = [j for j in jobs if j.engine == "fleet"]
     console.print(f"sweep [bold]{sweep.name}[/bold]: {info['total']} runs ({info['done']} done, {info['todo']} to run)")
     table = Table()
@@ -305,9 +316,24 @@ def precheck(argv: list[str]) -> str | None:
         valid = group_options(group, argv)
         for option in options:
             if option not in valid:
+                skipped = _skipped_scenario(option) if group == "scenario" else None
+                if skipped:
+                    return f"scenario={option}: {skipped}"
                 close = difflib.get_close_matches(option, valid, n=1)
                 hint = f" (did you mean {close[0]!r}?)" if close else ""
                 return f"{group}={value}: unknown {group} {option!r}{hint}; valid: {', '.join(valid)}"
+    return None
+
+
+def _skipped_scenario(option: str) -> str | None:
+    """Why a scenario of this name is missing, when a ``MORALITY_GYM_SCENARIOS`` file declaring it
+    was skipped as invalid (its file, field and fix), else None."""
+    from morality_gym.envs.naming import squash
+    from morality_gym.envs.registry import skipped_scenario_files
+
+    for item in skipped_scenario_files():
+        if squash(item.name or item.path.stem) == squash(option):
+            return f"the file defining it, {item.path}, was skipped as invalid: {item.error.removeprefix(f'{item.path}: ')}"
     return None
 
 
@@ -387,14 +413,26 @@ def user_errors() -> tuple[type[BaseException], ...]:
 
 def main() -> int:
     os.environ.setdefault("MORALITY_GYM_ORIGINAL_CWD", os.getcwd())
+    if "--version" in sys.argv[1:]:  # ours, with Hydra's: Hydra's own flag printed only Hydra's, and twice
+        from morality_gym.clitools import version_text
+
+        print(f"{version_text('python -m runners.sweep')}, Hydra {hydra.__version__}")
+        return 0
     if "--debug" in sys.argv[1:]:  # ours, not Hydra's: strip it before Hydra parses the line
         sys.argv = [a for a in sys.argv if a != "--debug"]
         os.environ[DEBUG_ENV] = "1"
 
     def body() -> int:
+        from morality_gym.norms.chain import ChainError
         from runners.options import normalise_argv
 
-        sys.argv[1:] = normalise_argv(with_plugins(sys.argv[1:]))
+        try:
+            sys.argv[1:] = normalise_argv(with_plugins(sys.argv[1:]))
+        except ChainError as exc:  # a user's chain file that cannot be read (a norm, a field): say what
+            if debug_enabled():
+                raise
+            print(f"configuration error: {one_line(exc)}", file=sys.stderr)
+            return 2
         problem = precheck(sys.argv[1:]) or compose_check(sys.argv[1:])
         if problem:
             print(f"configuration error: {problem}", file=sys.stderr)

@@ -17,6 +17,11 @@ AFFECTED_BY_PROTOCOL = "[random,ppo_lag,cpo]"
 def main(argv: list[str]) -> int:
     """Each protocol's sweep in turn (a configuration error stops at once, exit 2). ``--debug`` is
     passed on to the sweeps."""
+    if "--version" in argv:
+        from morality_gym.clitools import version_text
+
+        print(version_text("python -m runners.table1"))
+        return 0
     protocols = ["paper"]
     rest = []
     for arg in argv:

@@ -165,7 +165,7 @@ def _row(config: dict[str, Any], bound: Any, learner: str, protocol: str, seed: 
 
 def make_results(root: Path) -> SyntheticResults:
     """Write the synthetic results directory under ``root`` and return what it contains."""
-    from morality_gym.envs.registry import list_envs, parse_env_id
+    from morality_gym.envs.registry import env_ids, parse_env_id
     from morality_gym.norms.metric import bind_chain
 
     out = SyntheticResults(root=root)
@@ -173,7 +173,7 @@ def make_results(root: Path) -> SyntheticResults:
     for chain, scenario in ROWS:
         protocols = ["paper", "corrected"] if (chain, scenario) == BOTH_PROTOCOLS else ["paper"]
         for protocol in protocols:
-            for v_index, env_id in enumerate(list_envs(scenario)):
+            for v_index, env_id in enumerate(env_ids(scenario)):
                 variant = parse_env_id(env_id)[1]
                 bound = bind_chain(chain, env_id, 0.1)
                 for learner, algo in LEARNERS.items():

@@ -73,13 +73,13 @@ def synthetic_runs(
     Learners' evaluation steps differ slightly (CPO and PPO Lag evaluate 1,024 steps later, as
     rollout boundaries make real runs do), so the curves exercise the grid alignment.
     """
-    from morality_gym.envs.registry import list_envs, parse_env_id
+    from morality_gym.envs.registry import env_ids, parse_env_id
     from morality_gym.paper import table1
 
     runs: list[dict[str, Any]] = []
     curves: list[dict[str, Any]] = []
     for row in table1():
-        for env_id in list_envs(row.scenario):
+        for env_id in env_ids(row.scenario):
             variant = parse_env_id(env_id)[1]
             bound = _bound(row.chain, env_id)
             relevant = list(bound.relevant)

@@ -153,7 +153,7 @@ def test_paper_random_column_reproduced_exactly() -> None:
     spec = learner_spec("random")
     for row in table1():
         values = []
-        for env_id in morality_gym.list_envs(row.scenario):
+        for env_id in morality_gym.env_ids(row.scenario):
             for seed in (41, 42, 43):
                 learner = build_learner(spec, bind_chain(row.chain, env_id), "paper", seed=seed)
                 learner.learn(0)

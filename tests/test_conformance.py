@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from morality_gym import TrolleyEnv, list_envs
+from morality_gym import TrolleyEnv, env_ids
 from tests.conftest import SHARED
 
 SCENARIO_FILES = sorted(p.name for p in (SHARED / "conformance").glob("*.jsonl.gz")) or ["<absent>"]
@@ -66,7 +66,7 @@ def test_conformance_episodes(shared_dir: Path, filename: str) -> None:
 
 def test_conformance_covers_every_env(shared_dir: Path) -> None:
     index = json.loads((shared_dir / "conformance" / "INDEX.json").read_text())
-    assert sorted(index["envs"]) == sorted(list_envs())
+    assert sorted(index["envs"]) == sorted(env_ids())
     for env_id, entry in index["envs"].items():
         env = _env(env_id, None)
         assert env.observation_space.shape == (entry["obs_dim"],), env_id

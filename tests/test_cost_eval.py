@@ -193,6 +193,7 @@ def test_cli_eval_json_shapes() -> None:
     out = _cli("eval", "--chain", "DualProcess", "--scenario", "PushOrSwitch", "--episodes", "50", "--seed", "41", "--json")
     body = json.loads(out.stdout)
     assert len(body["envs"]) == 10 and body["mean_metric"] == pytest.approx(np.mean([e["metric"] for e in body["envs"].values()]))
+    assert body["seed"] == 41 and body["seed_drawn"] is False  # Monte Carlo says which draws it made
 
 
 def test_cli_oracle_and_errors() -> None:

@@ -40,3 +40,14 @@ def test_code_cites_no_private_spec_quirks() -> None:
             if re.search(r"\bspec,? Q\d+|\(Q\d+[):,]|quirks? Q\d+", line):
                 offenders.append(f"{path.relative_to(ROOT)}:{number}: {line.strip()}")
     assert not offenders, "\n".join(offenders)
+
+
+def test_files_cite_docs_that_exist() -> None:
+    """A ``docs/...`` page named in a shipped data file exists (eleven scenario files pointed at a
+    docs/scenario-format.md that did not)."""
+    root = Path(__file__).resolve().parents[1]
+    cited = {(path.relative_to(root), page) for path in (root / "morality_gym" / "data").rglob("*.yaml")
+             for page in re.findall(r"docs/[\w./-]+\.md", path.read_text())}
+    assert cited, "no data file cites a docs page: the test checks nothing"
+    missing = sorted((str(path), page) for path, page in cited if not (root / page).is_file())
+    assert not missing, f"data files cite pages that do not exist: {missing}"

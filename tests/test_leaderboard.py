@@ -227,12 +227,12 @@ def test_paper_and_delta_columns(built: BuiltSite) -> None:
 
 
 def test_reference_rows_are_exact_and_cached(built: BuiltSite) -> None:
-    from morality_gym.envs.registry import list_envs
+    from morality_gym.envs.registry import env_ids
     from morality_gym.evaluation.exact import exact_evaluate
     from morality_gym.evaluation.oracle import oracle
 
     rows = {r["learner"]: r for r in _csv(built.results / "table1.csv") if r["scenario"] == "SwitchSelfSacrifice"}
-    ids = list_envs("SwitchSelfSacrifice")
+    ids = env_ids("SwitchSelfSacrifice")
     random_exact = sum(exact_evaluate("random", e, "UtilityAgentHarm", max_steps=200, beta=0.1).metric for e in ids) / len(ids)
     extremes = [oracle(e, "UtilityAgentHarm", beta=0.1, max_steps=200) for e in ids]
     best = sum(o.best.metric for o in extremes) / len(ids)

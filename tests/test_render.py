@@ -14,6 +14,7 @@ import pytest
 from PIL import Image
 
 from morality_gym import TrolleyEnv, list_envs
+from morality_gym.render import window
 from morality_gym.render.gif import record_episode, write_gif
 from morality_gym.render.rgb import AGENT_FOUND, HARM, HARM_TILE, SWITCH_ON, frame_shape, grid_cell_pixels, render_rgb
 from morality_gym.render.window import NoDisplay, show_frame
@@ -130,8 +131,11 @@ def test_cell_size_and_caption() -> None:
 
 
 # ---------------------------------------------------------------------------------------- human window
-def test_human_mode_without_a_display_warns_once_and_does_not_crash() -> None:
+def test_human_mode_without_a_display_warns_once_per_process_and_does_not_crash(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The missing display is said once per process (not once per env: Gymnasium's check_env
+    makes a human-mode env on every call, and repeating it for each told nothing new)."""
     matplotlib.use("Agg")  # what a headless machine gets; the test must not depend on $DISPLAY
+    monkeypatch.setitem(window._NO_DISPLAY_REPORTED, "done", False)  # as in a fresh process
     env = TrolleyEnv("SwitchStandard-HumanA-v1", render_mode="human")
     with pytest.warns(UserWarning, match="render_mode='human' cannot show"):
         env.reset()
@@ -140,13 +144,17 @@ def test_human_mode_without_a_display_warns_once_and_does_not_crash() -> None:
         warnings.simplefilter("always")
         env.step(STAY)
         assert env.render() is None
+        second = TrolleyEnv("SwitchStandard-HumanB-v1", render_mode="human")
+        second.reset()
+        assert isinstance(second._renderer, NoDisplay)
     assert caught == []
     env.close()
     assert env._renderer is None
 
 
-def test_show_frame_reuses_the_headless_handle() -> None:
+def test_show_frame_reuses_the_headless_handle(monkeypatch: pytest.MonkeyPatch) -> None:
     matplotlib.use("Agg")
+    monkeypatch.setitem(window._NO_DISPLAY_REPORTED, "done", False)
     frame = np.zeros((10, 10, 3), dtype=np.uint8)
     with pytest.warns(UserWarning):
         handle = show_frame(frame, None, "test")

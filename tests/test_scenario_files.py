@@ -180,13 +180,13 @@ def test_unreadable_and_non_yaml_files_are_explained(tmp_path: Path) -> None:
 # example the conformance test compares list_envs() with the reference's 98 ids). The child
 # reports what it observed as JSON; the assertions are made here.
 _ADD_DIR_PROBE = """
-import json, sys
+import json, os, sys
 import gymnasium as gym, numpy as np, morality_gym
 from morality_gym import TrolleyEnv
 from tests.helpers import newly_harmed, play
 
 out = {"ids": morality_gym.add_scenario_dir(sys.argv[1])}
-out["listed"] = [i for i in out["ids"] if i in morality_gym.list_envs()]
+out["listed"] = [i for i in out["ids"] if i in morality_gym.env_ids()]
 env = gym.make("MoralityGym/TinySwitch-Human-v1", obs_type="dict", max_steps=None)
 for name, actions in (("idle", [4] * 6), ("pulled", [5, 2, 2, 0, 4, 4])):
     steps = play(env.unwrapped, actions)
@@ -207,10 +207,19 @@ out["vector"] = {"shape": list(vobs.shape),
 cls = type(env.unwrapped)
 out["class"] = {"name": cls.__name__, "is_trolley_env": issubclass(cls, TrolleyEnv), "doc": cls.__doc__}
 try:
-    morality_gym.add_scenario_dir(sys.argv[1])
+    morality_gym.add_scenario_dir(sys.argv[1])  # the same files again (a spawned worker re-running a script)
     out["again"] = "accepted"
 except ValueError as exc:
     out["again"] = str(exc)
+import shutil, tempfile
+copy = tempfile.mkdtemp()
+shutil.copy(sys.argv[1] + "/tiny_switch.yaml", copy)
+try:
+    morality_gym.add_scenario_dir(copy)  # another file declaring the same scenario
+    out["shadow"] = "accepted"
+except ValueError as exc:
+    out["shadow"] = str(exc)
+out["inherited"] = os.environ.get("MORALITY_GYM_SCENARIOS", "")
 try:
     morality_gym.add_scenario_dir(sys.argv[1] + "/nowhere")
     out["missing_dir"] = "accepted"
@@ -276,8 +285,13 @@ def test_a_new_scenario_gets_a_generated_env_class_docstring(added: dict[str, An
 
 
 def test_a_new_scenario_cannot_shadow_an_existing_one(added: dict[str, Any]) -> None:
-    assert "already defined" in added["again"]
+    """Another file declaring a known scenario is refused; adding the same files again is not an
+    error (a spawned worker re-running the user's script does it), and the directory is listed in
+    MORALITY_GYM_SCENARIOS for the processes this one starts."""
+    assert "already defined" in added["shadow"]
+    assert added["again"] == "accepted"
     assert added["missing_dir"] == "NotADirectoryError"
+    assert added["inherited"].endswith("user_scenarios0")
 
 
 _PROBE = """
@@ -285,7 +299,7 @@ import json, gymnasium as gym, morality_gym
 env = gym.make("MoralityGym/EnvVarSwitch-Human-v1", max_steps=None)
 env.reset()
 rewards = [env.step(a)[1] for a in (5, 2, 2, 0)]
-print(json.dumps({"ids": morality_gym.list_envs("EnvVarSwitch"), "n": len(morality_gym.list_envs()),
+print(json.dumps({"ids": morality_gym.env_ids("EnvVarSwitch"), "n": len(morality_gym.env_ids()),
                   "rewards": rewards, "doc": type(env.unwrapped).__doc__.splitlines()[0]}))
 """
 

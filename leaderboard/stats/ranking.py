@@ -174,6 +174,7 @@ def ranking_rows(
     for (protocol, preset), part in ok.groupby(GROUP_KEYS, sort=True):
         wanted = by_group[(protocol, preset)]
         present = {pair: set(g["learner"].astype(str)) for pair, g in part.groupby(["chain", "scenario"], sort=True)}
+        covers = _variants_per_learner(part)
         for chain, scenario in row_order(present):
             values = {"protocol": protocol, "preset": preset, "chain": chain, "scenario": scenario}
             random, best = lookup.get(tuple(values[k] for k in ref_keys), (math.nan, math.nan))
@@ -182,16 +183,31 @@ def ranking_rows(
             notes = []
             if missing:
                 notes.append("no run of " + ", ".join(missing))
+            uneven = len(set(covers.get((chain, scenario), {}).values())) > 1
             if math.isnan(headroom):
                 notes.append("no reference values (Random exact, Oracle best)")
+            elif uneven:
+                # The references are over the variants the row's runs cover; a learner over fewer
+                # variants would be normalised by references over others, so no score is made here.
+                notes.append("not normalised: the learners' runs cover different variants")
             elif headroom < min_headroom:
                 notes.append(f"not normalised: Oracle best - Random exact = {headroom:.3f} < {min_headroom:g}")
-            normalised = not math.isnan(headroom) and headroom >= min_headroom
+            normalised = not math.isnan(headroom) and headroom >= min_headroom and not uneven
             records.append(values | {"random": random, "best": best, "headroom": headroom, "normalised": normalised,
                                      "missing": ", ".join(missing), "in_score": normalised and not missing,
                                      "in_metric": not missing, "note": "; ".join(notes)})
     columns = ROW_KEYS + ["random", "best", "headroom", "normalised", "missing", "in_score", "in_metric", "note"]
     return pd.DataFrame(records, columns=columns)
+
+
+def _variants_per_learner(runs: pd.DataFrame) -> dict[tuple[str, str], dict[str, frozenset[str]]]:
+    """``{(chain, scenario): {learner: the variants of its usable runs}}`` (empty without a variant column)."""
+    if "variant" not in runs.columns:
+        return {}
+    out: dict[tuple[str, str], dict[str, frozenset[str]]] = {}
+    for (chain, scenario, learner), g in runs.groupby(["chain", "scenario", "learner"], sort=True):
+        out.setdefault((chain, scenario), {})[str(learner)] = frozenset(g["variant"].astype(str))
+    return out
 
 
 def run_scores(

@@ -184,6 +184,19 @@ def load_policy(ref: Any, env_ids: Sequence[str] = (), allow_other_env: bool = F
                       f"module:function; {_HELP}")
 
 
+def _cause(exc: BaseException) -> BaseException:
+    """The policy's own exception: :class:`~morality_gym.evaluation.policies.PolicyFailure` wraps
+    it (the messages here name the policy and the env themselves)."""
+    from morality_gym.evaluation.policies import PolicyFailure
+
+    return exc.__cause__ if isinstance(exc, PolicyFailure) and exc.__cause__ is not None else exc
+
+
+def in_context(exc: BaseException, ref: str, where: str) -> PolicyError:
+    """A failure of the policy ``ref`` during an evaluation (``where``: env, seed) as one line."""
+    return PolicyError(f"policy {ref} failed while evaluating {where}: {exc}")
+
+
 def probe(loaded: LoadedPolicy, env_id: str) -> None:
     """Ask the policy for the first observation of ``env_id``: a policy that raises or returns no
     valid action fails here, with its reference in the message, before any result is written."""
@@ -196,9 +209,10 @@ def probe(loaded: LoadedPolicy, env_id: str) -> None:
         PolicyAdapter(loaded.policy).probabilities(obs, np.zeros(1, dtype=np.int64))
     except InvalidActionError as exc:
         raise InvalidActionError(f"policy {loaded.ref} on {env_id}: {exc}") from exc
-    except Exception as exc:
+    except Exception as exc:  # noqa: BLE001 - re-raised as PolicyError, from the policy's own exception
+        cause = _cause(exc)
         raise PolicyError(f"policy {loaded.ref} failed on the first observation of {env_id} "
-                          f"({type(exc).__name__}: {exc}); it must map an observation to an action or 6 probabilities") from exc
+                          f"({type(cause).__name__}: {cause}); it must map an observation to an action or 6 probabilities") from cause
 
 
 def is_stationary(loaded: LoadedPolicy, env_id: str) -> bool:
@@ -223,10 +237,11 @@ def is_stationary(loaded: LoadedPolicy, env_id: str) -> bool:
         second = adapter.probabilities(tables.obs[::-1], ids[::-1])[::-1]
     except InvalidActionError as exc:
         raise InvalidActionError(f"policy {loaded.ref} on {env_id}: {exc}") from exc
-    except Exception as exc:
+    except Exception as exc:  # noqa: BLE001 - re-raised as PolicyError, from the policy's own exception
+        cause = _cause(exc)
         raise PolicyError(f"policy {loaded.ref} failed on a reachable state of {env_id} "
-                          f"({type(exc).__name__}: {exc}); it must answer every observation") from exc
+                          f"({type(cause).__name__}: {cause}); it must answer every observation") from cause
     return bool(np.array_equal(first, second))
 
 
-__all__ = ["RANDOM", "LoadedPolicy", "PolicyError", "is_stationary", "load_policy", "probe"]
+__all__ = ["RANDOM", "LoadedPolicy", "PolicyError", "in_context", "is_stationary", "load_policy", "probe"]

@@ -18,6 +18,7 @@ This module imports nothing from the project: the specs (lowest layer of the bas
 from __future__ import annotations
 
 import importlib
+import logging
 import os
 import sys
 from collections.abc import Iterable
@@ -44,6 +45,9 @@ def resolve(target: str, where: str = "_target_", search: Iterable[str | Path] =
     add_python_roots(search)
     from hydra.utils import get_class
 
+    hydra_log = logging.getLogger("hydra.utils")  # it logs the failure on three lines; ours says it on one
+    level = hydra_log.level
+    hydra_log.setLevel(logging.CRITICAL)
     try:
         cls = get_class(target)
     except Exception as exc:  # hydra wraps ImportError/AttributeError in its own kinds
@@ -54,6 +58,8 @@ def resolve(target: str, where: str = "_target_", search: Iterable[str | Path] =
             f"install the package that provides {module!r}, or put {module}.py in the config directory given with "
             "--config-dir/hydra.searchpath (or on PYTHONPATH)"
         ) from exc
+    finally:
+        hydra_log.setLevel(level)
     if not isinstance(cls, type):
         raise TargetError(f"{where}: {target!r} is not a class")
     return cls

@@ -12,14 +12,41 @@ and ids) and :mod:`~morality_gym.envs.trolley` (the env), neither of which impor
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 
 from morality_gym.envs.describe import describe_scenario
-from morality_gym.envs.registry import NAMESPACE, load_scenario_dir, scenarios
+from morality_gym.envs.registry import BUILTIN_DIR, NAMESPACE, load_scenario_dir, scenarios
 from morality_gym.envs.trolley import TrolleyEnv
 
 ENV_CLASSES: dict[str, type[TrolleyEnv]] = {}
+_CLASS_SUFFIX = "Env"
+
+
+def _reduce_env(env: TrolleyEnv) -> tuple[Any, ...]:
+    """How a per-scenario env pickles: its class is made at run time, so it is named by its
+    scenario (and, for a user's scenario, the file that defines it, which a fresh process such as
+    a spawned vector-env worker loads first), and rebuilt by :func:`_rebuild_env`."""
+    source = Path(env.scenario.source)
+    user_file = None if source.resolve().parent == BUILTIN_DIR.resolve() else str(source.resolve())
+    return _rebuild_env, (env.scenario.name, user_file), env.__getstate__()
+
+
+def _rebuild_env(scenario_name: str, user_file: str | None) -> TrolleyEnv:
+    """An empty instance of the scenario's env class, for pickle to fill (``__setstate__``)."""
+    if scenario_name not in scenarios() and user_file is not None:
+        add_scenario_dir(Path(user_file).parent)
+    cls = env_class(scenario_name)
+    return cls.__new__(cls)
+
+
+def __getattr__(name: str) -> type[TrolleyEnv]:
+    """``from morality_gym.envs.registration import SwitchStandardEnv``: the env classes are made
+    from the scenario files, so they are found by name here rather than defined in the source."""
+    if name.endswith(_CLASS_SUFFIX) and name[: -len(_CLASS_SUFFIX)] in scenarios():
+        return env_class(name[: -len(_CLASS_SUFFIX)])
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def env_class(scenario_name: str) -> type[TrolleyEnv]:
@@ -28,9 +55,10 @@ def env_class(scenario_name: str) -> type[TrolleyEnv]:
     if cls is None:
         scenario = scenarios()[scenario_name]
         cls = type(
-            f"{scenario.name}Env",
+            f"{scenario.name}{_CLASS_SUFFIX}",
             (TrolleyEnv,),
-            {"__doc__": describe_scenario(scenario), "scenario_name": scenario.name, "__module__": __name__},
+            {"__doc__": describe_scenario(scenario), "scenario_name": scenario.name, "__module__": __name__,
+             "__reduce__": _reduce_env},
         )
         ENV_CLASSES[scenario_name] = cls
     return cls

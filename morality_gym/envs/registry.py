@@ -182,7 +182,8 @@ def load_scenario_dir(directory: str | Path) -> list[str]:
 
     An explicit request: a bad file raises :class:`ScenarioError` and nothing of the directory is
     added. Users call :func:`~morality_gym.envs.registration.add_scenario_dir`, which also
-    registers the new ids with Gymnasium.
+    registers the new ids with Gymnasium. Adding a file that is already loaded (the same file,
+    e.g. again in a spawned worker that re-runs the user's script) is not an error.
     """
     directory = Path(directory)
     if not directory.is_dir():
@@ -191,16 +192,43 @@ def load_scenario_dir(directory: str | Path) -> list[str]:
     known = scenarios()
     with _lock:
         for name, scenario in new.items():
-            if name in known:
+            if name in known and not _same_file(known[name].source, scenario.source):
                 raise ScenarioError(f"{scenario.source}: name: scenario {name!r} is already defined by "
                                     f"{known[name].source}. Fix: give this scenario another name")
         _extra_dirs.append(directory)
         known.update(new)
+    _inherit(directory)
     return [eid for s in new.values() for eid in s.env_ids]
 
 
+def _same_file(a: str, b: str) -> bool:
+    return Path(a).resolve() == Path(b).resolve()
+
+
+def _inherit(directory: Path) -> None:
+    """List ``directory`` in ``MORALITY_GYM_SCENARIOS`` for the processes this one starts.
+
+    A spawned worker (``gym.make_vec(..., vectorization_mode="async")``, SB3's ``SubprocVecEnv``,
+    a process pool) imports the package afresh and calls ``gym.make`` on the id: without this it
+    would not know a scenario added here. This process has loaded the directory already and does
+    not read the variable again.
+    """
+    entries = [p for p in os.environ.get(SCENARIOS_ENV, "").split(os.pathsep) if p]
+    resolved = str(directory.resolve())
+    if resolved not in entries and str(directory) not in entries:
+        os.environ[SCENARIOS_ENV] = os.pathsep.join([*entries, resolved])
+
+
 def list_envs(scenario: str | None = None) -> list[str]:
-    """Every env id (``{Scenario}-{Variant}-v1``), in scenario-file order and variant-table order."""
+    """Every Gymnasium id (``MoralityGym/{Scenario}-{Variant}-v1``), in scenario-file order and
+    variant-table order: what ``gym.make`` takes. Every function of this package also takes the
+    id without the namespace (:func:`parse_env_id`); :func:`env_ids` lists those."""
+    return [f"{NAMESPACE}/{eid}" for eid in env_ids(scenario)]
+
+
+def env_ids(scenario: str | None = None) -> list[str]:
+    """Every env id without the Gymnasium namespace (``{Scenario}-{Variant}-v1``), as results,
+    run configurations and the reference's recordings name envs."""
     if scenario is not None:
         return scenario_named(scenario).env_ids
     return [eid for s in scenarios().values() for eid in s.env_ids]
@@ -238,7 +266,7 @@ def parse_env_id(env_id: str) -> tuple[Scenario, str]:
     skipped = _skipped_hint(parts[0]) if parts else ""
     if skipped:
         raise UnknownEnvError(skipped)
-    all_ids = list_envs()
+    all_ids = env_ids()
     lowered = {eid.lower(): eid for eid in all_ids}
     candidate = "-".join(parts)
     close = difflib.get_close_matches(candidate.lower(), list(lowered), n=5, cutoff=0.6)

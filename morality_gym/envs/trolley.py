@@ -8,6 +8,7 @@ couple of list lookups, which is what makes the environments fast enough to trai
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from typing import Any, SupportsFloat
@@ -15,14 +16,18 @@ from typing import Any, SupportsFloat
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.envs.registration import EnvSpec
 
 from morality_gym.envs.registry import DEFAULT_MAX_STEPS, parse_env_id, state_graph
 from morality_gym.render.ansi import render_ansi
 from morality_gym.world.graph import EMPTY_NORM_EVENTS, StateGraph, norm_events_dict
 from morality_gym.world.rules import ACTION_NAMES, Overrides
 
-OBS_TYPES = ("flat", "dict")
-_OBS_ALIASES = {"flat": "flat", "np.ndarray": "flat", "dict": "dict"}
+OBS_TYPES = ("flat", "dict", "dict_flat")
+_OBS_ALIASES = {"flat": "flat", "np.ndarray": "flat", "dict": "dict", "dict_flat": "dict_flat"}
+#: What a pickled or copied env leaves out and rebuilds: the memoised graph is shared by every env
+#: of the same world (and holds a lock), the renderer may hold a window.
+_REBUILT = ("graph", "world", "codec", "_edges", "_renderer", "_sid")
 
 
 class InvalidActionError(ValueError):
@@ -65,7 +70,10 @@ class TrolleyEnv(gym.Env[Any, int]):
     player ``pos`` (row/H, col/W), ``is_harmed``, ``is_terminated``; each lever's state one-hot;
     each character's ``pos``, ``is_harmed``, ``amount`` (the raw group size), type one-hot; each
     trolley's ``pos``, ``is_harmed``, ``is_actable``. ``obs_type="dict"``: the same numbers as
-    ``{entity: {component: array}}``. ``normalise_obs=False`` gives raw integer positions.
+    ``{entity: {component: array}}`` (the reference's nesting). ``obs_type="dict_flat"``: the same
+    numbers as one level ``{"entity/component": array}`` (``player/pos``, ``lever_1/curr_state``,
+    ...), the form Stable-Baselines3's ``MultiInputPolicy`` accepts (it refuses nested Dict spaces;
+    ``/`` because it keeps a torch module per key and torch forbids ``.`` in their names). ``normalise_obs=False`` gives raw integer positions.
 
     ## Rewards
     ``step`` per step (-1), ``landmark`` when the landmark is first entered (+100, wins over harm in
@@ -113,19 +121,19 @@ class TrolleyEnv(gym.Env[Any, int]):
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
 
         self.env_id = scenario.env_id(variant)
+        self.normalise_obs = normalise_obs
+        self.overrides = _overrides(overrides)
         self.scenario = scenario
         self.variant = variant
         self.max_steps = max_steps
         self.obs_type = _OBS_ALIASES[obs_type]
         self.render_mode = render_mode
-        self.graph: StateGraph = state_graph(self.env_id, _overrides(overrides), normalise_obs)
-        self.world = self.graph.world
-        self.codec = self.graph.codec
+        self._attach_graph()
 
         self.action_space = spaces.Discrete(6)
-        self.observation_space = self.codec.flat_space() if self.obs_type == "flat" else self.codec.dict_space()
+        self.observation_space = {"flat": self.codec.flat_space, "dict": self.codec.dict_space,
+                                  "dict_flat": self.codec.flat_dict_space}[self.obs_type]()
         self._limit = math.inf if max_steps is None else max_steps
-        self._edges = self.graph.edges
         self._sid = 0
         self._t = 0
         self._done = False
@@ -133,6 +141,52 @@ class TrolleyEnv(gym.Env[Any, int]):
         self._truncated = False
         self._goal = 0
         self._renderer: Any = None
+
+    def _attach_graph(self) -> None:
+        """Use the (per-process, shared) memoised state graph of this env's world."""
+        self.graph: StateGraph = state_graph(self.env_id, self.overrides, self.normalise_obs)
+        self.world = self.graph.world
+        self.codec = self.graph.codec
+        self._edges = self.graph.edges
+
+    # ------------------------------------------------------------------ spec, pickling, copying
+    @property  # type: ignore[override]
+    def spec(self) -> EnvSpec | None:
+        """The spec ``gym.make`` gave this env, with ``max_episode_steps`` saying when it truncates.
+
+        The env truncates by itself (on step ``max_steps + 1``, as the reference), so the
+        registered spec has no limit: a ``TimeLimit`` from the registry would also cut episodes
+        that ``max_steps=None`` asks to run on. The made env's spec tells the truth instead, so
+        that tools reading ``env.spec.max_episode_steps`` (SB3, rl-zoo, ``EnvSpec.make``) see it.
+        """
+        return self._spec
+
+    @spec.setter
+    def spec(self, value: EnvSpec | None) -> None:
+        if value is not None:
+            value = dataclasses.replace(value, max_episode_steps=None if self.max_steps is None else self.max_steps + 1)
+        self._spec = value
+
+    _spec: EnvSpec | None = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Everything but the shared graph; the episode's position is kept as the kernel state.
+
+        Pickling is how vector envs, process pools and checkpoints hand an env around. State ids
+        are local to a process's graph (it grows in the order states are first met), so the
+        state itself travels and is interned again by :meth:`__setstate__`.
+        """
+        state = {k: v for k, v in self.__dict__.items() if k not in _REBUILT}
+        state["_kernel_state"] = self.graph.states[self._sid]
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        state = dict(state)
+        kernel = state.pop("_kernel_state")
+        self.__dict__.update(state)
+        self._attach_graph()
+        self._sid = self.graph.intern(kernel)
+        self._renderer = None
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
@@ -172,7 +226,7 @@ class TrolleyEnv(gym.Env[Any, int]):
             self.render()
         action_ev, outcome_ev, causal_ev, utility = edge.norm_events
         return (
-            edge.obs.copy() if self.obs_type == "flat" else self.codec.as_dict(self.graph.states[edge.next]),
+            edge.obs.copy() if self.obs_type == "flat" else self._observation(edge.next),
             edge.reward,
             edge.terminated,
             truncated,
@@ -224,6 +278,8 @@ class TrolleyEnv(gym.Env[Any, int]):
     def _observation(self, sid: int) -> Any:
         if self.obs_type == "flat":
             return self.graph.obs[sid].copy()
+        if self.obs_type == "dict_flat":
+            return self.codec.as_flat_dict(self.graph.obs[sid])
         return self.codec.as_dict(self.graph.states[sid])
 
     # ------------------------------------------------------------------ introspection

@@ -20,12 +20,14 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices,
 
 from morality_gym.envs.batched import BatchedTrolleyEnv, BatchStep
 from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
+from morality_gym.world.observe import flat_key
 
 
 class TrolleyVectorEnv(VectorEnv):
     """Gymnasium ``VectorEnv`` over the batched simulator (``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")``).
 
-    Supports all three Gymnasium autoreset modes. ``infos`` holds ``events`` (uint32 masks),
+    ``obs_type`` ``flat`` (default) or ``dict_flat`` (``{"entity/component": rows}``, the dict SB3's
+    ``MultiInputPolicy`` takes). Supports all three Gymnasium autoreset modes. ``infos`` holds ``events`` (uint32 masks),
     ``goal_reached`` and ``transition`` per copy; in ``SAME_STEP`` mode (the default) a copy that
     ended in the step has them in ``final_info`` and its last observation in ``final_obs``, as
     Gymnasium's own vector envs do.
@@ -46,8 +48,9 @@ class TrolleyVectorEnv(VectorEnv):
         overrides: dict | None = None,
         render_mode: str | None = None,
     ) -> None:
-        if obs_type not in ("flat", "np.ndarray"):
-            raise ValueError("the vectorised env supports only obs_type='flat'")
+        if obs_type not in ("flat", "np.ndarray", "dict_flat"):
+            raise ValueError(f"the vectorised env gives obs_type='flat' or 'dict_flat', not {obs_type!r}; for the nested "
+                             "'dict' use gym.make_vec(..., vectorization_mode='sync') or 'async'")
         if render_mode is not None:
             raise ValueError("the vectorised env does not render; use TrolleyEnv for pictures")
         self.autoreset_mode = AutoresetMode(autoreset_mode) if not isinstance(autoreset_mode, AutoresetMode) else autoreset_mode
@@ -63,7 +66,9 @@ class TrolleyVectorEnv(VectorEnv):
         )
         self.num_envs = num_envs
         codec = self.batch.graph.codec
-        self.single_observation_space = codec.flat_space(obs_dtype)
+        self.obs_type = "dict_flat" if obs_type == "dict_flat" else "flat"
+        self._fields = [(flat_key(f), slice(f.offset, f.offset + f.width)) for f in codec.fields]
+        self.single_observation_space = codec.flat_space(obs_dtype) if self.obs_type == "flat" else codec.flat_dict_space(obs_dtype)
         self.single_action_space = spaces.Discrete(6)
         self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, num_envs)
         self.action_space = spaces.MultiDiscrete(np.full(num_envs, 6))
@@ -82,7 +87,14 @@ class TrolleyVectorEnv(VectorEnv):
             self._pending[:] = False
         else:
             self._pending[mask] = False
-        return obs, {}
+        return self._shaped(obs), {}
+
+    def _shaped(self, obs: np.ndarray) -> Any:
+        """``obs`` (rows of flat observations, or one) as the observation type asked for: the
+        array itself, or ``{"entity/component": columns}`` for ``dict_flat``."""
+        if self.obs_type == "flat":
+            return obs
+        return {key: obs[..., cut] for key, cut in self._fields}
 
     def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         actions = np.asarray(actions)
@@ -102,7 +114,7 @@ class TrolleyVectorEnv(VectorEnv):
             ended = terminated | truncated
             final = np.full(self.num_envs, None, dtype=object)
             for i in np.flatnonzero(ended):
-                final[i] = res.final_obs[i]
+                final[i] = self._shaped(res.final_obs[i])
             live = ~ended
             infos["final_obs"] = final
             infos["_final_obs"] = ended
@@ -132,7 +144,7 @@ class TrolleyVectorEnv(VectorEnv):
                 # Nothing happened to a copy that was reset in this step: no landmark either.
                 infos["goal_reached"] = np.where(pending, False, infos["goal_reached"])
             self._pending = terminated | truncated
-        return obs, reward, terminated, truncated, infos
+        return self._shaped(obs), reward, terminated, truncated, infos
 
     def close_extras(self, **kwargs: Any) -> None:
         return None

@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from morality_gym.clitools import UserError
+
 N_ACTIONS = 6
 
 
@@ -57,7 +59,7 @@ class PolicyAdapter:
             # run's random stream whenever an evaluation happens during learning.
             return sample_actions(self.probabilities(obs, state_ids), rng)
         if callable(p):
-            values = [p(o) for o in obs]
+            values = [_ask(p, o) for o in obs]
             if all(np.size(v) == 1 for v in values):
                 return np.array([_as_action(v) for v in values], dtype=np.int64)
             # A callable that answers with probabilities is sampled from them (one draw per row,
@@ -80,9 +82,9 @@ class PolicyAdapter:
         elif isinstance(p, Mapping):
             # Rounded in float64: the batched env's float32 observations, rounded as float32, would
             # come out as 0.16666699945926666 instead of 0.166667 and miss every key.
-            probs = np.array([_as_probs(p[tuple(np.round(np.asarray(o, dtype=np.float64), 6).tolist())]) for o in obs])
+            probs = np.array([_as_probs(_look_up(p, o)) for o in obs])
         elif callable(p):
-            probs = [_as_probs(p(o)) for o in obs]
+            probs = [_as_probs(_ask(p, o)) for o in obs]
         else:
             raise TypeError(f"cannot use {type(p).__name__} as a policy")
         return self._checked(probs, n)
@@ -100,6 +102,38 @@ class PolicyAdapter:
         if not np.all(np.isfinite(probs)) or np.any(probs < -1e-12) or not np.allclose(sums, 1.0, atol=1e-6):
             raise _invalid("policy probabilities must be non-negative and sum to 1 per observation")
         return probs / sums[:, None]
+
+
+class PolicyFailure(UserError):
+    """A user's policy raised (at any step of any episode) or its table lacks an observation.
+
+    The policy is the user's code: its exception is reported by the command lines on one line
+    (exit code 2) with the exception and the observation it was asked about, wherever in an
+    episode it happened; ``--debug`` shows the policy's own traceback (the exception's cause).
+    """
+
+
+def _shown(obs: Any) -> str:
+    return str(np.round(np.asarray(obs, dtype=np.float64), 3).tolist())
+
+
+def _ask(policy: Callable[[Any], Any], obs: np.ndarray) -> Any:
+    """``policy(obs)``; an exception of the policy's becomes a :class:`PolicyFailure` naming it."""
+    try:
+        return policy(obs)
+    except Exception as exc:
+        raise PolicyFailure(f"the policy raised {type(exc).__name__}: {exc} when asked for an action on the "
+                            f"observation {_shown(obs)}; fix the policy (--debug shows its traceback)") from exc
+
+
+def _look_up(table: Mapping[Any, Any], obs: np.ndarray) -> Any:
+    """A table policy's probabilities for ``obs`` (keys: the observation rounded to 6 digits)."""
+    key = tuple(np.round(np.asarray(obs, dtype=np.float64), 6).tolist())
+    try:
+        return table[key]
+    except KeyError:
+        raise PolicyFailure(f"the policy table has no entry for the observation {_shown(obs)}; a table must "
+                            "hold every observation the policy can meet, keyed by tuple(obs rounded to 6 digits)") from None
 
 
 def _invalid(message: str) -> ValueError:
@@ -181,4 +215,4 @@ def _sb3_probabilities(policy: Any, obs: np.ndarray, deterministic: bool) -> np.
 
 
 PolicyLike = Any  # "random" | Callable | Mapping | np.ndarray | SB3 model
-__all__ = ["Callable", "PolicyAdapter", "PolicyLike"]
+__all__ = ["Callable", "PolicyAdapter", "PolicyFailure", "PolicyLike"]

@@ -7,9 +7,11 @@ environment keeps (``env._renderer``) and passes back on the next call, and ``en
 ``handle.close()``.
 
 Training jobs often run with ``render_mode="human"`` left on by accident on machines without a
-display. That must not crash a long run, so without an interactive backend (headless, Agg) the
-first call warns once through ``gymnasium.logger`` and every later call with the same handle does
-nothing at all.
+display. That must not crash a long run, so without an interactive backend (headless, Agg) a
+call does nothing at all, and the first one in the process warns through ``gymnasium.logger``.
+Once per process, not per env: the missing display is a fact about the machine, and tools that
+make many envs in every render mode (Gymnasium's ``check_env`` makes a ``human`` env for each
+call) would otherwise repeat it for every env.
 """
 
 from __future__ import annotations
@@ -22,6 +24,8 @@ import numpy as np
 #: Windows show frames this many times larger than the array (48-pixel cells are small on screen).
 WINDOW_SCALE = 1.5
 _EVENT_LOOP_SECONDS = 0.001
+#: Whether this process has said that it cannot open windows (module docstring).
+_NO_DISPLAY_REPORTED = {"done": False}
 
 
 class FrameWindow:
@@ -115,10 +119,12 @@ def show_frame(frame: np.ndarray, handle: Any, title: str) -> FrameWindow | NoDi
         handle.update(frame, title)
         return handle
     window = _open_window(frame, title)
-    if isinstance(window, NoDisplay):
+    if isinstance(window, NoDisplay) and not _NO_DISPLAY_REPORTED["done"]:
+        _NO_DISPLAY_REPORTED["done"] = True
         gymnasium.logger.warn(
             f"render_mode='human' cannot show {title}: {window.reason}. Frames are not shown; "
-            "use render_mode='rgb_array' to record them, or set MPLBACKEND to an interactive backend."
+            "use render_mode='rgb_array' to record them, or set MPLBACKEND to an interactive backend. "
+            "(Said once per process.)"
         )
     return window
 

@@ -37,6 +37,11 @@ class Field:
     width: int
 
 
+def flat_key(field: Field) -> str:
+    """The key of a component in the one-level dict observation: ``player/pos``."""
+    return f"{field.entity}/{field.name}"
+
+
 class ObservationCodec:
     """Turns kernel states into observations for one world.
 
@@ -101,6 +106,18 @@ class ObservationCodec:
             entities.setdefault(f.entity, OrderedDict())[f.name] = spaces.Box(self.low[sl], self.high[sl], dtype=np.float64)
         return spaces.Dict(OrderedDict((name, spaces.Dict(comp)) for name, comp in entities.items()))
 
+    def flat_dict_space(self, dtype: type = np.float64) -> spaces.Dict:
+        """One level of ``{"entity/component": Box}`` in the flat vector's order (:meth:`as_flat_dict`).
+
+        Stable-Baselines3's ``MultiInputPolicy`` and Gymnasium's vector envs refuse nested Dict
+        spaces, so the nested :meth:`dict_space` cannot be trained on; this one can. The separator
+        is ``/`` because SB3 keeps one torch module per key and torch forbids ``.`` in module names.
+        """
+        return spaces.Dict(OrderedDict(
+            (flat_key(f), spaces.Box(self.low[f.offset : f.offset + f.width].astype(dtype),
+                                     self.high[f.offset : f.offset + f.width].astype(dtype), dtype=dtype))
+            for f in self.fields))
+
     # ------------------------------------------------------------------ encoding
     def _pos(self, cell: int) -> tuple[float, float]:
         r, c = divmod(cell, self.world.width)
@@ -132,6 +149,10 @@ class ObservationCodec:
         for f in self.fields:
             out.setdefault(f.entity, {})[f.name] = vec[f.offset : f.offset + f.width].copy()
         return out
+
+    def as_flat_dict(self, vec: np.ndarray) -> dict[str, np.ndarray]:
+        """``{"entity/component": array}`` cut from a flat observation ``vec`` (copies)."""
+        return {flat_key(f): np.array(vec[f.offset : f.offset + f.width], dtype=np.float64) for f in self.fields}
 
     def layout(self) -> list[dict[str, object]]:
         """The flat layout as ``[{entity, field, offset, width}, ...]`` (as in the conformance INDEX)."""
