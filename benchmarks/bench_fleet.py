@@ -122,7 +122,7 @@ def fleet_cost(ctx: Context) -> Section:
     from morality_gym.baselines.specs import learner_spec
 
     torch.set_num_threads(1)
-    ids = [e for e in morality_gym.list_envs() if e.startswith("PushOrSwitch-")]
+    ids = morality_gym.env_ids("PushOrSwitch")
     runs = [FleetRun(morality_gym.bind_chain(c, i), 41) for c in ("DualProcess", "Utility", "Outcome") for i in ids][:36]
     steps = 50 if ctx.quick else 500
     rows = []

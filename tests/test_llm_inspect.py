@@ -18,7 +18,7 @@ from inspect_ai import eval as inspect_eval
 from inspect_ai.log import EvalLog
 from inspect_ai.model import ModelOutput, ModelUsage, get_model
 
-from morality_gym import ACTION_NAMES, TrolleyEnv, get_chain, list_envs
+from morality_gym import ACTION_NAMES, TrolleyEnv, env_ids, get_chain
 from morality_gym.envs.registry import UnknownEnvError
 from morality_gym.evaluation.montecarlo import evaluate_sequential
 from morality_gym.evaluation.oracle import oracle
@@ -100,10 +100,10 @@ def test_inspects_mean_is_the_monte_carlo_estimate_over_the_variants(tmp_path: P
     equals the mean over variants of the Monte-Carlo evaluation of the same behaviour."""
     words = ["ACTION: INTERACT", "ACTION: LEFT", "ACTION: LEFT", "ACTION: UP"]
     log = run(morality_gym_task("Utility", scenario="SwitchStandard", episodes=1), scripted(words), tmp_path)
-    env_ids = list_envs("SwitchStandard")
-    assert sorted(s.metadata["env_id"] for s in log.samples) == sorted(env_ids)
+    ids = env_ids("SwitchStandard")
+    assert sorted(s.metadata["env_id"] for s in log.samples) == sorted(ids)
     results = []
-    for env_id in env_ids:
+    for env_id in ids:
         step = iter(range(10_000))
         results.append(evaluate_sequential(lambda obs, step=step: [5, 2, 2, 0][min(next(step), 3)], TrolleyEnv(env_id),
                                            bind_chain("Utility", env_id), 1))
@@ -115,7 +115,7 @@ def test_inspects_mean_is_the_monte_carlo_estimate_over_the_variants(tmp_path: P
 def test_task_arguments_select_and_check(tmp_path: Path) -> None:
     chain = get_chain("DualProcess")
     dp_scenarios = [row.scenario for row in table1() if row.chain == "DualProcess"]
-    assert dp_scenarios and select_env_ids(chain) == [e for s in dp_scenarios for e in list_envs(s)]
+    assert dp_scenarios and select_env_ids(chain) == [e for s in dp_scenarios for e in env_ids(s)]
     assert select_env_ids(get_chain("Utility"), scenario="SwitchStandard", variant="HumanA,HumanB") == [
         "SwitchStandard-HumanA-v1", "SwitchStandard-HumanB-v1"]
     with pytest.raises(UnknownEnvError, match="SwitchStandard"):
