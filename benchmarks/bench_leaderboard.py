@@ -16,20 +16,47 @@ import json
 import subprocess
 import sys
 import time
+import zlib
 from pathlib import Path
 from tempfile import TemporaryDirectory
 from typing import Any
+
+import numpy as np
 
 from benchmarks import Context, Section, register
 
 REPO = Path(__file__).resolve().parents[1]
 FINISHED_AT = "2026-01-01T00:00:00+00:00"
+#: Updates of a paper-preset PPO-Lag or CPO run (~500k steps in rollouts of 1,024).
+UPDATES = 488
 
 
-def write_results(root: Path, seeds: tuple[int, ...] = (41, 42)) -> int:
-    """A results directory of synthetic runs (all 126 variants x 5 learners x ``seeds``); returns the run count."""
+def synthetic_updates(learner: str, n_updates: int, stride: int, rng: np.random.Generator) -> list[dict[str, Any]]:
+    """Per-update diagnostics as PPO-Lag or CPO write them: ``n_updates`` updates, every ``stride``-th
+    kept plus the last (as a release thins them; ``stride=1`` is a results directory's full table)."""
+    keep = sorted(set(range(1, n_updates + 1, stride)) | {n_updates})
+    cost = np.clip(0.3 * np.exp(-np.arange(1, n_updates + 1) / 150) + rng.normal(0, 0.02, n_updates), 0, None)
+    rows = []
+    for update in keep:
+        row: dict[str, Any] = {"update": update, "timesteps": update * 1024, "ep_cost": float(cost[update - 1]),
+                               "ep_cost_episodes": 200, "kl": 0.01, "kl_mean": 0.01}
+        if learner == "CPO":
+            row |= {"cpo_case": int(rng.choice([1, 3, 4], p=[0.1, 0.2, 0.7])), "accept_step": int(rng.integers(0, 4)),
+                    "line_search_tried": 3}
+        else:
+            row |= {"passes": 1 if rng.random() < 0.9 else int(rng.integers(2, 11)), "early_stopped": True,
+                    "lagrange_multiplier": float(max(0.0, 0.5 * np.sin(update / 60))), "actor_lr": 3e-4,
+                    "critic_lr": 3e-4}
+        rows.append(row)
+    return rows
+
+
+def write_results(root: Path, seeds: tuple[int, ...] = (41, 42), updates: int = UPDATES, stride: int = 1) -> int:
+    """A results directory of synthetic runs (all 126 variants x 5 learners x ``seeds``); returns the run count.
+
+    PPO-Lag and CPO runs get ``updates`` per-update diagnostics (0: none), thinned to every ``stride``-th."""
     from morality_gym.norms.chain import get_chain
-    from runners.schema import MF_PREFIX, SCHEMA_VERSION, run_schema, write_learn, write_run
+    from runners.schema import MF_PREFIX, SCHEMA_VERSION, run_schema, write_learn, write_run, write_updates
     from tests.stats_data import synthetic_runs
 
     runs, learn = synthetic_runs(seeds=seeds, preset="quick")
@@ -50,6 +77,9 @@ def write_results(root: Path, seeds: tuple[int, ...] = (41, 42)) -> int:
         if part is not None:
             write_learn(root, record["run_id"], [r | {"schema_version": SCHEMA_VERSION, "mean_length": 5.0,
                                                       "wall_time_s": 1.0} for r in part.to_dict("records")], norms)
+        if updates and record["learner"] in ("CPO", "PPO Lag"):
+            rng = np.random.default_rng(zlib.crc32(record["run_id"].encode()))
+            write_updates(root, record["run_id"], synthetic_updates(record["learner"], updates, stride, rng))
     return len(runs)
 
 
@@ -83,4 +113,5 @@ wall-clock seconds, on whatever else the machine is doing.
 if __name__ == "__main__":
     target = Path(sys.argv[1] if len(sys.argv) > 1 else "results-bench")
     seeds = tuple(int(s) for s in sys.argv[2].split(",")) if len(sys.argv) > 2 else (41, 42)
-    print(f"wrote {write_results(target, seeds)} runs to {target}")
+    stride = int(sys.argv[3]) if len(sys.argv) > 3 else 1
+    print(f"wrote {write_results(target, seeds, stride=stride)} runs to {target}")

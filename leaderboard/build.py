@@ -109,8 +109,9 @@ def build(args: argparse.Namespace, sources: Sources, quarantined: list[dict[str
           ) -> tuple[Leaderboard, dict[str, Any]]:
     """Run every stage on loaded runs; returns the leaderboard and what was written (for the summary)."""
     runs, planned, skipped = sources.runs, sources.planned, sources.skipped
-    from leaderboard.figures import write_figures, write_learn_curves
+    from leaderboard.figures import write_figures
     from leaderboard.intervals import with_intervals
+    from leaderboard.run_figures import write_run_charts
     from leaderboard.site import build_site
     from leaderboard.stamp import stamp_text
     from leaderboard.stat_figures import write_stat_figures
@@ -141,7 +142,7 @@ def build(args: argparse.Namespace, sources: Sources, quarantined: list[dict[str
 
     start = time.perf_counter()
     figures = write_figures(lb, out_dir / "figures", progress)
-    write_learn_curves(lb, sources, out_dir / "figures" / "learn", figures, progress)
+    write_run_charts(lb, sources, out_dir / "figures" / "learn", figures, out_dir, progress)
     stat_figures = write_stat_figures(lb, stats, out_dir / "figures", figures.colours, progress)
     timings["figures"] = time.perf_counter() - start
 

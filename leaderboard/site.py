@@ -63,12 +63,12 @@ def copy_figures(sb: SiteBuild) -> None:
         _copy(path, sb.out / "figures" / group.slug / path.name)
     for run_id, path in sb.figures.learn.items():
         if path.is_file():
-            target = f"runs/img/{safe_name(run_id)}.png"
+            target = f"runs/img/{path.name}"
             _copy(path, sb.out / target)
             sb.learn[run_id] = target
     for run_id, path in sb.figures.updates.items():
         if path.is_file():
-            target = f"runs/img/{safe_name(run_id)}.updates.png"
+            target = f"runs/img/{path.name}"
             _copy(path, sb.out / target)
             sb.updates[run_id] = target
 

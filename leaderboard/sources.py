@@ -14,6 +14,7 @@ counted (it is the user's own, and may be newer code), the release's is dropped 
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,11 +33,14 @@ RESULTS_SOURCE = "results"
 
 @dataclass(frozen=True)
 class SideFile:
-    """One run's side table (learn-time evaluations or update diagnostics): when it last changed
-    (a cached figure older than this is redrawn) and how to read it."""
+    """One run's side table (learn-time evaluations or update diagnostics): a digest of its content
+    (a chart cached under another digest is redrawn) and how to read it.
+
+    The digest is cheaper than reading the table: the file's bytes hashed for a results directory,
+    the release's own checksum of its table plus the run id for a release."""
 
     name: str  # the file (a release's table names its release), for error messages
-    mtime: float
+    digest: Callable[[], str]
     read: Callable[[], pd.DataFrame]
 
 
@@ -100,13 +104,15 @@ class Sources:
         frame = cache[release.name].get(run_id)
         if frame is None:
             return None
-        file = release.path / ("learn.parquet" if kind == "learn" else "updates.parquet")
-        return SideFile(f"{file.name} of release {release.name}", file.stat().st_mtime, lambda: frame)
+        file = "learn.parquet" if kind == "learn" else "updates.parquet"
+        checksum = str(release.manifest["files"].get(file, {}).get("sha256", ""))
+        return SideFile(f"{file} of release {release.name}", lambda: f"{release.name}/{checksum}/{run_id}", lambda: frame)
 
     def _results_side(self, path: Path) -> SideFile | None:
         if not path.is_file():
             return None
-        return SideFile(path.name, path.stat().st_mtime, lambda: pq.read_table(path).to_pandas())
+        return SideFile(path.name, lambda: hashlib.sha256(path.read_bytes()).hexdigest(),
+                        lambda: pq.read_table(path).to_pandas())
 
     def learn_of(self, run_id: str) -> SideFile | None:
         if self.origin.get(run_id) == RESULTS_SOURCE and self.results is not None:
