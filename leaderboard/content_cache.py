@@ -19,6 +19,8 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, TypeVar
 
+import pandas as pd
+
 T = TypeVar("T")
 
 
@@ -63,22 +65,50 @@ def write_index(path: Path, index: dict[str, str]) -> None:
     atomic_write(path, json.dumps(dict(sorted(index.items())), indent=0).encode("utf-8"))
 
 
-def cached(directory: Path, key: str, compute: Callable[[], T]) -> tuple[T, bool]:
-    """``compute()``, or its pickled result stored under ``directory/<key>.pickle``; and whether it was cached.
+def frame_digest(frame: pd.DataFrame | None) -> str:
+    """A digest of a DataFrame's content: column names, dtypes and values in order (``None``: absent).
 
-    Only the latest entry is kept (older ones are removed on a miss): a cache per build input
-    would grow with every sweep. An unreadable entry is recomputed.
-    """
-    path = directory / f"{key}.pickle"
-    if path.is_file():
-        try:
-            with open(path, "rb") as fh:
-                return pickle.load(fh), True
-        except Exception:  # noqa: BLE001 - a damaged or outdated entry is recomputed, never fatal
-            path.unlink(missing_ok=True)
-    value = compute()
-    if directory.is_dir():
-        for old in directory.glob("*.pickle"):
-            old.unlink(missing_ok=True)
-    atomic_write(path, pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL))
+    Object columns are hashed by the ``repr`` of each value, so list-valued cells (a run's relevant
+    norms) count too; pandas' own row hash covers the rest."""
+    if frame is None:
+        return "none"
+    parts: list[str | bytes] = [str(frame.shape)]
+    for name in frame.columns:
+        column = frame[name]
+        parts += [str(name), str(column.dtype)]
+        values = column.map(repr) if column.dtype == object else column
+        parts.append(pd.util.hash_pandas_object(values, index=False).to_numpy().tobytes())
+    return digest(parts)
+
+
+def cached_outputs(path: Path, key: str, produce: Callable[[], T], files_of: Callable[[T], Iterable[Path]]) -> tuple[T, bool]:
+    """``produce()``, which writes files and describes them, or the description stored at ``path`` when
+    it was produced under the same ``key`` and every file it lists still has the bytes it had then.
+
+    For figures drawn by matplotlib (drawing them costs seconds, checking them milliseconds) and for
+    results that are no files (``files_of`` gives nothing: the bootstrap statistics). One entry per
+    ``path``: a cache per input would grow with every sweep."""
+    stored = _load(path)
+    if stored is not None and stored.get("key") == key \
+            and all(_file_digest(Path(p)) == d for p, d in stored.get("files", {}).items()):
+        return stored["value"], True
+    value = produce()
+    files = {str(p): _file_digest(Path(p)) for p in files_of(value)}
+    atomic_write(path, pickle.dumps({"key": key, "value": value, "files": files}, protocol=pickle.HIGHEST_PROTOCOL))
     return value, False
+
+
+def _load(path: Path) -> dict[str, Any] | None:
+    try:
+        with open(path, "rb") as fh:
+            stored = pickle.load(fh)
+    except Exception:  # noqa: BLE001 - absent, damaged or outdated: produced again
+        return None
+    return stored if isinstance(stored, dict) else None
+
+
+def _file_digest(path: Path) -> str:
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError:
+        return "missing"
