@@ -10,6 +10,12 @@ hide it. The build only reads ``<results>/runs``; it writes ``table1.*``, ``figu
 ``--out``) and the site wherever ``--site`` points (default: ``site/`` in ``--out``, next to the
 tables: never inside the installed package). User errors print one line and exit 2
 (``--debug`` shows the traceback).
+
+A rebuild is quick: ``cache/`` keeps the exact reference rows, the bootstrap statistics, Figure 2
+and the radars, the statistics figures (:mod:`leaderboard.cached_stages`), the per-run SVG charts
+(:mod:`leaderboard.run_figures`) and the run pages (:mod:`leaderboard.page_cache`), each keyed by a
+digest of its inputs and code, so what is reused is what a fresh build would write, byte for byte.
+Deleting ``cache/`` only makes the next build slower.
 """
 
 from __future__ import annotations
