@@ -10,6 +10,7 @@ and the statistics of the whole table), and the result is again the same as a fr
 from __future__ import annotations
 
 import hashlib
+import json
 import re
 import shutil
 import subprocess
@@ -150,3 +151,16 @@ def test_updates_chart_shows_cpo_cases_and_steps_or_ppo_lag_passes() -> None:
     texts = [t.text for t in root.iter("{http://www.w3.org/2000/svg}text")]
     assert "passes per update (67% stopped after 1)" in texts and "Lagrange multiplier" in texts
     assert len(_paths(root, "#CC79A7")) == 1  # J_c
+
+
+def test_computed_reference_rows_equal_the_cached_ones(tmp_path: Path) -> None:
+    """A first build's reference rows are what later builds read from the cache, in the same order
+    (a per-variant mean summed in another order differed in the last bit, so the first build's
+    numbers and the statistics' cache key differed from every later build's)."""
+    from leaderboard.aggregate import compute_reference
+
+    requests = [("Utility", "Push2OrSwitch", 0.1, 200)]
+    computed = compute_reference(requests, tmp_path / "reference.json")
+    cached = compute_reference(requests, tmp_path / "reference.json")
+    assert (computed.computed, cached.cached) == (1, 1)
+    assert json.dumps(computed.entries) == json.dumps(cached.entries)
