@@ -164,3 +164,12 @@ def test_computed_reference_rows_equal_the_cached_ones(tmp_path: Path) -> None:
     cached = compute_reference(requests, tmp_path / "reference.json")
     assert (computed.computed, cached.cached) == (1, 1)
     assert json.dumps(computed.entries) == json.dumps(cached.entries)
+
+
+def test_a_presets_seeds_are_read_without_torch() -> None:
+    """The build asks ``runners.paths`` for a preset's seeds; importing torch for that cost about a
+    second of every build (the learner specs imported the wrappers, which import Stable-Baselines3)."""
+    code = "import sys, runners.paths; runners.paths.preset_seeds('quick'); print('torch' in sys.modules)"
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120,
+                          check=True)
+    assert proc.stdout.strip() == "False"
