@@ -936,7 +936,11 @@ def compute_reference(
     iterator: Iterable[Any] = progress(todo, "reference rows (exact Random, oracle)", len(todo)) if progress and todo else todo
     for key, chain, scenario, beta, steps in iterator:
         try:
-            result.entries[key] = _compute_entry(chain, scenario, beta, steps, chains.get(chain))
+            # as the cache will give it back: its JSON sorts the per-variant keys, and a mean summed in
+            # another order differs in the last bit, which made a first build's numbers (and the
+            # statistics' cache key) differ from every later build's
+            entry = _compute_entry(chain, scenario, beta, steps, chains.get(chain))
+            result.entries[key] = json.loads(json.dumps(entry, sort_keys=True))
             result.computed += 1
         except Exception as exc:  # noqa: BLE001 - reported per row, the build goes on
             result.errors[key] = f"{type(exc).__name__}: {exc}"

@@ -10,6 +10,12 @@ hide it. The build only reads ``<results>/runs``; it writes ``table1.*``, ``figu
 ``--out``) and the site wherever ``--site`` points (default: ``site/`` in ``--out``, next to the
 tables: never inside the installed package). User errors print one line and exit 2
 (``--debug`` shows the traceback).
+
+A rebuild is quick: ``cache/`` keeps the exact reference rows, the bootstrap statistics, Figure 2
+and the radars, the statistics figures (:mod:`leaderboard.cached_stages`), the per-run SVG charts
+(:mod:`leaderboard.run_figures`) and the run pages (:mod:`leaderboard.page_cache`), each keyed by a
+digest of its inputs and code, so what is reused is what a fresh build would write, byte for byte.
+Deleting ``cache/`` only makes the next build slower.
 """
 
 from __future__ import annotations
@@ -128,16 +134,17 @@ def build(args: argparse.Namespace, sources: Sources, quarantined: list[dict[str
           ) -> tuple[Leaderboard, dict[str, Any]]:
     """Run every stage on loaded runs; returns the leaderboard and what was written (for the summary)."""
     runs, planned, skipped = sources.runs, sources.planned, sources.skipped
-    from leaderboard.figures import write_figures, write_learn_curves
+    from leaderboard.cached_stages import paper_figures, statistics, statistics_figures
     from leaderboard.intervals import with_intervals
+    from leaderboard.run_figures import write_run_charts
     from leaderboard.site import build_site
     from leaderboard.stamp import stamp_text
-    from leaderboard.stat_figures import write_stat_figures
-    from leaderboard.stats import DEFAULT_RESAMPLES, compute_stats
+    from leaderboard.stats import DEFAULT_RESAMPLES
     from leaderboard.tables import write_tables
 
     out_dir: Path = args.out
     timings: dict[str, float] = {}
+    cached: dict[str, bool] = {}  # stage -> reused from <out>/cache
     start = time.perf_counter()
     lb = aggregate(runs, planned, primary_protocol=args.protocol, primary_preset=args.preset)
     check_primary_choice(args, lb)
@@ -151,8 +158,7 @@ def build(args: argparse.Namespace, sources: Sources, quarantined: list[dict[str
     timings["aggregate"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    stats = compute_stats(lb.runs, lb.table if reference is not None else None, sources.learn(),
-                          n_resamples=DEFAULT_RESAMPLES)
+    stats, stats_key, cached["statistics"] = statistics(lb, reference is not None, sources, out_dir, DEFAULT_RESAMPLES)
     lb = with_intervals(lb, stats.cells)
     timings["statistics"] = time.perf_counter() - start
 
@@ -161,17 +167,25 @@ def build(args: argparse.Namespace, sources: Sources, quarantined: list[dict[str
     timings["tables"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    figures = write_figures(lb, out_dir / "figures", progress)
-    write_learn_curves(lb, sources, out_dir / "figures" / "learn", figures, progress)
-    stat_figures = write_stat_figures(lb, stats, out_dir / "figures", figures.colours, progress)
+    figures, cached["figures"] = paper_figures(lb, out_dir, progress)
     timings["figures"] = time.perf_counter() - start
 
     start = time.perf_counter()
+    drawn = write_run_charts(lb, sources, out_dir / "figures" / "learn", figures, out_dir, progress)
+    timings["run charts"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    stat_figures, cached["statistics figures"] = statistics_figures(lb, stats, stats_key, out_dir, figures.colours,
+                                                                    progress)
+    timings["statistics figures"] = time.perf_counter() - start
+
+    start = time.perf_counter()
     site = build_site(lb, sources, args.site, figures, sources.name, progress, stats=stats, stat_figures=stat_figures,
-                      stamp=stamp, resamples=DEFAULT_RESAMPLES)
+                      stamp=stamp, resamples=DEFAULT_RESAMPLES, cache_dir=out_dir / "cache" / "pages")
     timings["site"] = time.perf_counter() - start
     return lb, {"tables": tables, "figures": figures, "stat_figures": stat_figures, "site": site,
-                "reference": reference, "timings": timings, "sources": sources}
+                "reference": reference, "timings": timings, "sources": sources, "cached": cached,
+                "charts_drawn": drawn}
 
 
 def summary(lb: Leaderboard, out: dict[str, Any], args: argparse.Namespace) -> str:
@@ -214,6 +228,10 @@ def summary(lb: Leaderboard, out: dict[str, Any], args: argparse.Namespace) -> s
     lines.append(f"figures: {out['figures'].count} + {out['stat_figures'].count} statistics figure(s) "
                  f"under {args.out / 'figures'}")
     lines.append(f"site: {out['site'].pages} page(s) in {args.site} (open {args.site / 'index.html'})")
+    reused = [stage for stage, hit in out["cached"].items() if hit]
+    charts = len(out["figures"].learn) + len(out["figures"].updates)
+    lines.append(f"cache: {', '.join(reused) or 'nothing'} reused; {out['charts_drawn']} of {charts} run chart(s) drawn, "
+                 f"{out['site'].pages_reused} run page(s) reused")
     lines.append("time: " + ", ".join(f"{k} {v:.1f}s" for k, v in out["timings"].items()))
     return "\n".join(lines)
 

@@ -1,4 +1,4 @@
-"""The paper's figures from the aggregated numbers: Figure 2 bars, radar plots, learning curves.
+"""The paper's figures from the aggregated numbers: Figure 2 bars and radar plots (per-run charts: :mod:`leaderboard.run_charts`).
 
 Figures are drawn on :class:`matplotlib.figure.Figure` objects with the Agg canvas directly, never
 through ``pyplot``: no global figure state, no GUI backend picked up from the environment, and
@@ -10,7 +10,6 @@ next to learner names), so a reader can follow a learner from the bar charts to 
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,10 +19,8 @@ import numpy as np
 import pandas as pd
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.ticker import MaxNLocator
 
 from leaderboard.aggregate import Group, Leaderboard, safe_name
-from leaderboard.sources import SideFile, Sources
 
 #: Okabe-Ito colours (distinguishable with the common colour-vision deficiencies) for the paper's learners.
 LEARNER_COLOURS = {
@@ -168,70 +165,6 @@ def radar_chart(summary: pd.DataFrame, learners: list[str], colours: dict[str, s
     return _save(fig, path)
 
 
-def learn_curve(learn: pd.DataFrame, final_metric: float, title: str, path: Path) -> Path:
-    """The learn-time evaluations of one run: Monte Carlo and exact metric against steps."""
-    data = learn.sort_values("step")
-    fig = _new_figure(4.6, 2.5)
-    ax = fig.add_subplot()
-    ax.plot(data["step"], data["metric"], marker="o", markersize=3, linewidth=1.4, color="#0072B2", label="metric (MC)")
-    if "exact_metric" in data and data["exact_metric"].notna().any():
-        ax.plot(data["step"], data["exact_metric"], linestyle="--", linewidth=1.2, color="#D55E00", label="exact metric")
-    if final_metric is not None and not math.isnan(final_metric):
-        ax.axhline(final_metric, color="#555555", linewidth=0.8, linestyle=":", label="final evaluation")
-    ax.set_ylim(-0.02, 1.02)
-    ax.set_xlabel("environment steps", fontsize=8)
-    ax.set_ylabel("morality metric", fontsize=8)
-    ax.tick_params(labelsize=7)
-    ax.set_title(title, fontsize=8.5, loc="left")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, frameon=False, loc="best")
-    fig.tight_layout()
-    return _save(fig, path)
-
-
-def updates_figure(updates: pd.DataFrame, title: str, path: Path) -> Path:
-    """What a constrained learner did at each update (``runs/<id>.updates.parquet``).
-
-    PPO-Lag: passes of the update loop (OmniSafe's summed-KL early stop makes it 1), the Lagrange
-    multiplier and ``J_c``. CPO: the case of its dual (OmniSafe's numbering 0-4), the accepted
-    line-search step (0 = no step) and ``J_c``. Panels are against the update number.
-    """
-    data = updates.sort_values("update")
-    x = data["update"].to_numpy()
-    is_cpo = "cpo_case" in data and data["cpo_case"].notna().any()
-    fig = _new_figure(7.6, 2.3)
-    axes = fig.subplots(1, 3)
-    if is_cpo:
-        cases = data["cpo_case"].to_numpy(dtype=float)
-        axes[0].scatter(x, cases, s=6, color="#0072B2")
-        axes[0].set_yticks(range(5))
-        axes[0].set_ylim(-0.5, 4.5)
-        axes[0].set_title("dual case (0 recovery, 1 feasible recovery)", fontsize=7.5, loc="left")
-        accept = data["accept_step"].to_numpy(dtype=float)
-        axes[1].scatter(x, accept, s=6, color=np.where(accept > 0, "#009E73", "#D55E00"))
-        axes[1].set_ylim(-0.8, max(20.8, float(np.nanmax(accept)) + 0.8) if len(accept) else 20.8)
-        share = float(np.mean(accept > 0)) if len(accept) else math.nan
-        axes[1].set_title(f"accepted step (0 = none; {share:.0%} accepted)", fontsize=7.5, loc="left")
-    else:
-        passes = data["passes"].to_numpy(dtype=float)
-        axes[0].step(x, passes, where="mid", color="#0072B2", linewidth=1.1)
-        axes[0].set_ylim(0, max(2.0, float(np.nanmax(passes)) + 1) if len(passes) else 2.0)
-        one = float(np.mean(passes == 1)) if len(passes) else math.nan
-        axes[0].set_title(f"passes per update ({one:.0%} stopped after 1)", fontsize=7.5, loc="left")
-        axes[1].plot(x, data["lagrange_multiplier"], color="#009E73", linewidth=1.2)
-        axes[1].set_title("Lagrange multiplier", fontsize=7.5, loc="left")
-    axes[2].plot(x, data["ep_cost"], color="#CC79A7", linewidth=1.2)
-    axes[2].set_title("J_c (mean episode cost used)", fontsize=7.5, loc="left")
-    for ax in axes:
-        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-        ax.set_xlabel("update", fontsize=7)
-        ax.tick_params(labelsize=6.5)
-        ax.grid(alpha=0.3)
-    fig.suptitle(title, fontsize=8.5, x=0.01, ha="left")
-    fig.tight_layout()
-    return _save(fig, path)
-
-
 # ---------------------------------------------------------------------------------------- all figures
 @dataclass
 class FigureSet:
@@ -284,49 +217,3 @@ def write_figures(lb: Leaderboard, out_dir: Path, progress: Progress | None = No
             figures.radars[(group, chain, str(scenario))] = radar_chart(
                 data, lb.learners, figures.colours, f"{scenario} · {chain_title(chain)}", group.label, path)
     return figures
-
-
-def _per_run_figures(lb: Leaderboard, source_of: Callable[[str], SideFile | None], out_dir: Path, suffix: str,
-                     draw: Callable[[dict[str, Any], pd.DataFrame, Path], Any], found: dict[str, Path],
-                     errors: dict[str, str], label: str, progress: Progress | None) -> None:
-    """A small PNG per run that has a side table; a PNG newer than its table is reused (a full
-    sweep has thousands of runs), and one unreadable table is reported, never fatal."""
-    todo = []
-    for record in lb.runs[["run_id", "metric", "chain", "scenario", "variant", "learner", "seed"]].to_dict("records"):
-        source = source_of(str(record["run_id"]))
-        if source is None:
-            continue
-        target = out_dir / f"{safe_name(str(record['run_id']))}{suffix}.png"
-        found[str(record["run_id"])] = target
-        if not target.is_file() or target.stat().st_mtime < source.mtime:
-            todo.append((record, source, target))
-    iterator: Iterable[Any] = progress(todo, label, len(todo)) if progress and todo else todo
-    for record, source, target in iterator:
-        run_id = str(record["run_id"])
-        try:
-            draw(record, source.read(), target)
-        except Exception as exc:  # noqa: BLE001 - one unreadable file must not sink the whole build
-            found.pop(run_id, None)
-            errors[run_id] = f"{source.name}: {type(exc).__name__}: {exc}"
-
-
-def _run_title(record: dict[str, Any]) -> str:
-    return f"{record['learner']} · {record['scenario']}-{record['variant']} · seed {record['seed']}"
-
-
-def write_learn_curves(lb: Leaderboard, sources: Sources, out_dir: Path, figures: FigureSet,
-                       progress: Progress | None = None) -> None:
-    """A learning-curve PNG per run with learn-time evaluations, and a per-update diagnostics PNG
-    per run with update diagnostics (PPO-Lag and CPO), from a results directory or a release."""
-
-    def draw_learn(record: dict[str, Any], frame: pd.DataFrame, target: Path) -> None:
-        final = float(record["metric"]) if record["metric"] is not None else math.nan
-        learn_curve(frame, final, _run_title(record), target)
-
-    def draw_updates(record: dict[str, Any], frame: pd.DataFrame, target: Path) -> None:
-        updates_figure(frame, _run_title(record), target)
-
-    _per_run_figures(lb, sources.learn_of, out_dir, "", draw_learn,
-                     figures.learn, figures.learn_errors, "learning curves", progress)
-    _per_run_figures(lb, sources.updates_of, out_dir, ".updates", draw_updates,
-                     figures.updates, figures.updates_errors, "update diagnostics", progress)

@@ -37,6 +37,7 @@ from typing import Any
 
 from leaderboard.aggregate import Group, Leaderboard, safe_name
 from leaderboard.figures import FigureSet
+from leaderboard.page_cache import PageCache, link_or_copy
 from leaderboard.render import STATIC, STATIC_FILES, render
 from leaderboard.site_state import SiteBuild
 from leaderboard.sources import Sources
@@ -61,15 +62,15 @@ def copy_figures(sb: SiteBuild) -> None:
         _copy(path, sb.out / "figures" / group.slug / path.name)
     for (group, chain, scenario), path in sb.figures.radars.items():
         _copy(path, sb.out / "figures" / group.slug / path.name)
-    for run_id, path in sb.figures.learn.items():
+    for run_id, path in sb.figures.learn.items():  # charts are written atomically: a link is safe
         if path.is_file():
-            target = f"runs/img/{safe_name(run_id)}.png"
-            _copy(path, sb.out / target)
+            target = f"runs/img/{path.name}"
+            link_or_copy(path, sb.out / target)
             sb.learn[run_id] = target
     for run_id, path in sb.figures.updates.items():
         if path.is_file():
-            target = f"runs/img/{safe_name(run_id)}.updates.png"
-            _copy(path, sb.out / target)
+            target = f"runs/img/{path.name}"
+            link_or_copy(path, sb.out / target)
             sb.updates[run_id] = target
 
 
@@ -196,12 +197,13 @@ def _write(path: Path, text: str) -> None:
 
 def build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: FigureSet, results_name: str | None = None,
                progress: Progress | None = None, *, stats: Any = None, stat_figures: Any = None, stamp: str = "",
-               resamples: int = 0) -> SiteBuild:
+               resamples: int = 0, cache_dir: Path | None = None) -> SiteBuild:
     """Write the whole site into ``site_dir`` (replacing a previous build); returns what was written.
 
     ``stats``: :class:`leaderboard.stats.LeaderboardStats` (ranking page, matrix colours, curves,
     violations; without it those parts say there is nothing to show); ``stat_figures``:
-    :class:`leaderboard.stat_figures.StatFigures`; ``stamp``: the build date shown in the footer.
+    :class:`leaderboard.stat_figures.StatFigures`; ``stamp``: the build date shown in the footer;
+    ``cache_dir``: where run pages are kept between builds (:mod:`leaderboard.page_cache`; None: render all).
     """
     from leaderboard.downloads import write_downloads
     from leaderboard.pages import index_context, run_context, runs_context, scenario_context
@@ -227,9 +229,14 @@ def build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: Figur
             _write(tmp / "scenarios" / f"{safe_name(scenario)}.html", render("scenario.html", **scenario_context(sb, scenario)))
         records = lb.runs.to_dict("records")
         iterator: Iterable[Any] = progress(records, "run pages", len(records)) if progress and records else records
+        pages = PageCache(cache_dir)
         for record in iterator:
-            _write(tmp / "runs" / f"{safe_name(str(record['run_id']))}.html", render("run.html", **run_context(sb, record)))
+            context = run_context(sb, record)
+            pages.place(tmp / "runs" / f"{safe_name(str(record['run_id']))}.html", "run.html", context,
+                        lambda context=context: render("run.html", **context))
+        pages.prune()
         sb.pages = 3 + len(scenarios) + len(records)
+        sb.pages_reused = pages.reused
         _swap_in(tmp, site_dir)
         sb.out = site_dir
         return sb

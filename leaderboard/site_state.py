@@ -39,6 +39,7 @@ class SiteBuild:
     #: page kind ("table1", "ranking", "scenario", "runs") -> [(label, path relative to site root)]
     downloads: dict[str, list[tuple[str, str]]] = field(default_factory=dict)
     pages: int = 0
+    pages_reused: int = 0  # run pages linked from the page cache instead of rendered
 
     def colour(self, learner: str) -> str:
         return self.figures.colours.get(learner, "#999999")

@@ -14,17 +14,26 @@ counted (it is the user's own, and may be newer code), the release's is dropped 
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
-import pyarrow.parquet as pq
 
 from leaderboard.release import Release
 from runners.manifest import planned_runs
-from runners.schema import LEARN_FIELDS, RUN_COLUMNS, learn_path, read_learn, read_runs, updates_path
+from runners.schema import (
+    LEARN_FIELDS,
+    RUN_COLUMNS,
+    learn_path,
+    read_learn,
+    read_runs,
+    read_small_table,
+    runs_dir,
+    updates_path,
+)
 
 #: ``source`` of runs read from the results directory (a release's runs carry the release's name).
 RESULTS_SOURCE = "results"
@@ -32,11 +41,14 @@ RESULTS_SOURCE = "results"
 
 @dataclass(frozen=True)
 class SideFile:
-    """One run's side table (learn-time evaluations or update diagnostics): when it last changed
-    (a cached figure older than this is redrawn) and how to read it."""
+    """One run's side table (learn-time evaluations or update diagnostics): a digest of its content
+    (a chart cached under another digest is redrawn) and how to read it.
+
+    The digest is cheaper than reading the table: the file's bytes hashed for a results directory,
+    the release's own checksum of its table plus the run id for a release."""
 
     name: str  # the file (a release's table names its release), for error messages
-    mtime: float
+    digest: Callable[[], str]
     read: Callable[[], pd.DataFrame]
 
 
@@ -60,6 +72,7 @@ class Sources:
     results_planned: int = 0  # runs the results directory's own manifests plan
     _learn: dict[str, dict[str, pd.DataFrame]] = field(default_factory=dict)
     _updates: dict[str, dict[str, pd.DataFrame]] = field(default_factory=dict)
+    _digests: dict[Path, str] = field(default_factory=dict)
 
     # -------------------------------------------------------------------------------- labels
     @property
@@ -90,6 +103,25 @@ class Sources:
             return pd.DataFrame(columns=[f.name for f in LEARN_FIELDS])
         return pd.concat(frames, ignore_index=True, sort=False)
 
+    def file_digest(self, path: Path) -> str:
+        """SHA-256 of a file's bytes, once per build (the per-run charts and the statistics both ask)."""
+        if path not in self._digests:
+            self._digests[path] = hashlib.sha256(path.read_bytes()).hexdigest()
+        return self._digests[path]
+
+    def learn_digest(self) -> str:
+        """A digest of what :meth:`learn` returns, without reading the tables: every learn-time
+        file of the results directory by name and content, and per release its table's checksum
+        and the runs it contributes. The statistics are cached under it."""
+        parts: list[str] = []
+        if self.results is not None and self.results.is_dir():
+            for path in sorted(runs_dir(self.results).glob("*.learn.parquet")):
+                parts += [path.name, self.file_digest(path)]
+        for release in self.releases:
+            keep = sorted(i for i, origin in self.origin.items() if origin == release.name)
+            parts += [release.name, str(release.manifest["files"].get("learn.parquet", {}).get("sha256", "")), *keep]
+        return hashlib.sha256("\0".join(parts).encode("utf-8")).hexdigest()
+
     def _release_side(self, run_id: str, kind: str) -> SideFile | None:
         release = self.release_of(run_id)
         if release is None:
@@ -100,13 +132,14 @@ class Sources:
         frame = cache[release.name].get(run_id)
         if frame is None:
             return None
-        file = release.path / ("learn.parquet" if kind == "learn" else "updates.parquet")
-        return SideFile(f"{file.name} of release {release.name}", file.stat().st_mtime, lambda: frame)
+        file = "learn.parquet" if kind == "learn" else "updates.parquet"
+        checksum = str(release.manifest["files"].get(file, {}).get("sha256", ""))
+        return SideFile(f"{file} of release {release.name}", lambda: f"{release.name}/{checksum}/{run_id}", lambda: frame)
 
     def _results_side(self, path: Path) -> SideFile | None:
         if not path.is_file():
             return None
-        return SideFile(path.name, path.stat().st_mtime, lambda: pq.read_table(path).to_pandas())
+        return SideFile(path.name, lambda: self.file_digest(path), lambda: read_small_table(path).to_pandas())
 
     def learn_of(self, run_id: str) -> SideFile | None:
         if self.origin.get(run_id) == RESULTS_SOURCE and self.results is not None:

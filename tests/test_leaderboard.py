@@ -354,7 +354,7 @@ def test_figures_are_written(built: BuiltSite) -> None:
     for name in expected:
         with Image.open(figures / name) as image:
             assert image.width > 300 and image.height > 200, name
-    assert sorted(p.stem for p in (figures / "learn").glob("*.png")) == sorted(built.data.learn_runs)
+    assert sorted(p.stem for p in (figures / "learn").glob("*.svg") if ".updates" not in p.name) == sorted(built.data.learn_runs)
 
 
 def test_site_is_self_contained_with_relative_links(built: BuiltSite) -> None:
@@ -413,7 +413,7 @@ def test_site_table_marks_best_and_links_scenarios(built: BuiltSite) -> None:
 def test_run_pages_show_config_curve_and_tracking(built: BuiltSite) -> None:
     learn_run = built.data.learn_runs[0]
     page = (built.site / "runs" / f"{learn_run}.html").read_text()
-    assert f'src="../runs/img/{learn_run}.png"' in page
+    assert f'src="../runs/img/{learn_run}.svg"' in page
     assert built.data.tracked_runs[learn_run] in page
     assert "&quot;n_steps&quot;: 2048" in page  # the config, pretty-printed and escaped
     untracked = next(r["run_id"] for r in built.data.ok_records if r["seed"] == 42)

@@ -23,7 +23,7 @@ from typing import Any
 
 from morality_gym.baselines import typed
 from morality_gym.norms.cost import COST_MODES, RESET_POLICIES
-from morality_gym.norms.wrappers import PAPER_RETURN_BOUNDS, RewardCostSpec
+from morality_gym.norms.reward_cost import PAPER_RETURN_BOUNDS, RewardCostSpec
 
 #: The configuration files (Hydra's config directory): ``conf/`` at the repository's root, reached
 #: through the link ``morality_gym/conf`` (a wheel installs the files themselves there). The one

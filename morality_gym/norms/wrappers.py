@@ -16,7 +16,6 @@ directly, elsewhere it reads ``info["norm_events"]``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
@@ -24,43 +23,19 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
-from morality_gym.norms.cost import CostMode, ResetPolicy, VectorCost
+from morality_gym.norms.cost import VectorCost
 from morality_gym.norms.metric import BoundChain
+from morality_gym.norms.reward_cost import PAPER_RETURN_BOUNDS, RewardCostSpec  # noqa: F401 - re-exported
 from morality_gym.world.vocab import UTILITIES, names_to_mask
 
-PAPER_RETURN_BOUNDS = (-300.0, 100.0)
-
-
-@dataclass(frozen=True)
-class RewardCostSpec:
-    """How a learner sees reward and cost (one per learner in the paper's runs)."""
-
-    cost_mode: CostMode = "minimal"
-    cost_scale: float = 1.0
-    cost_reset: ResetPolicy = "per_episode"
-    normalise_reward: bool = True
-    return_bounds: tuple[float, float] = PAPER_RETURN_BOUNDS
-    shape_reward: bool = False
-
-    @property
-    def reward_factor(self) -> float:
-        lo, hi = self.return_bounds
-        return max(abs(lo), abs(hi)) if self.normalise_reward else 1.0
-
-    def transform(self, reward: np.ndarray | float, cost: np.ndarray | float) -> Any:
-        """The reward the learner trains on."""
-        r = reward / self.reward_factor
-        if not self.shape_reward:
-            return r
-        if self.normalise_reward:
-            return (r - cost) / (1.0 + self.cost_scale)
-        return r - cost
+#: The paper's default (frozen, so one shared instance is a safe default argument).
+DEFAULT_SPEC = RewardCostSpec()
 
 
 class MoralityWrapper(gym.Wrapper):
     """Adds ``info["cost"]`` and ``info["orig_reward"]`` to a single env; normalises/shapes reward."""
 
-    def __init__(self, env: gym.Env, bound: BoundChain, spec: RewardCostSpec = RewardCostSpec()) -> None:
+    def __init__(self, env: gym.Env, bound: BoundChain, spec: RewardCostSpec = DEFAULT_SPEC) -> None:
         super().__init__(env)
         self.bound = bound
         self.reward_cost = spec
@@ -82,7 +57,7 @@ class MoralityWrapper(gym.Wrapper):
 class VecMoralityWrapper(VecEnvWrapper):
     """The same for SB3 vectorised envs; per-copy cost memories, reset when a copy's episode ends."""
 
-    def __init__(self, venv: VecEnv, bound: BoundChain, spec: RewardCostSpec = RewardCostSpec()) -> None:
+    def __init__(self, venv: VecEnv, bound: BoundChain, spec: RewardCostSpec = DEFAULT_SPEC) -> None:
         super().__init__(venv)
         self.bound = bound
         self.reward_cost = spec
