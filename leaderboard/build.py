@@ -36,8 +36,7 @@ from leaderboard.aggregate import (
     reference_requests,
     with_reference,
 )
-from leaderboard.release import MANIFEST, Release, ReleaseError, find_releases
-from leaderboard.release import load as load_release
+from leaderboard.release import Release, ReleaseError, resolve
 from leaderboard.sources import Sources, load_sources
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
 
@@ -101,21 +100,11 @@ def load(results: Path) -> tuple[Any, dict[str, dict[str, Any]], list[dict[str, 
 
 
 def releases_of(args: argparse.Namespace) -> list[Release]:
-    """The releases named by ``--release`` (``all``: every release in the checkout's ``releases/``),
-    each verified: a damaged or edited one stops the build with one line naming the file."""
-    paths: list[Path] = []
-    for item in args.release or []:
-        paths.extend(find_releases() if item == "all" else [Path(item)])
-    out = []
-    for path in dict.fromkeys(paths):
-        if not (path / MANIFEST).is_file():
-            known = ", ".join(p.name for p in find_releases()) or "none in releases/"
-            raise UserError(f"--release {path}: no {MANIFEST} there (releases: {known})")
-        try:
-            out.append(load_release(path))
-        except ReleaseError as exc:
-            raise UserError(str(exc)) from exc
-    return out
+    """The releases named by ``--release``; a damaged or edited one stops the build with one line."""
+    try:
+        return resolve(args.release or [])
+    except ReleaseError as exc:
+        raise UserError(str(exc)) from exc
 
 
 def check_primary_choice(args: argparse.Namespace, lb: Leaderboard) -> None:

@@ -158,6 +158,21 @@ def find_releases(root: Path = RELEASES_DIR) -> list[Path]:
     return sorted(p for p in root.iterdir() if (p / MANIFEST).is_file())
 
 
+def resolve(items: Sequence[str]) -> list[Release]:
+    """The releases a command line names (``--release DIR``, or ``all``: every release in
+    :data:`RELEASES_DIR`), each verified and read, in order, once each."""
+    paths: list[Path] = []
+    for item in items:
+        paths.extend(find_releases() if item == "all" else [Path(item)])
+    out = []
+    for path in dict.fromkeys(paths):
+        if not (path / MANIFEST).is_file():
+            known = ", ".join(p.name for p in find_releases()) or "none in releases/"
+            raise ReleaseError(f"--release {path}: no {MANIFEST} there (releases: {known})")
+        out.append(load(path))
+    return out
+
+
 # ---------------------------------------------------------------------------------------- creating
 def git_commit(results: Path) -> str:
     """The commit the runs were made at (their ``git_commit`` when all agree), else ``mixed:...``."""

@@ -31,6 +31,7 @@ from leaderboard.aggregate import (
     Group,
     Leaderboard,
     aggregate,
+    chain_definitions,
     compute_reference,
     learner_order,
     paper_rows,
@@ -41,8 +42,7 @@ from leaderboard.aggregate import (
 )
 from leaderboard.figures import norm_label, write_figures
 from leaderboard.intervals import with_intervals
-from leaderboard.release import ReleaseError, find_releases
-from leaderboard.release import load as load_release
+from leaderboard.release import ReleaseError, resolve
 from leaderboard.sources import Sources, load_sources
 from leaderboard.stats import DEFAULT_RESAMPLES, compute_stats
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
@@ -323,9 +323,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 
 def run(args: argparse.Namespace) -> int:
-    paths = [p for item in (args.release or []) for p in (find_releases() if item == "all" else [Path(item)])]
     try:
-        releases = [load_release(p) for p in paths]
+        releases = resolve(args.release or [])
     except ReleaseError as exc:
         raise UserError(str(exc)) from exc
     if args.results is None and not releases:
@@ -334,7 +333,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"results directory {args.results} does not exist")
     sources = load_sources(args.results, releases)
     lb = aggregate(sources.runs, sources.planned)
-    reference = compute_reference(reference_requests(lb.table), args.cache, None)
+    reference = compute_reference(reference_requests(lb.table), args.cache, None, chain_definitions(lb.runs))
     lb = with_reference(lb, reference.entries, reference.errors, PAPER.protocol, PAPER.preset)
     learn = sources.learn()
     stats = compute_stats(lb.runs, lb.table, learn, n_resamples=args.resamples)
