@@ -31,11 +31,16 @@ def utc_now() -> str:
 
 
 @lru_cache(maxsize=1)
+@lru_cache(maxsize=1)
 def git_commit() -> str:
     """The commit of the checkout this code runs from, or "unknown" (an installed package: its
     version is recorded with the others). A package installed into a virtual environment that
     happens to sit inside some git work tree must not report that tree's commit, so the answer
-    counts only if the work tree's ``runners/execute.py`` is this very file."""
+    counts only if the work tree's ``runners/execute.py`` is this very file.
+
+    Asked once per process (workers ask at start, when they import the code): a sweep runs for
+    hours, and a commit made meanwhile must not be recorded for runs of the code loaded before it
+    (a worker started at one commit recorded the checkout's later HEAD)."""
     here = Path(__file__).resolve()
     try:
         out = subprocess.run(["git", "rev-parse", "--show-toplevel", "HEAD"], cwd=here.parent,

@@ -36,6 +36,7 @@ from runners.execute import (
     bound_chain,
     execute_locked,
     finished_status,
+    git_commit,
     limit_threads,
     record_outcome,
     spec_and_protocol,
@@ -210,6 +211,7 @@ def execute_job(
     than one remains, else one by one. A fleet's networks and updates run on ``device``, and it
     calls ``progress(steps, total)`` as it trains.
     """
+    git_commit()  # fixed before training: a SLURM task's job may outlast a commit (runners.execute.git_commit)
     results_dir = Path(results_dir)
     locks: list[RunLock] = []
     mine: list[tuple[str, dict[str, Any]]] = []

@@ -55,10 +55,11 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int,
     if os.getppid() != parent_pid:  # the parent died before prctl took effect
         os._exit(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-    from runners.execute import limit_threads
+    from runners.execute import git_commit, limit_threads
     from runners.fleet import execute_job
 
     limit_threads()
+    git_commit()  # the commit of the code this worker loads now, recorded for every run it trains
     import stable_baselines3  # noqa: F401
 
     import morality_gym  # noqa: F401 - warm imports before the first run

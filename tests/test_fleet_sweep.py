@@ -261,3 +261,21 @@ def test_a_killed_fleet_sweep_resumes_with_nothing_lost_or_twice(tmp_path: Path)
     assert len(df) == 24 and df.run_id.is_unique and (df.status == "ok").all()
     assert set(df.engine) <= {f"fleet:{k}" for k in range(2, 7)} | {"single"}
     assert written <= set(df.run_id)
+
+
+def test_the_recorded_commit_is_the_one_the_worker_loaded(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A sweep runs for hours: a commit made while a worker trains must not be recorded for runs of
+    the code it loaded before (git_commit is asked once per process, at the worker's start)."""
+    import subprocess
+
+    from runners import execute
+
+    execute.git_commit.cache_clear()
+    first = execute.git_commit()
+    assert len(first) == 40 or first == "unknown"
+
+    def later_commit(*args: object, **kwargs: object) -> subprocess.CompletedProcess[str]:
+        raise AssertionError("git asked again: a later HEAD would be recorded")
+
+    monkeypatch.setattr(execute.subprocess, "run", later_commit)
+    assert execute.git_commit() == first
