@@ -146,20 +146,6 @@ def _chain(config: dict[str, Any]) -> Any:
     return parse_chain({"name": c["name"], "norms": [{"norm": n, "modality": m} for n, m in c["norms"]]}, source=f"run config {c['name']}")
 
 
-def execute(config: dict[str, Any], run_id: str, results_dir: str | Path, gif: bool = True) -> dict[str, Any]:
-    """Run one configuration and record its outcome. Returns a short summary for the parent."""
-    results_dir = Path(results_dir)
-    lock = RunLock(results_dir, run_id)
-    if not lock.acquire():
-        return {"run_id": run_id, "status": "busy"}
-    try:
-        if finished_status(results_dir, run_id) == "ok":
-            return {"run_id": run_id, "status": "ok", "skipped": True}
-        return execute_locked(config, run_id, results_dir, gif)
-    finally:
-        lock.release()
-
-
 def spec_and_protocol(config: dict[str, Any]) -> tuple[Any, Any]:
     """The learner spec and protocol of a run config (JSON lists back to the spec's tuples)."""
     from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec

@@ -29,11 +29,6 @@ class TargetError(ValueError):
     """A ``_target_`` that cannot be imported; the message names it and the fix."""
 
 
-def target_of(cls: type) -> str:
-    """The import path of a class (``stable_baselines3.ppo.ppo.PPO``)."""
-    return f"{cls.__module__}.{cls.__qualname__}"
-
-
 def resolve(target: str, where: str = "_target_", search: Iterable[str | Path] = ()) -> type:
     """The class at the dotted path ``target`` (``package.module.Class``).
 

@@ -62,7 +62,3 @@ def _build() -> dict[str, NormInfo]:
 #: Every norm name, in vocabulary order (events first, then utilities).
 CATALOGUE: dict[str, NormInfo] = _build()
 
-
-def norm_info(name: str) -> NormInfo:
-    """Catalogue entry of a norm name (``KeyError`` if the environments never emit it)."""
-    return CATALOGUE[name]
