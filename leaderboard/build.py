@@ -122,7 +122,6 @@ def check_primary_choice(args: argparse.Namespace, lb: Leaderboard) -> None:
 def build(args: argparse.Namespace, sources: Sources, quarantined: list[dict[str, str]] | None = None,
           ) -> tuple[Leaderboard, dict[str, Any]]:
     """Run every stage on loaded runs; returns the leaderboard and what was written (for the summary)."""
-    runs, planned, skipped = sources.runs, sources.planned, sources.skipped
     from leaderboard.cached_stages import paper_figures, statistics, statistics_figures
     from leaderboard.intervals import with_intervals
     from leaderboard.run_figures import write_run_charts
@@ -131,6 +130,7 @@ def build(args: argparse.Namespace, sources: Sources, quarantined: list[dict[str
     from leaderboard.stats import DEFAULT_RESAMPLES
     from leaderboard.tables import write_tables
 
+    runs, planned, skipped = sources.runs, sources.planned, sources.skipped
     out_dir: Path = args.out
     timings: dict[str, float] = {}
     cached: dict[str, bool] = {}  # stage -> reused from <out>/cache

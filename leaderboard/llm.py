@@ -315,7 +315,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def user_errors() -> tuple[type[BaseException], ...]:
-
     return (ChainError, UnknownEnvError, SettingsError, FramingError)
 
 

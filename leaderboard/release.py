@@ -174,9 +174,8 @@ def resolve(items: Sequence[str]) -> list[Release]:
 
 
 # ---------------------------------------------------------------------------------------- creating
-def git_commit(results: Path) -> str:
+def runs_commit(runs: pd.DataFrame) -> str:
     """The commit the runs were made at (their ``git_commit`` when all agree), else ``mixed:...``."""
-    runs = read_runs(results)
     commits = sorted({str(c) for c in runs.get("git_commit", pd.Series(dtype=str)).dropna()})
     if len(commits) == 1:
         return commits[0]
@@ -315,7 +314,7 @@ def create(results: Path, name: str, root: Path = RELEASES_DIR, title: str = "",
                  for p in sorted(tmp.rglob("*")) if p.is_file()}
         body = {
             "format": RELEASE_FORMAT, "name": name, "title": title or name,
-            "created": datetime.now(UTC).isoformat(timespec="seconds"), "commit": git_commit(results),
+            "created": datetime.now(UTC).isoformat(timespec="seconds"), "commit": runs_commit(runs),
             "schema_version": SCHEMA_VERSION, "machine": host, "runs": len(runs),
             "runs_ok": int((runs["status"] == "ok").sum()), "sweeps": sweeps_summary(results, runs),
             "config_keys": configs, "updates_stride": stride, "files": files,
