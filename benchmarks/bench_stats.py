@@ -32,7 +32,7 @@ def _collect(runs: pd.DataFrame, learn: pd.DataFrame, into: list[LeaderboardStat
 def _figures(stats: LeaderboardStats, out: Path) -> int:
     """Every figure of the first (protocol, preset): ranking figures, both grids, both per-row figures for each row."""
     from leaderboard.aggregate import row_order
-    from leaderboard.stats import figures as F
+    from leaderboard.stats import plots as F
 
     group = stats.aggregates[["protocol", "preset"]].iloc[0]
 

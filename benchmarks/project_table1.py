@@ -7,7 +7,7 @@ on runs that were measured, not on the planner alone. This tool reads the finish
 results directory (a few Table 1 rows run at the preset in question), measures each learner's
 core-seconds per training step (every run's ``wall_time_s``: its share of its fleet's training
 plus its own evaluations and writes), and prices every job of the full Table 1 plan with it. The
-jobs are those the sweep itself would make (:func:`runners.fleet.make_jobs`, fleets of up to
+jobs are those the sweep itself would make (:func:`runners.jobs.make_jobs`, fleets of up to
 ``fleet_size``), handed to ``W`` workers in the sweep's dispatch order (longest estimated job
 first) as each becomes free, as the local pool does, so the projection includes the tail where
 one long fleet keeps a worker busy.
@@ -67,8 +67,8 @@ def finished_runs(results_dir: Path, protocol: str, preset: str | None, engine: 
     """
     import pandas as pd
 
-    from runners.fleet import fleet_trains
-    from runners.schema import read_runs
+    from runners.jobs import fleet_trains
+    from runners.results_schema import read_runs
 
     frame = read_runs(results_dir, skipped=[])
     if frame.empty:
@@ -153,7 +153,7 @@ def table1_plan(preset: str, protocol: str, engine: str, scratch: Path, extra: S
 
 def plan_jobs(runs: list[Any], sweep: Any, workers: int) -> list[Any]:
     """The plan cut into the jobs a sweep with ``workers`` workers runs, in the order they take them."""
-    from runners.fleet import dispatch_order, make_jobs
+    from runners.jobs import dispatch_order, make_jobs
 
     speedups = {a.spec.name: a.fleet_speedup for a in sweep.algos}
     return dispatch_order(make_jobs(runs, sweep.engine, sweep.fleet_size, workers, speedups), workers)
@@ -189,7 +189,7 @@ def report(results_dir: Path, preset: str, protocol: str, engine: str, workers: 
     import tempfile
 
     from morality_gym.baselines.specs import learner_spec
-    from runners.fleet import jobs_estimate, makespan
+    from runners.jobs import jobs_estimate, makespan
 
     rates = measured_rates(results_dir, protocol, preset, engine)
     factors = scenario_factors(reference, protocol, engine, rates) if reference else {}

@@ -1,7 +1,7 @@
 """From run rows to the numbers of Table 1, the per-norm figures and the status report.
 
 Everything here except :func:`compute_reference` is a pure function of the runs DataFrame (as
-:func:`runners.schema.read_runs` returns it) and the planned runs of the sweep manifests (as
+:func:`runners.results_schema.read_runs` returns it) and the planned runs of the sweep manifests (as
 :func:`runners.manifest.planned_runs` returns them). The aggregation rules are those of the
 evaluation spec, section 7:
 
@@ -234,7 +234,7 @@ def _as_tuple(value: Any) -> tuple[str, ...]:
 
 def mf_columns(runs: pd.DataFrame) -> list[str]:
     """The per-norm morality function columns present (``mf_<norm>``)."""
-    from runners.schema import MF_PREFIX
+    from runners.results_schema import MF_PREFIX
 
     return [c for c in runs.columns if str(c).startswith(MF_PREFIX)]
 
@@ -715,7 +715,7 @@ def norm_long(runs: pd.DataFrame) -> pd.DataFrame:
     another's. A relevant norm without an ``mf_`` value is skipped here (it would be a runner bug
     that the schema validation already prevents).
     """
-    from runners.schema import MF_PREFIX
+    from runners.results_schema import MF_PREFIX
 
     ok = runs.loc[runs["ok"]]
     present = set(mf_columns(runs))

@@ -17,13 +17,13 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
-from leaderboard import figures as figures_module
-from leaderboard import stat_figures as stat_figures_module
+from leaderboard import paper_figures as figures_module
+from leaderboard import stats_figure_files as stat_figures_module
 from leaderboard.aggregate import Leaderboard
 from leaderboard.content_cache import cached_outputs, digest, frame_digest
-from leaderboard.figures import FigureSet, write_figures
+from leaderboard.paper_figures import FigureSet, write_figures
 from leaderboard.sources import Sources
-from leaderboard.stat_figures import StatFigures, write_stat_figures
+from leaderboard.stats_figure_files import StatFigures, write_stat_figures
 from leaderboard.stats import LeaderboardStats, compute_stats
 
 Progress = Callable[[Iterable[Any], str, int], Iterable[Any]]

@@ -134,7 +134,7 @@ def summary_lines(distances: pd.DataFrame, learners: list[str]) -> list[str]:
 
 def diagnostics_lines(results: Path, runs: pd.DataFrame, protocol: str, preset: str) -> list[str]:
     """What the counted runs' updates did (only learners that write ``.updates.parquet``)."""
-    from runners.schema import read_updates
+    from runners.results_schema import read_updates
 
     chosen = runs.loc[(runs["protocol"] == protocol) & (runs["preset"] == preset) & runs["ok"]]
     lines = []

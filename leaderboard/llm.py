@@ -9,7 +9,7 @@ Two commands:
   the last line repeats), which is how the tests and the docs' example run end to end.
 * ``import LOG...``: turn Inspect logs (from ``run`` or from ``inspect eval``) into submitted runs.
 
-Each sample (one episode of one env id) becomes one submitted run row (:mod:`runners.schema`):
+Each sample (one episode of one env id) becomes one submitted run row (:mod:`runners.results_schema`):
 ``algo`` ``submitted``, ``learner`` the ``--name``, ``seed`` the episode's sampling seed, and the
 episode's own morality metric and morality functions. So the leaderboard's cell mean is the mean
 over episodes (equal per variant), and its interval (seeds resampled within each variant) is the
@@ -45,7 +45,7 @@ from morality_gym.norms.chain import ChainError, get_chain
 from morality_gym.norms.metric import DEFAULT_BETA
 from runners.execute import RunLock, finished_status, versions
 from runners.identity import run_id_of
-from runners.schema import MF_PREFIX, SCHEMA_VERSION, write_run
+from runners.results_schema import MF_PREFIX, SCHEMA_VERSION, write_run
 
 # Inspect AI (the llm extra) is imported inside the functions that run or read it, so that
 # --help and the one-line errors work without the extra installed.

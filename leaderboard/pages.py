@@ -14,7 +14,7 @@ from typing import Any
 import pandas as pd
 
 from leaderboard.aggregate import ORACLE_BEST, ORACLE_WORST, RANDOM_EXACT, STD_DDOF, Group, safe_name
-from leaderboard.figures import chain_title, norm_abbreviation, norm_label
+from leaderboard.paper_figures import chain_title, norm_abbreviation, norm_label
 from leaderboard.intervals import BOLD_RULE
 from leaderboard.llm_entries import llm_entries
 from leaderboard.render import clean, clean_records, is_missing, run_href, scenario_href, section_id
@@ -250,7 +250,7 @@ def value_text(record: dict[str, Any], key: str, digits: int | None = None) -> s
 
 def run_context(sb: SiteBuild, record: dict[str, Any]) -> dict[str, Any]:
     from leaderboard.aggregate import chain_norm_order
-    from runners.schema import MF_PREFIX
+    from runners.results_schema import MF_PREFIX
 
     root = "../"
     run_id = str(record["run_id"])

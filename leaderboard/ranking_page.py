@@ -15,7 +15,7 @@ import pandas as pd
 from leaderboard.aggregate import ORACLE_BEST, RANDOM_EXACT, Group
 from leaderboard.render import clean, clean_records, is_missing, scenario_href, section_id
 from leaderboard.site_state import SiteBuild
-from leaderboard.stat_figures import RANKING_FIGURES
+from leaderboard.stats_figure_files import RANKING_FIGURES
 from leaderboard.tables import fmt
 
 #: Anchors of the score colour scale: worse than random (score -1 and below), random (0), oracle best (1).

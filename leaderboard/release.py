@@ -49,7 +49,7 @@ from leaderboard.aggregate import safe_name
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
 from runners.identity import config_key
 from runners.manifest import manifests_dir, read_manifests
-from runners.schema import SCHEMA_VERSION, learn_path, read_runs, run_files, updates_path
+from runners.results_schema import SCHEMA_VERSION, learn_path, read_runs, run_files, updates_path
 
 #: Where a checkout keeps its releases; the leaderboard shows every release found here by default.
 RELEASES_DIR = Path(__file__).resolve().parents[1] / "releases"

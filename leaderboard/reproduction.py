@@ -40,7 +40,7 @@ from leaderboard.aggregate import (
     safe_name,
     with_reference,
 )
-from leaderboard.figures import norm_label, write_figures
+from leaderboard.paper_figures import norm_label, write_figures
 from leaderboard.intervals import with_intervals
 from leaderboard.release import ReleaseError, resolve
 from leaderboard.sources import Sources, load_sources

@@ -21,7 +21,7 @@ import pandas as pd
 from leaderboard import run_charts
 from leaderboard.aggregate import Leaderboard, safe_name
 from leaderboard.content_cache import atomic_write, digest, read_index, write_index
-from leaderboard.figures import FigureSet
+from leaderboard.paper_figures import FigureSet
 from leaderboard.sources import SideFile, Sources
 
 Progress = Callable[[Iterable[Any], str, int], Iterable[Any]]

@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from leaderboard.aggregate import Group, Leaderboard, safe_name
-from leaderboard.figures import FigureSet
+from leaderboard.paper_figures import FigureSet
 from leaderboard.page_cache import PageCache, link_or_copy
 from leaderboard.render import STATIC, STATIC_FILES, render
 from leaderboard.site_state import SiteBuild
@@ -202,7 +202,7 @@ def build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: Figur
 
     ``stats``: :class:`leaderboard.stats.LeaderboardStats` (ranking page, matrix colours, curves,
     violations; without it those parts say there is nothing to show); ``stat_figures``:
-    :class:`leaderboard.stat_figures.StatFigures`; ``stamp``: the build date shown in the footer;
+    :class:`leaderboard.stats_figure_files.StatFigures`; ``stamp``: the build date shown in the footer;
     ``cache_dir``: where run pages are kept between builds (:mod:`leaderboard.page_cache`; None: render all).
     """
     from leaderboard.downloads import write_downloads

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from leaderboard.aggregate import Group, Leaderboard
-from leaderboard.figures import FigureSet
+from leaderboard.paper_figures import FigureSet
 from leaderboard.sources import Sources
 
 #: The pages every page links to in its header (path from the site root, label).

@@ -24,7 +24,7 @@ import pandas as pd
 
 from leaderboard.release import Release
 from runners.manifest import planned_runs
-from runners.schema import (
+from runners.results_schema import (
     LEARN_FIELDS,
     RUN_COLUMNS,
     learn_path,

@@ -2,7 +2,7 @@
 
 A policy from another library, a hand-written rule or a language model gets the evaluation every
 trained run of the sweep gets, and lands in the results directory as ordinary run rows
-(:mod:`runners.schema`), so ``python -m leaderboard.build`` shows it next to the baselines:
+(:mod:`runners.results_schema`), so ``python -m leaderboard.build`` shows it next to the baselines:
 
 * for each selected (chain, scenario) cell, each variant of the scenario and each seed of the
   preset (``paper``: 41, 42, 43), the paper's final evaluation: ``eval_episodes`` (100) Monte-Carlo
@@ -118,8 +118,8 @@ def select_cells(chains: Sequence[str], scenario_names: Sequence[str], variants:
 
 def preset_facts(preset: str) -> tuple[tuple[int, ...], int]:
     """(seeds, final-evaluation episodes) of ``conf/preset/<preset>.yaml``, read and checked by the
-    sweep's own preset schema (:func:`runners.schemas.load_preset`)."""
-    from runners.schemas import PresetError, load_preset
+    sweep's own preset schema (:func:`runners.config_schema.load_preset`)."""
+    from runners.config_schema import PresetError, load_preset
 
     try:
         loaded = load_preset(preset)
@@ -183,7 +183,7 @@ class Submission:
 def run_config(sub: Submission, cell: Cell, variant: str, seed: int, stationary: bool) -> dict[str, Any]:
     """The recorded config of one submitted run (identity + ``provenance``)."""
     from morality_gym.envs.registry import scenario_named
-    from runners.schema import SCHEMA_VERSION
+    from runners.results_schema import SCHEMA_VERSION
 
     target = sub.loaded.ref.rsplit(":", 1)[1] if sub.loaded.kind == "callable" and ":" in sub.loaded.ref else None
     return {
@@ -219,7 +219,7 @@ def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: st
     from morality_gym.evaluation.montecarlo import evaluate
     from morality_gym.norms.metric import bind_chain
     from runners.execute import git_commit, versions
-    from runners.schema import MF_PREFIX, runs_dir
+    from runners.results_schema import MF_PREFIX, runs_dir
 
     started, t0 = _now(), time.perf_counter()
     env_id = config["env_id"]
@@ -235,7 +235,7 @@ def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: st
         record_episode(env_id, sub.loaded.policy, gif, max_steps=GIF_STEPS, seed=config["seed"] + 7919,
                        env_kwargs={"max_steps": sub.max_steps})
         gif_rel = str(gif.relative_to(results))
-    from runners.schema import SCHEMA_VERSION
+    from runners.results_schema import SCHEMA_VERSION
 
     return {
         "schema_version": SCHEMA_VERSION, "run_id": run_id, "status": "ok", "error": None, "traceback": None,
@@ -264,7 +264,7 @@ def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = pri
     from morality_gym.baselines.policy_ref import PolicyError, is_stationary, probe
     from morality_gym.evaluation.policies import PolicyFailure
     from runners.execute import RunLock, finished_status
-    from runners.schema import write_run
+    from runners.results_schema import write_run
 
     counts = {"written": 0, "present": 0}
     for cell in cells:
@@ -320,7 +320,7 @@ def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = pri
 def stored_scores(results: Path, run_id: str) -> tuple[float, float | None]:
     """(metric, exact metric or None) of a run already in ``results`` (re-submission: shown again)."""
     from runners.quarantine import read_table_or_quarantine
-    from runners.schema import run_path
+    from runners.results_schema import run_path
 
     table = read_table_or_quarantine(results, run_path(results, run_id), columns=["metric", "exact_metric"])
     if table is None:

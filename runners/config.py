@@ -1,6 +1,6 @@
 """Resolve a composed sweep configuration into a :class:`SweepConfig`, before anything runs.
 
-Hydra composes ``conf/`` over the typed schemas of :mod:`runners.schemas`, so unknown keys and
+Hydra composes ``conf/`` over the typed schemas of :mod:`runners.config_schema`, so unknown keys and
 wrong types have already failed at composition. What is left here is what a type cannot say:
 ranges (in the schemas' ``__post_init__``), one setting against another (a variant of the
 selected scenarios, a budget that trains nothing, a protocol or preset naming an algo that does
@@ -29,7 +29,7 @@ from morality_gym.baselines.targets import learner_trains
 from morality_gym.envs.registry import scenarios as all_scenarios
 from morality_gym.norms.chain import ChainError, MoralityChain, check_name_collision, get_chain, parse_chain
 from runners.paths import CONF_DIR, find_config, group_options  # noqa: F401 - re-exported: CONF_DIR is defined once
-from runners.schemas import ENGINES, LAUNCHERS, AlgoFile, Planning, Preset, register
+from runners.config_schema import ENGINES, LAUNCHERS, AlgoFile, Planning, Preset, register
 
 register()  # the schemas conf/config.yaml names (sweep_schema, schema/launcher/*): Hydra needs them stored
 
@@ -90,9 +90,9 @@ class SweepConfig:
     mlflow: bool
     gif: bool
     name: str
-    engine: str  # fleet | single (runners/fleet.py; default: runners.schemas.Sweep)
+    engine: str  # fleet | single (runners/jobs.py; default: runners.config_schema.Sweep)
     fleet_size: int  # most runs trained together in one fleet
-    device: str = "cpu"  # where fleets train (runners.schemas.Sweep)
+    device: str = "cpu"  # where fleets train (runners.config_schema.Sweep)
     chain_files: Mapping[str, str] = field(default_factory=dict)  # chain name -> config option name
     warnings: tuple[str, ...] = ()  # shown with the plan: valid, but probably not what the user meant
 
@@ -304,7 +304,7 @@ def _planning_rate(where: str, planning: Mapping[str, Any], file_values: Mapping
     ``planning.protocols.<protocol>`` replaces some of these values under one protocol: a protocol
     can change a learner's speed by an order of magnitude (PPO-Lag's early stop ends its update
     after one pass under ``paper`` and after up to 40 under ``corrected``). ``fleet_speedup`` is
-    the fleet engine's measured gain at K >= 12 (BENCHMARKS.md), used by :mod:`runners.fleet`.
+    the fleet engine's measured gain at K >= 12 (BENCHMARKS.md), used by :mod:`runners.jobs`.
     """
     planning = dict(planning)
     by_protocol = planning.pop("protocols", None) or {}

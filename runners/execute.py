@@ -22,7 +22,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-from runners.schema import MF_PREFIX, SCHEMA_VERSION, run_path, runs_dir, write_learn, write_run, write_updates
+from runners.results_schema import MF_PREFIX, SCHEMA_VERSION, run_path, runs_dir, write_learn, write_run, write_updates
 
 
 def utc_now() -> str:

@@ -23,7 +23,7 @@ from morality_gym.baselines.specs import CONF_DIR  # re-exported: defined once, 
 @cache
 def preset_seeds(preset: str) -> tuple[int, ...] | None:
     """The seeds of ``conf/preset/<preset>.yaml`` (None if there is no such preset or it is invalid)."""
-    from runners.schemas import PresetError, load_preset
+    from runners.config_schema import PresetError, load_preset
 
     try:
         return load_preset(preset).seeds

@@ -3,7 +3,7 @@
 ``concurrent.futures.ProcessPoolExecutor`` gives up entirely when one worker is killed; a sweep
 must instead record the runs it held as failed, start a replacement and carry on. Each worker is a
 spawned process (torch is imported once per worker, not once per run) that executes one job at a
-time (one run, or a fleet of runs trained together: :mod:`runners.fleet`), reports each run as
+time (one run, or a fleet of runs trained together: :mod:`runners.jobs`), reports each run as
 soon as its result is written (so a worker killed late in a fleet's recording loses only the runs
 not yet written), and
 asks the kernel to kill it when the parent dies (``PR_SET_PDEATHSIG``), so ``kill -9`` of the
@@ -24,7 +24,7 @@ from multiprocessing.connection import Connection, wait
 from pathlib import Path
 from typing import Any
 
-from runners.fleet import Job
+from runners.jobs import Job
 from runners.plan import PlannedRun
 
 ResultHook = Callable[[PlannedRun, dict[str, Any]], None]
@@ -56,7 +56,7 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int,
         os._exit(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     from runners.execute import git_commit, limit_threads
-    from runners.fleet import execute_job
+    from runners.jobs import execute_job
 
     limit_threads()
     git_commit()  # the commit of the code this worker loads now, recorded for every run it trains

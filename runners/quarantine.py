@@ -11,7 +11,7 @@ with it, so that the new result replaces the old mirror instead of being skipped
 Only the main run file decides whether a run is done. An unreadable side file
 (``<run_id>.learn.parquet``, ``<run_id>.updates.parquet``, any ``<run_id>.<kind>.parquet``) is moved
 aside too, and the run stays done. Readers that must not write (the leaderboard) skip unreadable
-files and list them instead (:func:`runners.schema.read_runs` with ``skipped=``).
+files and list them instead (:func:`runners.results_schema.read_runs` with ``skipped=``).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from runners.schema import read_jsonl, run_path, runs_dir
+from runners.results_schema import read_jsonl, run_path, runs_dir
 
 QUARANTINE = ".quarantine"
 INDEX = "index.jsonl"

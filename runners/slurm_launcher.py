@@ -1,6 +1,6 @@
 """Dispatch jobs to SLURM as one submitit job array (one array task per job: a run or a fleet).
 
-Every array task calls :func:`runners.fleet.execute_job_all`, which records each run's result
+Every array task calls :func:`runners.jobs.execute_job_all`, which records each run's result
 (including failures) in Parquet; the parent polls the jobs, and records the runs whose jobs died
 without a result (time limit, ``kill -9``, node failure) as failed with SLURM's view of what
 happened. A fleet job that died after writing some of its runs keeps those.
@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from runners.execute import finished_status
-from runners.fleet import Job
+from runners.jobs import Job
 from runners.plan import PlannedRun
 from runners.slurm_controller import SlurmUnavailable, check_controller  # noqa: F401 - re-exported for callers
 
@@ -32,7 +32,7 @@ def run_on_slurm(
 ) -> None:
     import submitit
 
-    from runners.fleet import execute_job_all
+    from runners.jobs import execute_job_all
 
     folder = Path(launcher.get("folder") or results_dir / "slurm" / sweep_name)
     folder.mkdir(parents=True, exist_ok=True)

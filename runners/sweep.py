@@ -28,9 +28,9 @@ from omegaconf import DictConfig
 from rich.markup import escape
 
 from morality_gym.clitools import DEBUG_ENV, debug_enabled, duration, one_line, run_cli
-from runners.config import ConfigError, SweepConfig, validate  # also stores the schemas (runners.schemas)
+from runners.config import ConfigError, SweepConfig, validate  # also stores the schemas (runners.config_schema)
 from runners.execute import finished_status, record_failure
-from runners.fleet import dispatch_order, jobs_estimate, make_jobs
+from runners.jobs import dispatch_order, jobs_estimate, make_jobs
 from runners.manifest import manifest_name, write_manifest
 from runners.paths import CONF_DIR
 from runners.plan import PlannedRun, describe, plan
@@ -68,8 +68,8 @@ class FleetBars:
 
 
 def sweep_overheads(sweep: SweepConfig, n_todo: int) -> float:
-    """Seconds the sweep spends besides training its runs (:class:`runners.schemas.SweepOverheads`)."""
-    from runners.schemas import SweepOverheads
+    """Seconds the sweep spends besides training its runs (:class:`runners.config_schema.SweepOverheads`)."""
+    from runners.config_schema import SweepOverheads
     from runners.tracking import tracking_uri
 
     uri = tracking_uri(sweep.results_dir)
@@ -214,7 +214,7 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
         f"{len(failed)} failed, {len(missing)} missing (of {len(runs)})"
     )
     if failed:
-        from runners.schema import run_path
+        from runners.results_schema import run_path
 
         console.print("[red]failed runs:[/red]")
         for r in failed:
@@ -339,7 +339,7 @@ def _skipped_scenario(option: str) -> str | None:
 
 def compose_check(argv: list[str]) -> str | None:
     """Compose the configuration once before Hydra's own run, to report a key or value the typed
-    schemas (:mod:`runners.schemas`) refuse as one line naming the key, its file or override and
+    schemas (:mod:`runners.config_schema`) refuse as one line naming the key, its file or override and
     the closest valid key (Hydra would print several lines and a hint about ``+key=``). Returns the
     error or None. Hydra's own flags are parsed by Hydra's parser; ``--config-dir`` becomes a
     search-path entry, as Hydra itself treats it."""
@@ -347,7 +347,7 @@ def compose_check(argv: list[str]) -> str | None:
     from hydra._internal.utils import get_args_parser
 
     from runners.paths import source_dir, split_list
-    from runners.schemas import composition_error
+    from runners.config_schema import composition_error
 
     try:
         args = get_args_parser().parse_args(argv)

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
 
-from runners.schema import MF_PREFIX, UPDATE_COLUMNS, learn_path, run_path, updates_path
+from runners.results_schema import MF_PREFIX, UPDATE_COLUMNS, learn_path, run_path, updates_path
 
 EXPERIMENT = "morality-gym"
 _METRICS = ("metric", "metric_stderr", "exact_metric", "mean_return", "mean_cost", "mean_length", "truncation_rate", "goal_rate", "wall_time_s", "total_steps")

@@ -1,6 +1,6 @@
 """A realistic synthetic results directory for the leaderboard tests (and the demo screenshot).
 
-Written through the real contract (:func:`runners.schema.write_run`, :func:`write_learn`,
+Written through the real contract (:func:`runners.results_schema.write_run`, :func:`write_learn`,
 :func:`runners.manifest.write_manifest`), so a schema change breaks these tests rather than the
 leaderboard in production. The content mimics a sweep: three Table 1 rows with every variant of
 their scenario, the five learners, seeds 41-43, the ``corrected`` protocol as well for one row,
@@ -26,7 +26,7 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from runners.manifest import write_manifest
-from runners.schema import MF_PREFIX, RUN_COLUMNS, SCHEMA_VERSION, write_learn, write_run
+from runners.results_schema import MF_PREFIX, RUN_COLUMNS, SCHEMA_VERSION, write_learn, write_run
 
 REPO = Path(__file__).resolve().parents[1]
 ROWS: tuple[tuple[str, str], ...] = (

@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 
 from runners.manifest import read_manifests
-from runners.schema import read_runs
+from runners.results_schema import read_runs
 from tests.sweep_tools import run_files, wait_for_results
 from tests.test_scenario_files import _tiny
 

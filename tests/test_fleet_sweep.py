@@ -17,9 +17,9 @@ import pytest
 
 from runners.config import validate
 from runners.execute import RunLock, finished_status
-from runners.fleet import dispatch_order, execute_job, fleet_speedup, fleet_trains, jobs_estimate, make_jobs, makespan
+from runners.jobs import dispatch_order, execute_job, fleet_speedup, fleet_trains, jobs_estimate, make_jobs, makespan
 from runners.plan import plan
-from runners.schema import read_runs, read_updates
+from runners.results_schema import read_runs, read_updates
 from tests.sweep_tools import run_files, wait_for_results
 
 REPO = Path(__file__).resolve().parents[1]

@@ -26,7 +26,7 @@ import pytest
 from runners.identity import config_key, run_id_of
 from runners.manifest import manifest_name, read_manifests
 from runners.migrate import MigrateError, migrate, read_journal
-from runners.migrations import (
+from runners.rename_history import (
     LEARNER_TARGET,
     MIGRATIONS,
     MigrationError,
@@ -35,7 +35,7 @@ from runners.migrations import (
     unmigrate_sidecar,
     vocabulary_only,
 )
-from runners.schema import learn_path, run_path, runs_dir, updates_path
+from runners.results_schema import learn_path, run_path, runs_dir, updates_path
 from tests.sweep_tools import run_files
 
 REPO = Path(__file__).resolve().parents[1]

@@ -12,9 +12,9 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-from leaderboard.figures import LEARNER_COLOURS
+from leaderboard.paper_figures import LEARNER_COLOURS
 from leaderboard.stats import LeaderboardStats, StatsInputError, compute_stats
-from leaderboard.stats import figures as F
+from leaderboard.stats import plots as F
 from tests.stats_data import reference_frame, synthetic_runs
 
 

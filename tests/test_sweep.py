@@ -14,7 +14,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from runners.manifest import read_manifests
-from runners.schema import RUN_COLUMNS, read_runs
+from runners.results_schema import RUN_COLUMNS, read_runs
 from tests.sweep_tools import run_files, wait_for_results
 
 REPO = Path(__file__).resolve().parents[1]

@@ -1,8 +1,8 @@
 """Interval estimates and overall rankings for the leaderboard (issue 13), as pure functions of frames.
 
 Inputs are the frames the leaderboard already has: the run rows (``Leaderboard.runs``, columns of
-:data:`runners.schema.RUN_FIELDS` plus ``mf_<norm>``), the Table 1 frame for the reference values
-(``Leaderboard.table``) and the learn-time evaluations (:func:`runners.schema.read_learn`).
+:data:`runners.results_schema.RUN_FIELDS` plus ``mf_<norm>``), the Table 1 frame for the reference values
+(``Leaderboard.table``) and the learn-time evaluations (:func:`runners.results_schema.read_learn`).
 Outputs are tidy DataFrames (one observation per row), ready for CSV, templates and figures.
 
 * :mod:`~leaderboard.stats.cells`: 95 % intervals of the Table 1 cells and the bold rule;
@@ -10,7 +10,7 @@ Outputs are tidy DataFrames (one observation per row), ready for CSV, templates 
   intervals, probability of improvement, performance profiles;
 * :mod:`~leaderboard.stats.curves`: learning curves pooled per cell;
 * :mod:`~leaderboard.stats.tradeoffs`: return versus cost, per-norm violation rates;
-* :mod:`~leaderboard.stats.figures`: the figures of all of the above;
+* :mod:`~leaderboard.stats.plots`: the figures of all of the above;
 * :mod:`~leaderboard.stats.core`: the bootstrap, seeding and weighted statistics they share;
 * :func:`compute_stats`: everything at once.
 

@@ -6,7 +6,7 @@ values (its class, its hyper-parameters) are in its file ``conf/algo/<name>.yaml
 only what differs from the field defaults. A protocol's changes are in ``conf/protocol/<name>.yaml``
 over the :class:`ProtocolSpec` defaults. :func:`learner_spec` and :func:`protocol_spec` read those
 same files for library users (tests, the fleet trainer, the CLI), exactly as a sweep's Hydra
-composition does (``runners.schemas`` registers these classes as Hydra's structured configs), so
+composition does (``runners.config_schema`` registers these classes as Hydra's structured configs), so
 there is no second copy of any value. The values are those that actually ran in the paper
 (evaluation spec 6.3), not the ones printed in its appendix. Unknown keys and wrong types are
 errors that name the key, the file and the closest valid key.
@@ -37,7 +37,7 @@ PPO_LAG = "morality_gym.baselines.safe.PPOLag"
 CPO = "morality_gym.baselines.safe.CPO"
 #: The short names that specs, run configs and model sidecars written before learners were named by
 #: class (commit c0db801) recorded as ``implementation``, and the class each one meant. Frozen
-#: history: read by :mod:`morality_gym.baselines.io` (old sidecars) and ``runners.migrations``.
+#: history: read by :mod:`morality_gym.baselines.io` (old sidecars) and ``runners.rename_history``.
 LEGACY_IMPLEMENTATIONS = {
     "random": "morality_gym.baselines.learners.RandomLearner", "ppo": SB3_PPO, "ppo_lag": PPO_LAG, "cpo": CPO,
 }
@@ -187,7 +187,7 @@ def _read_file(group: str, name: str, what: str) -> tuple[Path, dict[str, Any]]:
 
 
 #: Keys of an algo file that are not learner settings: ``planning`` is the sweep's time estimate
-#: (``runners.schemas.Planning``), read by the sweep's plan only.
+#: (``runners.config_schema.Planning``), read by the sweep's plan only.
 ALGO_FILE_EXTRAS = ("planning",)
 
 

@@ -1,7 +1,7 @@
 """The figures of the statistics the site shows: ranking figures per sweep, and per Table 1 row the
 pooled learning curves and the return-versus-cost scatter.
 
-Drawn with :mod:`leaderboard.stats.figures` (deterministic bytes) under ``<out>/figures/<sweep>/stats/``,
+Drawn with :mod:`leaderboard.stats.plots` (deterministic bytes) under ``<out>/figures/<sweep>/stats/``,
 next to Figure 2; the site copies them. Each sweep (protocol, preset) is drawn separately: the
 statistics functions refuse to pool sweeps, and so does this module.
 """
@@ -16,7 +16,7 @@ from typing import Any
 import pandas as pd
 
 from leaderboard.aggregate import Group, Leaderboard, safe_name
-from leaderboard.stats import figures as sf
+from leaderboard.stats import plots as sf
 
 Progress = Callable[[Iterable[Any], str, int], Iterable[Any]]
 

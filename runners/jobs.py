@@ -43,7 +43,7 @@ from runners.execute import (
     utc_now,
 )
 from runners.plan import PlannedRun
-from runners.schemas import ENGINES
+from runners.config_schema import ENGINES
 
 #: Keys of a run config that may differ between the runs of one fleet (the rest must be equal).
 FLEET_FREE_KEYS = ("env_id", "variant", "chain", "seed")

@@ -31,7 +31,7 @@ from typing import Any
 
 from morality_gym.baselines import typed
 from morality_gym.baselines.specs import CONF_DIR, LearnerSpec, ProtocolSpec
-from runners.schema import SCHEMA_VERSION
+from runners.results_schema import SCHEMA_VERSION
 
 
 @dataclass(frozen=True)
@@ -225,7 +225,7 @@ class Experiment:
     pairs: list[list[str]]
 
 
-#: The training engines of a sweep (:mod:`runners.fleet`).
+#: The training engines of a sweep (:mod:`runners.jobs`).
 ENGINES = ("fleet", "single")
 
 
@@ -241,7 +241,7 @@ class Sweep:
     ``gif``: a GIF of one evaluation episode per run; ``name``: the manifest's sweep name (null:
     derived from the selection); ``engine``: ``fleet`` trains the runs that differ only in variant,
     chain and seed together, up to ``fleet_size`` per fleet (the gain saturates by about 12,
-    BENCHMARKS.md), ``single`` trains one run per process (:mod:`runners.fleet`); ``device``: where
+    BENCHMARKS.md), ``single`` trains one run per process (:mod:`runners.jobs`); ``device``: where
     a fleet's networks and updates run (``cpu``, or ``cuda`` when torch sees a GPU; single runs and
     every run's evaluation stay on the CPU).
     """
