@@ -113,21 +113,21 @@ def scenario_page(name: str, chains: list[str]) -> dict[str, str | bytes]:
         best = oracle(first, chains[0])
         files[f"img/{name}.gif"] = _gif(first, best.best.actions)
         lines += [
-            f'<figure markdown="span">',
+            '<figure markdown="span">',
             f"  ![The oracle's best episode of {first} under {chains[0]}](img/{name}.gif){{ loading=lazy }}",
-            f"  <figcaption>The best episode of <code>{first}</code> under {chains[0]} "
-            f"(metric {best.best.metric:.3f}): {_actions(best.best.actions)}, then STAY.</figcaption>",
+            (f"  <figcaption>The best episode of <code>{first}</code> under {chains[0]} "
+            f"(metric {best.best.metric:.3f}): {_actions(best.best.actions)}, then STAY.</figcaption>"),
             "</figure>",
             "",
         ]
     lines += [body.strip(), "", "## Variants", ""]
     if chains:
         lines += [
-            "Each variant's starting picture, its relevant norms (the only ones that carry weight in "
+            ("Each variant's starting picture, its relevant norms (the only ones that carry weight in "
             "the metric) and, under each chain the paper ran on this scenario (Table 1, beta = 0.1, "
             "`max_steps` = 200): the exact metric of the uniform Random policy "
             "(`exact_evaluate(\"random\", env_id, chain)`) and the best and worst metric any policy can "
-            "reach (`oracle(env_id, chain)`), with the best action sequence.",
+            "reach (`oracle(env_id, chain)`), with the best action sequence."),
             "",
         ]
     else:
@@ -166,10 +166,10 @@ def catalogue() -> dict[str, str | bytes]:
     index = [
         "# Environment catalogue",
         "",
-        f"{len(scenarios())} scenarios, {sum(len(s.variants) for s in scenarios().values())} variants "
+        (f"{len(scenarios())} scenarios, {sum(len(s.variants) for s in scenarios().values())} variants "
         "(Gymnasium ids `MoralityGym/{Scenario}-{Variant}-v1`). Each page is generated from the "
         "scenario's file (`morality_gym/data/scenarios/`) and its env class's docstring when the site "
-        "is built; `python -m morality_gym docs --output DIR` writes the docstrings alone as Markdown.",
+        "is built; `python -m morality_gym docs --output DIR` writes the docstrings alone as Markdown."),
         "",
         "| scenario | | variants | Table 1 chains | what happens |",
         "|---|---|---|---|---|",
@@ -284,11 +284,11 @@ def cli_page() -> str:
     lines = [
         "# Command lines",
         "",
-        "Generated from each command's argparse parser when the site is built, so every flag and "
+        ("Generated from each command's argparse parser when the site is built, so every flag and "
         "default here is the one the code has. Every command answers `--help`; user errors print one "
         "line and exit 2 (`--debug`, or `MORALITY_GYM_DEBUG=1`, shows the traceback). The sweeps "
         "(`python -m runners.sweep`, `python -m runners.table1`) are Hydra applications: their "
-        "command line is the configuration, see [Configuration](configuration.md).",
+        "command line is the configuration, see [Configuration](configuration.md)."),
         "",
     ]
     for module, what in COMMANDS:
@@ -331,7 +331,7 @@ def _comment_of(cls: type) -> dict[str, str]:
         source = inspect.getsource(cls)
     except (OSError, TypeError):
         return {}
-    out = {m.group(1): m.group(2).strip() for m in re.finditer(r"^[ \t]+(\w+):[^#\n]*#[ \t]*(.+)$", source, re.M)
+    out = {m.group(1): m.group(2).strip() for m in re.finditer(r"^[ \t]+(\w+):[^#\n]*#[ \t]*(.+)$", source, re.MULTILINE)
            if not m.group(2).startswith("type:")}
     # ``name``: what it is; ``other``: ... (the way Sweep documents its fields in its docstring)
     doc = " ".join((inspect.getdoc(cls) or "").split())
@@ -359,8 +359,8 @@ def configuration_page() -> str:
     from runners import config_schema as schema
 
     groups: dict[str, tuple[str, list[type]]] = {
-        "algo": ("a learner: its class (`_target_`), label and every setting; fields left out take "
-                 "these defaults (`LearnerSpec`, `morality_gym/baselines/specs.py`)", [schema.AlgoFile, schema.Planning]),
+        "algo": (("a learner: its class (`_target_`), label and every setting; fields left out take "
+                 "these defaults (`LearnerSpec`, `morality_gym/baselines/specs.py`)"), [schema.AlgoFile, schema.Planning]),
         "protocol": ("the reference's behaviours a run reproduces or corrects (`ProtocolSpec`)", [ProtocolSpec]),
         "preset": ("how much each run trains and evaluates", [schema.Preset]),
         "launcher": ("where the runs go: local worker pool or SLURM", [schema.LocalLauncher, schema.SlurmLauncher]),
@@ -373,12 +373,12 @@ def configuration_page() -> str:
     lines = [
         "# Configuration",
         "",
-        "Generated from the typed schemas (`runners/config_schema.py`, `morality_gym/baselines/specs.py`) "
+        ("Generated from the typed schemas (`runners/config_schema.py`, `morality_gym/baselines/specs.py`) "
         "and the files of `conf/` when the site is built. A sweep composes `conf/config.yaml` over "
         "the top-level schema below; each group's files state only what differs from the field "
         "defaults. Override anything on the command line (`preset.budget=200000`, "
         "`launcher.workers=4`), or select another option (`preset=smoke`). See "
-        "[Run sweeps](../how-to/sweeps.md) for where each default lives and how to keep your own files.",
+        "[Run sweeps](../how-to/sweeps.md) for where each default lives and how to keep your own files."),
         "",
         "## The sweep (`conf/config.yaml`)",
         "",
@@ -405,7 +405,7 @@ def configuration_page() -> str:
 
 def _field_comments(source: str) -> dict[str, str]:
     return {m.group(1): m.group(2).strip()
-            for m in re.finditer(r'pa\.field\("(\w+)",[^\n]*?\),?[ \t]*#[ \t]*(.+)$', source, re.M)}
+            for m in re.finditer(r'pa\.field\("(\w+)",[^\n]*?\),?[ \t]*#[ \t]*(.+)$', source, re.MULTILINE)}
 
 
 def results_schema_page() -> str:
@@ -428,10 +428,10 @@ def results_schema_page() -> str:
         f"Schema version **{rs.SCHEMA_VERSION}**. Generated from `runners/results_schema.py` when the site is built.",
         "",
         *(_cell(p) for p in doc.split("\n\n")), "",
-        f"## Run rows: `runs/<run_id>.parquet`",
+        "## Run rows: `runs/<run_id>.parquet`",
         "",
-        f"One row per run; plus one float column `{rs.MF_PREFIX}<norm>` per norm of the run's chain "
-        "(its morality function in the final evaluation).",
+        (f"One row per run; plus one float column `{rs.MF_PREFIX}<norm>` per norm of the run's chain "
+        "(its morality function in the final evaluation)."),
         "",
         *table(rs.RUN_FIELDS),
         "## Learn-time evaluations: `runs/<run_id>.learn.parquet`",
