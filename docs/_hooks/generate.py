@@ -246,9 +246,19 @@ def _cell(text: str) -> str:
 
 
 def _parser_markdown(parser: argparse.ArgumentParser, level: int) -> list[str]:
-    formatter = parser._get_formatter()
-    usage = parser.format_usage().removeprefix("usage: ").strip()
-    lines = ["```text", " ".join(usage.split()), "```", ""]
+    import os
+
+    columns = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = "100"  # argparse wraps the usage at the terminal's width: the page's, here
+    try:
+        formatter = parser._get_formatter()
+        usage = parser.format_usage().removeprefix("usage: ").rstrip()
+    finally:
+        if columns is None:
+            del os.environ["COLUMNS"]
+        else:
+            os.environ["COLUMNS"] = columns
+    lines = ["```text", usage, "```", ""]
     if parser.description:
         lines += [_cell(parser.description), ""]
     rows = []
@@ -340,6 +350,22 @@ def _comment_of(cls: type) -> dict[str, str]:
     return out
 
 
+def _split_union(kind: str) -> list[str]:
+    """``int | None`` as ``["int", "None"]`` (a ``|`` inside a table cell's code cannot be escaped)."""
+    parts, depth, current = [], 0, ""
+    for ch in kind:
+        if ch in "[(":
+            depth += 1
+        elif ch in "])":
+            depth -= 1
+        if ch == "|" and depth == 0:
+            parts.append(current)
+            current = ""
+        else:
+            current += ch
+    return [*parts, current]
+
+
 def _schema_table(cls: type) -> list[str]:
     import inspect
 
@@ -348,7 +374,8 @@ def _schema_table(cls: type) -> list[str]:
     lines = [_cell(doc.split("\n\n")[0]), "", "| field | type | default | note |", "|---|---|---|---|"]
     for f in dataclasses.fields(cls):
         kind = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", str(f.type))
-        lines.append(f"| `{f.name}` | `{_cell(str(kind))}` | {_cell(_default(f))} | {_cell(comments.get(f.name, ''))} |")
+        kind = " or ".join(f"`{part.strip()}`" for part in _split_union(str(kind)))
+        lines.append(f"| `{f.name}` | {kind} | {_cell(_default(f))} | {_cell(comments.get(f.name, ''))} |")
     return lines + [""]
 
 
