@@ -504,8 +504,11 @@ def generated_files() -> dict[str, str | bytes]:
 def on_files(files: Any, config: Any) -> Any:
     from mkdocs.structure.files import File
 
+    # docs/envs/ is where `python -m morality_gym docs` writes by default: the catalogue replaces it.
+    for stale in [f for f in files if f.src_uri.startswith("envs/")]:
+        files.remove(stale)
     for path, content in generated_files().items():
-        stale = files.get_file_from_path(path)  # e.g. docs/envs/ written by `python -m morality_gym docs`
+        stale = files.get_file_from_path(path)
         if stale is not None:
             files.remove(stale)
         files.append(File.generated(config, path, content=content))
