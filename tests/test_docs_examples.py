@@ -4,7 +4,8 @@ The collector reads the fenced blocks of ``README.md`` and ``docs/**/*.md`` (the
 are made from the code and hold no examples):
 
 * ```` ```python ```` blocks run by default, in order, one namespace per page (a later block may
-  use what an earlier one defined), with the working directory in a fresh temporary folder;
+  use what an earlier one defined), in a process of the page's own (examples register scenarios
+  and set environment variables) with its working directory in a fresh temporary folder;
 * ```` ```bash ```` (or ``sh``/``console``) blocks run when the line before the fence is
   ``<!-- run -->``: each line is a command run by bash in that page's folder, with the checkout
   importable and ``python`` being this interpreter;
@@ -19,6 +20,7 @@ Other languages (yaml, text, ...) are data or output and are not run.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
@@ -96,24 +98,34 @@ def test_every_shell_block_is_marked() -> None:
     assert len(PAGES_WITH_CODE) >= 8, PAGES_WITH_CODE
 
 
+#: Runs a page's python blocks in order in one namespace, in a process of its own: examples register
+#: scenarios, set MORALITY_GYM_SCENARIOS and write files, which must not leak into the other tests.
+DRIVER = """
+import json, sys
+namespace = {"__name__": "__main__"}
+for where, code in json.load(open(sys.argv[1])):
+    print(f"--- {where}", flush=True)
+    exec(compile(code, where, "exec"), namespace)
+"""
+
+
 @pytest.mark.parametrize("page", [pytest.param(p, marks=pytest.mark.slow) if p in TRAINS else p for p in PAGES_WITH_CODE])
-def test_page_examples_run(page: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The page's python blocks in one namespace, then (in page order) its marked bash blocks."""
-    monkeypatch.chdir(tmp_path)
-    monkeypatch.setenv("MPLBACKEND", "Agg")
-    namespace: dict[str, object] = {"__name__": f"docs_{Path(page).stem}"}
-    for block in (b for b in ALL if b.page == page and b.skip is None):
-        if block.lang == "python":
-            if block.file:  # e.g. my_rule.py, which the page's commands then name
-                (tmp_path / block.file).write_text(block.code + "\n")
-            try:
-                exec(compile(block.code, block.where, "exec"), namespace)  # noqa: S102 - the docs' own examples
-            except Exception as exc:
-                raise AssertionError(f"the example at {block.where} fails: {exc!r}\n{block.code}") from exc
-        elif block.run:
-            proc = subprocess.run(["bash", "-euo", "pipefail", "-c", block.code], cwd=tmp_path, env=_env(),
-                                  capture_output=True, text=True, timeout=300, check=False)
-            assert proc.returncode == 0, f"the commands at {block.where} fail:\n{block.code}\n{proc.stdout}\n{proc.stderr}"
+def test_page_examples_run(page: str, tmp_path: Path) -> None:
+    """The page's python blocks in one namespace, then its marked bash blocks, in its own folder."""
+    runnable = [b for b in ALL if b.page == page and b.skip is None]
+    for block in runnable:
+        if block.file:  # e.g. my_rule.py, which the page's commands then name
+            (tmp_path / block.file).write_text(block.code + "\n")
+    python = [(b.where, b.code) for b in runnable if b.lang == "python"]
+    if python:
+        (tmp_path / ".blocks.json").write_text(json.dumps(python))
+        proc = subprocess.run([sys.executable, "-c", DRIVER, ".blocks.json"], cwd=tmp_path, env=_env(),
+                              capture_output=True, text=True, timeout=600, check=False)
+        assert proc.returncode == 0, f"an example of {page} fails (the last --- line names it):\n{proc.stdout}\n{proc.stderr}"
+    for block in (b for b in runnable if b.lang == "bash" and b.run):
+        proc = subprocess.run(["bash", "-euo", "pipefail", "-c", block.code], cwd=tmp_path, env=_env(),
+                              capture_output=True, text=True, timeout=300, check=False)
+        assert proc.returncode == 0, f"the commands at {block.where} fail:\n{block.code}\n{proc.stdout}\n{proc.stderr}"
 
 
 @pytest.mark.parametrize("block", [b for b in ALL if b.skip is not None], ids=lambda b: b.where)
