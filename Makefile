@@ -27,13 +27,14 @@ DEBIAN_PACKAGES := slurm-wlm munge slurmdbd mariadb-server chromium
 help:
 	@echo "make reproduce-table1 [PRESET=smoke|quick|paper] [LAUNCHER=local|slurm] [PROTOCOLS=\"paper corrected\"]"
 	@echo "                     run the Table 1 sweeps (resumable), then build table1.* and the leaderboard"
-	@echo "make test            install everything and run the whole test suite"
+	@echo "make test            install everything and run the whole test suite (it builds and checks the docs site too)"
 	@echo "make bench           measure speed; writes BENCHMARKS.md"
 	@echo "make leaderboard     rebuild results/table1.* and leaderboard/site from existing results"
 	@echo "make release NAME=x  freeze the runs under $(RESULTS)/ into releases/x/ (checksummed, for git)"
 	@echo "make reproduction    docs/reproduction.md: Table 1 vs the paper, cell by cell, from releases + $(RESULTS)/"
 	@echo "make mlflow-ui       browse the MLflow runs under $(RESULTS)/"
-	@echo "make docs            regenerate docs/envs/*.md from the scenario files"
+	@echo "make docs            build the documentation site into site/ (--strict: a broken link fails);"
+	@echo "                     the catalogue, command-line, configuration and results pages are generated"
 
 venv: $(STAMP)/venv
 $(STAMP)/venv: pyproject.toml
@@ -41,8 +42,8 @@ $(STAMP)/venv: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	# torch first and pinned: a CPU wheel of 2.13.0 is on disk; anything else pulls GBs of CUDA.
 	$(PIP) install -q torch==2.13.0
-	# the llm extra (Inspect AI) too: its tests run offline with Inspect's mock model.
-	$(PIP) install -q -e '.[dev,llm]'
+	# the llm extra (Inspect AI) too: its tests run offline with Inspect's mock model; docs: the site (make docs).
+	$(PIP) install -q -e '.[dev,llm,docs]'
 	@touch $@
 
 system-deps: $(STAMP)/system-deps
@@ -90,8 +91,9 @@ reproduction: venv
 mlflow-ui: venv
 	$(VENV)/bin/mlflow ui --backend-store-uri sqlite:///$(abspath $(RESULTS))/mlflow.db --port 5000
 
+# The site's generated pages (envs/, reference/cli.md, ...) are made by docs/_hooks/generate.py while it builds.
 docs: venv
-	$(PY) -m morality_gym docs --output docs/envs
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict --site-dir site
 
 slurm-up: system-deps
 	bash runners/slurm/slurm_up.sh

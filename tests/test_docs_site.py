@@ -1,0 +1,185 @@
+"""The documentation site builds with ``mkdocs build --strict`` and works in a real browser.
+
+The build (what ``make docs`` runs) fails on any warning: a broken link or anchor, a page left out
+of the navigation, an API reference mkdocstrings cannot resolve. The browser tests serve the built
+folder over HTTP (Material's search runs in a web worker, which ``file://`` does not allow) and
+open it in Debian's Chromium: the index, a scenario page with its pictures decoded, the API page of
+``morality_gym.make``, and the search. Requests to other hosts (the MathJax CDN) are refused, so
+the test runs offline. With ``DOCS_SHOTS=DIR`` it also saves screenshots of three pages to DIR.
+"""
+
+from __future__ import annotations
+
+import functools
+import http.server
+import os
+import socketserver
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENARIO = "PushOrSwitch"
+
+
+@functools.cache
+def hooks() -> Any:
+    """The MkDocs hook that generates pages (docs/_hooks/generate.py), imported by its path."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("docs_generate", ROOT / "docs" / "_hooks" / "generate.py")
+    module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    spec.loader.exec_module(module)  # type: ignore[union-attr]
+    return module
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("docs") / "site"
+    start = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(out)], cwd=ROOT,
+                          capture_output=True, text=True, env={**os.environ, "NO_MKDOCS_2_WARNING": "1"}, timeout=600,
+                          check=False)
+    assert proc.returncode == 0, f"mkdocs build --strict failed:\n{proc.stdout}\n{proc.stderr}"
+    print(f"mkdocs build --strict: {time.perf_counter() - start:.1f}s")
+    return out
+
+
+def test_site_has_every_generated_page(site: Path) -> None:
+    import morality_gym
+
+    for name, scenario in morality_gym.scenarios().items():
+        page = (site / "envs" / f"{name}.html").read_text()
+        for variant in scenario.variants:
+            env_id = scenario.env_id(variant)
+            assert f"MoralityGym/{env_id}" in page, env_id
+            assert (site / "envs" / "img" / f"{env_id}.png").stat().st_size > 1000, env_id
+    for name, chains in hooks()._paper_chains().items():
+        assert (site / "envs" / "img" / f"{name}.gif").stat().st_size > 1000, name
+        assert all(chain in (site / "envs" / f"{name}.html").read_text() for chain in chains)
+    cli = (site / "reference" / "cli.html").read_text()
+    for module, _ in hooks().COMMANDS:
+        assert f"python -m {module}" in cli, module
+    assert "--update-stride" in cli and "--dry-run" in cli  # flags of leaderboard.release and runners.migrate
+    config = (site / "reference" / "configuration.html").read_text()
+    assert "fleet_size" in config and "rollout_cap" in config and "array_parallelism" in config
+    schema = (site / "reference" / "results-schema.html").read_text()
+    from runners.results_schema import RUN_COLUMNS, UPDATE_COLUMNS
+
+    assert all(f"<code>{c}</code>" in schema for c in RUN_COLUMNS + UPDATE_COLUMNS)
+
+
+def test_catalogue_values_are_the_evaluators(site: Path) -> None:
+    """The Random and oracle numbers on a scenario page are what the evaluators give."""
+    from morality_gym import exact_evaluate, oracle
+
+    page = (site / "envs" / f"{SCENARIO}.html").read_text()
+    random = exact_evaluate("random", f"{SCENARIO}-Human-v1", "DualProcess").metric
+    best = oracle(f"{SCENARIO}-Human-v1", "DualProcess")
+    assert f"<td>DualProcess</td>\n<td>{random:.3f}</td>\n<td>{best.best.metric:.3f}</td>\n<td>{best.worst.metric:.3f}</td>" in page
+
+
+# ------------------------------------------------------------------------------------------------ browser
+
+
+@pytest.fixture(scope="module")
+def served(site: Path) -> Iterator[str]:
+    handler = functools.partial(_QuietHandler, directory=str(site))
+    with socketserver.TCPServer(("127.0.0.1", 0), handler) as server:
+        thread = threading.Thread(target=server.serve_forever, daemon=True)
+        thread.start()
+        try:
+            yield f"http://127.0.0.1:{server.server_address[1]}"
+        finally:
+            server.shutdown()
+
+
+class _QuietHandler(http.server.SimpleHTTPRequestHandler):
+    def log_message(self, format: str, *args: Any) -> None:
+        pass
+
+
+@pytest.fixture(scope="module")
+def page(served: str) -> Iterator[Any]:
+    from leaderboard.screenshot import CHROMIUM, launch_browser
+
+    if not CHROMIUM.is_file():
+        pytest.skip(f"Debian's chromium is not installed at {CHROMIUM} (apt-get install chromium, or make test)")
+    sync_api = pytest.importorskip("playwright.sync_api", reason="the playwright Python package is not installed")
+    with tempfile.TemporaryDirectory(prefix="docs-chromium-") as profile, sync_api.sync_playwright() as pw:
+        context = launch_browser(pw, Path(profile))
+        context.route("**/*", lambda route: route.continue_() if route.request.url.startswith(served)
+                      else route.abort())
+        page = context.new_page()
+        page.errors = []  # type: ignore[attr-defined]
+        page.on("pageerror", lambda exc: page.errors.append(str(exc)))
+        try:
+            yield page
+        finally:
+            context.close()
+
+
+def _shot(page: Any, name: str) -> None:
+    folder = os.environ.get("DOCS_SHOTS")
+    if folder:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(Path(folder) / f"{name}.png"), full_page=False)
+
+
+@pytest.mark.browser
+def test_index_opens(page: Any, served: str) -> None:
+    page.goto(f"{served}/index.html")
+    assert page.title().startswith("MoralityGym")
+    assert page.locator("nav").first.inner_text()
+    gif = page.locator("article img").first
+    gif.scroll_into_view_if_needed()
+    page.wait_for_function("img => img.complete && img.naturalWidth > 0", arg=gif.element_handle(), timeout=10_000)
+    _shot(page, "index")
+    assert not page.errors, page.errors
+
+
+@pytest.mark.browser
+def test_scenario_page_shows_its_pictures(page: Any, served: str) -> None:
+    page.goto(f"{served}/envs/{SCENARIO}.html")
+    assert page.locator("h1").first.inner_text().startswith(SCENARIO)
+    images = page.locator("article img")
+    assert images.count() >= 11  # the GIF and one picture per variant
+    for i in (0, 1, images.count() - 1):
+        image = images.nth(i)
+        image.scroll_into_view_if_needed()
+        page.wait_for_function("img => img.complete && img.naturalWidth > 0", arg=image.element_handle(), timeout=10_000)
+    page.goto(f"{served}/envs/{SCENARIO}.html")
+    _shot(page, "scenario")
+    assert not page.errors, page.errors
+
+
+@pytest.mark.browser
+def test_api_page_documents_make(page: Any, served: str) -> None:
+    page.goto(f"{served}/reference/api.html")
+    heading = page.locator('[id="morality_gym.api.make"]')
+    assert heading.count() == 1
+    assert "morality_gym.make" in heading.inner_text()
+    assert "Create an env and the morality chain bound to it" in page.locator("article").inner_text()
+    heading.scroll_into_view_if_needed()
+    _shot(page, "api")
+    assert not page.errors, page.errors
+
+
+@pytest.mark.browser
+def test_search_finds_dualprocess(page: Any, served: str) -> None:
+    page.goto(f"{served}/index.html")
+    page.keyboard.press("/")  # Material's shortcut to the search box
+    page.locator("input.md-search__input").press_sequentially("DualProcess", delay=20)  # typed: fill() sends no keys
+    results = page.locator(".md-search-result__item")
+    results.first.wait_for(timeout=20_000)
+    assert results.count() >= 1
+    assert "DualProcess" in page.locator(".md-search-result").inner_text()
+    assert "matching document" in page.locator(".md-search-result__meta").inner_text()
+    assert not page.errors, page.errors
