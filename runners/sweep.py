@@ -1,6 +1,7 @@
 """``python -m runners.sweep algo=cpo chain=utility``: compose, validate, plan, dispatch, record.
 
-1. Hydra composes ``conf/``; :mod:`runners.config` validates everything before anything runs.
+1. Hydra composes ``conf/``; :mod:`runners.config` validates everything and :mod:`runners.preflight`
+   checks the machine before anything runs.
 2. The plan expands chain x scenario x variant x algorithm x seed, prints the counts and an
    estimate of the time, and writes the sweep manifest (what should exist when it is done).
 3. Finished runs are skipped (their Parquet file exists with status ``ok``; failed ones are
@@ -34,6 +35,7 @@ from runners.jobs import dispatch_order, jobs_estimate, make_jobs
 from runners.manifest import manifest_name, write_manifest
 from runners.paths import CONF_DIR
 from runners.plan import PlannedRun, describe, plan
+from runners.preflight import preflight
 from runners.quarantine import check_run_files, read_table_or_quarantine
 
 _EXIT = {"code": 0, "entered": 0}
@@ -233,6 +235,7 @@ def _app(cfg: DictConfig) -> None:
     console = Console(stderr=True, width=None if sys.stderr.isatty() else 160)
     try:
         sweep = validate(cfg)
+        preflight(sweep)  # the machine: results directory, MLflow, SLURM
     except ConfigError as exc:
         if debug_enabled():
             raise
