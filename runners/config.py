@@ -4,15 +4,19 @@ Hydra composes ``conf/`` over the typed schemas of :mod:`runners.config_schema`,
 wrong types have already failed at composition. What is left here is what a type cannot say:
 ranges (in the schemas' ``__post_init__``), one setting against another (a variant of the
 selected scenarios, a budget that trains nothing, a protocol or preset naming an algo that does
-not exist), hyper-parameters against the learner's class, chain coverage, a writable results
-directory. Each raises :class:`ConfigError` naming the key, where it came from and the valid
-choices. Nothing is written and no run starts unless the whole sweep is valid.
+not exist), hyper-parameters against the learner's class, chain coverage. :func:`validate` runs one
+small builder or check per config group; each raises :class:`ConfigError` naming the key, where it
+came from and the valid choices. Nothing here looks beyond the configuration: whether the results
+directory can be written and MLflow or SLURM answer is :mod:`runners.preflight`'s question, asked
+by the sweep once the configuration is valid. Nothing is written and no run starts unless the
+whole sweep is valid.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import difflib
+import inspect
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -20,16 +24,18 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from morality_gym.baselines import typed
-from morality_gym.baselines.hparams import validate_learner
-from morality_gym.baselines.specs import ALGO_FILE_EXTRAS, LearnerSpec, ProtocolSpec, SpecError
+from morality_gym.baselines.hparams import algorithm_class, validate_learner
+from morality_gym.baselines.specs import ALGO_FILE_EXTRAS, LearnerSpec, ProtocolSpec, SpecError, training_steps
 from morality_gym.baselines.targets import learner_trains
 from morality_gym.envs.registry import scenarios as all_scenarios
 from morality_gym.norms.chain import ChainError, MoralityChain, check_name_collision, get_chain, parse_chain
-from runners.paths import CONF_DIR, find_config, group_options  # noqa: F401 - re-exported: CONF_DIR is defined once
+from morality_gym.norms.metric import bind_chain
 from runners.config_schema import ENGINES, LAUNCHERS, AlgoFile, Planning, Preset, register
+from runners.paths import CONF_DIR, config_roots, find_config, group_options  # noqa: F401 - re-exported: CONF_DIR is defined once
 
 register()  # the schemas conf/config.yaml names (sweep_schema, schema/launcher/*): Hydra needs them stored
 
@@ -95,6 +101,7 @@ class SweepConfig:
     device: str = "cpu"  # where fleets train (runners.config_schema.Sweep)
     chain_files: Mapping[str, str] = field(default_factory=dict)  # chain name -> config option name
     warnings: tuple[str, ...] = ()  # shown with the plan: valid, but probably not what the user meant
+    results_dir_setting: str = ""  # results_dir as written in the configuration, for messages about it
 
 
 def _load_chain(option: str, node: Any) -> MoralityChain:
@@ -140,8 +147,6 @@ def _group(cfg: DictConfig, key: str) -> dict[str, Any]:
 def _scenario_chains() -> dict[str, list[str]]:
     """Each scenario's chains (a sweep for a chain covers the scenarios that list it), from every
     scenario file on the search path (selected or not; a user's file replaces conf/'s of the same name)."""
-    from runners.paths import config_roots
-
     out: dict[str, list[str]] = {}
     files = {}
     for root in reversed(config_roots()):
@@ -207,10 +212,6 @@ def _n_steps(spec: LearnerSpec) -> int | None:
     (None for a class that takes no ``n_steps``, e.g. an off-policy one or the random baseline)."""
     if "n_steps" in spec.hparams:
         return int(spec.hparams["n_steps"])
-    import inspect
-
-    from morality_gym.baselines.hparams import algorithm_class
-
     try:
         parameter = inspect.signature(algorithm_class(spec.target)).parameters.get("n_steps")
     except (SpecError, ValueError, TypeError):
@@ -234,8 +235,6 @@ def _cap_rollout(spec: LearnerSpec, cap: int, where: str) -> LearnerSpec:
 def _rollout_warning(spec: LearnerSpec, preset: Preset, pairs: list[tuple[MoralityChain, str]]) -> str | None:
     """A warning if one rollout of the learner is longer than the smallest budget of the sweep: it
     then trains a whole rollout (SB3's accounting) or nothing at all (``floor``), not the budget."""
-    from morality_gym.baselines.specs import training_steps
-
     n_steps = _n_steps(spec)
     if n_steps is None or not learner_trains(spec.target) or not pairs:
         return None
@@ -255,13 +254,26 @@ def _algo(option: str, node: Mapping[str, Any], preset: Preset, protocol: Protoc
     path, file_node = load_algo_file(option)
     where = f"algo={option} ({path})"
     file_values = {k: v for k, v in file_node.items() if k not in ALGO_FILE_EXTRAS}
+    composed = {k: v for k, v in node.items() if k not in ALGO_FILE_EXTRAS}
+    base, spec = _algo_spec(option, where, file_values, composed, preset, protocol)
+    _check_hparam_types(where, spec, base)
+    try:
+        validate_learner(spec)  # keys against the algorithm class, values against sane ranges
+    except SpecError as exc:
+        raise ConfigError(f"{where}: {exc}") from exc
+    planning = dict(node.get("planning") or {})
+    steps_per_s, overhead, speedup = _planning_rate(where, planning, file_values, spec, protocol.name)
+    return AlgoChoice(spec, steps_per_s, overhead, speedup)
+
+
+def _algo_spec(option: str, where: str, file_values: Mapping[str, Any], composed: Mapping[str, Any],
+               preset: Preset, protocol: ProtocolSpec) -> tuple[LearnerSpec, LearnerSpec]:
+    """The learner as its file states it, and as the sweep trains it (the layers of :func:`_algo`)."""
     # What the command line changed: the composed node against the file over the same schema.
     try:
         file_typed = OmegaConf.to_container(typed.merge(AlgoFile, file_values, where=where))
     except typed.TypedConfigError as exc:
         raise ConfigError(str(exc)) from exc
-    composed = {k: v for k, v in node.items() if k not in ALGO_FILE_EXTRAS}
-    planning = dict(node.get("planning") or {})
     name = composed.get("name") or option
     try:
         base = LearnerSpec.from_mapping(file_values, name, where=where)
@@ -278,13 +290,7 @@ def _algo(option: str, node: Mapping[str, Any], preset: Preset, protocol: Protoc
         raise ConfigError(f"{where}: {exc}" if where not in str(exc) else str(exc)) from exc
     except TypeError as exc:
         raise ConfigError(f"{where}: {exc}") from exc
-    _check_hparam_types(where, spec, base)
-    try:
-        validate_learner(spec)  # keys against the algorithm class, values against sane ranges
-    except SpecError as exc:
-        raise ConfigError(f"{where}: {exc}") from exc
-    steps_per_s, overhead, speedup = _planning_rate(where, planning, file_values, spec, protocol.name)
-    return AlgoChoice(spec, steps_per_s, overhead, speedup)
+    return base, spec
 
 
 _PLANNING_KEYS = set(typed.valid_keys(Planning)) - {"protocols"}
@@ -306,6 +312,18 @@ def _planning_rate(where: str, planning: Mapping[str, Any], file_values: Mapping
     after one pass under ``paper`` and after up to 40 under ``corrected``). ``fleet_speedup`` is
     the fleet engine's measured gain at K >= 12 (BENCHMARKS.md), used by :mod:`runners.jobs`.
     """
+    steps_per_s, share, overhead, speedup = _planning_values(where, _planning_for(where, planning, protocol))
+    ratio = 1.0
+    for key in ("n_epochs", "n_critic_updates"):
+        reference, actual = file_values.get("hparams", {}).get(key), spec.hparams.get(key)
+        if reference and actual:
+            ratio *= actual / reference
+    seconds_per_step = ((1.0 - share) + share * ratio) / steps_per_s
+    return 1.0 / seconds_per_step, overhead, speedup
+
+
+def _planning_for(where: str, planning: Mapping[str, Any], protocol: str | None) -> dict[str, Any]:
+    """The algo's planning values with those of ``planning.protocols.<protocol>`` over them."""
     planning = dict(planning)
     by_protocol = planning.pop("protocols", None) or {}
     if not isinstance(by_protocol, Mapping):
@@ -318,6 +336,12 @@ def _planning_rate(where: str, planning: Mapping[str, Any], file_values: Mapping
     unknown = set(planning) - _PLANNING_KEYS
     if unknown:
         raise ConfigError(f"{where}: unknown planning key(s) {sorted(unknown)}; valid: {sorted(_PLANNING_KEYS | {'protocols'})}")
+    return planning
+
+
+def _planning_values(where: str, planning: Mapping[str, Any]) -> tuple[float, float, float, float]:
+    """``steps_per_s``, ``update_share``, ``overhead_s`` and ``fleet_speedup`` as numbers in range
+    (:class:`runners.config_schema.Planning`'s defaults for those not given)."""
     default = Planning()
     try:
         steps_per_s = float(planning.get("steps_per_s", default.steps_per_s))
@@ -329,13 +353,7 @@ def _planning_rate(where: str, planning: Mapping[str, Any], file_values: Mapping
     if steps_per_s <= 0 or not 0.0 <= share <= 1.0 or overhead < 0 or speedup < 1.0:
         raise ConfigError(f"{where}: planning needs steps_per_s > 0, 0 <= update_share <= 1, overhead_s >= 0, fleet_speedup >= 1; "
                           f"got {dict(planning)}")
-    ratio = 1.0
-    for key in ("n_epochs", "n_critic_updates"):
-        reference, actual = file_values.get("hparams", {}).get(key), spec.hparams.get(key)
-        if reference and actual:
-            ratio *= actual / reference
-    seconds_per_step = ((1.0 - share) + share * ratio) / steps_per_s
-    return 1.0 / seconds_per_step, overhead, speedup
+    return steps_per_s, share, overhead, speedup
 
 
 def _preset(node: Any) -> Preset:
@@ -348,120 +366,137 @@ def _preset(node: Any) -> Preset:
     return preset
 
 
-def _results_dir(value: Any) -> Path:
-    """The results directory, created if needed and proven writable by writing a probe file."""
-    import tempfile
+def results_path(value: Any) -> Path:
+    """The results directory as an absolute path (relative to where the sweep was started).
 
+    Only the setting is checked here; whether the directory can be written is a question about the
+    machine, answered by :func:`runners.preflight.check_results_dir` just before the sweep runs.
+    """
     if not isinstance(value, str) or not value:
         raise ConfigError(f"results_dir: expected a path, got {value!r}")
     path = Path(value).expanduser()
     if not path.is_absolute():
         path = Path(os.environ.get("MORALITY_GYM_ORIGINAL_CWD", os.getcwd())) / path
-    if path.exists() and not path.is_dir():
-        raise ConfigError(f"results_dir={value}: exists and is not a directory")
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=path, prefix=".write-probe-"):
-            pass
-    except OSError as exc:
-        raise ConfigError(f"results_dir={value}: not a writable directory ({exc.strerror or exc})") from exc
     return path
 
 
-def validate(cfg: DictConfig) -> SweepConfig:
-    """Check the composed config and resolve it into a :class:`SweepConfig`."""
-    if "hydra" in cfg:  # composed with the compose API and return_hydra_config=True: its search path counts
-        from hydra.core.hydra_config import HydraConfig
+def _without_hydra(cfg: DictConfig) -> DictConfig:
+    """``cfg`` without its ``hydra`` node. A configuration composed with ``return_hydra_config=True``
+    (as the sweep composes it) carries its search path there, which
+    :func:`runners.paths.config_roots` must see while the groups are resolved, so it is made current."""
+    if "hydra" not in cfg:
+        return cfg
+    HydraConfig.instance().set_config(cfg)
+    return OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"])
 
-        HydraConfig.instance().set_config(cfg)
-        cfg = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"])
-    known = all_scenarios()
-    preset = _preset(_group(cfg, "preset"))
-    algo_options = group_options("algo")
+
+def _preset_with_algos(node: Any, algo_options: list[str]) -> Preset:
+    """The preset (:func:`_preset`), whose ``algo_overrides`` may only name existing algos."""
+    preset = _preset(node)
     for algo_name in preset.algo_overrides:
         if algo_name not in algo_options:
             raise ConfigError(f"preset={preset.name}.algo_overrides: unknown algo {algo_name!r}{_hint(algo_name, algo_options)}")
+    return preset
 
-    chains_sel = _group(cfg, "chain")
-    if not chains_sel:
+
+def _chains(selection: Mapping[str, Any]) -> dict[str, MoralityChain]:
+    """The selected chains by config option; at least one, and no two different ones of one name."""
+    if not selection:
         raise ConfigError("chain: select at least one chain, e.g. chain=utility")
     chains: dict[str, MoralityChain] = {}
-    for option, node in chains_sel.items():
+    for option, node in selection.items():
         if isinstance(node, Mapping) and ("ref" in node or "norms" in node) and option in ("ref", "norms", "name"):
             raise ConfigError("chain: a chain file is missing its '# @package chain.<file name>' first line")
         chains[option] = _load_chain(option, node)
     _check_distinct_chains(chains)
+    return chains
 
-    algos_sel = _group(cfg, "algo")
-    if not algos_sel:
+
+def _algo_selection(selection: Mapping[str, Any], algo_options: list[str]) -> Mapping[str, Any]:
+    """The selected algo nodes by option; at least one, each from a file with its package line."""
+    if not selection:
         raise ConfigError("algo: select at least one algorithm, e.g. algo=ppo")
-    for option, node in algos_sel.items():
+    for option, node in selection.items():
         if not isinstance(node, Mapping) or option not in algo_options:
             raise ConfigError(f"algo: a selected algo file is missing its '# @package algo.<file name>' first line "
                               f"(its key {option!r} landed at the top of the algo group); add the line")
-    protocol_node = _group(cfg, "protocol")
+    return selection
+
+
+def _protocol(node: Mapping[str, Any], algo_options: list[str]) -> ProtocolSpec:
+    """The protocol, whose ``learner_overrides`` may only name existing algos."""
     try:
-        protocol = ProtocolSpec.from_mapping(protocol_node, where=f"protocol={protocol_node.get('name', '?')}")
+        protocol = ProtocolSpec.from_mapping(node, where=f"protocol={node.get('name', '?')}")
     except SpecError as exc:
         raise ConfigError(f"protocol: {exc}") from exc
     for algo_name in protocol.learner_overrides:
         if algo_name not in algo_options:
             raise ConfigError(f"protocol={protocol.name}.learner_overrides: unknown algo {algo_name!r}"
                               f"{_hint(str(algo_name), algo_options)}; keys are algo names, valid: {', '.join(algo_options)}")
-    algos = tuple(_algo(option, node, preset, protocol) for option, node in algos_sel.items())
+    return protocol
 
-    paper_chains = _scenario_chains()
-    scen_sel = _group(cfg, "scenario")
-    for name in scen_sel:
+
+def _scenario_selection(selection: Mapping[str, Any], known: Mapping[str, Any]) -> Mapping[str, Any]:
+    """The scenarios chosen with ``scenario=...`` (empty: each chain's scenarios of the paper)."""
+    for name in selection:
         if name not in known:
             raise ConfigError(f"scenario: unknown scenario {name!r}{_hint(name, list(known))}; valid: {', '.join(known)}")
+    return selection
 
-    experiment = _group(cfg, "experiment")
+
+def _experiment_pairs(experiment: Mapping[str, Any], chains: Mapping[str, MoralityChain],
+                      scen_sel: Mapping[str, Any], known: Mapping[str, Any]) -> list[tuple[MoralityChain, str]]:
+    """An experiment's fixed (chain, scenario) pairs, narrowed by ``chain=`` and ``scenario=``."""
+    raw_pairs = experiment.get("pairs")
+    if not isinstance(raw_pairs, list) or not raw_pairs:
+        raise ConfigError(f"experiment={experiment.get('name')}: 'pairs' must be a list of [chain, Scenario]")
     pairs: list[tuple[MoralityChain, str]] = []
-    if experiment:
-        raw_pairs = experiment.get("pairs")
-        if not isinstance(raw_pairs, list) or not raw_pairs:
-            raise ConfigError(f"experiment={experiment.get('name')}: 'pairs' must be a list of [chain, Scenario]")
-        for item in raw_pairs:
-            if not isinstance(item, list) or len(item) != 2:
-                raise ConfigError(f"experiment.pairs: expected [chain, Scenario], got {item!r}")
-            option, scenario = item
-            if option not in chains:
-                continue  # narrowed away by chain=...
-            if scenario not in known:
-                raise ConfigError(f"experiment.pairs: unknown scenario {scenario!r}{_hint(scenario, list(known))}")
-            if scen_sel and scenario not in scen_sel:
-                continue
-            pairs.append((chains[option], scenario))
-    else:
-        for option, chain in chains.items():
-            if scen_sel:
-                targets = list(scen_sel)
-            else:
-                targets = [s for s, cs in paper_chains.items() if option in cs]
-                if not targets:
-                    raise ConfigError(
-                        f"chain={option}: no scenario of the paper uses this chain; choose scenarios, e.g. 'scenario=[push_or_switch]'"
-                    )
-            pairs.extend((chain, s) for s in targets)
-    if not pairs:
-        raise ConfigError("the selection is empty: no (chain, scenario) pair remains")
+    for item in raw_pairs:
+        if not isinstance(item, list) or len(item) != 2:
+            raise ConfigError(f"experiment.pairs: expected [chain, Scenario], got {item!r}")
+        option, scenario = item
+        if option not in chains:
+            continue  # narrowed away by chain=...
+        if scenario not in known:
+            raise ConfigError(f"experiment.pairs: unknown scenario {scenario!r}{_hint(scenario, list(known))}")
+        if scen_sel and scenario not in scen_sel:
+            continue
+        pairs.append((chains[option], scenario))
+    return pairs
 
-    variants = cfg.get("variant")
-    if variants is not None:
-        variants = _one_or_list(variants)
-        if not variants or not all(isinstance(v, (str, int)) and not isinstance(v, bool) for v in variants):
-            raise ConfigError(f"variant: expected a variant name or a list of them, e.g. 'variant=[HumanA]', got {variants!r}")
-        variants = [str(v) for v in variants]  # variant=1 is parsed as a number; the check below names the valid ones
-        for v in variants:
-            if not any(v in known[s].variants for _, s in pairs):
-                valid = sorted({vv for _, s in pairs for vv in known[s].variants})
-                raise ConfigError(f"variant: {v!r} is not a variant of the selected scenarios{_hint(v, valid)}; valid: {', '.join(valid)}")
 
-    # Coverage: every env the sweep will run must be scorable by its chain; the variant filter
-    # applies first, so a chain that only fits some variants can be swept on those.
-    from morality_gym.norms.metric import bind_chain
+def _chain_pairs(chains: Mapping[str, MoralityChain], scen_sel: Mapping[str, Any],
+                 paper_chains: Mapping[str, list[str]]) -> list[tuple[MoralityChain, str]]:
+    """Each chain on the chosen scenarios, or on the scenarios of the paper that list it."""
+    pairs: list[tuple[MoralityChain, str]] = []
+    for option, chain in chains.items():
+        targets = list(scen_sel) if scen_sel else [s for s, cs in paper_chains.items() if option in cs]
+        if not targets:
+            raise ConfigError(
+                f"chain={option}: no scenario of the paper uses this chain; choose scenarios, e.g. 'scenario=[push_or_switch]'"
+            )
+        pairs.extend((chain, s) for s in targets)
+    return pairs
 
+
+def _variants(value: Any, pairs: list[tuple[MoralityChain, str]], known: Mapping[str, Any]) -> list[str] | None:
+    """The variants to keep (None: every variant), each a variant of some selected scenario."""
+    if value is None:
+        return None
+    variants = _one_or_list(value)
+    if not variants or not all(isinstance(v, (str, int)) and not isinstance(v, bool) for v in variants):
+        raise ConfigError(f"variant: expected a variant name or a list of them, e.g. 'variant=[HumanA]', got {variants!r}")
+    variants = [str(v) for v in variants]  # variant=1 is parsed as a number; the check below names the valid ones
+    for v in variants:
+        if not any(v in known[s].variants for _, s in pairs):
+            valid = sorted({vv for _, s in pairs for vv in known[s].variants})
+            raise ConfigError(f"variant: {v!r} is not a variant of the selected scenarios{_hint(v, valid)}; valid: {', '.join(valid)}")
+    return variants
+
+
+def _check_coverage(pairs: list[tuple[MoralityChain, str]], variants: list[str] | None, known: Mapping[str, Any]) -> None:
+    """Every env the sweep will run must be scorable by its chain. The variant filter applies
+    first, so a chain that only fits some variants can be swept on those."""
     for chain, scenario in pairs:
         for variant in known[scenario].variants:
             if variants is not None and variant not in variants:
@@ -472,34 +507,42 @@ def validate(cfg: DictConfig) -> SweepConfig:
             except (ChainError, ValueError) as exc:
                 raise ConfigError(f"chain {chain.name} cannot score {env_id}: {exc}; "
                                   "choose the variants it can score with variant=[...]") from exc
-    seeds = cfg.get("seed")
-    if seeds is None:
-        seed_list = preset.seeds
-    else:
-        raw = _one_or_list(seeds)
-        if not raw:
-            raise ConfigError(f"seed: expected an integer >= 0 or a list of them, e.g. 'seed=[41,42]', got {seeds!r}")
-        seed_list = tuple(_int("seed", s) for s in raw)
 
-    beta = cfg.get("beta")
-    if isinstance(beta, bool) or not isinstance(beta, (int, float)) or not 0 < beta <= 1:
-        raise ConfigError(f"beta: expected a number in (0, 1], got {beta!r}")
-    max_steps = cfg.get("max_steps")
-    if max_steps is not None:
-        max_steps = _int("max_steps", max_steps, 1)
+
+def _seeds(value: Any, preset: Preset) -> tuple[int, ...]:
+    """``seed=`` (one or a list), else the preset's seeds."""
+    if value is None:
+        return tuple(preset.seeds)
+    raw = _one_or_list(value)
+    if not raw:
+        raise ConfigError(f"seed: expected an integer >= 0 or a list of them, e.g. 'seed=[41,42]', got {value!r}")
+    return tuple(_int("seed", s) for s in raw)
+
+
+def _beta(value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value <= 1:
+        raise ConfigError(f"beta: expected a number in (0, 1], got {value!r}")
+    return float(value)
+
+
+def _check_budgets(algos: tuple[AlgoChoice, ...], pairs: list[tuple[MoralityChain, str]], preset: Preset) -> None:
+    """A learner that trains needs a budget above 0 on every scenario it is swept on."""
     for algo in algos:
         for _, scenario in pairs:
             if learner_trains(algo.spec.target) and preset.budget_for(scenario) <= 0:
                 raise ConfigError(f"preset={preset.name}.budget: a budget of 0 steps trains nothing ({algo.spec.name} on {scenario})")
 
-    warnings = tuple(w for algo in algos if (w := _rollout_warning(algo.spec, preset, pairs)))
 
-    launcher_node = _group(cfg, "launcher")
-    kind = launcher_node.get("name")
+def _launcher(node: Mapping[str, Any]) -> dict[str, Any]:
+    """The launcher's settings over its own schema (:data:`runners.config_schema.LAUNCHERS`)."""
+    kind = node.get("name")
     if kind not in LAUNCHERS:
         raise ConfigError(f"launcher: unknown launcher {kind!r}{_hint(str(kind), list(LAUNCHERS))}; valid: {', '.join(LAUNCHERS)}")
-    launcher = dataclasses.asdict(_typed(LAUNCHERS[kind], launcher_node, where=f"launcher={kind}"))
+    return dataclasses.asdict(_typed(LAUNCHERS[kind], node, where=f"launcher={kind}"))
 
+
+def _engine(cfg: DictConfig) -> tuple[str, int, str]:
+    """The training engine, the largest fleet and the device fleets train on."""
     engine = cfg.get("engine")
     if engine not in ENGINES:
         raise ConfigError(f"engine: expected fleet or single, got {engine!r}{_hint(str(engine), list(ENGINES))}")
@@ -508,48 +551,79 @@ def validate(cfg: DictConfig) -> SweepConfig:
     if device != "cpu":
         if engine != "fleet":
             raise ConfigError(f"device={device}: only the fleet engine trains off the CPU; use engine=fleet or device=cpu")
+        # Imported here: the fleet engine imports torch (seconds), which a CPU sweep's checks never need.
         from morality_gym.baselines.fleet.base import fleet_device
 
         try:
             fleet_device(device)
         except SpecError as exc:
             raise ConfigError(str(exc)) from exc
-    if cfg.get("mlflow") and not cfg.get("dry_run"):
-        from runners.tracking import TrackingError, check_reachable
+    return str(engine), fleet_size, device
 
-        try:
-            check_reachable(_results_dir(cfg.get("results_dir")))
-        except TrackingError as exc:
-            raise ConfigError(str(exc)) from exc
-    if kind == "slurm" and not cfg.get("dry_run"):
-        from runners.slurm_controller import SlurmUnavailable, check_controller
 
-        try:
-            check_controller()
-        except SlurmUnavailable as exc:
-            raise ConfigError(str(exc)) from exc
-    name = cfg.get("name") or (
-        (experiment.get("name") if experiment else "-".join(a.spec.name for a in algos) + "_" + "-".join(chains))
-        + f"_{protocol.name}_{preset.name}"
-    )
+def _sweep_name(name: Any, experiment: Mapping[str, Any], algos: tuple[AlgoChoice, ...],
+                chains: Mapping[str, MoralityChain], protocol: ProtocolSpec, preset: Preset) -> str:
+    """``name=``, else the experiment's name or the algos and chains, then the protocol and preset."""
+    if name:
+        return str(name)
+    selection = experiment.get("name") if experiment else "-".join(a.spec.name for a in algos) + "_" + "-".join(chains)
+    return f"{selection}_{protocol.name}_{preset.name}"
+
+
+def validate(cfg: DictConfig) -> SweepConfig:
+    """Check the composed config and resolve it into a :class:`SweepConfig`, group by group.
+
+    The checks run in a fixed order (the first error is the one reported, so the order is part of
+    what a user sees): preset, chains, algos, protocol, scenarios, pairs, variants, coverage, seeds,
+    the sweep-wide values, launcher, engine. Nothing outside the configuration is touched; the
+    machine (a writable results directory, MLflow, SLURM) is checked by
+    :func:`runners.preflight.preflight` once the configuration is known to be valid.
+    """
+    cfg = _without_hydra(cfg)
+    known = all_scenarios()
+    algo_options = group_options("algo")
+    preset = _preset_with_algos(_group(cfg, "preset"), algo_options)
+    chains = _chains(_group(cfg, "chain"))
+    algos_sel = _algo_selection(_group(cfg, "algo"), algo_options)
+    protocol = _protocol(_group(cfg, "protocol"), algo_options)
+    algos = tuple(_algo(option, node, preset, protocol) for option, node in algos_sel.items())
+    paper_chains = _scenario_chains()
+    scen_sel = _scenario_selection(_group(cfg, "scenario"), known)
+    experiment = _group(cfg, "experiment")
+    pairs = (_experiment_pairs(experiment, chains, scen_sel, known) if experiment
+             else _chain_pairs(chains, scen_sel, paper_chains))
+    if not pairs:
+        raise ConfigError("the selection is empty: no (chain, scenario) pair remains")
+    variants = _variants(cfg.get("variant"), pairs, known)
+    _check_coverage(pairs, variants, known)
+    seeds = _seeds(cfg.get("seed"), preset)
+    beta = _beta(cfg.get("beta"))
+    max_steps = cfg.get("max_steps")
+    if max_steps is not None:
+        max_steps = _int("max_steps", max_steps, 1)
+    _check_budgets(algos, pairs, preset)
+    warnings = tuple(w for algo in algos if (w := _rollout_warning(algo.spec, preset, pairs)))
+    launcher = _launcher(_group(cfg, "launcher"))
+    engine, fleet_size, device = _engine(cfg)
     return SweepConfig(
         pairs=tuple(pairs),
         variants=tuple(variants) if variants is not None else None,
-        seeds=tuple(seed_list),
+        seeds=seeds,
         algos=algos,
         protocol=protocol,
         preset=preset,
         launcher=launcher,
-        beta=float(beta),
+        beta=beta,
         max_steps=max_steps,
-        results_dir=_results_dir(cfg.get("results_dir")),
+        results_dir=results_path(cfg.get("results_dir")),
+        results_dir_setting=str(cfg.get("results_dir")),
         dry_run=cfg.get("dry_run"),
         retry_failed=cfg.get("retry_failed"),
         mlflow=cfg.get("mlflow"),
         gif=cfg.get("gif"),
-        name=str(name),
+        name=_sweep_name(cfg.get("name"), experiment, algos, chains, protocol, preset),
         chain_files={chain.name: option for option, chain in chains.items()},
-        engine=str(engine),
+        engine=engine,
         fleet_size=fleet_size,
         device=device,
         warnings=warnings,

@@ -1,51 +1,554 @@
 """``python -m runners.sweep algo=cpo chain=utility``: compose, validate, plan, dispatch, record.
 
-1. Hydra composes ``conf/``; :mod:`runners.config` validates everything before anything runs.
-2. The plan expands chain x scenario x variant x algorithm x seed, prints the counts and an
-   estimate of the time, and writes the sweep manifest (what should exist when it is done).
-3. Finished runs are skipped (their Parquet file exists with status ``ok``; failed ones are
-   retried unless ``retry_failed=false``); the rest go to the local pool or SLURM.
-4. Each finished run is mirrored into MLflow by this process; anything left unmirrored by an
-   earlier, interrupted sweep is mirrored at the end.
+The path of a sweep, from the command line to its first run (docs/architecture.md):
+
+1. :func:`main` reads the command line once (:func:`parse_command_line`): Hydra-style flags and
+   ``key=value`` overrides. :func:`prepare_overrides` adds the installed plugins' config packages
+   to the search path, rewrites user scenarios and chain files into options Hydra can compose
+   (:mod:`runners.options`) and checks group options and hyper-parameter names, naming the
+   closest valid ones (:func:`precheck`).
+2. :func:`compose_sweep` composes ``conf/`` once, with Hydra's compose API; :func:`runners.config.validate`
+   resolves it into a typed :class:`~runners.config.SweepConfig`, and :func:`runners.preflight.preflight`
+   checks the machine (results directory, MLflow, SLURM) before anything is written.
+3. :func:`make_plan` expands chain x scenario x variant x algorithm x seed into a :class:`Plan`:
+   the runs, which are finished (their Parquet file exists with status ``ok``; failed ones are
+   retried unless ``retry_failed=false``), the jobs that do the rest and an estimate of the
+   time. :func:`print_plan` shows it and :func:`record_plan` writes the sweep manifest (what
+   should exist when it is done); ``dry_run=true`` lists the runs (:func:`print_dry_run`) and stops.
+4. :func:`dispatch` sends the jobs to the local pool or SLURM; each finished run is mirrored into
+   MLflow by this process, and anything left unmirrored by an earlier, interrupted sweep is
+   mirrored at the end (:func:`mirror_finished`). :func:`report` prints the outcome.
+
 Exit status: 0 if every planned run is ``ok``, 1 if some failed (they are listed), 2 for an
 invalid configuration or another user error (one line; ``--debug`` or ``MORALITY_GYM_DEBUG=1``
 shows the traceback). Killing the sweep at any point and running it again finishes it with no
 lost and no duplicated results; an unreadable result file is moved aside and its run done again
 (:mod:`runners.quarantine`); two sweeps on one directory share it safely (per-run locks, and one
 MLflow writer at a time).
+
+Flags. The configuration is composed with Hydra's compose API, not run as a ``@hydra.main``
+application, so the flags are this module's own, spelt as Hydra spells them: ``--config-dir``/``-cd``,
+``--config-name``/``-cn``, ``--cfg``/``-c`` ``job|hydra|all`` (with ``--resolve`` and
+``--package``/``-p``: print the composed configuration and run nothing), ``--info``/``-i``
+``searchpath|config``, ``--multirun``/``-m`` (one sweep per combination of comma-separated
+values, ``algo=random,ppo``: each is checked before the first runs), ``--run``/``-r`` (the default),
+``--help``/``-h``, ``--version`` and ``--debug``. Hydra's ``--hydra-help``, ``--shell-completion``,
+``--config-path`` and ``--experimental-rerun`` and ``--info`` ``defaults|defaults-tree|plugins``
+no longer apply (an unknown flag is a one-line error, exit 2). ``hydra.*`` overrides are still
+composed (``hydra/job_logging``, ``hydra.verbose`` configure logging as before), but nothing is
+written under ``hydra.run.dir`` or ``hydra.sweep.dir``: the configuration never wrote a file
+there (``hydra.output_subdir: null``), so the only change is that a ``--multirun`` sweep no longer
+leaves an empty ``multirun/`` directory behind.
 """
 
 from __future__ import annotations
 
+import argparse
+import difflib
+import itertools
 import os
 import sys
 import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import hydra
-from omegaconf import DictConfig
+import yaml
+from hydra import compose, initialize_config_dir
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.utils import configure_log
+from omegaconf import DictConfig, OmegaConf
+from rich.console import Console
 from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.table import Table
 
-from morality_gym.clitools import DEBUG_ENV, debug_enabled, duration, one_line, run_cli
+from morality_gym.baselines.hparams import accepted_hparams
+from morality_gym.baselines.specs import SpecError
+from morality_gym.baselines.targets import add_python_roots
+from morality_gym.clitools import DEBUG_ENV, debug_enabled, duration, one_line, run_cli, version_text
+from morality_gym.envs.naming import squash
+from morality_gym.envs.registry import skipped_scenario_files
+from morality_gym.norms.chain import ChainError
 from runners.config import ConfigError, SweepConfig, validate  # also stores the schemas (runners.config_schema)
+from runners.config_schema import SweepOverheads, composition_error
 from runners.execute import finished_status, record_failure
-from runners.jobs import dispatch_order, jobs_estimate, make_jobs
+from runners.jobs import Job, dispatch_order, jobs_estimate, make_jobs
 from runners.manifest import manifest_name, write_manifest
-from runners.paths import CONF_DIR
+from runners.options import normalise_argv
+from runners.options import options as group_options
+from runners.paths import CONF_DIR, find_config, plugin_sources, source_dir, sources_from_argv, split_list
 from runners.plan import PlannedRun, describe, plan
-from runners.quarantine import check_run_files, read_table_or_quarantine
+from runners.pool import JobProgress, WorkerPool
+from runners.preflight import preflight
+from runners.quarantine import Quarantined, check_run_files, read_table_or_quarantine
+from runners.results_schema import run_path
+from runners.slurm_launcher import SlurmUnavailable, run_on_slurm
+from runners.tracking import Tracker, TrackingError, tracking_uri
 
-_EXIT = {"code": 0, "entered": 0}
+#: How the manifest names the program (``sys.argv[0]`` of ``python -m runners.sweep``, also when
+#: :mod:`runners.table1` runs the sweep in its own process).
+PROGRAM = __file__
+
+_GROUPS = ("scenario", "chain", "algo", "protocol", "preset", "launcher", "experiment")
 
 
+# ---------------------------------------------------------------------------------------- command line
+class CommandLineError(ValueError):
+    """A flag this command does not take, or a flag without its value (one line, exit 2)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # type: ignore[override] - argparse's prints the usage and exits
+        raise CommandLineError(f"{message}; see python -m runners.sweep --help")
+
+
+#: Flags of a ``@hydra.main`` application that mean nothing to a composed sweep (module docstring),
+#: by the name of their value (None: a switch): known to the parser, so that ``-cp DIR`` is not read
+#: as ``-c p``, and refused with the reason.
+HYDRA_ONLY_FLAGS: dict[tuple[str, ...], str | None] = {
+    ("--hydra-help",): None, ("-sc", "--shell-completion"): "ACTION", ("-cp", "--config-path"): "DIR",
+    ("--experimental-rerun",): "FILE",
+}
+
+
+def _hydra_only_dest(flags: tuple[str, ...]) -> str:
+    return "hydra_only_" + flags[-1].lstrip("-").replace("-", "_")
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="python -m runners.sweep", add_help=False)
+    parser.add_argument("overrides", nargs="*", help="key=value: a config group option or any setting")
+    parser.add_argument("-h", "--help", action="store_true", help="show this help, the groups and the composed configuration")
+    parser.add_argument("--version", action="store_true", help="show the version (and Hydra's)")
+    parser.add_argument("--debug", action="store_true", help=f"show tracebacks of user errors too (or set {DEBUG_ENV}=1)")
+    parser.add_argument("-c", "--cfg", choices=["job", "hydra", "all"], help="print the composed configuration; run nothing")
+    parser.add_argument("--resolve", action="store_true", help="with --cfg: resolve interpolations")
+    parser.add_argument("-p", "--package", help="with --cfg: print this node only")
+    parser.add_argument("-i", "--info", nargs="?", const="searchpath", choices=["searchpath", "config"],
+                        help="print the config search path or the composed configuration")
+    parser.add_argument("-m", "--multirun", action="store_true", help="one sweep per combination of a,b,... values")
+    parser.add_argument("-r", "--run", action="store_true", help="one sweep (the default)")
+    parser.add_argument("-cd", "--config-dir", help="a directory of your own config files (algo/, chain/, ...)")
+    parser.add_argument("-cn", "--config-name", default="config", help="the primary config (default: config)")
+    for flags, value in HYDRA_ONLY_FLAGS.items():
+        if value is None:
+            parser.add_argument(*flags, action="store_true", dest=_hydra_only_dest(flags), help=argparse.SUPPRESS)
+        else:
+            parser.add_argument(*flags, metavar=value, dest=_hydra_only_dest(flags), help=argparse.SUPPRESS)
+    return parser
+
+
+@dataclass(frozen=True)
+class CommandLine:
+    """The command line, read once: the overrides as typed and what the flags ask for."""
+
+    overrides: tuple[str, ...]
+    argv: tuple[str, ...] = ()  # as typed, for the manifest's record of the command
+    config_dir: str | None = None
+    config_name: str = "config"
+    show: str | None = None  # --cfg job|hydra|all
+    resolve: bool = False
+    package: str | None = None
+    info: str | None = None
+    help: bool = False
+    multirun: bool = False
+    version: bool = False
+    debug: bool = False
+
+    @property
+    def search_args(self) -> list[str]:
+        """``--config-dir DIR`` as the helpers that read search paths from a command line expect it."""
+        return ["--config-dir", self.config_dir] if self.config_dir else []
+
+
+
+def parse_command_line(argv: Sequence[str]) -> CommandLine:
+    """The flags and overrides of ``argv`` (flags may come before, between or after overrides)."""
+    args = _parser().parse_intermixed_args(list(argv))
+    for flags in HYDRA_ONLY_FLAGS:
+        if getattr(args, _hydra_only_dest(flags)):
+            raise CommandLineError(f"{flags[-1]} is a flag of Hydra applications that this command does not take (it "
+                                   "composes its configuration with Hydra's compose API); see python -m runners.sweep --help")
+    return CommandLine(overrides=tuple(args.overrides), argv=tuple(argv), config_dir=args.config_dir, config_name=args.config_name,
+                       show=args.cfg, resolve=args.resolve, package=args.package, info=args.info, help=args.help,
+                       multirun=args.multirun, version=args.version, debug=args.debug)
+
+
+# ---------------------------------------------------------------------------------------- before composition
+def _hparam_override(key: str, value: str, argv: list[str]) -> str | None:
+    """An ``[+]algo.<option>.hparams.<name>=...`` override whose name the algorithm does not take.
+
+    Hydra would answer a name without ``+`` with "Key ... is not in struct" and advise adding
+    ``+``; the real problem is usually a typo, so it is named here, with the closest names. Works
+    for any learner: the names are its class's constructor parameters.
+    """
+    parts = key.lstrip("+~").split(".")
+    if len(parts) != 4 or parts[0] != "algo" or parts[2] != "hparams" or key.startswith("~"):
+        return None
+    path = find_config("algo", parts[1], argv)
+    if path is None:
+        return None
+    target = (yaml.safe_load(path.read_text()) or {}).get("_target_")
+    try:
+        accepted = accepted_hparams(str(target))
+    except (SpecError, ValueError):
+        return None  # reported with its file by the validation
+    if parts[3] in accepted:
+        return None
+    close = difflib.get_close_matches(parts[3], list(accepted), n=1)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    return f"{key}={value}: {parts[3]!r} is not a hyper-parameter of algo {parts[1]}{hint}; valid: {', '.join(sorted(accepted))}"
+
+
+def _group_selection(group: str, value: str, argv: list[str]) -> str | None:
+    """A ``group=option`` or ``group=[a,b]`` selection naming an option the group does not have."""
+    value = value.strip()
+    options = [o.strip() for o in value.strip("[]").split(",") if o.strip()] if value not in ("null", "[]") else []
+    valid = group_options(group, argv)
+    for option in options:
+        if option not in valid:
+            skipped = _skipped_scenario(option) if group == "scenario" else None
+            if skipped:
+                return f"scenario={option}: {skipped}"
+            close = difflib.get_close_matches(option, valid, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            return f"{group}={value}: unknown {group} {option!r}{hint}; valid: {', '.join(valid)}"
+    return None
+
+
+def precheck(argv: list[str]) -> str | None:
+    """Check config-group selections and hyper-parameter names on the command line, before Hydra
+    (whose messages for these do not say what the valid options are). Returns an error or None.
+
+    Options are looked up on the whole search path: ``conf/``, ``--config-dir DIR`` (either form),
+    ``hydra.searchpath=[...]`` and the installed plugins.
+    """
+    for source in sources_from_argv(argv):
+        directory = source_dir(source)
+        if directory is None or not directory.is_dir():
+            return (f"config search path entry {source!r} is not a directory; give an existing directory "
+                    "(--config-dir DIR, hydra.searchpath=[file:///abs/dir] or [pkg://package])")
+    for arg in argv:
+        if "=" not in arg or arg.startswith("-"):
+            continue
+        key, value = arg.split("=", 1)
+        problem = _hparam_override(key, value, argv)
+        if not problem and key.lstrip("+~") in _GROUPS:
+            problem = _group_selection(key.lstrip("+~"), value, argv)
+        if problem:
+            return problem
+    return None
+
+
+def _skipped_scenario(option: str) -> str | None:
+    """Why a scenario of this name is missing, when a ``MORALITY_GYM_SCENARIOS`` file declaring it
+    was skipped as invalid (its file, field and fix), else None."""
+    for item in skipped_scenario_files():
+        if squash(item.name or item.path.stem) == squash(option):
+            return f"the file defining it, {item.path}, was skipped as invalid: {item.error.removeprefix(f'{item.path}: ')}"
+    return None
+
+
+def with_plugins(argv: list[str]) -> list[str]:
+    """``argv`` with the installed plugins' config packages added to ``hydra.searchpath`` (merged
+    with the user's own entries, which come first), and every user config directory made
+    importable, here and in the workers (:func:`morality_gym.baselines.targets.add_python_roots`):
+    a ``_target_`` module kept next to ``algo/`` in a config directory needs no install."""
+    add_python_roots([d for s in sources_from_argv(argv) if not s.startswith("pkg://") and (d := source_dir(s)) is not None])
+    plugins = plugin_sources()
+    if not plugins:
+        return argv
+    out, merged = [], False
+    for arg in argv:
+        if arg.lstrip("+").startswith("hydra.searchpath="):
+            key, value = arg.split("=", 1)
+            items = [*split_list(value), *(p for p in plugins if p not in split_list(value))]
+            out.append(f"{key}=[{','.join(items)}]")
+            merged = True
+        else:
+            out.append(arg)
+    if not merged:
+        out.append(f"hydra.searchpath=[{','.join(plugins)}]")
+    return out
+
+
+def _with_config_dir(overrides: list[str], config_dir: str | None) -> list[str]:
+    """``--config-dir DIR`` as an entry of ``hydra.searchpath`` (after the user's own), which is what
+    Hydra itself made of the flag: one more directory on the search path."""
+    if not config_dir:
+        return overrides
+    extra = f"file://{source_dir(config_dir)}"
+    out, merged = [], False
+    for item in overrides:
+        if item.lstrip("+").startswith("hydra.searchpath="):
+            key, value = item.split("=", 1)
+            item, merged = f"{key}=[{','.join([*split_list(value), extra])}]", True
+        out.append(item)
+    return out if merged else [*out, f"hydra.searchpath=[{extra}]"]
+
+
+def prepare_overrides(line: CommandLine) -> tuple[list[str], str]:
+    """The overrides to compose and the command line the manifest records.
+
+    The plugins' search path, the user's spellings of scenarios and chains (:mod:`runners.options`)
+    and :func:`precheck` see ``--config-dir`` as typed; composition sees it as a search-path entry.
+    Raises :class:`ConfigError` (or :class:`~morality_gym.norms.chain.ChainError` for a user's chain
+    file that cannot be read) with one line.
+    """
+    tokens = normalise_argv(with_plugins([*line.search_args, *line.overrides]))
+    problem = precheck(tokens)
+    if problem:
+        raise ConfigError(problem)
+    rewritten = tokens[len(line.search_args):]
+    return _with_config_dir(rewritten, line.config_dir), _recorded_command(line, rewritten)
+
+
+def _recorded_command(line: CommandLine, rewritten: list[str]) -> str:
+    """The command line as the manifest records it: as typed, without ``--debug``, each override
+    as it is composed (a chain file as its option) and the plugins' search path added at the end
+    when the line gave none (:func:`with_plugins`)."""
+    out, i = [PROGRAM], 0
+    for arg in line.argv:
+        if i < len(line.overrides) and arg == line.overrides[i]:
+            out.append(rewritten[i])
+            i += 1
+        elif arg != "--debug":
+            out.append(arg)
+    return " ".join([*out, *rewritten[len(line.overrides):]])
+
+
+# ---------------------------------------------------------------------------------------- composition
+def compose_sweep(overrides: Sequence[str], config_name: str = "config") -> DictConfig:
+    """``conf/`` composed with ``overrides`` over the typed schemas (:mod:`runners.config_schema`),
+    with its ``hydra`` node (the search path, logging). A key or value the schemas refuse is a
+    :class:`ConfigError` of one line naming the key, its file or override and the closest valid key."""
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            return compose(config_name, overrides=list(overrides), return_hydra_config=True)
+    except Exception as exc:
+        raise ConfigError(composition_error(exc, lambda group, option: find_config(group, option, list(overrides)))) from exc
+
+
+def compose_check(argv: list[str]) -> str | None:
+    """The one-line composition error of a command line's overrides (``--config-dir`` in either
+    form), or None: :func:`compose_sweep`'s check on its own, for tests and tools."""
+    try:
+        line = parse_command_line(argv)
+        compose_sweep(_with_config_dir(list(line.overrides), line.config_dir), line.config_name)
+    except (ConfigError, CommandLineError) as exc:
+        return str(exc)
+    return None
+
+
+def expand(overrides: list[str], multirun: bool) -> list[list[str]]:
+    """The overrides of each sweep: one, or with ``--multirun`` one per combination of the values
+    of sweep overrides (``algo=random,ppo``, ``seed=range(1,3)``), in the order Hydra's basic
+    sweeper ran them. Without ``--multirun`` such a value is refused at composition."""
+    if not multirun:
+        return [overrides]
+    try:
+        parsed = OverridesParser.create().parse_overrides(overrides)
+    except Exception as exc:
+        raise ConfigError(composition_error(exc)) from exc
+    choices = [[f"{o.get_key_element()}={v}" for v in o.sweep_string_iterator()] if o.is_sweep_override() else [o.input_line]
+               for o in parsed]
+    return [list(combination) for combination in itertools.product(*choices)]
+
+
+def load_sweeps(overrides: list[str], line: CommandLine) -> list[SweepConfig]:
+    """Each sweep of the command line composed and validated, before the first one runs.
+
+    Logging is configured from the first composition as ``@hydra.main`` configured it, Hydra's
+    own first, then the job's (``conf/config.yaml``: Hydra's disabled, the job's to stdout), before
+    validation imports the learners."""
+    sweeps = []
+    for i, each in enumerate(expand(overrides, line.multirun)):
+        cfg = compose_sweep(each, line.config_name)
+        if i == 0:
+            configure_log(cfg.hydra.hydra_logging, cfg.hydra.verbose)
+            configure_log(cfg.hydra.job_logging, cfg.hydra.verbose)
+        sweeps.append(validate(cfg))
+    return sweeps
+
+
+# ---------------------------------------------------------------------------------------- what Hydra's flags printed
+def _search_path_table(cfg: DictConfig) -> str:
+    rows = [("Provider", "Search path"), *((s.provider, f"{s.schema}://{s.path}") for s in cfg.hydra.runtime.config_sources)]
+    widths = [max(len(r[i]) for r in rows) for i in (0, 1)]
+    lines = [f"| {a.ljust(widths[0])} | {b.ljust(widths[1])} |" for a, b in rows]
+    rule = "-" * len(lines[0])
+    return "\n".join(["", "Config search path", "*" * len("Config search path"), lines[0], rule, *lines[1:], rule])
+
+
+def _config_yaml(cfg: DictConfig, part: str, resolve: bool = False, package: str | None = None) -> str:
+    """The composed configuration as ``--cfg`` prints it: the job's part, Hydra's, or all."""
+    keys = {"job": [k for k in cfg if k != "hydra"], "hydra": ["hydra"], "all": list(cfg)}[part]
+    node: Any = OmegaConf.masked_copy(cfg, keys)
+    header = ""
+    if package:
+        node, header = OmegaConf.select(node, package), f"# @package {package}\n"
+    text = OmegaConf.to_yaml(node, resolve=resolve) if OmegaConf.is_config(node) else f"{node}\n"
+    return header + text
+
+
+def _help(cfg: DictConfig, overrides: list[str]) -> str:
+    groups = "\n".join(f"{g}: {', '.join(group_options(g, overrides))}" for g in _GROUPS)
+    return (f"{_parser().format_help()}\n== Configuration groups ==\nCompose your configuration from those groups "
+            f"(group=option)\n\n{groups}\n\n== Config ==\nOverride anything in the config (foo.bar=value)\n\n"
+            f"{_config_yaml(cfg, 'job')}")
+
+
+def show(line: CommandLine, overrides: list[str]) -> int:
+    """``--help``, ``--cfg`` and ``--info``: print what was asked about the composed configuration."""
+    cfg = compose_sweep(overrides, line.config_name)
+    if line.help:
+        print(_help(cfg, overrides))
+    elif line.show:
+        print(_config_yaml(cfg, line.show, line.resolve, line.package), end="")
+    elif line.info == "searchpath":
+        print(_search_path_table(cfg))
+    else:
+        print(_config_yaml(cfg, "job"))
+    return 0
+
+
+# ---------------------------------------------------------------------------------------- the plan
 def _workers(sweep: SweepConfig) -> int:
     if sweep.launcher["name"] == "slurm":
         return int(sweep.launcher["array_parallelism"])
     return int(sweep.launcher.get("workers") or len(os.sched_getaffinity(0)) or 1)
 
 
-class FleetBars:
+def sweep_overheads(sweep: SweepConfig, n_todo: int) -> float:
+    """Seconds the sweep spends besides training its runs (:class:`runners.config_schema.SweepOverheads`)."""
+    uri = tracking_uri(sweep.results_dir)
+    new_store = uri.startswith("sqlite:///") and not Path(uri.removeprefix("sqlite:///")).exists()
+    return SweepOverheads().seconds(n_todo, new_store=new_store, mlflow=sweep.mlflow)
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A sweep's runs and what is left of them, as a value: printed, recorded and dispatched.
+
+    ``status``: each run's result before the sweep (``ok``, ``failed`` or None); ``todo``: the runs
+    to train, cut into ``jobs`` for ``workers`` parallel workers (:mod:`runners.jobs`); ``counts``:
+    :func:`runners.plan.describe`'s totals per learner; ``estimate_s``: the wall time of what
+    remains; ``moved``: unreadable result files moved aside while the plan was made.
+    """
+
+    runs: tuple[PlannedRun, ...]
+    status: Mapping[str, str | None]
+    todo: tuple[PlannedRun, ...]
+    jobs: tuple[Job, ...]
+    workers: int
+    counts: Mapping[str, Any]
+    estimate_s: float
+    moved: tuple[Quarantined, ...] = ()
+
+    @property
+    def fleets(self) -> tuple[Job, ...]:
+        """The jobs that train several runs together."""
+        return tuple(j for j in self.jobs if j.engine == "fleet")
+
+
+def make_plan(sweep: SweepConfig) -> Plan:
+    """Expand the sweep into runs, learn which are finished (moving unreadable files aside) and cut
+    the rest into jobs, longest first."""
+    runs = plan(sweep)
+    sweep.results_dir.mkdir(parents=True, exist_ok=True)
+    moved = check_run_files(sweep.results_dir, [r.run_id for r in runs])
+    status = {r.run_id: finished_status(sweep.results_dir, r.run_id) for r in runs}
+    done = {rid for rid, s in status.items() if s == "ok" or (s == "failed" and not sweep.retry_failed)}
+    workers = _workers(sweep)
+    todo = [r for r in runs if r.run_id not in done]
+    jobs = dispatch_order(make_jobs(todo, sweep.engine, sweep.fleet_size, workers,
+                                    {a.spec.name: a.fleet_speedup for a in sweep.algos}), workers)
+    estimate = jobs_estimate(jobs, done, workers) + sweep_overheads(sweep, len(todo))
+    return Plan(runs=tuple(runs), status=status, todo=tuple(todo), jobs=tuple(jobs), workers=workers,
+                counts=describe(runs, done, workers), estimate_s=estimate, moved=tuple(moved))
+
+
+def _warn(console: Console, text: str) -> None:
+    console.print(f"[yellow]{escape(text)}[/yellow]", markup=True, highlight=False, soft_wrap=True)
+
+
+def _engine_line(plan_: Plan, sweep: SweepConfig) -> str | None:
+    """How the runs to do train: in fleets (how many, how large) or one by one, and why."""
+    fleets, todo = plan_.fleets, plan_.todo
+    if fleets:
+        in_fleets = sum(len(j.runs) for j in fleets)
+        return (f"engine [bold]fleet[/bold]: {in_fleets} of {len(todo)} runs to do train in {len(fleets)} fleet(s) of "
+                f"{min(len(j.runs) for j in fleets)}-{max(len(j.runs) for j in fleets)} runs, the other {len(todo) - in_fleets} "
+                "one by one (engine=single trains every run on its own)")
+    if todo:
+        return "engine [bold]single[/bold]: every run trains on its own" + (
+            "" if sweep.engine == "single" else " (no two runs to do can share a fleet)")
+    return None
+
+
+def print_plan(plan_: Plan, sweep: SweepConfig, console: Console) -> None:
+    """The files moved aside, the counts per learner, the warnings, the settings and the estimate,
+    and how the runs train."""
+    for moved in plan_.moved:
+        _warn(console, moved.describe(sweep.results_dir))
+    counts = plan_.counts
+    console.print(f"sweep [bold]{sweep.name}[/bold]: {counts['total']} runs ({counts['done']} done, {counts['todo']} to run)")
+    table = Table()
+    for col in ("learner", "runs", "done"):
+        table.add_column(col, justify="right" if col != "learner" else "left")
+    for label, (n, d) in counts["by_algo"].items():
+        table.add_row(label, str(n), str(d))
+    console.print(table)
+    for warning in sweep.warnings:
+        _warn(console, f"warning: {warning}")
+    console.print(
+        f"protocol [bold]{sweep.protocol.name}[/bold], preset [bold]{sweep.preset.name}[/bold], seeds {list(sweep.seeds)}, "
+        f"launcher [bold]{sweep.launcher['name']}[/bold] ({plan_.workers} parallel), results in {sweep.results_dir}; "
+        f"estimated time for what remains: [bold]{duration(plan_.estimate_s)}[/bold]"
+    )
+    engine = _engine_line(plan_, sweep)
+    if engine:
+        console.print(engine)
+
+
+def record_plan(plan_: Plan, sweep: SweepConfig, command: str, console: Console) -> Path:
+    """Write the sweep manifest (what should exist when the sweep is done) and say where."""
+    name = manifest_name(sweep.name, [r.run_id for r in plan_.runs])
+    write_manifest(
+        sweep.results_dir,
+        name,
+        [r.identity for r in plan_.runs],
+        command=command,
+        preset=sweep.preset.name,
+        protocol=sweep.protocol.name,
+        preset_seeds=list(sweep.preset.seeds),
+        dry_run=sweep.dry_run,
+    )
+    path = sweep.results_dir / "manifests" / (name + ".json")
+    console.print(f"plan recorded in {path}" + (" (dry run: not counted as planned by the leaderboard)" if sweep.dry_run else ""),
+                  soft_wrap=True)
+    return path
+
+
+def print_dry_run(plan_: Plan, console: Console) -> None:
+    """Every planned run: its id, env, chain, learner, seed, budget, the job it trains in, its status."""
+    listing = Table(title="planned runs")
+    for col in ("run id", "env id", "chain", "learner", "seed", "budget", "job", "status"):
+        listing.add_column(col)
+    job_of = {r.run_id: (f"fleet {i + 1} ({len(j.runs)} runs)" if j.engine == "fleet" else "single")
+              for i, j in enumerate(plan_.jobs) for r in j.runs}
+    for r in plan_.runs:
+        c = r.config
+        listing.add_row(r.run_id, c["env_id"], c["chain"]["name"], c["algo"]["label"], str(c["seed"]), str(c["budget"]),
+                        job_of.get(r.run_id, "-"), plan_.status[r.run_id] or "-")
+    console.print(listing)
+
+
+# ---------------------------------------------------------------------------------------- dispatch
+class FleetBars(JobProgress):
     """One progress bar per fleet while it trains (steps per run), under the sweep's bar of runs:
     at the paper's budget a fleet trains for many minutes before its first run is written.
     (A :class:`runners.pool.JobProgress`; SLURM jobs train on other nodes and show none.)"""
@@ -67,155 +570,69 @@ class FleetBars:
             self.progress.remove_task(task)
 
 
-def sweep_overheads(sweep: SweepConfig, n_todo: int) -> float:
-    """Seconds the sweep spends besides training its runs (:class:`runners.config_schema.SweepOverheads`)."""
-    from runners.config_schema import SweepOverheads
-    from runners.tracking import tracking_uri
+class _Outcomes:
+    """What :func:`dispatch` hears of each run: its result is mirrored into MLflow (a failure to
+    mirror is retried by the next sweep, never loses the result) and the bar advances."""
 
-    uri = tracking_uri(sweep.results_dir)
-    new_store = uri.startswith("sqlite:///") and not Path(uri.removeprefix("sqlite:///")).exists()
-    return SweepOverheads().seconds(n_todo, new_store=new_store, mlflow=sweep.mlflow)
+    def __init__(self, sweep: SweepConfig, tracker: Tracker | None, progress: Progress, console: Console, total: int) -> None:
+        self.sweep, self.tracker, self.progress, self.console = sweep, tracker, progress, console
+        self.failures: dict[str, str] = {}
+        self.task = progress.add_task(sweep.name, total=total, note="0 failed")
+
+    def finish(self, run: PlannedRun, summary: dict[str, Any]) -> None:
+        if summary["status"] != "ok":
+            self.failures[run.run_id] = str(summary.get("error"))
+        else:
+            self.failures.pop(run.run_id, None)
+        if self.tracker is not None:
+            try:
+                self.tracker.sync(run.run_id)
+            except Exception as exc:  # noqa: BLE001 - tracking must never lose a result
+                self.console.print(f"[yellow]MLflow mirror of {run.run_id} failed ({exc}); it is retried next time[/yellow]")
+        self.progress.update(self.task, advance=1, note=f"{len(self.failures)} failed")
+
+    def fail(self, run: PlannedRun, error: str) -> None:
+        record_failure(run.config, run.run_id, self.sweep.results_dir, error)
+        self.finish(run, {"status": "failed", "error": error})
 
 
-def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
-    """Plan and execute a validated sweep; returns the exit status."""
-    from rich.console import Console
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-    from rich.table import Table
+def dispatch(plan_: Plan, sweep: SweepConfig, tracker: Tracker | None, console: Console) -> None:
+    """Train the plan's jobs on the sweep's launcher (the local pool, or SLURM), under a bar of runs."""
+    columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[note]}"),
+               TimeElapsedColumn(), TimeRemainingColumn())
+    with Progress(*columns, console=console, transient=False) as progress:
+        outcomes = _Outcomes(sweep, tracker, progress, console, len(plan_.todo))
+        if not plan_.todo:
+            return
+        if sweep.launcher["name"] == "slurm":
+            run_on_slurm(list(plan_.jobs), sweep.launcher, sweep.results_dir, sweep.gif, sweep.name, outcomes.finish,
+                         outcomes.fail, sweep.device)
+        else:
+            WorkerPool(plan_.workers, sweep.results_dir, sweep.gif, sweep.device).run(
+                list(plan_.jobs), outcomes.finish, outcomes.fail, FleetBars(progress))
 
-    console = console or Console(stderr=True)
-    runs = plan(sweep)
-    sweep.results_dir.mkdir(parents=True, exist_ok=True)
-    for moved in check_run_files(sweep.results_dir, [r.run_id for r in runs]):
-        console.print(f"[yellow]{escape(moved.describe(sweep.results_dir))}[/yellow]", markup=True, highlight=False, soft_wrap=True)
-    status = {r.run_id: finished_status(sweep.results_dir, r.run_id) for r in runs}
-    done = {rid for rid, s in status.items() if s == "ok" or (s == "failed" and not sweep.retry_failed)}
-    workers = _workers(sweep)
-    info = describe(runs, done, workers)
-    todo_runs = [r for r in runs if r.run_id not in done]
-    jobs = dispatch_order(make_jobs(todo_runs, sweep.engine, sweep.fleet_size, workers,
-                                    {a.spec.name: a.fleet_speedup for a in sweep.algos}), workers)
-    info["est_seconds"] = jobs_estimate(jobs, done, workers) + sweep_overheads(sweep, len(todo_runs))
-    fleets = [j for j in jobs if j.engine == "fleet"]
-    console.print(f"sweep [bold]{sweep.name}[/bold]: {info['total']} runs ({info['done']} done, {info['todo']} to run)")
-    table = Table()
-    for col in ("learner", "runs", "done"):
-        table.add_column(col, justify="right" if col != "learner" else "left")
-    for label, (n, d) in info["by_algo"].items():
-        table.add_row(label, str(n), str(d))
-    console.print(table)
-    for warning in sweep.warnings:
-        console.print(f"[yellow]warning: {escape(warning)}[/yellow]", markup=True, highlight=False, soft_wrap=True)
+
+def mirror_finished(plan_: Plan, sweep: SweepConfig, tracker: Tracker, console: Console) -> None:
+    """Mirror every finished run of the plan into MLflow: those an earlier, interrupted sweep left
+    unmirrored too (a run already mirrored is not mirrored twice)."""
+    for r in plan_.runs:
+        if finished_status(sweep.results_dir, r.run_id) is not None:
+            try:
+                tracker.sync(r.run_id)
+            except Exception as exc:  # noqa: BLE001 - tracking must never lose a result
+                console.print(f"[yellow]MLflow mirror of {r.run_id} failed: {exc}[/yellow]")
+
+
+def report(plan_: Plan, sweep: SweepConfig, console: Console, seconds: float) -> int:
+    """Print how the sweep ended (ok, failed, missing; each failed run with its error); the exit status."""
+    final = {r.run_id: finished_status(sweep.results_dir, r.run_id) for r in plan_.runs}
+    failed = [r for r in plan_.runs if final[r.run_id] == "failed"]
+    missing = [r for r in plan_.runs if final[r.run_id] is None]
     console.print(
-        f"protocol [bold]{sweep.protocol.name}[/bold], preset [bold]{sweep.preset.name}[/bold], seeds {list(sweep.seeds)}, "
-        f"launcher [bold]{sweep.launcher['name']}[/bold] ({workers} parallel), results in {sweep.results_dir}; "
-        f"estimated time for what remains: [bold]{duration(info['est_seconds'])}[/bold]"
-    )
-    if fleets:
-        in_fleets = sum(len(j.runs) for j in fleets)
-        console.print(
-            f"engine [bold]fleet[/bold]: {in_fleets} of {len(todo_runs)} runs to do train in {len(fleets)} fleet(s) of "
-            f"{min(len(j.runs) for j in fleets)}-{max(len(j.runs) for j in fleets)} runs, the other {len(todo_runs) - in_fleets} "
-            "one by one (engine=single trains every run on its own)"
-        )
-    elif todo_runs:
-        console.print("engine [bold]single[/bold]: every run trains on its own" + (
-            "" if sweep.engine == "single" else " (no two runs to do can share a fleet)"))
-    tracker = None
-    if sweep.mlflow and not sweep.dry_run:
-        from runners.tracking import Tracker
-
-        tracker = Tracker(sweep.results_dir)  # before the manifest: a broken store stops nothing half-way
-    name = manifest_name(sweep.name, [r.run_id for r in runs])
-    write_manifest(
-        sweep.results_dir,
-        name,
-        [r.identity for r in runs],
-        command=" ".join(sys.argv),
-        preset=sweep.preset.name,
-        protocol=sweep.protocol.name,
-        preset_seeds=list(sweep.preset.seeds),
-        dry_run=sweep.dry_run,
-    )
-    console.print(f"plan recorded in {sweep.results_dir / 'manifests' / (name + '.json')}"
-                  + (" (dry run: not counted as planned by the leaderboard)" if sweep.dry_run else ""), soft_wrap=True)
-    if sweep.dry_run:
-        listing = Table(title="planned runs")
-        for col in ("run id", "env id", "chain", "learner", "seed", "budget", "job", "status"):
-            listing.add_column(col)
-        job_of = {r.run_id: (f"fleet {i + 1} ({len(j.runs)} runs)" if j.engine == "fleet" else "single")
-                  for i, j in enumerate(jobs) for r in j.runs}
-        for r in runs:
-            c = r.config
-            listing.add_row(r.run_id, c["env_id"], c["chain"]["name"], c["algo"]["label"], str(c["seed"]), str(c["budget"]),
-                            job_of.get(r.run_id, "-"), status[r.run_id] or "-")
-        console.print(listing)
-        return 0
-
-    todo = todo_runs
-    failures: dict[str, str] = {}
-    started = time.perf_counter()
-    with Progress(
-        TextColumn("[bold]{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("{task.fields[note]}"),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-        console=console,
-        transient=False,
-    ) as progress:
-        task = progress.add_task(sweep.name, total=len(todo), note="0 failed")
-
-        def finish(run: PlannedRun, summary: dict[str, Any]) -> None:
-            if summary["status"] != "ok":
-                failures[run.run_id] = str(summary.get("error"))
-            else:
-                failures.pop(run.run_id, None)
-            if tracker is not None:
-                try:
-                    tracker.sync(run.run_id)
-                except Exception as exc:  # noqa: BLE001 - tracking must never lose a result
-                    console.print(f"[yellow]MLflow mirror of {run.run_id} failed ({exc}); it is retried next time[/yellow]")
-            progress.update(task, advance=1, note=f"{len(failures)} failed")
-
-        def fail(run: PlannedRun, error: str) -> None:
-            record_failure(run.config, run.run_id, sweep.results_dir, error)
-            finish(run, {"status": "failed", "error": error})
-
-        if todo:
-            if sweep.launcher["name"] == "slurm":
-                from runners.slurm_launcher import run_on_slurm
-
-                run_on_slurm(jobs, sweep.launcher, sweep.results_dir, sweep.gif, sweep.name, finish, fail, sweep.device)
-            else:
-                from runners.pool import WorkerPool
-
-                WorkerPool(workers, sweep.results_dir, sweep.gif, sweep.device).run(jobs, finish, fail, FleetBars(progress))
-    if tracker is not None:
-        for r in runs:
-            if finished_status(sweep.results_dir, r.run_id) is not None:
-                try:
-                    tracker.sync(r.run_id)
-                except Exception as exc:  # noqa: BLE001
-                    console.print(f"[yellow]MLflow mirror of {r.run_id} failed: {exc}[/yellow]")
-    final = {r.run_id: finished_status(sweep.results_dir, r.run_id) for r in runs}
-    failed = [r for r in runs if final[r.run_id] == "failed"]
-    missing = [r for r in runs if final[r.run_id] is None]
-    console.print(
-        f"finished in {duration(time.perf_counter() - started)}: {sum(s == 'ok' for s in final.values())} ok, "
-        f"{len(failed)} failed, {len(missing)} missing (of {len(runs)})"
+        f"finished in {duration(seconds)}: {sum(s == 'ok' for s in final.values())} ok, "
+        f"{len(failed)} failed, {len(missing)} missing (of {len(plan_.runs)})"
     )
     if failed:
-        from runners.results_schema import run_path
-
         console.print("[red]failed runs:[/red]")
         for r in failed:
             table = read_table_or_quarantine(sweep.results_dir, run_path(sweep.results_dir, r.run_id), columns=["error"])
@@ -225,227 +642,83 @@ def run_sweep(sweep: SweepConfig, console: Any = None) -> int:
     return 0 if not failed and not missing else 1
 
 
-@hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name="config")
-def _app(cfg: DictConfig) -> None:
-    from rich.console import Console
-
-    _EXIT["entered"] = 1  # past Hydra's composition: a SystemExit from here on is a crash, not a config error
-    console = Console(stderr=True, width=None if sys.stderr.isatty() else 160)
-    try:
-        sweep = validate(cfg)
-    except ConfigError as exc:
-        if debug_enabled():
-            raise
-        console.print(f"[red]configuration error:[/red] {escape(one_line(exc))}", markup=True, highlight=False, soft_wrap=True)
-        _EXIT["code"] = 2
-        return
-    try:
-        _EXIT["code"] = run_sweep(sweep, console)
-    except user_errors() as exc:  # Hydra would print these with a traceback
-        if debug_enabled():
-            raise
-        console.print(f"[red]error:[/red] {escape(one_line(exc))}", markup=True, highlight=False, soft_wrap=True)
-        _EXIT["code"] = 2
+def run_sweep(sweep: SweepConfig, console: Console | None = None, command: str | None = None) -> int:
+    """Plan, record and execute a validated sweep whose machine passed :func:`runners.preflight.preflight`;
+    returns the exit status. ``command``: the command line the manifest records (default: this process's)."""
+    console = console or Console(stderr=True)
+    plan_ = make_plan(sweep)
+    print_plan(plan_, sweep, console)
+    # Before the manifest: a broken store stops nothing half-way.
+    tracker = Tracker(sweep.results_dir) if sweep.mlflow and not sweep.dry_run else None
+    record_plan(plan_, sweep, command if command is not None else " ".join(sys.argv), console)
+    if sweep.dry_run:
+        print_dry_run(plan_, console)
+        return 0
+    started = time.perf_counter()
+    dispatch(plan_, sweep, tracker, console)
+    if tracker is not None:
+        mirror_finished(plan_, sweep, tracker, console)
+    return report(plan_, sweep, console, time.perf_counter() - started)
 
 
-_GROUPS = ("scenario", "chain", "algo", "protocol", "preset", "launcher", "experiment")
-
-
-def _hparam_override(key: str, value: str, argv: list[str]) -> str | None:
-    """An ``[+]algo.<option>.hparams.<name>=...`` override whose name the algorithm does not take.
-
-    Hydra would answer a name without ``+`` with "Key ... is not in struct" and advise adding
-    ``+``; the real problem is usually a typo, so it is named here, with the closest names. Works
-    for any learner: the names are its class's constructor parameters.
-    """
-    from morality_gym.baselines.hparams import accepted_hparams
-    from morality_gym.baselines.specs import SpecError
-    from runners.paths import find_config
-
-    parts = key.lstrip("+~").split(".")
-    if len(parts) != 4 or parts[0] != "algo" or parts[2] != "hparams" or key.startswith("~"):
-        return None
-    path = find_config("algo", parts[1], argv)
-    if path is None:
-        return None
-    import yaml
-
-    target = (yaml.safe_load(path.read_text()) or {}).get("_target_")
-    try:
-        accepted = accepted_hparams(str(target))
-    except (SpecError, ValueError):
-        return None  # reported with its file by the validation
-    if parts[3] in accepted:
-        return None
-    import difflib
-
-    close = difflib.get_close_matches(parts[3], list(accepted), n=1)
-    hint = f" (did you mean {close[0]!r}?)" if close else ""
-    return f"{key}={value}: {parts[3]!r} is not a hyper-parameter of algo {parts[1]}{hint}; valid: {', '.join(sorted(accepted))}"
-
-
-def precheck(argv: list[str]) -> str | None:
-    """Check config-group selections and hyper-parameter names on the command line, before Hydra
-    (whose messages for these do not say what the valid options are). Returns an error or None.
-
-    Options are looked up on the whole search path: ``conf/``, ``--config-dir DIR`` (either form),
-    ``hydra.searchpath=[...]`` and the installed plugins.
-    """
-    import difflib
-
-    from runners.options import options as group_options
-    from runners.paths import source_dir, sources_from_argv
-
-    for source in sources_from_argv(argv):
-        directory = source_dir(source)
-        if directory is None or not directory.is_dir():
-            return (f"config search path entry {source!r} is not a directory; give an existing directory "
-                    "(--config-dir DIR, hydra.searchpath=[file:///abs/dir] or [pkg://package])")
-    for arg in argv:
-        if "=" not in arg or arg.startswith("-"):
-            continue
-        key, value = arg.split("=", 1)
-        problem = _hparam_override(key, value, argv)
-        if problem:
-            return problem
-        group = key.lstrip("+~")
-        if group not in _GROUPS:
-            continue
-        value = value.strip()
-        options = [o.strip() for o in value.strip("[]").split(",") if o.strip()] if value not in ("null", "[]") else []
-        valid = group_options(group, argv)
-        for option in options:
-            if option not in valid:
-                skipped = _skipped_scenario(option) if group == "scenario" else None
-                if skipped:
-                    return f"scenario={option}: {skipped}"
-                close = difflib.get_close_matches(option, valid, n=1)
-                hint = f" (did you mean {close[0]!r}?)" if close else ""
-                return f"{group}={value}: unknown {group} {option!r}{hint}; valid: {', '.join(valid)}"
-    return None
-
-
-def _skipped_scenario(option: str) -> str | None:
-    """Why a scenario of this name is missing, when a ``MORALITY_GYM_SCENARIOS`` file declaring it
-    was skipped as invalid (its file, field and fix), else None."""
-    from morality_gym.envs.naming import squash
-    from morality_gym.envs.registry import skipped_scenario_files
-
-    for item in skipped_scenario_files():
-        if squash(item.name or item.path.stem) == squash(option):
-            return f"the file defining it, {item.path}, was skipped as invalid: {item.error.removeprefix(f'{item.path}: ')}"
-    return None
-
-
-def compose_check(argv: list[str]) -> str | None:
-    """Compose the configuration once before Hydra's own run, to report a key or value the typed
-    schemas (:mod:`runners.config_schema`) refuse as one line naming the key, its file or override and
-    the closest valid key (Hydra would print several lines and a hint about ``+key=``). Returns the
-    error or None. Hydra's own flags are parsed by Hydra's parser; ``--config-dir`` becomes a
-    search-path entry, as Hydra itself treats it."""
-    from hydra import compose, initialize_config_dir
-    from hydra._internal.utils import get_args_parser
-
-    from runners.paths import source_dir, split_list
-    from runners.config_schema import composition_error
-
-    try:
-        args = get_args_parser().parse_args(argv)
-    except SystemExit:
-        return None  # Hydra reports its own command-line errors
-    if args.help or args.hydra_help or args.info or args.shell_completion or args.multirun:
-        return None
-    overrides = list(args.overrides)
-    if args.config_dir:
-        directory = source_dir(args.config_dir)
-        extra = f"file://{directory}"
-        merged = False
-        for i, item in enumerate(overrides):
-            if item.lstrip("+").startswith("hydra.searchpath="):
-                key, value = item.split("=", 1)
-                overrides[i] = f"{key}=[{','.join([*split_list(value), extra])}]"
-                merged = True
-        if not merged:
-            overrides.append(f"hydra.searchpath=[{extra}]")
-    try:
-        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-            compose(args.config_name or "config", overrides=overrides)
-    except Exception as exc:  # noqa: BLE001 - every composition error is the user's to fix
-        from runners.paths import find_config
-
-        return composition_error(exc, lambda group, option: find_config(group, option, argv))
-    return None
-
-
-def with_plugins(argv: list[str]) -> list[str]:
-    """``argv`` with the installed plugins' config packages added to ``hydra.searchpath`` (merged
-    with the user's own entries, which come first), and every user config directory made
-    importable, here and in the workers (:func:`morality_gym.baselines.targets.add_python_roots`):
-    a ``_target_`` module kept next to ``algo/`` in a config directory needs no install."""
-    from morality_gym.baselines.targets import add_python_roots
-    from runners.paths import plugin_sources, source_dir, sources_from_argv, split_list
-
-    add_python_roots([d for s in sources_from_argv(argv) if not s.startswith("pkg://") and (d := source_dir(s)) is not None])
-    plugins = plugin_sources()
-    if not plugins:
-        return argv
-    out, merged = [], False
-    for arg in argv:
-        if arg.lstrip("+").startswith("hydra.searchpath="):
-            key, value = arg.split("=", 1)
-            items = [*split_list(value), *(p for p in plugins if p not in split_list(value))]
-            out.append(f"{key}=[{','.join(items)}]")
-            merged = True
-        else:
-            out.append(arg)
-    if not merged:
-        out.append(f"hydra.searchpath=[{','.join(plugins)}]")
-    return out
-
-
+# ---------------------------------------------------------------------------------------- entry point
 def user_errors() -> tuple[type[BaseException], ...]:
     """Errors that are the user's or the environment's to fix (one line, exit 2), not bugs."""
-    from runners.slurm_launcher import SlurmUnavailable
-    from runners.tracking import TrackingError
-
-    return (ConfigError, TrackingError, SlurmUnavailable)
+    return (ConfigError, TrackingError, SlurmUnavailable, CommandLineError)
 
 
-def main() -> int:
-    os.environ.setdefault("MORALITY_GYM_ORIGINAL_CWD", os.getcwd())
-    if "--version" in sys.argv[1:]:  # ours, with Hydra's: Hydra's own flag printed only Hydra's, and twice
-        from morality_gym.clitools import version_text
+def _one_line_error(console: Console, label: str, exc: BaseException) -> int:
+    console.print(f"[red]{label}:[/red] {escape(one_line(exc))}", markup=True, highlight=False, soft_wrap=True)
+    return 2
 
+
+def sweep_command(argv: Sequence[str]) -> int:
+    """The sweep command without :func:`main`'s exit-status mapping: read the command line, compose
+    and check every sweep it asks for, then run them in turn (the worst exit status is returned)."""
+    line = parse_command_line(argv)
+    if line.debug:
+        os.environ[DEBUG_ENV] = "1"  # ours, not Hydra's: also for the workers this sweep starts
+    if line.version:  # ours, with Hydra's version: Hydra's own flag printed only Hydra's, and twice
         print(f"{version_text('python -m runners.sweep')}, Hydra {hydra.__version__}")
         return 0
-    if "--debug" in sys.argv[1:]:  # ours, not Hydra's: strip it before Hydra parses the line
-        sys.argv = [a for a in sys.argv if a != "--debug"]
-        os.environ[DEBUG_ENV] = "1"
+    console = Console(stderr=True, width=None if sys.stderr.isatty() else 160)
+    try:
+        overrides, command = prepare_overrides(line)
+        if line.help or line.show or line.info:
+            return show(line, overrides)
+        sweeps = load_sweeps(overrides, line)
+    except (ConfigError, ChainError) as exc:  # ChainError: a user's chain file that cannot be read (a norm, a field)
+        if debug_enabled():
+            raise
+        return _one_line_error(console, "configuration error", exc)
+    return run_sweeps(sweeps, console, command)
 
-    def body() -> int:
-        from morality_gym.norms.chain import ChainError
-        from runners.options import normalise_argv
 
+def run_sweeps(sweeps: Sequence[SweepConfig], console: Console, command: str) -> int:
+    """Check the machine for each sweep (:func:`runners.preflight.preflight`) and run it; a user
+    error stops at once (exit 2), else the worst exit status of the sweeps."""
+    worst = 0
+    for sweep in sweeps:
         try:
-            sys.argv[1:] = normalise_argv(with_plugins(sys.argv[1:]))
-        except ChainError as exc:  # a user's chain file that cannot be read (a norm, a field): say what
+            preflight(sweep)
+        except ConfigError as exc:
             if debug_enabled():
                 raise
-            print(f"configuration error: {one_line(exc)}", file=sys.stderr)
-            return 2
-        problem = precheck(sys.argv[1:]) or compose_check(sys.argv[1:])
-        if problem:
-            print(f"configuration error: {problem}", file=sys.stderr)
-            return 2
+            return _one_line_error(console, "configuration error", exc)
         try:
-            _app()
-        except SystemExit as exc:  # Hydra could not compose the configuration, or the sweep crashed (a bug)
-            if not exc.code:
-                return 0
-            return 1 if _EXIT.get("entered") else 2
-        return _EXIT["code"]
+            worst = max(worst, run_sweep(sweep, console, command))
+        except user_errors() as exc:
+            if debug_enabled():
+                raise
+            return _one_line_error(console, "error", exc)
+    return worst
 
-    return run_cli(body, user_errors())
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m runners.sweep [flags] key=value ...``; returns the exit status (module docstring)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    os.environ.setdefault("MORALITY_GYM_ORIGINAL_CWD", os.getcwd())
+    return run_cli(lambda: sweep_command(argv), user_errors(), argv)
 
 
 if __name__ == "__main__":
