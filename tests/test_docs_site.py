@@ -4,8 +4,10 @@ The build (what ``make docs`` runs) fails on any warning: a broken link or ancho
 of the navigation, an API reference mkdocstrings cannot resolve. The browser tests serve the built
 folder over HTTP (Material's search runs in a web worker, which ``file://`` does not allow) and
 open it in Debian's Chromium: the index, a scenario page with its pictures decoded, the API page of
-``morality_gym.make``, and the search. Requests to other hosts (the MathJax CDN) are refused, so
-the test runs offline. With ``DOCS_SHOTS=DIR`` it also saves screenshots of three pages to DIR.
+``morality_gym.make``, the formulas of the concepts page drawn as MathML, and the search. Requests
+to other hosts are refused, so the test runs offline. With ``DOCS_SHOTS=DIR`` it also saves
+screenshots of four pages to DIR. The formulas are rendered while the site builds
+(docs/_hooks/mathml.py); a formula that cannot be rendered fails the build, naming its page.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from __future__ import annotations
 import functools
 import http.server
 import os
+import re
 import socketserver
 import subprocess
 import sys
@@ -30,14 +33,55 @@ SCENARIO = "PushOrSwitch"
 
 
 @functools.cache
-def hooks() -> Any:
-    """The MkDocs hook that generates pages (docs/_hooks/generate.py), imported by its path."""
+def hooks(name: str = "generate") -> Any:
+    """A MkDocs hook of docs/_hooks/ (by default generate.py, which generates pages), imported by its path."""
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("docs_generate", ROOT / "docs" / "_hooks" / "generate.py")
+    spec = importlib.util.spec_from_file_location(f"docs_{name}", ROOT / "docs" / "_hooks" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
     spec.loader.exec_module(module)  # type: ignore[union-attr]
     return module
+
+
+# ------------------------------------------------------------------------------------------------ formulas
+
+
+def _formula(tex: str, display: bool = False) -> str:
+    """A formula as pymdownx.arithmatex (generic mode) leaves it in a page's HTML."""
+    import html
+
+    tag, start, end = ("div", "\\[", "\\]") if display else ("span", "\\(", "\\)")
+    return f'<{tag} class="arithmatex">{start}{html.escape(tex, quote=False)}{end}</{tag}>'
+
+
+def test_formulas_become_mathml() -> None:
+    render = hooks("mathml").render_formulas
+    inline, display = _formula("N = \\langle \\sigma, d \\rangle"), _formula("a < \\frac{1}{\\beta}", display=True)
+    out, count = render(f"<p>A norm {inline} and</p>{display}", "concepts.md")
+    assert count == 2 and "\\(" not in out and "\\[" not in out and "arithmatex" in out
+    assert out.count("<math ") == 2 and 'display="inline"' in out and 'display="block"' in out
+    assert "&#x0003C;" in out  # the escaped < of the TeX is a MathML operator, not markup
+    out, _ = render(_formula("w_n \\, \\mathbb{1}[\\chi(n, t)]"), "concepts.md")
+    assert "\U0001d7d9" in out and "mathvariant" not in out  # MathML Core ignores mathvariant: 𝟙 itself
+
+
+@pytest.mark.parametrize(("tex", "why"), [
+    ("x^", "MissingSuperScriptOrSubscriptError"),  # latex2mathml raises
+    ("\\left( a", "ExtraLeftOrMissingRightError"),
+    ("a \\notacommand b", "unknown command \\notacommand"),  # latex2mathml would pass these through
+    ("\\frac{a}", "<mfrac> with 1 arguments"),
+    ("\\begin{aligned} a &= b \\end{aligned}", "environment {aligned} is not supported"),
+    ("\\text{a < b}", "malformed MathML"),
+])
+def test_a_bad_formula_fails_the_build_naming_its_page(tex: str, why: str) -> None:
+    from mkdocs.exceptions import PluginError
+
+    fine, broken = _formula("x^2"), _formula(tex, display=tex.startswith("\\begin"))
+    with pytest.raises(PluginError) as caught:
+        hooks("mathml").render_formulas(f"<p>Fine: {fine}</p><p>Broken: {broken}</p>", "how-to/broken-page.md")
+    message = str(caught.value)
+    assert "\n" not in message and message.startswith("how-to/broken-page.md: ")
+    assert f'"{tex}"' in message and why in message, message
 
 
 @pytest.fixture(scope="module")
@@ -74,6 +118,16 @@ def test_site_has_every_generated_page(site: Path) -> None:
     from runners.results_schema import RUN_COLUMNS, UPDATE_COLUMNS
 
     assert all(f"<code>{c}</code>" in schema for c in RUN_COLUMNS + UPDATE_COLUMNS)
+
+
+def test_site_formulas_are_mathml(site: Path) -> None:
+    """Every formula of the site was rendered while it built: no TeX left for a script, no script."""
+    concepts = (site / "concepts.html").read_text()
+    assert concepts.count("<math ") >= 40 and 'display="block"' in concepts
+    for path in site.rglob("*.html"):
+        text = path.read_text()
+        assert not re.search(r'class="arithmatex">\s*(\\\(|\\\[|\$)', text), path
+        assert not re.search(r"<script[^>]*mathjax", text, re.IGNORECASE), path
 
 
 def test_catalogue_values_are_the_evaluators(site: Path) -> None:
@@ -169,6 +223,26 @@ def test_api_page_documents_make(page: Any, served: str) -> None:
     assert "Create an env and the morality chain bound to it" in page.locator("article").inner_text()
     heading.scroll_into_view_if_needed()
     _shot(page, "api")
+    assert not page.errors, page.errors
+
+
+@pytest.mark.browser
+def test_concepts_formulas_are_drawn(page: Any, served: str) -> None:
+    """The browser draws the MathML itself: offline, with no script."""
+    page.goto(f"{served}/concepts.html")
+    formulas = page.locator("article math")
+    assert formulas.count() >= 40
+    sizes = page.evaluate("() => [...document.querySelectorAll('article math')].map(m => "
+                          "[m.getAttribute('display'), m.getBoundingClientRect().width, m.getBoundingClientRect().height])")
+    assert all(w > 0 and h > 0 for _, w, h in sizes), sizes
+    # laid out as mathematics, not as a line of text: the fractions and sums of the display formulas
+    # stand well above the tallest inline formula
+    tallest_inline = max(h for display, _, h in sizes if display == "inline")
+    assert all(h > 2 * tallest_inline for display, _, h in sizes if display == "block"), sizes
+    text = page.locator("article").inner_text()
+    assert "\\(" not in text and "\\[" not in text and "\\frac" not in text
+    page.evaluate("document.getElementById('norms-and-modalities').scrollIntoView()")  # the first display formula
+    _shot(page, "concepts_math")
     assert not page.errors, page.errors
 
 
