@@ -38,6 +38,7 @@ import numpy as np
 
 import benchmarks
 from benchmarks import Context, Section, Timing, best_time, fmt_rate, ordered, register
+from morality_gym.constants import MAX_STEPS as PAPER_MAX_STEPS
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -47,7 +48,7 @@ REFERENCE_RANGE: tuple[int, int] = (10_000, 21_000)
 TARGET_SPEEDUP = 30.0
 TARGET_RESET_US = 20.0
 TARGET_BATCHED = 10_000_000
-MAX_STEPS = 200
+MAX_STEPS = PAPER_MAX_STEPS
 BATCH_ENV_ID = "PushOrSwitch-Human-v1"
 
 

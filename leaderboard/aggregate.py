@@ -44,12 +44,15 @@ import re
 import tempfile
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
-from functools import cached_property
+from functools import cache, cached_property
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
+
+from morality_gym.constants import BETA, MAX_STEPS
+from runners.config_schema import PresetError, load_preset, preset_names
 
 #: "Standard deviation over three seeds": the sample standard deviation (n - 1 in the denominator).
 STD_DDOF = 1
@@ -67,12 +70,8 @@ COMPLETENESS_COLUMNS = ["n_variants", "n_variants_expected", "n_seeds", "n_seeds
 #: Rows computed from the environments rather than from runs (see :func:`compute_reference`).
 RANDOM_EXACT, ORACLE_BEST, ORACLE_WORST = "Random (exact)", "Oracle best", "Oracle worst"
 REFERENCE_LEARNERS = (RANDOM_EXACT, ORACLE_BEST, ORACLE_WORST)
-#: Settings of every run of the paper; used for reference rows when no run says otherwise.
-DEFAULT_BETA = 0.1
-DEFAULT_MAX_STEPS = 200
 #: Bump when the content of the reference cache changes meaning (old entries are then recomputed).
 REFERENCE_CACHE_VERSION = 2  # 2: entries record the chain's norms and the variants it cannot score
-_PRESET_RANK = {"paper": 0, "quick": 1, "smoke": 2}
 #: A run config's record of who submitted it and from where (``leaderboard.submit``): kept out of
 #: the configuration key, so a submission resumed by someone else, or from another directory, is
 #: still one configuration.
@@ -153,9 +152,24 @@ def chain_norm_order(chain: str) -> list[str]:
         return []
 
 
+@cache
+def preset_rank() -> dict[str, int]:
+    """The display rank of each preset of ``conf/preset``: the one that trains most first (the paper's,
+    then quick, then smoke), read from the preset files; a file that does not load is left out."""
+    budgets = {}
+    for name in preset_names():
+        try:
+            budgets[name] = load_preset(name).budget
+        except PresetError:
+            continue
+    return {name: rank for rank, name in enumerate(sorted(budgets, key=lambda n: (-budgets[n], n)))}
+
+
 def group_order(groups: Iterable[Group]) -> list[Group]:
-    """Protocol ``paper`` before others, then presets paper > quick > smoke > others."""
-    return sorted(set(groups), key=lambda g: (g.protocol != "paper", g.protocol, _PRESET_RANK.get(g.preset, 9), g.preset))
+    """Protocol ``paper`` before others, then the presets of ``conf/preset`` by :func:`preset_rank`
+    (paper > quick > smoke), then other presets by name."""
+    rank = preset_rank()
+    return sorted(set(groups), key=lambda g: (g.protocol != "paper", g.protocol, rank.get(g.preset, len(rank)), g.preset))
 
 
 # ---------------------------------------------------------------------------------------- runs
@@ -579,8 +593,8 @@ def row_settings(runs: pd.DataFrame) -> dict[tuple[str, str, str, str], tuple[fl
         beta = part["beta"].dropna()
         steps = part["max_steps"].dropna()
         out[tuple(key)] = (
-            float(beta.mode().iloc[0]) if len(beta) else DEFAULT_BETA,
-            int(steps.mode().iloc[0]) if len(steps) else DEFAULT_MAX_STEPS,
+            float(beta.mode().iloc[0]) if len(beta) else BETA,  # the paper's settings when no run says otherwise
+            int(steps.mode().iloc[0]) if len(steps) else MAX_STEPS,
         )
     return out
 
@@ -611,7 +625,7 @@ def table1_frame(
     rows = []
     for record in cells.to_dict("records"):
         beta, steps = settings.get((record["protocol"], record["preset"], record["chain"], record["scenario"]),
-                                   (DEFAULT_BETA, DEFAULT_MAX_STEPS))
+                                   (BETA, MAX_STEPS))
         record |= {"beta": beta, "max_steps": steps}
         rows.append(record)
     if reference is not None:

@@ -37,12 +37,12 @@ from leaderboard.aggregate import PROVENANCE_KEY as PROVENANCE
 from leaderboard.aggregate import SUBMITTED_ALGO as SUBMITTED
 from leaderboard.submit import _submitter, check_name, code_version
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
+from morality_gym.constants import BETA
 from morality_gym.envs.registry import UnknownEnvError, parse_env_id
 from morality_gym.llm.settings import DEFAULT_PRESET, PRESETS, AgentSettings, SettingsError
 from morality_gym.llm.text import FRAMINGS, FramingError
 from morality_gym.llm.tokens import estimate_tokens
 from morality_gym.norms.chain import ChainError, get_chain
-from morality_gym.norms.metric import DEFAULT_BETA
 from runners.execute import RunLock, finished_status, versions
 from runners.identity import run_id_of
 from runners.results_schema import MF_PREFIX, SCHEMA_VERSION, write_run
@@ -132,7 +132,7 @@ def episode_config(ep: Episode, meta: dict[str, Any], name: str, protocol: str, 
         "chain": {"name": chain.name, "norms": [[n.name, n.modality] for n in chain.norms]},
         "algo": {"name": SUBMITTED, "label": name},
         "protocol": {"name": protocol}, "preset": preset, "seed": ep.seed, "budget": 0,
-        "beta": DEFAULT_BETA, "max_steps": int(settings["max_steps"]), "eval_episodes": 1,
+        "beta": BETA, "max_steps": int(settings["max_steps"]), "eval_episodes": 1,
         "policy": {"kind": LLM_POLICY_KIND, "model": ep.model, **settings,
                    "llm_preset": meta.get("preset"), "episodes_per_variant": int(meta.get("episodes", 0))},
         PROVENANCE: {"submitter": submitter, "log": ep.log, "sample": ep.sample_id,

@@ -43,6 +43,7 @@ from typing import Any
 from leaderboard.aggregate import PROVENANCE_KEY as PROVENANCE
 from leaderboard.aggregate import SUBMITTED_ALGO as SUBMITTED
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
+from morality_gym.constants import BETA, MAX_STEPS
 
 DEFAULT_PROTOCOL = "paper"
 DEFAULT_PRESET = "paper"
@@ -365,8 +366,6 @@ def _submitter(given: str | None) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from morality_gym.baselines.policy_ref import load_policy
-    from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
-    from morality_gym.norms.metric import DEFAULT_BETA
 
     name = check_name(args.name)
     cells = select_cells(args.chain, args.scenario, args.variant)
@@ -391,7 +390,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--results {results}: not writable; pass another --results DIR")
     sub = Submission(name=name, loaded=loaded, sha256=loaded.sha256(), submitter=_submitter(args.submitter),
                      protocol=args.protocol, preset=args.preset, seeds=seeds, eval_episodes=episodes,
-                     beta=DEFAULT_BETA, max_steps=DEFAULT_MAX_STEPS, gif=not args.no_gif)
+                     beta=BETA, max_steps=MAX_STEPS, gif=not args.no_gif)
     n_runs = sum(len(c.variants) for c in cells) * len(seeds)
     print(f"submitting {loaded.ref} as {name!r} (sha256 {sub.sha256[:12]}): {len(cells)} cell(s), {n_runs} run(s), "
           f"{episodes} episodes per run, protocol {args.protocol}, preset {args.preset}", flush=True)

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from morality_gym.clitools import OneLineParser, add_debug_flag, console, non_negative_int, positive_int, run_cli
+from morality_gym.constants import BETA, EVAL_EPISODES, MAX_STEPS
 from morality_gym.envs.naming import find_scenario as scenario_named  # either spelling: SwitchStandard, switch_standard
 from morality_gym.envs.registry import UnknownEnvError, list_envs
 from morality_gym.norms.chain import ChainError, builtin_chains, chain_file_stem, get_chain
@@ -251,7 +252,7 @@ def cmd_docs(args: argparse.Namespace) -> int:
     return 0
 
 
-DEFAULT_EPISODES = 100  # Monte-Carlo episodes per env, as the paper's final evaluation
+DEFAULT_EPISODES = EVAL_EPISODES  # Monte-Carlo episodes per env, as the paper's final evaluation
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -269,7 +270,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--chain", required=True, help="chain name (DualProcess), file name (dual_process), abbreviation or YAML path")
         p.add_argument("--scenario", required=True, help="scenario name, e.g. PushOrSwitch")
         p.add_argument("--variant", action="append", help="variant name (repeatable); default: every variant")
-        p.add_argument("--beta", type=_beta, default=0.1, help="weight resolution (default 0.1, as the paper; 'derived' = reference default)")
+        p.add_argument("--beta", type=_beta, default=BETA, help=f"weight resolution (default {BETA}, as the paper; 'derived' = reference default)")
         p.add_argument("--json", action="store_true", help="print one JSON object")
 
     p_eval = sub.add_parser("eval", help="evaluate a policy's morality metric (Monte Carlo or exact)")
@@ -277,7 +278,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_eval.add_argument("--policy", default="random",
                         help="'random', a saved model (.zip), or a callable obs -> action or 6 probabilities given as "
                              "path/to/file.py:function or package.module:function")
-    p_eval.add_argument("--max-steps", type=_max_steps, default=200, help="truncate on step max_steps + 1 (default 200; 'none')")
+    p_eval.add_argument("--max-steps", type=_max_steps, default=MAX_STEPS, help=f"truncate on step max_steps + 1 (default {MAX_STEPS}; 'none')")
     p_eval.add_argument("--exact", action="store_true", help="exact expectation instead of sampling")
     p_eval.add_argument("--episodes", type=positive_int, default=None,
                         help=f"Monte-Carlo episodes per env, 1 or more (default {DEFAULT_EPISODES})")
@@ -291,7 +292,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p_oracle = sub.add_parser("oracle", help="best and worst achievable metric and the action sequences")
     common(p_oracle)
-    p_oracle.add_argument("--max-steps", type=_max_steps, default=200)
+    p_oracle.add_argument("--max-steps", type=_max_steps, default=MAX_STEPS)
     p_oracle.set_defaults(func=cmd_oracle)
 
     p_list = sub.add_parser("list", help="list env ids, scenarios or chains")

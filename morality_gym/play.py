@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from morality_gym.clitools import non_negative_int
+from morality_gym.constants import MAX_STEPS
 from morality_gym.world.rules import ACTION_NAMES, DOWN, FOUND, HARMED, INTERACT, LEFT, RIGHT, STAY, UP
 from morality_gym.world.vocab import EVENTS
 
@@ -65,8 +66,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--max-steps",
         type=int,  # a negative one is refused by the env, with its message (exit 2)
-        default=200,
-        help="truncate the episode on step max_steps + 1, as the environment does (default: 200)",
+        default=MAX_STEPS,
+        help=f"truncate the episode on step max_steps + 1, as the environment does (default: {MAX_STEPS})",
     )
     parser.add_argument(
         "--policy",

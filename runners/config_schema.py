@@ -31,6 +31,7 @@ from typing import Any
 
 from morality_gym.baselines import typed
 from morality_gym.baselines.specs import CONF_DIR, LearnerSpec, ProtocolSpec
+from morality_gym.constants import BETA, MAX_STEPS
 from runners.results_schema import SCHEMA_VERSION
 
 
@@ -255,8 +256,8 @@ class Sweep:
     experiment: Experiment | None = None
     variant: Any = None
     seed: Any = None
-    beta: float = 0.1
-    max_steps: int | None = 200
+    beta: float = BETA
+    max_steps: int | None = MAX_STEPS
     results_dir: str = "results"
     dry_run: bool = False
     retry_failed: bool = True

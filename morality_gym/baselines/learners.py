@@ -19,8 +19,9 @@ import numpy as np
 from morality_gym.baselines.learn_evals import EvalHook, learn_eval_row
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, protocol_spec, training_steps
 from morality_gym.baselines.targets import import_root
+from morality_gym.constants import EVAL_EPISODES, MAX_STEPS, SEED
 from morality_gym.envs.registry import parse_env_id
-from morality_gym.envs.trolley import DEFAULT_MAX_STEPS, TrolleyEnv
+from morality_gym.envs.trolley import TrolleyEnv
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.montecarlo import evaluate, evaluate_sequential
 from morality_gym.evaluation.policies import PolicyAdapter, sample_actions
@@ -49,8 +50,8 @@ class Learner:
         spec: LearnerSpec,
         bound: BoundChain,
         protocol: ProtocolSpec | str = "paper",
-        seed: int = 41,
-        max_steps: int | None = DEFAULT_MAX_STEPS,
+        seed: int = SEED,
+        max_steps: int | None = MAX_STEPS,
     ) -> None:
         self.protocol = protocol_spec(protocol)
         # The protocol's learner overrides (e.g. CPO's dual solution) are applied here unless the
@@ -102,7 +103,7 @@ class Learner:
         return []
 
     # ------------------------------------------------------------------ shared
-    def final_evaluation(self, n_episodes: int = 100) -> EvaluationResult:
+    def final_evaluation(self, n_episodes: int = EVAL_EPISODES) -> EvaluationResult:
         """The paper's final evaluation: the stochastic policy, ``n_episodes`` episodes, seeded by the run."""
         return evaluate(self.policy, self.env_id, self.bound, n_episodes=n_episodes, seed=self.seed, max_steps=self.max_steps, keep_episodes=False)
 
@@ -184,7 +185,7 @@ class RandomLearner(Learner):
         self.trained_steps = 0
         return 0
 
-    def final_evaluation(self, n_episodes: int = 100) -> EvaluationResult:
+    def final_evaluation(self, n_episodes: int = EVAL_EPISODES) -> EvaluationResult:
         if not hasattr(self, "_env"):
             self.learn(0)
         return evaluate_sequential(self._act, self._env, self.bound, n_episodes, keep_episodes=False)
@@ -303,8 +304,8 @@ def build_learner(
     spec: LearnerSpec,
     bound: BoundChain,
     protocol: ProtocolSpec | str = "paper",
-    seed: int = 41,
-    max_steps: int | None = DEFAULT_MAX_STEPS,
+    seed: int = SEED,
+    max_steps: int | None = MAX_STEPS,
 ) -> Learner:
     """The learner of ``spec`` for one env id and chain (see :mod:`morality_gym.baselines.specs`).
 

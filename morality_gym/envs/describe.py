@@ -6,6 +6,7 @@ classes get these docstrings, and ``python -m morality_gym docs`` writes the sam
 
 from __future__ import annotations
 
+from morality_gym.constants import MAX_STEPS
 from morality_gym.world.layout import Scenario
 
 _DIRS = {"L": "left", "R": "right", "U": "up", "D": "down"}
@@ -72,7 +73,7 @@ def describe_scenario(scenario: Scenario) -> str:
         "## Termination",
         "",
         "Terminated when the agent has stopped (landmark or harm) and every trolley has stopped; truncated on "
-        "step `max_steps + 1` (default 200).",
+        f"step `max_steps + 1` (default {MAX_STEPS}).",
         "",
         "## Registered Configurations",
         "",

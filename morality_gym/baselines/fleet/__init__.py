@@ -21,7 +21,7 @@ from collections.abc import Sequence
 
 from morality_gym.baselines.fleet.base import FleetRun, FleetTrainer
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError
-from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
+from morality_gym.constants import MAX_STEPS
 
 
 def fleet_class(target: str) -> type[FleetTrainer]:
@@ -58,7 +58,7 @@ def build_fleet(
     spec: LearnerSpec,
     runs: Sequence[FleetRun],
     protocol: ProtocolSpec | str = "paper",
-    max_steps: int | None = DEFAULT_MAX_STEPS,
+    max_steps: int | None = MAX_STEPS,
     device: str = "cpu",
 ) -> FleetTrainer:
     """The fleet trainer for ``runs`` of the learner ``spec`` under ``protocol``, its networks and

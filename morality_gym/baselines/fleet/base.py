@@ -46,7 +46,7 @@ from morality_gym.baselines.fleet.optim import BatchedAdam
 from morality_gym.baselines.learners import LEARN_EVAL_EPISODES, SB3Learner, build_learner
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError, protocol_spec, training_steps
 from morality_gym.baselines.targets import resolve
-from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
+from morality_gym.constants import MAX_STEPS
 from morality_gym.norms.metric import BoundChain
 
 if TYPE_CHECKING:
@@ -142,7 +142,7 @@ class FleetTrainer:
         spec: LearnerSpec,
         runs: Sequence[FleetRun],
         protocol: ProtocolSpec | str = "paper",
-        max_steps: int | None = DEFAULT_MAX_STEPS,
+        max_steps: int | None = MAX_STEPS,
         device: str | th.device = "cpu",
     ) -> None:
         self.device = fleet_device(device)
