@@ -53,6 +53,7 @@ import pandas as pd
 
 from morality_gym.constants import BETA, MAX_STEPS
 from runners.config_schema import PresetError, load_preset, preset_names
+from runners.identity import PROVENANCE_KEY, SUBMITTED_ALGO, configuration_key  # a run's identity: defined there
 
 #: "Standard deviation over three seeds": the sample standard deviation (n - 1 in the denominator).
 STD_DDOF = 1
@@ -72,12 +73,6 @@ RANDOM_EXACT, ORACLE_BEST, ORACLE_WORST = "Random (exact)", "Oracle best", "Orac
 REFERENCE_LEARNERS = (RANDOM_EXACT, ORACLE_BEST, ORACLE_WORST)
 #: Bump when the content of the reference cache changes meaning (old entries are then recomputed).
 REFERENCE_CACHE_VERSION = 2  # 2: entries record the chain's norms and the variants it cannot score
-#: A run config's record of who submitted it and from where (``leaderboard.submit``): kept out of
-#: the configuration key, so a submission resumed by someone else, or from another directory, is
-#: still one configuration.
-PROVENANCE_KEY = "provenance"
-#: ``algo`` of runs written by ``python -m leaderboard.submit`` (external policies).
-SUBMITTED_ALGO = "submitted"
 #: ``config["policy"]["kind"]`` of a submitted language-model episode (``python -m leaderboard.llm``).
 LLM_POLICY_KIND = "llm"
 _UNKNOWN = "unknown"
@@ -209,7 +204,6 @@ def _config_facts(config: Any, run_id: Any) -> tuple[str, str | None]:
     A run without a readable config is its own configuration (it is never merged with others).
     """
     from morality_gym.norms.chain import chain_fingerprint
-    from runners.identity import config_key
 
     try:
         data = json.loads(config) if isinstance(config, str) else None
@@ -224,7 +218,7 @@ def _config_facts(config: Any, run_id: Any) -> tuple[str, str | None]:
             fingerprint = chain_fingerprint(chain["norms"])
         except (TypeError, ValueError):
             fingerprint = None
-    return config_key({k: v for k, v in data.items() if k != PROVENANCE_KEY}), fingerprint
+    return configuration_key(data), fingerprint
 
 
 def chain_label(name: Any, fingerprint: str | None) -> Any:

@@ -33,8 +33,6 @@ from pathlib import Path
 from typing import Any
 
 from leaderboard.aggregate import LLM_POLICY_KIND
-from leaderboard.aggregate import PROVENANCE_KEY as PROVENANCE
-from leaderboard.aggregate import SUBMITTED_ALGO as SUBMITTED
 from leaderboard.submit import _submitter, check_name, code_version
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
 from morality_gym.constants import BETA
@@ -44,7 +42,9 @@ from morality_gym.llm.text import FRAMINGS, FramingError
 from morality_gym.llm.tokens import estimate_tokens
 from morality_gym.norms.chain import ChainError, get_chain
 from runners.execute import RunLock, finished_status, versions
-from runners.identity import run_id_of
+from runners.identity import PROVENANCE_KEY as PROVENANCE
+from runners.identity import SUBMITTED_ALGO as SUBMITTED
+from runners.identity import run_identity
 from runners.results_schema import MF_PREFIX, SCHEMA_VERSION, write_run
 
 # Inspect AI (the llm extra) is imported inside the functions that run or read it, so that
@@ -172,7 +172,7 @@ def import_logs(paths: Sequence[Path], name: str, results: Path, protocol: str, 
         for ep in episodes:
             counts["episodes"] += 1
             config = episode_config(ep, meta, name, protocol, preset, submitter)
-            run_id = run_id_of({k: v for k, v in config.items() if k != PROVENANCE})
+            run_id = run_identity(config)
             lock = RunLock(results, run_id)
             if not lock.acquire():
                 raise UserError(f"run {run_id} ({ep.env_id}, seed {ep.seed}) is being written by another process; retry later")

@@ -40,10 +40,11 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from leaderboard.aggregate import PROVENANCE_KEY as PROVENANCE
-from leaderboard.aggregate import SUBMITTED_ALGO as SUBMITTED
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
 from morality_gym.constants import BETA, MAX_STEPS
+from runners.identity import PROVENANCE_KEY as PROVENANCE
+from runners.identity import SUBMITTED_ALGO as SUBMITTED
+from runners.identity import run_identity
 
 DEFAULT_PROTOCOL = "paper"
 DEFAULT_PRESET = "paper"
@@ -207,13 +208,6 @@ def run_config(sub: Submission, cell: Cell, variant: str, seed: int, stationary:
     }
 
 
-def identity_of(config: dict[str, Any]) -> str:
-    """A submitted run's id: the content hash of its config without the provenance."""
-    from runners.identity import run_id_of
-
-    return run_id_of({k: v for k, v in config.items() if k != PROVENANCE})
-
-
 def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: str, results: Path) -> dict[str, Any]:
     """Evaluate one (cell, variant, seed) and return its schema row (nothing written yet)."""
     from morality_gym.evaluation.exact import exact_evaluate
@@ -281,7 +275,7 @@ def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = pri
             stationary = is_stationary(sub.loaded, env_id)
             for seed in sub.seeds:
                 config = run_config(sub, cell, variant, seed, stationary)
-                run_id = identity_of(config)
+                run_id = run_identity(config)  # the content hash of the config without the provenance
                 lock = RunLock(results, run_id)
                 if not lock.acquire():
                     raise UserError(f"run {run_id} ({env_id}, seed {seed}) is being written by another submission; "
