@@ -52,8 +52,15 @@ import numpy as np
 import pandas as pd
 
 from morality_gym.constants import BETA, MAX_STEPS
+from morality_gym.envs.registry import UnknownEnvError, parse_env_id, scenario_named
+from morality_gym.evaluation.exact import exact_evaluate
+from morality_gym.evaluation.oracle import oracle
+from morality_gym.norms.chain import ChainError, builtin_chains, chain_fingerprint, get_chain, parse_chain
+from morality_gym.paper import LEARNERS, table1
 from runners.config_schema import PresetError, load_preset, preset_names
 from runners.identity import PROVENANCE_KEY, SUBMITTED_ALGO, configuration_key  # a run's identity: defined there
+from runners.paths import preset_seeds
+from runners.results_schema import MF_PREFIX
 
 #: "Standard deviation over three seeds": the sample standard deviation (n - 1 in the denominator).
 STD_DDOF = 1
@@ -110,22 +117,16 @@ def safe_name(text: str) -> str:
 # ---------------------------------------------------------------------------------------- ordering
 def paper_rows() -> list[tuple[str, str]]:
     """The (chain, scenario) rows of the paper's Table 1, in the paper's order."""
-    from morality_gym.paper import table1
-
     return [(row.chain, row.scenario) for row in table1()]
 
 
 def paper_values() -> dict[tuple[str, str], dict[str, float]]:
     """Published Table 1 numbers by (chain, scenario), then learner."""
-    from morality_gym.paper import table1
-
     return {(row.chain, row.scenario): dict(row.paper) for row in table1()}
 
 
 def learner_order(learners: Iterable[str]) -> list[str]:
     """The paper's learners in the paper's order, then any others alphabetically."""
-    from morality_gym.paper import LEARNERS
-
     found = set(learners)
     return [name for name in LEARNERS if name in found] + sorted(found - set(LEARNERS))
 
@@ -139,8 +140,6 @@ def row_order(pairs: Iterable[tuple[str, str]]) -> list[tuple[str, str]]:
 
 def chain_norm_order(chain: str) -> list[str]:
     """The chain's norms, highest force first (the x axis of Figure 2); [] for an unknown chain."""
-    from morality_gym.norms.chain import ChainError, get_chain
-
     try:
         return get_chain(chain).norm_names
     except ChainError:
@@ -203,8 +202,6 @@ def _config_facts(config: Any, run_id: Any) -> tuple[str, str | None]:
 
     A run without a readable config is its own configuration (it is never merged with others).
     """
-    from morality_gym.norms.chain import chain_fingerprint
-
     try:
         data = json.loads(config) if isinstance(config, str) else None
     except ValueError:
@@ -226,7 +223,6 @@ def chain_label(name: Any, fingerprint: str | None) -> Any:
     name for other norms; then ``<name>~<fingerprint>``, so it never passes for the built-in one."""
     if not isinstance(fingerprint, str) or not isinstance(name, str):  # pandas 3 turns a None beside strings into NaN
         return name
-    from morality_gym.norms.chain import builtin_chains
 
     builtin = builtin_chains().get(name)
     if builtin is not None and builtin.fingerprint != fingerprint:
@@ -242,8 +238,6 @@ def _as_tuple(value: Any) -> tuple[str, ...]:
 
 def mf_columns(runs: pd.DataFrame) -> list[str]:
     """The per-norm morality function columns present (``mf_<norm>``)."""
-    from runners.results_schema import MF_PREFIX
-
     return [c for c in runs.columns if str(c).startswith(MF_PREFIX)]
 
 
@@ -509,8 +503,6 @@ def _no_facts() -> dict[str, Any]:
 
 def scenario_variants(scenario: str) -> list[str] | None:
     """The variants of a registered scenario, in table order (None if it is not registered here)."""
-    from morality_gym.envs.registry import UnknownEnvError, scenario_named
-
     try:
         return list(scenario_named(scenario).variants)
     except (UnknownEnvError, KeyError):
@@ -519,8 +511,6 @@ def scenario_variants(scenario: str) -> list[str] | None:
 
 def expected_seeds(preset: str, planned: Iterable[Mapping[str, Any]]) -> set[int]:
     """The preset's seeds: as the manifests of this preset record them, else ``conf/preset/<preset>.yaml``."""
-    from runners.paths import preset_seeds
-
     recorded: set[int] = set()
     for item in planned:
         if str(item.get("preset")) == preset and isinstance(item.get("preset_seeds"), list):
@@ -723,8 +713,6 @@ def norm_long(runs: pd.DataFrame) -> pd.DataFrame:
     another's. A relevant norm without an ``mf_`` value is skipped here (it would be a runner bug
     that the schema validation already prevents).
     """
-    from runners.results_schema import MF_PREFIX
-
     ok = runs.loc[runs["ok"]]
     present = set(mf_columns(runs))
     rows = []
@@ -823,8 +811,6 @@ def chain_definitions(runs: pd.DataFrame) -> dict[str, Any]:
     are computed from this, the definition the runs were scored with. Runs without a readable
     chain definition are left out (their chain is then looked up by name).
     """
-    from morality_gym.norms.chain import ChainError, parse_chain
-
     out: dict[str, Any] = {}
     for config in runs["config"] if "config" in runs.columns else []:
         try:
@@ -843,11 +829,6 @@ def _chain_content(chain: Any) -> list[list[str]] | None:
 
 
 def _compute_entry(chain: str, scenario: str, beta: float, max_steps: int, definition: Any = None) -> dict[str, Any]:
-    from morality_gym.envs.registry import parse_env_id, scenario_named
-    from morality_gym.evaluation.exact import exact_evaluate
-    from morality_gym.evaluation.oracle import oracle
-    from morality_gym.norms.chain import ChainError
-
     chain_or_name = definition if definition is not None else chain
     variants: dict[str, dict[str, Any]] = {}
     unscorable: dict[str, str] = {}
@@ -922,7 +903,6 @@ def compute_reference(
     reported in ``errors`` (with the reason) instead of failing the whole build.
     """
     chains = dict(chains or {})
-    from morality_gym.envs.registry import scenario_named
 
     cache = load_reference_cache(cache_path)
     result = ReferenceResult()

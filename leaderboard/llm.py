@@ -74,6 +74,7 @@ class Episode:
 
 def read_episodes(path: Path) -> tuple[list[Episode], dict[str, Any]]:
     """The scored episodes of an Inspect log and the task's ``morality_gym`` metadata."""
+    # Inspect waits: importing leaderboard.llm (its --help too) must not load it
     from inspect_ai.log import read_eval_log
 
     from morality_gym.llm.inspect_tasks import EPISODE_KEY
@@ -220,6 +221,7 @@ def scripted_model(script: Path) -> Any:
 
 def run_inspect(args: argparse.Namespace) -> list[Path]:
     """Run the task of each ``--chain`` with Inspect; returns the log files."""
+    # Inspect waits: importing leaderboard.llm (its --help too) must not load it
     from inspect_ai import eval as inspect_eval
 
     from morality_gym.llm.inspect_tasks import morality_gym_task

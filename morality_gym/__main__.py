@@ -10,15 +10,25 @@ from __future__ import annotations
 
 import argparse
 import json
+import secrets
 import sys
 from pathlib import Path
 from typing import Any
 
+from morality_gym import play
 from morality_gym.clitools import OneLineParser, add_debug_flag, console, non_negative_int, positive_int, run_cli
 from morality_gym.constants import BETA, EVAL_EPISODES, MAX_STEPS
 from morality_gym.envs.naming import find_scenario as scenario_named  # either spelling: SwitchStandard, switch_standard
-from morality_gym.envs.registry import UnknownEnvError, list_envs
+from morality_gym.envs.registration import env_class
+from morality_gym.envs.registry import UnknownEnvError, list_envs, scenarios
+from morality_gym.envs.trolley import InvalidActionError
+from morality_gym.evaluation.exact import exact_evaluate
+from morality_gym.evaluation.montecarlo import evaluate
+from morality_gym.evaluation.oracle import oracle
+from morality_gym.evaluation.policies import PolicyFailure
 from morality_gym.norms.chain import ChainError, builtin_chains, chain_file_stem, get_chain
+from morality_gym.world.layout import ScenarioError
+from morality_gym.world.rules import ACTION_NAMES
 
 
 def _console() -> Any:
@@ -43,8 +53,6 @@ def _env_ids(scenario: str, variants: list[str] | None) -> list[str]:
 
 def drawn_seed() -> int:
     """A Monte-Carlo seed from the operating system's entropy, for ``eval`` without ``--seed``."""
-    import secrets
-
     return secrets.randbelow(2**31)
 
 
@@ -75,6 +83,7 @@ def _max_steps(text: str) -> int | None:
 def _load_policy(spec: str, env_ids: list[str], allow_other_env: bool) -> Any:
     """The policy ``spec`` names (:mod:`morality_gym.baselines.policy_ref`), checked against every env it
     will be evaluated on; a callable is asked for a first action so its mistakes fail early."""
+    # the learners wait: `list` and `--help` start without them
     from morality_gym.baselines.policy_ref import load_policy, probe
 
     loaded = load_policy(spec, env_ids, allow_other_env)
@@ -85,9 +94,6 @@ def _load_policy(spec: str, env_ids: list[str], allow_other_env: bool) -> Any:
 
 def _evaluate_one(args: argparse.Namespace, policy: Any, env_id: str, chain: Any, episodes: int) -> Any:
     """One env's result, exact or Monte Carlo, as ``eval``'s options ask."""
-    from morality_gym.evaluation.exact import exact_evaluate
-    from morality_gym.evaluation.montecarlo import evaluate
-
     if args.exact:
         return exact_evaluate(policy, env_id, chain, max_steps=args.max_steps, beta=args.beta, deterministic=args.deterministic)
     return evaluate(policy, env_id, chain, n_episodes=episodes, seed=args.seed, max_steps=args.max_steps, beta=args.beta,
@@ -95,10 +101,10 @@ def _evaluate_one(args: argparse.Namespace, policy: Any, env_id: str, chain: Any
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    # rich and the learners wait: `list` and `--help` start without them
     from rich.table import Table
 
     from morality_gym.baselines.policy_ref import in_context
-    from morality_gym.evaluation.policies import PolicyFailure
 
     if args.exact and (args.episodes is not None or args.seed is not None):
         raise CliError("--exact computes expectations; it does not take --episodes or --seed")
@@ -168,10 +174,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_oracle(args: argparse.Namespace) -> int:
-    from rich.table import Table
-
-    from morality_gym.evaluation.oracle import oracle
-    from morality_gym.world.rules import ACTION_NAMES
+    from rich.table import Table  # rich waits: the command line starts without it
 
     chain = get_chain(args.chain)
     env_ids = _env_ids(args.scenario, args.variant)
@@ -220,8 +223,6 @@ def cmd_list(args: argparse.Namespace) -> int:
         for stem_chain in builtin_chains().values():
             print(f"{stem_chain.name:22s} {chain_file_stem(stem_chain):26s} {' > '.join(n.abbreviation for n in stem_chain.norms)}")
     elif args.what == "scenarios":
-        from morality_gym.envs.registry import scenarios
-
         for s in scenarios().values():
             print(f"{s.name:28s} {len(s.variants):3d} variants  {s.summary}")
     else:
@@ -231,9 +232,6 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 
 def cmd_docs(args: argparse.Namespace) -> int:
-    from morality_gym.envs.registration import env_class
-    from morality_gym.envs.registry import scenarios
-
     out = Path(args.output)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -259,8 +257,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(prog="python -m morality_gym", description=__doc__.splitlines()[0])
     add_debug_flag(parser)
     sub = parser.add_subparsers(dest="command", required=True)
-
-    from morality_gym import play
 
     p_play = sub.add_parser("play", help="play an env in the terminal")
     play.add_arguments(p_play)
@@ -308,10 +304,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def user_errors() -> tuple[type[BaseException], ...]:
     """What a user can get wrong here (one line, exit 2); anything else is a bug (traceback)."""
+    # the learners wait: `list` and `--help` start without them
     from morality_gym.baselines.io import ModelError
     from morality_gym.baselines.policy_ref import PolicyError
-    from morality_gym.envs.trolley import InvalidActionError
-    from morality_gym.world.layout import ScenarioError
 
     return (CliError, ChainError, UnknownEnvError, ModelError, ScenarioError, InvalidActionError, PolicyError)
 

@@ -9,6 +9,7 @@ exact expectation of the same policy, and the trained policy (``learner.policy``
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -16,9 +17,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from morality_gym.baselines.hparams import algorithm_class, validate_learner
 from morality_gym.baselines.learn_evals import EvalHook, learn_eval_row
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, protocol_spec, training_steps
-from morality_gym.baselines.targets import import_root
+from morality_gym.baselines.targets import import_root, resolve
 from morality_gym.constants import EVAL_EPISODES, MAX_STEPS, SEED
 from morality_gym.envs.registry import parse_env_id
 from morality_gym.envs.trolley import TrolleyEnv
@@ -82,6 +84,7 @@ class Learner:
     def eval_callback(self, eval_every: int, eval_episodes: int, on_eval: EvalHook | None = None) -> MoralityEvalCallback:
         """The SB3 callback that evaluates this learner's policy while it learns; its rows go to
         :attr:`learn_evals`, then to ``on_eval``."""
+        # torch waits: importing morality_gym.baselines.learners must not load it
         from morality_gym.baselines.callbacks import MoralityEvalCallback
 
         def record(row: dict[str, Any]) -> None:
@@ -112,6 +115,7 @@ class Learner:
 
     def record_gif(self, path: str | Path, max_steps: int = 50) -> dict[str, Any]:
         """One evaluation episode of the stochastic policy as a GIF (like the reference's render episode)."""
+        # PIL waits: importing morality_gym.baselines.learners must not load it
         from morality_gym.render.gif import record_episode
 
         adapter = PolicyAdapter(self.policy)
@@ -210,12 +214,11 @@ class SB3Learner(Learner):
         self.model = model if model is not None else self._build()
 
     def _algorithm_class(self) -> type:
-        from morality_gym.baselines.hparams import algorithm_class
-
         return algorithm_class(self.spec.target)
 
     def make_vec_env(self) -> Any:
         """The training VecEnv: batched simulator (or SB3 DummyVecEnv) -> VecMonitor -> cost/reward wrapper."""
+        # torch waits: importing morality_gym.baselines.learners must not load it
         from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 
         from morality_gym.envs.vector import TrolleyVecEnv
@@ -230,15 +233,14 @@ class SB3Learner(Learner):
         return VecMoralityWrapper(venv, self.bound, self.spec.reward_cost())
 
     def _build(self) -> Any:
-        import torch
-
-        from morality_gym.baselines.hparams import validate_learner
+        import torch  # torch waits: importing morality_gym.baselines.learners must not load it
 
         validate_learner(self.spec)  # sweeps check this before planning; library users get the same messages
         cls = self._algorithm_class()
         activation = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}[self.spec.activation]
         arch = list(self.spec.net_arch)
         policy_kwargs: dict[str, Any] = {"activation_fn": activation}
+        # torch waits: importing morality_gym.baselines.learners must not load it
         from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
         if issubclass(cls, OnPolicyAlgorithm):  # actor-critic: one network each (and a cost critic for ours)
@@ -293,8 +295,6 @@ def _net_arch_keys(cls: type) -> set[str]:
 
 
 def _spec_dict(spec: LearnerSpec) -> dict[str, Any]:
-    import dataclasses
-
     out = dataclasses.asdict(spec)
     out["hparams"] = dict(spec.hparams)
     return out
@@ -312,8 +312,6 @@ def build_learner(
     ``spec.target`` is either a :class:`Learner` subclass (built directly) or an SB3 algorithm
     (driven by :class:`SB3Learner`).
     """
-    from morality_gym.baselines.targets import resolve
-
     cls = resolve(spec.target, where=f"learner {spec.name!r}: _target_")
     learner_cls = cls if issubclass(cls, Learner) else SB3Learner
     return learner_cls(spec, bound, protocol=protocol, seed=seed, max_steps=max_steps)

@@ -21,7 +21,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from morality_gym.baselines import typed
+from morality_gym.baselines.targets import learner_trains
 from morality_gym.norms.cost import COST_MODES, RESET_POLICIES
 from morality_gym.norms.reward_cost import PAPER_RETURN_BOUNDS, RewardCostSpec
 
@@ -175,8 +178,6 @@ def _file_names(group: str) -> list[str]:
 
 
 def _read_file(group: str, name: str, what: str) -> tuple[Path, dict[str, Any]]:
-    import yaml
-
     path = CONF_DIR / group / f"{name}.yaml"
     if not path.is_file():
         names = _file_names(group)
@@ -274,7 +275,6 @@ def training_steps(spec: LearnerSpec, budget: int) -> int:
     """The ``total_timesteps`` to pass to SB3 so that the run trains what the paper's runs trained."""
     if budget < 0:
         raise SpecError(f"budget must be >= 0, got {budget}")
-    from morality_gym.baselines.targets import learner_trains
 
     if not learner_trains(spec.target):
         return 0

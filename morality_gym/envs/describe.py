@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from morality_gym.constants import MAX_STEPS
 from morality_gym.world.layout import Scenario
+from morality_gym.world.observe import ObservationCodec
+from morality_gym.world.rules import World
 
 _DIRS = {"L": "left", "R": "right", "U": "up", "D": "down"}
 
@@ -18,9 +20,6 @@ def _cell(cell: tuple[int, int]) -> str:
 
 def describe_scenario(scenario: Scenario) -> str:
     """Markdown sections: description, layout, actions, observation, rewards, termination, ids."""
-    from morality_gym.world.observe import ObservationCodec
-    from morality_gym.world.rules import World
-
     first = next(iter(scenario.variants))
     codec = ObservationCodec(World(scenario, first))
     lines = [f"{scenario.name}: {scenario.summary}", "", "## Description", ""]

@@ -31,6 +31,7 @@ from pathlib import Path
 import yaml
 
 from morality_gym.constants import MAX_STEPS
+from morality_gym.world.bounds import check_bounds
 from morality_gym.world.graph import StateGraph
 from morality_gym.world.layout import Scenario, ScenarioError, load_scenario
 from morality_gym.world.observe import ObservationCodec
@@ -86,8 +87,6 @@ def _horizon() -> int:
 
 
 def _load_user_file(path: Path) -> Scenario:
-    from morality_gym.world.bounds import check_bounds
-
     scenario = load_scenario(path)
     check_bounds(scenario, _horizon())
     return scenario

@@ -21,6 +21,7 @@ from gymnasium.envs.registration import EnvSpec
 from morality_gym.constants import MAX_STEPS
 from morality_gym.envs.registry import DEFAULT_MAX_STEPS, parse_env_id, state_graph  # DEFAULT_MAX_STEPS: re-exported
 from morality_gym.render.ansi import render_ansi
+from morality_gym.render.window import show_frame
 from morality_gym.world.graph import EMPTY_NORM_EVENTS, StateGraph, norm_events_dict
 from morality_gym.world.rules import ACTION_NAMES, Overrides
 
@@ -255,7 +256,6 @@ class TrolleyEnv(gym.Env[Any, int]):
         frame = render_rgb(self.world, self.state)
         if self.render_mode == "rgb_array":
             return frame
-        from morality_gym.render.window import show_frame
 
         self._renderer = show_frame(frame, self._renderer, title=self.env_id)
         return None

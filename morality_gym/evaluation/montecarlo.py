@@ -12,6 +12,7 @@ all episodes rather than once per episode step.
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -85,11 +86,9 @@ def evaluate(
     masks_all, sums_all, present_all, rets, lens, truncs, goals, costs = [], [], [], [], [], [], [], []
     bar = None
     if progress is None:
-        import sys
-
         progress = n_episodes >= 10_000 and sys.stderr.isatty()
     if progress:
-        from tqdm.auto import tqdm
+        from tqdm.auto import tqdm  # tqdm waits: importing morality_gym.evaluation.montecarlo must not load it
 
         bar = tqdm(total=n_episodes, desc=f"evaluate {bound.env_id}", unit="ep", leave=False)
     remaining = n_episodes

@@ -20,7 +20,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from morality_gym.baselines.fleet.base import FleetRun, FleetTrainer
+from morality_gym.baselines.fleet.ppo import FleetPPO
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError
+from morality_gym.baselines.targets import resolve
 from morality_gym.constants import MAX_STEPS
 
 
@@ -29,9 +31,6 @@ def fleet_class(target: str) -> type[FleetTrainer]:
 
     Matched by class identity: a subclass may train differently, so it has no fleet trainer.
     """
-    from morality_gym.baselines.fleet.ppo import FleetPPO
-    from morality_gym.baselines.targets import resolve
-
     trainers: list[type[FleetTrainer]] = [FleetPPO]
     try:
         from morality_gym.baselines.fleet.ppo_lag import FleetPPOLag

@@ -270,6 +270,7 @@ class FleetTrainer:
         return self.num_timesteps
 
     def _start_evaluations(self, eval_every: int, eval_episodes: int, on_eval: FleetEvalHook | None) -> None:
+        # torch waits: importing morality_gym.baselines.fleet.base must not load it
         from stable_baselines3.common.logger import configure
 
         self._eval_every = int(eval_every)
@@ -402,6 +403,7 @@ class FleetTrainer:
             self._last_obs = step.obs
             self._last_starts = step.dones
 
+        # torch waits: importing morality_gym.baselines.fleet.base must not load it
         from morality_gym.baselines.safe.functional import gae
 
         with th.no_grad():
