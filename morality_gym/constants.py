@@ -36,4 +36,11 @@ SEED = SEEDS[0]
 #: sampled policy, truncated episodes included; docs/protocols.md, "The metric's settings").
 EVAL_EPISODES = 100
 
-__all__ = ["BETA", "EVAL_EPISODES", "MAX_STEPS", "SEED", "SEEDS"]
+#: Training steps between two learn-time evaluations, and the episodes each plays: the paper's runs
+#: evaluated every 50,000 steps on 10 episodes (``conf/preset/paper.yaml``). The reference's Random
+#: baseline drew from its random stream in those evaluations, at steps 0 and 50,000, so replaying
+#: them reproduces its column (docs/protocols.md, "Random replays the reference's random stream").
+LEARN_EVAL_EVERY = 50_000
+LEARN_EVAL_EPISODES = 10
+
+__all__ = ["BETA", "EVAL_EPISODES", "LEARN_EVAL_EPISODES", "LEARN_EVAL_EVERY", "MAX_STEPS", "SEED", "SEEDS"]

@@ -21,7 +21,7 @@ from morality_gym.baselines.hparams import algorithm_class, validate_learner
 from morality_gym.baselines.learn_evals import EvalHook, learn_eval_row
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, protocol_spec, training_steps
 from morality_gym.baselines.targets import import_root, resolve
-from morality_gym.constants import EVAL_EPISODES, MAX_STEPS, SEED
+from morality_gym.constants import EVAL_EPISODES, LEARN_EVAL_EPISODES, LEARN_EVAL_EVERY, MAX_STEPS, SEED
 from morality_gym.envs.registry import parse_env_id
 from morality_gym.envs.trolley import TrolleyEnv
 from morality_gym.evaluation.exact import exact_evaluate
@@ -32,9 +32,6 @@ from morality_gym.norms.metric import BoundChain
 
 if TYPE_CHECKING:  # imported when used: it loads SB3 and torch, which the random learner never needs
     from morality_gym.baselines.callbacks import MoralityEvalCallback
-
-LEARN_EVAL_EVERY = 50_000
-LEARN_EVAL_EPISODES = 10
 
 
 class Learner:

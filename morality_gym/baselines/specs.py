@@ -25,6 +25,7 @@ import yaml
 
 from morality_gym.baselines import typed
 from morality_gym.baselines.targets import learner_trains
+from morality_gym.constants import LEARN_EVAL_EVERY
 from morality_gym.norms.cost import COST_MODES, RESET_POLICIES
 from morality_gym.norms.reward_cost import PAPER_RETURN_BOUNDS, RewardCostSpec
 
@@ -223,7 +224,7 @@ class ProtocolSpec:
     name: str
     learner_overrides: Mapping[str, Mapping[str, Any]]
     random_replays_learn_evals: bool
-    random_learn_eval_steps: tuple[int, ...] = (0, 50_000)
+    random_learn_eval_steps: tuple[int, ...] = (0, LEARN_EVAL_EVERY)
     render_episode_steps: int = 50
 
     def __post_init__(self) -> None:

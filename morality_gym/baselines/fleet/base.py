@@ -43,10 +43,10 @@ from morality_gym.baselines.fleet.env import FleetEnv
 from morality_gym.baselines.fleet.losses import Policy
 from morality_gym.baselines.fleet.nets import FleetNetworks, policy_linears
 from morality_gym.baselines.fleet.optim import BatchedAdam
-from morality_gym.baselines.learners import LEARN_EVAL_EPISODES, SB3Learner, build_learner
+from morality_gym.baselines.learners import SB3Learner, build_learner
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError, protocol_spec, training_steps
 from morality_gym.baselines.targets import resolve
-from morality_gym.constants import MAX_STEPS
+from morality_gym.constants import LEARN_EVAL_EPISODES, MAX_STEPS
 from morality_gym.norms.metric import BoundChain
 
 if TYPE_CHECKING:
