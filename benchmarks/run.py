@@ -40,7 +40,7 @@ import numpy as np
 import benchmarks
 from benchmarks import Context, Section, Timing, best_time, fmt_rate, ordered, register
 from benchmarks.baseline import comparison, measure_at
-from morality_gym import BatchedTrolleyEnv, TrolleyEnv, TrolleyVecEnv, TrolleyVectorEnv
+from morality_gym import BatchedTrolleyEnv, TrolleyEnv
 from morality_gym.constants import MAX_STEPS as PAPER_MAX_STEPS
 from morality_gym.envs.registry import BUILTIN_DIR, parse_env_id, scenarios
 from morality_gym.world.graph import N_ACTIONS, StateGraph
@@ -247,6 +247,9 @@ def _vector_work(step: Callable[[np.ndarray], Any], copies: int, calls: int, gen
 @register("batched", "Batched simulator and vector environments", order=30)
 def batched(ctx: Context) -> Section:
     """Env steps per second of the batched simulator and its Gymnasium and SB3 faces."""
+    # torch waits: the vector faces load SB3 (morality_gym's lazy names); only this benchmark needs them
+    from morality_gym import TrolleyVecEnv, TrolleyVectorEnv
+
     big_steps = ctx.size(10_000_000, 1_000_000)
     small_steps = ctx.size(1_000_000, 100_000)
     cases: list[tuple[str, int, bool, Callable[[int], Any]]] = [
