@@ -6,26 +6,24 @@ stream) next to the paper's numbers, because the issue asks for that comparison 
 
 from __future__ import annotations
 
+import numpy as np
+
 from benchmarks import Context, Section, best_time, register
+from morality_gym.envs import registry
+from morality_gym.envs.trolley import TrolleyEnv
+from morality_gym.evaluation.exact import exact_evaluate
+from morality_gym.evaluation.montecarlo import evaluate, evaluate_sequential
+from morality_gym.evaluation.oracle import oracle
+from morality_gym.norms.metric import bind_chain
+from morality_gym.paper import table1, table1_pairs
 
 
 def _clear_graph_caches() -> None:
-    from morality_gym.envs import registry
-
     registry._cached_graph.cache_clear()
 
 
 @register("exact", "Exact evaluation, Monte Carlo and the oracle on the 126 Table 1 pairs", order=50)
 def evaluation_speed(ctx: Context) -> Section:
-    import numpy as np
-
-    from morality_gym.envs.trolley import TrolleyEnv
-    from morality_gym.evaluation.exact import exact_evaluate
-    from morality_gym.evaluation.montecarlo import evaluate, evaluate_sequential
-    from morality_gym.evaluation.oracle import oracle
-    from morality_gym.norms.metric import bind_chain
-    from morality_gym.paper import table1, table1_pairs
-
     pairs = table1_pairs()
     if ctx.quick:
         pairs = pairs[::10]

@@ -4,7 +4,12 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
+import morality_gym
 from benchmarks import Context, Section, best_time, register
+from morality_gym.baselines.learners import build_learner
+from morality_gym.baselines.specs import learner_spec
 
 ENV_ID = "PushOrSwitch-Human-v1"
 #: (learner, protocol, rollouts per measurement): enough rollouts that a figure is not one short
@@ -23,12 +28,10 @@ TARGET = 10.0
 
 @register("fleet", "Fleet engine: training steps per second per core, single run vs K runs at once", order=75)
 def fleet_speed(ctx: Context) -> Section:
+    # torch waits: only the benchmark that runs it needs it
     import torch
 
-    import morality_gym
     from morality_gym.baselines.fleet import FleetRun, build_fleet
-    from morality_gym.baselines.learners import build_learner
-    from morality_gym.baselines.specs import learner_spec
 
     torch.set_num_threads(1)
     sizes = (2, 4) if ctx.quick else (12, 36)
@@ -114,12 +117,10 @@ def fleet_cost(ctx: Context) -> Section:
     VectorCost per pair in a Python loop at every step. StackedCost does all copies in one pass with
     the same bits. Measured: the fleet simulator's step with its cost (random actions), and a short
     PPO-Lag and PPO training of the fleet, each with the loop and with the stacked cost."""
-    import numpy as np
+    # torch waits: only the benchmark that runs it needs it
     import torch
 
-    import morality_gym
     from morality_gym.baselines.fleet import FleetRun, build_fleet
-    from morality_gym.baselines.specs import learner_spec
 
     torch.set_num_threads(1)
     ids = morality_gym.env_ids("PushOrSwitch")

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks import Context, Section, register
+from morality_gym.norms.chain import get_chain
 
 REPO = Path(__file__).resolve().parents[1]
 FINISHED_AT = "2026-01-01T00:00:00+00:00"
@@ -57,7 +58,7 @@ def write_results(root: Path, seeds: tuple[int, ...] = (41, 42), updates: int = 
     """A results directory of synthetic runs (all 126 variants x 5 learners x ``seeds``); returns the run count.
 
     PPO-Lag and CPO runs get ``updates`` per-update diagnostics (0: none), thinned to every ``stride``-th."""
-    from morality_gym.norms.chain import get_chain
+    # pandas, pyarrow wait: only the benchmark that runs it needs them
     from runners.results_schema import MF_PREFIX, SCHEMA_VERSION, run_schema, write_learn, write_run, write_updates
     from tests.stats_data import synthetic_runs
 

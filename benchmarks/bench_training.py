@@ -2,18 +2,17 @@
 
 from __future__ import annotations
 
+import morality_gym
 from benchmarks import Context, Section, best_time, register
+from morality_gym.baselines.learners import build_learner
+from morality_gym.baselines.specs import learner_spec
 
 ENV_ID = "PushOrSwitch-Human-v1"
 
 
 @register("training", "Training steps per second per learner (8 envs, one thread)", order=70)
 def training_speed(ctx: Context) -> Section:
-    import torch
-
-    import morality_gym
-    from morality_gym.baselines.learners import build_learner
-    from morality_gym.baselines.specs import learner_spec
+    import torch  # torch waits: only the benchmark that runs it needs it
 
     torch.set_num_threads(1)
     bound = morality_gym.bind_chain("DualProcess", ENV_ID)

@@ -25,12 +25,15 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from morality_gym.baselines.specs import learner_spec
 from morality_gym.clitools import duration
+from runners.paths import CONF_DIR
 
 
 @dataclass(frozen=True)
@@ -51,8 +54,6 @@ class Rate:
 
 def _target(config: str, algo: str) -> str:
     """The learner class a run was trained with: its recorded config's, else its algo file's."""
-    from morality_gym.baselines.specs import learner_spec
-
     try:
         return str(json.loads(config)["algo"]["target"])
     except (TypeError, ValueError, KeyError):
@@ -65,6 +66,7 @@ def finished_runs(results_dir: Path, protocol: str, preset: str | None, engine: 
     A run that trains nothing, or whose learner the fleet engine does not reproduce, counts
     whatever ``engine`` says: it never joins a fleet.
     """
+    # pandas, pyarrow, OmegaConf wait: only the benchmark that runs it needs them
     import pandas as pd
 
     from runners.jobs import fleet_trains
@@ -134,10 +136,10 @@ def scenario_factors(reference_dir: Path, protocol: str, engine: str, rates: dic
 
 def table1_plan(preset: str, protocol: str, engine: str, scratch: Path, extra: Sequence[str] = ()) -> tuple[list[Any], Any]:
     """The full Table 1 plan (its runs and validated sweep), composed as the sweep would compose it."""
+    # pyarrow, Hydra, OmegaConf wait: only the benchmark that runs it needs them
     from hydra import compose, initialize_config_dir
 
     from runners.config import validate
-    from runners.paths import CONF_DIR
     from runners.plan import plan
 
     overrides = ["experiment=table1", f"protocol={protocol}", f"preset={preset}", f"engine={engine}",
@@ -153,6 +155,7 @@ def table1_plan(preset: str, protocol: str, engine: str, scratch: Path, extra: S
 
 def plan_jobs(runs: list[Any], sweep: Any, workers: int) -> list[Any]:
     """The plan cut into the jobs a sweep with ``workers`` workers runs, in the order they take them."""
+    # pyarrow, OmegaConf wait: only the benchmark that runs it needs them
     from runners.jobs import dispatch_order, make_jobs
 
     speedups = {a.spec.name: a.fleet_speedup for a in sweep.algos}
@@ -186,9 +189,7 @@ def job_seconds(job: Any, rates: dict[str, Rate], factors: dict[tuple[str, str],
 def report(results_dir: Path, preset: str, protocol: str, engine: str, workers: Sequence[int],
            extra: Sequence[str] = (), reference: Path | None = None) -> str:
     """The measured rates and the projection (scenarios weighted by ``reference``'s sweep, if given), as Markdown."""
-    import tempfile
-
-    from morality_gym.baselines.specs import learner_spec
+    # pyarrow, OmegaConf wait: only the benchmark that runs it needs them
     from runners.jobs import jobs_estimate, makespan
 
     rates = measured_rates(results_dir, protocol, preset, engine)

@@ -34,10 +34,18 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
 import benchmarks
 from benchmarks import Context, Section, Timing, best_time, fmt_rate, ordered, register
+from benchmarks.baseline import comparison, measure_at
+from morality_gym import BatchedTrolleyEnv, TrolleyEnv
+from morality_gym.constants import MAX_STEPS as PAPER_MAX_STEPS
+from morality_gym.envs.registry import BUILTIN_DIR, parse_env_id, scenarios
+from morality_gym.world.graph import N_ACTIONS, StateGraph
+from morality_gym.world.observe import ObservationCodec
+from morality_gym.world.rules import World
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -47,15 +55,13 @@ REFERENCE_RANGE: tuple[int, int] = (10_000, 21_000)
 TARGET_SPEEDUP = 30.0
 TARGET_RESET_US = 20.0
 TARGET_BATCHED = 10_000_000
-MAX_STEPS = 200
+MAX_STEPS = PAPER_MAX_STEPS
 BATCH_ENV_ID = "PushOrSwitch-Human-v1"
 
 
 # ============================================================================ helpers
 def representative_ids() -> list[str]:
     """The first variant of every built-in scenario, plus the two ids the reference was quoted on."""
-    from morality_gym.envs.registry import BUILTIN_DIR, scenarios
-
     ids = [s.env_ids[0] for s in scenarios().values() if Path(s.source).parent == BUILTIN_DIR]
     for env_id in REFERENCE_QUOTED:
         if env_id not in ids:
@@ -99,10 +105,6 @@ _TIMING_NOTE = (
 @register("single-env", "Single environment: steps per second", order=10)
 def single_env(ctx: Context) -> Section:
     """TrolleyEnv.step directly and through gymnasium.make's default wrappers."""
-    import gymnasium as gym
-
-    from morality_gym import TrolleyEnv
-
     n = ctx.size(1_000_000, 100_000)
     actions = np.random.default_rng(0).integers(0, 6, n).tolist()  # Python ints, as a policy's argmax.item()
     ids = representative_ids()
@@ -173,10 +175,6 @@ simulating every state it reaches for the first time (see the state-graph sectio
 @register("reset", "reset() time", order=20)
 def reset_time(ctx: Context) -> Section:
     """Microseconds per reset, without and with a seed, directly and through gymnasium.make."""
-    import gymnasium as gym
-
-    from morality_gym import TrolleyEnv
-
     n = ctx.size(200_000, 20_000)
     n_seeded = max(1, n // 10)
     ids = representative_ids()
@@ -249,7 +247,8 @@ def _vector_work(step: Callable[[np.ndarray], Any], copies: int, calls: int, gen
 @register("batched", "Batched simulator and vector environments", order=30)
 def batched(ctx: Context) -> Section:
     """Env steps per second of the batched simulator and its Gymnasium and SB3 faces."""
-    from morality_gym import BatchedTrolleyEnv, TrolleyVecEnv, TrolleyVectorEnv
+    # torch waits: the vector faces load SB3 (morality_gym's lazy names); only this benchmark needs them
+    from morality_gym import TrolleyVecEnv, TrolleyVectorEnv
 
     big_steps = ctx.size(10_000_000, 1_000_000)
     small_steps = ctx.size(1_000_000, 100_000)
@@ -326,11 +325,6 @@ samples its own random actions would. Best of {ctx.repeats} runs. {_TIMING_NOTE}
 
 def _graph_timings(env_id: str, repeats: int) -> tuple[Timing, Timing, int]:
     """(enumeration, enumeration + tables, number of states) of a fresh state graph of ``env_id``."""
-    from morality_gym.envs.registry import parse_env_id
-    from morality_gym.world.graph import StateGraph
-    from morality_gym.world.observe import ObservationCodec
-    from morality_gym.world.rules import World
-
     scenario, variant = parse_env_id(env_id)
     fresh: list[StateGraph] = []
     counts: list[int] = []
@@ -351,8 +345,6 @@ def _graph_timings(env_id: str, repeats: int) -> tuple[Timing, Timing, int]:
 @register("graph", "First-time state-graph enumeration", order=40)
 def graph_enumeration(ctx: Context) -> Section:
     """Milliseconds to enumerate each scenario's whole reachable state graph into tables, from scratch."""
-    from morality_gym.world.graph import N_ACTIONS
-
     ids = representative_ids()
     task = ctx.task("state graphs", len(ids))
     rows, total = [], 0.0
@@ -427,7 +419,7 @@ def machine_facts(cpu: int | None) -> list[tuple[str, str]]:
         ),
         platform.system(),
     )
-    import torch
+    import torch  # torch waits: only the benchmark that runs it needs it
 
     try:
         commit = subprocess.run(
@@ -538,9 +530,10 @@ def main(argv: list[str] | None = None) -> int:
 
     cpu = _pin_cpu(args.cpu)
     load_before = load_average()
-    import torch
+    import torch  # torch waits: only the benchmark that runs it needs it
 
     torch.set_num_threads(1)
+    # rich waits: only the benchmark that runs it needs it
     from rich.console import Console
     from rich.progress import (
         BarColumn,
@@ -576,8 +569,6 @@ def main(argv: list[str] | None = None) -> int:
             progress.advance(overall)
     baseline_commit = None
     if args.baseline:
-        from benchmarks.baseline import comparison, measure_at
-
         console.print(f"measuring the same sections at {args.baseline} (temporary worktree)...")
         baseline_commit, before = measure_at(
             args.baseline, [b.key for b in selected], repeats, cpu, args.quick

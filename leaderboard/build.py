@@ -21,6 +21,7 @@ Deleting ``cache/`` only makes the next build slower.
 from __future__ import annotations
 
 import argparse
+import difflib
 import sys
 import tempfile
 import time
@@ -38,7 +39,10 @@ from leaderboard.aggregate import (
 )
 from leaderboard.release import Release, ReleaseError, resolve
 from leaderboard.sources import Sources, load_sources
+from leaderboard.stamp import StampError, source_date_epoch, stamp_text
+from leaderboard.tables import write_tables
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
+from runners.quarantine import quarantined_files
 
 REFERENCE_CACHE = Path("cache") / "reference_rows.json"
 EXIT_OK = 0
@@ -47,6 +51,7 @@ T = TypeVar("T")
 
 def progress(items: Iterable[T], description: str, total: int) -> Iterable[T]:
     """A rich progress bar on a terminal; one line per stage otherwise (logs stay readable)."""
+    # rich waits: importing leaderboard.build (its --help too) must not load it
     from rich.console import Console
     from rich.progress import track
 
@@ -109,8 +114,6 @@ def releases_of(args: argparse.Namespace) -> list[Release]:
 
 def check_primary_choice(args: argparse.Namespace, lb: Leaderboard) -> None:
     """``--protocol`` / ``--preset`` must name a sweep of the results (a typo silently chose none)."""
-    import difflib
-
     for flag, wanted, have in (("--protocol", args.protocol, {g.protocol for g in lb.groups}),
                                ("--preset", args.preset, {g.preset for g in lb.groups})):
         if wanted is not None and wanted not in have:
@@ -122,13 +125,12 @@ def check_primary_choice(args: argparse.Namespace, lb: Leaderboard) -> None:
 def build(args: argparse.Namespace, sources: Sources, quarantined: list[dict[str, str]] | None = None,
           ) -> tuple[Leaderboard, dict[str, Any]]:
     """Run every stage on loaded runs; returns the leaderboard and what was written (for the summary)."""
+    # matplotlib, SciPy, Jinja wait: importing leaderboard.build (its --help too) must not load them
     from leaderboard.cached_stages import paper_figures, statistics, statistics_figures
     from leaderboard.intervals import with_intervals
     from leaderboard.run_figures import write_run_charts
     from leaderboard.site import build_site
-    from leaderboard.stamp import stamp_text
     from leaderboard.stats import DEFAULT_RESAMPLES
-    from leaderboard.tables import write_tables
 
     runs, planned, skipped = sources.runs, sources.planned, sources.skipped
     out_dir: Path = args.out
@@ -227,9 +229,8 @@ def summary(lb: Leaderboard, out: dict[str, Any], args: argparse.Namespace) -> s
 
 def run(args: argparse.Namespace) -> int:
     """The build, with every user error raised as :class:`UserError` (one line, exit 2)."""
+    # matplotlib, Jinja wait: importing leaderboard.build (its --help too) must not load them
     from leaderboard.site import SiteError, check_target
-    from leaderboard.stamp import StampError, source_date_epoch
-    from runners.quarantine import quarantined_files
 
     try:
         source_date_epoch()  # before scipy is imported: numpy.f2py reads the variable too and crashes on it

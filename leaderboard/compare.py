@@ -31,6 +31,7 @@ from leaderboard.aggregate import aggregate, learner_order, row_order
 from leaderboard.build import load
 from leaderboard.tables import fmt, md_escape
 from morality_gym.clitools import OneLineParser, UserError, run_cli
+from runners.results_schema import read_updates
 
 #: The cell columns a side must provide (both a results directory and a table1_all.csv give them).
 _CELL = ["protocol", "preset", "chain", "scenario", "learner"]
@@ -134,8 +135,6 @@ def summary_lines(distances: pd.DataFrame, learners: list[str]) -> list[str]:
 
 def diagnostics_lines(results: Path, runs: pd.DataFrame, protocol: str, preset: str) -> list[str]:
     """What the counted runs' updates did (only learners that write ``.updates.parquet``)."""
-    from runners.results_schema import read_updates
-
     chosen = runs.loc[(runs["protocol"] == protocol) & (runs["preset"] == preset) & runs["ok"]]
     lines = []
     for learner in learner_order(chosen["learner"].unique()):

@@ -33,18 +33,18 @@ from pathlib import Path
 from typing import Any
 
 from leaderboard.aggregate import LLM_POLICY_KIND
-from leaderboard.aggregate import PROVENANCE_KEY as PROVENANCE
-from leaderboard.aggregate import SUBMITTED_ALGO as SUBMITTED
 from leaderboard.submit import _submitter, check_name, code_version
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
+from morality_gym.constants import BETA
 from morality_gym.envs.registry import UnknownEnvError, parse_env_id
 from morality_gym.llm.settings import DEFAULT_PRESET, PRESETS, AgentSettings, SettingsError
 from morality_gym.llm.text import FRAMINGS, FramingError
 from morality_gym.llm.tokens import estimate_tokens
 from morality_gym.norms.chain import ChainError, get_chain
-from morality_gym.norms.metric import DEFAULT_BETA
 from runners.execute import RunLock, finished_status, versions
-from runners.identity import run_id_of
+from runners.identity import PROVENANCE_KEY as PROVENANCE
+from runners.identity import SUBMITTED_ALGO as SUBMITTED
+from runners.identity import run_identity
 from runners.results_schema import MF_PREFIX, SCHEMA_VERSION, write_run
 
 # Inspect AI (the llm extra) is imported inside the functions that run or read it, so that
@@ -74,6 +74,7 @@ class Episode:
 
 def read_episodes(path: Path) -> tuple[list[Episode], dict[str, Any]]:
     """The scored episodes of an Inspect log and the task's ``morality_gym`` metadata."""
+    # Inspect waits: importing leaderboard.llm (its --help too) must not load it
     from inspect_ai.log import read_eval_log
 
     from morality_gym.llm.inspect_tasks import EPISODE_KEY
@@ -132,7 +133,7 @@ def episode_config(ep: Episode, meta: dict[str, Any], name: str, protocol: str, 
         "chain": {"name": chain.name, "norms": [[n.name, n.modality] for n in chain.norms]},
         "algo": {"name": SUBMITTED, "label": name},
         "protocol": {"name": protocol}, "preset": preset, "seed": ep.seed, "budget": 0,
-        "beta": DEFAULT_BETA, "max_steps": int(settings["max_steps"]), "eval_episodes": 1,
+        "beta": BETA, "max_steps": int(settings["max_steps"]), "eval_episodes": 1,
         "policy": {"kind": LLM_POLICY_KIND, "model": ep.model, **settings,
                    "llm_preset": meta.get("preset"), "episodes_per_variant": int(meta.get("episodes", 0))},
         PROVENANCE: {"submitter": submitter, "log": ep.log, "sample": ep.sample_id,
@@ -172,7 +173,7 @@ def import_logs(paths: Sequence[Path], name: str, results: Path, protocol: str, 
         for ep in episodes:
             counts["episodes"] += 1
             config = episode_config(ep, meta, name, protocol, preset, submitter)
-            run_id = run_id_of({k: v for k, v in config.items() if k != PROVENANCE})
+            run_id = run_identity(config)
             lock = RunLock(results, run_id)
             if not lock.acquire():
                 raise UserError(f"run {run_id} ({ep.env_id}, seed {ep.seed}) is being written by another process; retry later")
@@ -220,6 +221,7 @@ def scripted_model(script: Path) -> Any:
 
 def run_inspect(args: argparse.Namespace) -> list[Path]:
     """Run the task of each ``--chain`` with Inspect; returns the log files."""
+    # Inspect waits: importing leaderboard.llm (its --help too) must not load it
     from inspect_ai import eval as inspect_eval
 
     from morality_gym.llm.inspect_tasks import morality_gym_task

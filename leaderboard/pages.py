@@ -13,14 +13,17 @@ from typing import Any
 
 import pandas as pd
 
-from leaderboard.aggregate import ORACLE_BEST, ORACLE_WORST, RANDOM_EXACT, STD_DDOF, Group, safe_name
-from leaderboard.paper_figures import chain_title, norm_abbreviation, norm_label
+from leaderboard.aggregate import ORACLE_BEST, ORACLE_WORST, RANDOM_EXACT, STD_DDOF, Group, chain_norm_order, safe_name
 from leaderboard.intervals import BOLD_RULE
 from leaderboard.llm_entries import llm_entries
+from leaderboard.paper_figures import chain_title, norm_abbreviation, norm_label
+from leaderboard.ranking_page import matrix_context
 from leaderboard.render import clean, clean_records, is_missing, run_href, scenario_href, section_id
 from leaderboard.site_state import SiteBuild
 from leaderboard.sources import RESULTS_SOURCE
 from leaderboard.tables import fmt
+from morality_gym.envs.registry import scenario_named
+from runners.results_schema import MF_PREFIX
 
 #: |ours - paper| from which the difference is highlighted on the site.
 NOTABLE_DELTA = 0.05
@@ -152,8 +155,6 @@ def scenarios_context(sb: SiteBuild, root: str) -> list[tuple[str, str, str]]:
 
 
 def index_context(sb: SiteBuild) -> dict[str, Any]:
-    from leaderboard.ranking_page import matrix_context
-
     return sb.common("MoralityGym leaderboard", "", "index.html") | {
         "primary": sb.lb.primary.label if sb.lb.primary else "",
         "status": status_context(sb),
@@ -249,9 +250,6 @@ def value_text(record: dict[str, Any], key: str, digits: int | None = None) -> s
 
 
 def run_context(sb: SiteBuild, record: dict[str, Any]) -> dict[str, Any]:
-    from leaderboard.aggregate import chain_norm_order
-    from runners.results_schema import MF_PREFIX
-
     root = "../"
     run_id = str(record["run_id"])
     group = Group(record["protocol"], record["preset"])
@@ -291,8 +289,6 @@ def _int(value: Any) -> str:
 
 # ---------------------------------------------------------------------------------------- scenario pages
 def variant_specs(scenario: str) -> tuple[Any, list[str]]:
-    from morality_gym.envs.registry import scenario_named
-
     try:
         spec = scenario_named(scenario)
     except KeyError:

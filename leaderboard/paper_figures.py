@@ -21,6 +21,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from leaderboard.aggregate import Group, Leaderboard, safe_name
+from morality_gym.norms.catalogue import CATALOGUE
+from morality_gym.norms.chain import ChainError, get_chain
 
 #: Okabe-Ito colours (distinguishable with the common colour-vision deficiencies) for the paper's learners.
 LEARNER_COLOURS = {
@@ -55,23 +57,17 @@ def learner_palette(learners: Iterable[str]) -> dict[str, str]:
 
 def norm_abbreviation(norm: str) -> str:
     """The paper's short label of a norm (MHH, APHH, AAgH, ...), or the name itself."""
-    from morality_gym.norms.catalogue import CATALOGUE
-
     info = CATALOGUE.get(norm)
     return info.abbreviation if info else norm
 
 
 def norm_label(norm: str) -> str:
-    from morality_gym.norms.catalogue import CATALOGUE
-
     info = CATALOGUE.get(norm)
     return info.label if info else norm
 
 
 def chain_title(chain: str) -> str:
     """``Utility (U)``: the chain's name and the abbreviation the paper uses."""
-    from morality_gym.norms.chain import ChainError, get_chain
-
     try:
         abbreviation = get_chain(chain).abbreviation
     except ChainError:

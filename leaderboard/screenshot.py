@@ -44,6 +44,7 @@ def launch_browser(playwright: object, profile: Path, chromium: Path = CHROMIUM)
 def screenshot(site: Path, out: Path, page_name: str = "index.html", full_page: bool = True,
                chromium: Path = CHROMIUM) -> Path:
     """Open ``site/page_name`` from ``file://`` and save a screenshot to ``out``."""
+    # Playwright waits: importing leaderboard.screenshot (its --help too) must not load it
     from playwright.sync_api import sync_playwright
 
     target = (site / page_name).resolve()

@@ -36,11 +36,13 @@ from pathlib import Path
 from typing import Any
 
 from leaderboard.aggregate import Group, Leaderboard, safe_name
-from leaderboard.paper_figures import FigureSet
+from leaderboard.downloads import write_downloads
 from leaderboard.page_cache import PageCache, link_or_copy
+from leaderboard.paper_figures import FigureSet
 from leaderboard.render import STATIC, STATIC_FILES, render
 from leaderboard.site_state import SiteBuild
 from leaderboard.sources import Sources
+from morality_gym.envs.registry import scenario_named
 
 SITE_MARKER = ".leaderboard-site"
 Progress = Callable[[Iterable[Any], str, int], Iterable[Any]]
@@ -100,8 +102,6 @@ def gif_choices(lb: Leaderboard, sources: Sources) -> dict[tuple[Group, str, str
     Only runs whose GIF exists inside their results directory or release qualify (a path pointing
     elsewhere is ignored rather than copied: the site must not pick up arbitrary files).
     """
-    from morality_gym.envs.registry import scenario_named
-
     chosen: dict[tuple[Group, str, str, str], dict[str, Any]] = {}
     runs = lb.runs.loc[lb.runs["ok"] & lb.runs["gif_path"].notna()]
     variant_rank: dict[str, dict[str, int]] = {}
@@ -141,7 +141,6 @@ def render_layouts(sb: SiteBuild, scenarios: list[str]) -> None:
         for scenario in scenarios:
             sb.layout_notes[scenario] = f"rendering unavailable ({type(exc).__name__}: {exc}); ASCII picture only"
         return
-    from morality_gym.envs.registry import scenario_named
 
     for scenario in scenarios:
         try:
@@ -205,7 +204,7 @@ def build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: Figur
     :class:`leaderboard.stats_figure_files.StatFigures`; ``stamp``: the build date shown in the footer;
     ``cache_dir``: where run pages are kept between builds (:mod:`leaderboard.page_cache`; None: render all).
     """
-    from leaderboard.downloads import write_downloads
+    # SciPy waits: importing leaderboard.site must not load it
     from leaderboard.pages import index_context, run_context, runs_context, scenario_context
     from leaderboard.ranking_page import ranking_context
 

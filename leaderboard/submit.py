@@ -37,12 +37,26 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from leaderboard.aggregate import PROVENANCE_KEY as PROVENANCE
-from leaderboard.aggregate import SUBMITTED_ALGO as SUBMITTED
+from morality_gym.baselines.io import ModelError
+from morality_gym.baselines.policy_ref import PolicyError, is_stationary, load_policy, probe
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
+from morality_gym.constants import BETA, MAX_STEPS
+from morality_gym.envs.registry import UnknownEnvError, scenario_named, scenarios
+from morality_gym.envs.trolley import InvalidActionError
+from morality_gym.evaluation.exact import exact_evaluate
+from morality_gym.evaluation.montecarlo import evaluate
+from morality_gym.evaluation.policies import PolicyFailure
+from morality_gym.norms.chain import ChainError, get_chain
+from morality_gym.norms.metric import bind_chain
+from morality_gym.paper import LEARNERS, table1
+from runners.identity import PROVENANCE_KEY as PROVENANCE
+from runners.identity import SUBMITTED_ALGO as SUBMITTED
+from runners.identity import run_identity
+from runners.paths import CONF_DIR
 
 DEFAULT_PROTOCOL = "paper"
 DEFAULT_PRESET = "paper"
@@ -62,8 +76,6 @@ class Cell:
 
 def scenario_by_any_name(name: str) -> str:
     """A scenario's name from either spelling (``push_or_switch`` or ``PushOrSwitch``)."""
-    from morality_gym.envs.registry import scenario_named, scenarios
-
     by_key = {s.replace("_", "").lower(): s for s in scenarios()}
     found = by_key.get(name.replace("_", "").replace("-", "").lower())
     if found is not None:
@@ -76,10 +88,6 @@ def select_cells(chains: Sequence[str], scenario_names: Sequence[str], variants:
     Table 1 scenarios of the chains, or the Table 1 chains of the scenarios, when one is; every
     Table 1 cell when neither is. ``variants`` keeps only those variants (each must exist in at
     least one selected scenario)."""
-    from morality_gym.envs.registry import scenario_named
-    from morality_gym.norms.chain import get_chain
-    from morality_gym.paper import table1
-
     wanted_chains = [get_chain(c) for c in chains]
     wanted_scenarios = [scenario_by_any_name(s) for s in scenario_names]
     rows = [(get_chain(r.chain), r.scenario) for r in table1()]
@@ -119,6 +127,7 @@ def select_cells(chains: Sequence[str], scenario_names: Sequence[str], variants:
 def preset_facts(preset: str) -> tuple[tuple[int, ...], int]:
     """(seeds, final-evaluation episodes) of ``conf/preset/<preset>.yaml``, read and checked by the
     sweep's own preset schema (:func:`runners.config_schema.load_preset`)."""
+    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
     from runners.config_schema import PresetError, load_preset
 
     try:
@@ -131,12 +140,12 @@ def preset_facts(preset: str) -> tuple[tuple[int, ...], int]:
 # ---------------------------------------------------------------------------------------- provenance
 def code_version() -> str:
     """The git commit of this checkout, else the installed package's version."""
+    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
     from runners.execute import git_commit
 
     commit = git_commit()
     if commit != "unknown":
         return commit
-    from importlib.metadata import PackageNotFoundError, version
 
     try:
         return f"morality-gym {version('morality-gym')}"
@@ -148,8 +157,8 @@ def code_version() -> str:
 
 def check_name(name: str) -> str:
     """A display name that cannot pass for one of the paper's learners or a reference row."""
+    # pandas, pyarrow wait: importing leaderboard.submit (its --help too) must not load them
     from leaderboard.aggregate import REFERENCE_LEARNERS
-    from morality_gym.paper import LEARNERS
 
     cleaned = " ".join(str(name).split())
     if not cleaned:
@@ -182,7 +191,7 @@ class Submission:
 
 def run_config(sub: Submission, cell: Cell, variant: str, seed: int, stationary: bool) -> dict[str, Any]:
     """The recorded config of one submitted run (identity + ``provenance``)."""
-    from morality_gym.envs.registry import scenario_named
+    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
     from runners.results_schema import SCHEMA_VERSION
 
     target = sub.loaded.ref.rsplit(":", 1)[1] if sub.loaded.kind == "callable" and ":" in sub.loaded.ref else None
@@ -206,18 +215,9 @@ def run_config(sub: Submission, cell: Cell, variant: str, seed: int, stationary:
     }
 
 
-def identity_of(config: dict[str, Any]) -> str:
-    """A submitted run's id: the content hash of its config without the provenance."""
-    from runners.identity import run_id_of
-
-    return run_id_of({k: v for k, v in config.items() if k != PROVENANCE})
-
-
 def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: str, results: Path) -> dict[str, Any]:
     """Evaluate one (cell, variant, seed) and return its schema row (nothing written yet)."""
-    from morality_gym.evaluation.exact import exact_evaluate
-    from morality_gym.evaluation.montecarlo import evaluate
-    from morality_gym.norms.metric import bind_chain
+    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
     from runners.execute import git_commit, versions
     from runners.results_schema import MF_PREFIX, runs_dir
 
@@ -229,12 +229,14 @@ def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: st
     exact = exact_evaluate(sub.loaded.policy, env_id, bound, max_steps=sub.max_steps) if config["policy"]["stationary"] else None
     gif_rel = None
     if sub.gif:
+        # PIL waits: importing leaderboard.submit (its --help too) must not load it
         from morality_gym.render.gif import record_episode
 
         gif = runs_dir(results) / run_id / "episode.gif"
         record_episode(env_id, sub.loaded.policy, gif, max_steps=GIF_STEPS, seed=config["seed"] + 7919,
                        env_kwargs={"max_steps": sub.max_steps})
         gif_rel = str(gif.relative_to(results))
+    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
     from runners.results_schema import SCHEMA_VERSION
 
     return {
@@ -261,15 +263,12 @@ def _now() -> str:
 
 def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = print) -> dict[str, int]:
     """Evaluate and write every run of ``cells`` that is not in ``results`` yet; returns counts."""
-    from morality_gym.baselines.policy_ref import PolicyError, is_stationary, probe
-    from morality_gym.evaluation.policies import PolicyFailure
+    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
     from runners.execute import RunLock, finished_status
     from runners.results_schema import write_run
 
     counts = {"written": 0, "present": 0}
     for cell in cells:
-        from morality_gym.envs.registry import scenario_named
-
         scenario = scenario_named(cell.scenario)
         cell_metrics: list[float] = []
         for variant in cell.variants:
@@ -280,7 +279,7 @@ def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = pri
             stationary = is_stationary(sub.loaded, env_id)
             for seed in sub.seeds:
                 config = run_config(sub, cell, variant, seed, stationary)
-                run_id = identity_of(config)
+                run_id = run_identity(config)  # the content hash of the config without the provenance
                 lock = RunLock(results, run_id)
                 if not lock.acquire():
                     raise UserError(f"run {run_id} ({env_id}, seed {seed}) is being written by another submission; "
@@ -319,6 +318,7 @@ def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = pri
 
 def stored_scores(results: Path, run_id: str) -> tuple[float, float | None]:
     """(metric, exact metric or None) of a run already in ``results`` (re-submission: shown again)."""
+    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
     from runners.quarantine import read_table_or_quarantine
     from runners.results_schema import run_path
 
@@ -364,21 +364,15 @@ def _submitter(given: str | None) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from morality_gym.baselines.policy_ref import load_policy
-    from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
-    from morality_gym.norms.metric import DEFAULT_BETA
-
     name = check_name(args.name)
     cells = select_cells(args.chain, args.scenario, args.variant)
     seeds, episodes = preset_facts(args.preset)
-    from runners.paths import CONF_DIR
 
     protocols = sorted(p.stem for p in (CONF_DIR / "protocol").glob("*.yaml"))
     if protocols and args.protocol not in protocols:
         close = difflib.get_close_matches(args.protocol, protocols, n=3)
         hint = f" (did you mean {', '.join(close)}?)" if close else ""
         raise UserError(f"--protocol {args.protocol}: unknown{hint}; protocols: {', '.join(protocols)}")
-    from morality_gym.envs.registry import scenario_named
 
     env_ids = [scenario_named(c.scenario).env_id(v) for c in cells for v in c.variants]
     loaded = load_policy(args.policy, env_ids, args.allow_other_env)
@@ -391,7 +385,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--results {results}: not writable; pass another --results DIR")
     sub = Submission(name=name, loaded=loaded, sha256=loaded.sha256(), submitter=_submitter(args.submitter),
                      protocol=args.protocol, preset=args.preset, seeds=seeds, eval_episodes=episodes,
-                     beta=DEFAULT_BETA, max_steps=DEFAULT_MAX_STEPS, gif=not args.no_gif)
+                     beta=BETA, max_steps=MAX_STEPS, gif=not args.no_gif)
     n_runs = sum(len(c.variants) for c in cells) * len(seeds)
     print(f"submitting {loaded.ref} as {name!r} (sha256 {sub.sha256[:12]}): {len(cells)} cell(s), {n_runs} run(s), "
           f"{episodes} episodes per run, protocol {args.protocol}, preset {args.preset}", flush=True)
@@ -402,11 +396,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def user_errors() -> tuple[type[BaseException], ...]:
-    from morality_gym.baselines.io import ModelError
-    from morality_gym.envs.registry import UnknownEnvError
-    from morality_gym.envs.trolley import InvalidActionError
-    from morality_gym.norms.chain import ChainError
-
     return (ChainError, UnknownEnvError, ModelError, InvalidActionError)
 
 

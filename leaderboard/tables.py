@@ -33,6 +33,7 @@ from leaderboard.aggregate import (
     Leaderboard,
     csv_rows,
 )
+from leaderboard.stamp import stamp_text
 
 #: The paper's abbreviations in Table 1 (its caption); other names are written in full.
 SCENARIO_ABBREVIATIONS = {
@@ -239,6 +240,7 @@ def _seed(value: Any) -> str:
 
 def explanation_lines() -> list[str]:
     """How the numbers were made, next to the numbers (so the table can be read on its own)."""
+    # SciPy waits: importing leaderboard.tables must not load it
     from leaderboard.intervals import BOLD_RULE
 
     return [
@@ -260,8 +262,6 @@ def table1_markdown(lb: Leaderboard, results_name: str, stamp: str = "") -> str:
     ``stamp``: the build date (:mod:`leaderboard.stamp`), so that the same results give the same file.
     """
     if not stamp:
-        from leaderboard.stamp import stamp_text
-
         stamp = stamp_text(lb.runs)
     lines = ["# Table 1: average normalised morality metric by morality chain and scenario", "",
              (f"Results: `{md_escape(results_name)}` · {lb.n_ok} runs with a result · {len(lb.problems)} failed · "
@@ -369,6 +369,7 @@ def table1_latex(lb: Leaderboard, group: Group) -> str:
         scen = tex_escape(SCENARIO_ABBREVIATIONS.get(scenario, scenario))
         lines.append(f"{label} & {scen} & " + " & ".join(cells) + " \\\\")
     lines += ["\\bottomrule", "\\end{tabular}"]
+    # SciPy waits: importing leaderboard.tables must not load it
     from leaderboard.intervals import BOLD_RULE_TEX
 
     lines.append(f"\\par\\smallskip{{\\footnotesize Brackets: 95\\% bootstrap interval of the mean (seeds resampled "

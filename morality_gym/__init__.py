@@ -6,6 +6,8 @@
 
 from __future__ import annotations
 
+import importlib
+
 from morality_gym.api import make
 from morality_gym.envs.batched import BatchedTrolleyEnv
 from morality_gym.envs.registration import add_scenario_dir, register_all
@@ -35,8 +37,6 @@ _LAZY = {
 
 def __getattr__(name: str) -> object:
     if name in _LAZY:
-        import importlib
-
         return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'morality_gym' has no attribute {name!r}")
 

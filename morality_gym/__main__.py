@@ -10,14 +10,25 @@ from __future__ import annotations
 
 import argparse
 import json
+import secrets
 import sys
 from pathlib import Path
 from typing import Any
 
+from morality_gym import play
 from morality_gym.clitools import OneLineParser, add_debug_flag, console, non_negative_int, positive_int, run_cli
+from morality_gym.constants import BETA, EVAL_EPISODES, MAX_STEPS
 from morality_gym.envs.naming import find_scenario as scenario_named  # either spelling: SwitchStandard, switch_standard
-from morality_gym.envs.registry import UnknownEnvError, list_envs
+from morality_gym.envs.registration import env_class
+from morality_gym.envs.registry import UnknownEnvError, list_envs, scenarios
+from morality_gym.envs.trolley import InvalidActionError
+from morality_gym.evaluation.exact import exact_evaluate
+from morality_gym.evaluation.montecarlo import evaluate
+from morality_gym.evaluation.oracle import oracle
+from morality_gym.evaluation.policies import PolicyFailure
 from morality_gym.norms.chain import ChainError, builtin_chains, chain_file_stem, get_chain
+from morality_gym.world.layout import ScenarioError
+from morality_gym.world.rules import ACTION_NAMES
 
 
 def _console() -> Any:
@@ -42,8 +53,6 @@ def _env_ids(scenario: str, variants: list[str] | None) -> list[str]:
 
 def drawn_seed() -> int:
     """A Monte-Carlo seed from the operating system's entropy, for ``eval`` without ``--seed``."""
-    import secrets
-
     return secrets.randbelow(2**31)
 
 
@@ -74,6 +83,7 @@ def _max_steps(text: str) -> int | None:
 def _load_policy(spec: str, env_ids: list[str], allow_other_env: bool) -> Any:
     """The policy ``spec`` names (:mod:`morality_gym.baselines.policy_ref`), checked against every env it
     will be evaluated on; a callable is asked for a first action so its mistakes fail early."""
+    # the learners wait: `list` and `--help` start without them
     from morality_gym.baselines.policy_ref import load_policy, probe
 
     loaded = load_policy(spec, env_ids, allow_other_env)
@@ -84,9 +94,6 @@ def _load_policy(spec: str, env_ids: list[str], allow_other_env: bool) -> Any:
 
 def _evaluate_one(args: argparse.Namespace, policy: Any, env_id: str, chain: Any, episodes: int) -> Any:
     """One env's result, exact or Monte Carlo, as ``eval``'s options ask."""
-    from morality_gym.evaluation.exact import exact_evaluate
-    from morality_gym.evaluation.montecarlo import evaluate
-
     if args.exact:
         return exact_evaluate(policy, env_id, chain, max_steps=args.max_steps, beta=args.beta, deterministic=args.deterministic)
     return evaluate(policy, env_id, chain, n_episodes=episodes, seed=args.seed, max_steps=args.max_steps, beta=args.beta,
@@ -94,10 +101,10 @@ def _evaluate_one(args: argparse.Namespace, policy: Any, env_id: str, chain: Any
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    # rich and the learners wait: `list` and `--help` start without them
     from rich.table import Table
 
     from morality_gym.baselines.policy_ref import in_context
-    from morality_gym.evaluation.policies import PolicyFailure
 
     if args.exact and (args.episodes is not None or args.seed is not None):
         raise CliError("--exact computes expectations; it does not take --episodes or --seed")
@@ -167,10 +174,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_oracle(args: argparse.Namespace) -> int:
-    from rich.table import Table
-
-    from morality_gym.evaluation.oracle import oracle
-    from morality_gym.world.rules import ACTION_NAMES
+    from rich.table import Table  # rich waits: the command line starts without it
 
     chain = get_chain(args.chain)
     env_ids = _env_ids(args.scenario, args.variant)
@@ -219,8 +223,6 @@ def cmd_list(args: argparse.Namespace) -> int:
         for stem_chain in builtin_chains().values():
             print(f"{stem_chain.name:22s} {chain_file_stem(stem_chain):26s} {' > '.join(n.abbreviation for n in stem_chain.norms)}")
     elif args.what == "scenarios":
-        from morality_gym.envs.registry import scenarios
-
         for s in scenarios().values():
             print(f"{s.name:28s} {len(s.variants):3d} variants  {s.summary}")
     else:
@@ -230,9 +232,6 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 
 def cmd_docs(args: argparse.Namespace) -> int:
-    from morality_gym.envs.registration import env_class
-    from morality_gym.envs.registry import scenarios
-
     out = Path(args.output)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -251,15 +250,13 @@ def cmd_docs(args: argparse.Namespace) -> int:
     return 0
 
 
-DEFAULT_EPISODES = 100  # Monte-Carlo episodes per env, as the paper's final evaluation
+DEFAULT_EPISODES = EVAL_EPISODES  # Monte-Carlo episodes per env, as the paper's final evaluation
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(prog="python -m morality_gym", description=__doc__.splitlines()[0])
     add_debug_flag(parser)
     sub = parser.add_subparsers(dest="command", required=True)
-
-    from morality_gym import play
 
     p_play = sub.add_parser("play", help="play an env in the terminal")
     play.add_arguments(p_play)
@@ -269,7 +266,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--chain", required=True, help="chain name (DualProcess), file name (dual_process), abbreviation or YAML path")
         p.add_argument("--scenario", required=True, help="scenario name, e.g. PushOrSwitch")
         p.add_argument("--variant", action="append", help="variant name (repeatable); default: every variant")
-        p.add_argument("--beta", type=_beta, default=0.1, help="weight resolution (default 0.1, as the paper; 'derived' = reference default)")
+        p.add_argument("--beta", type=_beta, default=BETA, help=f"weight resolution (default {BETA}, as the paper; 'derived' = reference default)")
         p.add_argument("--json", action="store_true", help="print one JSON object")
 
     p_eval = sub.add_parser("eval", help="evaluate a policy's morality metric (Monte Carlo or exact)")
@@ -277,7 +274,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_eval.add_argument("--policy", default="random",
                         help="'random', a saved model (.zip), or a callable obs -> action or 6 probabilities given as "
                              "path/to/file.py:function or package.module:function")
-    p_eval.add_argument("--max-steps", type=_max_steps, default=200, help="truncate on step max_steps + 1 (default 200; 'none')")
+    p_eval.add_argument("--max-steps", type=_max_steps, default=MAX_STEPS, help=f"truncate on step max_steps + 1 (default {MAX_STEPS}; 'none')")
     p_eval.add_argument("--exact", action="store_true", help="exact expectation instead of sampling")
     p_eval.add_argument("--episodes", type=positive_int, default=None,
                         help=f"Monte-Carlo episodes per env, 1 or more (default {DEFAULT_EPISODES})")
@@ -291,7 +288,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p_oracle = sub.add_parser("oracle", help="best and worst achievable metric and the action sequences")
     common(p_oracle)
-    p_oracle.add_argument("--max-steps", type=_max_steps, default=200)
+    p_oracle.add_argument("--max-steps", type=_max_steps, default=MAX_STEPS)
     p_oracle.set_defaults(func=cmd_oracle)
 
     p_list = sub.add_parser("list", help="list env ids, scenarios or chains")
@@ -307,10 +304,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def user_errors() -> tuple[type[BaseException], ...]:
     """What a user can get wrong here (one line, exit 2); anything else is a bug (traceback)."""
+    # the learners wait: `list` and `--help` start without them
     from morality_gym.baselines.io import ModelError
     from morality_gym.baselines.policy_ref import PolicyError
-    from morality_gym.envs.trolley import InvalidActionError
-    from morality_gym.world.layout import ScenarioError
 
     return (CliError, ChainError, UnknownEnvError, ModelError, ScenarioError, InvalidActionError, PolicyError)
 

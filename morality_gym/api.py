@@ -4,18 +4,19 @@ from __future__ import annotations
 
 from typing import Any
 
+from morality_gym.constants import BETA
 from morality_gym.envs.registration import env_class
 from morality_gym.envs.registry import parse_env_id
 from morality_gym.envs.trolley import TrolleyEnv
 from morality_gym.norms.chain import MoralityChain
-from morality_gym.norms.metric import DEFAULT_BETA, BoundChain, bind_chain
+from morality_gym.norms.metric import BoundChain, bind_chain
 
 
 def make(
     env_id: str,
     chain: str | MoralityChain,
     *,
-    beta: float | str = DEFAULT_BETA,
+    beta: float | str = BETA,
     **env_kwargs: Any,
 ) -> tuple[TrolleyEnv, BoundChain]:
     """Create an env and the morality chain bound to it, as the paper's ``make`` does.

@@ -20,6 +20,7 @@ not a traceback; a traceback is for bugs, and for whoever asks for it. So every 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -88,7 +89,7 @@ def console(**kwargs: Any) -> Any:
     Rich's own answer to a closed pipe is ``SystemExit(1)``: ``... | head`` would then report a
     failure (exit 1) for output that was simply not read to the end.
     """
-    from rich.console import Console
+    from rich.console import Console  # rich waits: the command line starts without it
 
     class _PipeSafeConsole(Console):
         def on_broken_pipe(self) -> None:
@@ -100,6 +101,7 @@ def console(**kwargs: Any) -> Any:
 
 def version_text(prog: str) -> str:
     """What ``--version`` prints: the command and the installed package's version."""
+    # importlib.metadata waits: the command line starts without it
     from importlib.metadata import PackageNotFoundError, version
 
     try:
@@ -135,8 +137,6 @@ def add_debug_flag(parser: argparse.ArgumentParser) -> None:
 def duration(seconds: float) -> str:
     """``seconds`` as ``1h02m03s`` / ``2m03s`` (rounded to the second; ``–`` if not finite): the one
     way sweeps, plans and reports print a duration, so their figures read alike."""
-    import math
-
     if not math.isfinite(seconds):
         return "–"
     minutes, secs = divmod(round(seconds), 60)

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import yaml
 
+from morality_gym.envs.registry import env_ids
+
 TABLE1_FILE = Path(__file__).resolve().parent / "data" / "paper" / "table1.yaml"
 LEARNERS: tuple[str, ...] = ("CPO", "PPO", "PPO Lag", "PPO Shaped", "Random")
 
@@ -30,6 +32,4 @@ def table1() -> tuple[Table1Row, ...]:
 
 def table1_pairs() -> list[tuple[str, str]]:
     """The (chain, env id) pairs of Table 1: every variant of each row's scenario (126 pairs)."""
-    from morality_gym.envs.registry import env_ids
-
     return [(row.chain, env_id) for row in table1() for env_id in env_ids(row.scenario)]

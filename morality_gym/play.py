@@ -22,14 +22,24 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import select
 import sys
+import termios
 import time
+import tty
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
-from morality_gym.clitools import non_negative_int
+import numpy as np
+
+from morality_gym.clitools import non_negative_int, one_line, positive_int
+from morality_gym.constants import MAX_STEPS
+from morality_gym.envs.registry import UnknownEnvError
+from morality_gym.envs.trolley import InvalidActionError, TrolleyEnv
+from morality_gym.evaluation.policies import PolicyFailure, step_actor
+from morality_gym.render.ansi import render_ansi
 from morality_gym.world.rules import ACTION_NAMES, DOWN, FOUND, HARMED, INTERACT, LEFT, RIGHT, STAY, UP
 from morality_gym.world.vocab import EVENTS
 
@@ -65,8 +75,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--max-steps",
         type=int,  # a negative one is refused by the env, with its message (exit 2)
-        default=200,
-        help="truncate the episode on step max_steps + 1, as the environment does (default: 200)",
+        default=MAX_STEPS,
+        help=f"truncate the episode on step max_steps + 1, as the environment does (default: {MAX_STEPS})",
     )
     parser.add_argument(
         "--policy",
@@ -109,8 +119,6 @@ WINDOW = "window"
 
 
 def _positive_int(text: str) -> int:
-    from morality_gym.clitools import positive_int
-
     return positive_int(text)
 
 
@@ -148,9 +156,6 @@ def _line_commands(stdin: TextIO) -> Iterator[int | str]:
 @contextlib.contextmanager
 def _cbreak(stdin: TextIO) -> Iterator[None]:
     """Single key presses without echo; the terminal settings are restored however we leave."""
-    import termios
-    import tty
-
     fd = stdin.fileno()
     saved = termios.tcgetattr(fd)
     try:
@@ -162,8 +167,6 @@ def _cbreak(stdin: TextIO) -> Iterator[None]:
 
 def _key_commands(stdin: TextIO) -> Iterator[int | str]:
     """Terminal mode: read key presses as they come, with arrow keys decoded."""
-    import select
-
     fd = stdin.fileno()
     while True:
         data = os.read(fd, 1)
@@ -234,8 +237,6 @@ class Game:
         self.out.flush()
 
     def picture(self) -> None:
-        from morality_gym.render.ansi import render_ansi
-
         self.out.write(render_ansi(self.env.world, self.env.state, colour=self.colour))
 
     def start(self) -> None:
@@ -337,7 +338,7 @@ def gif_paths(target: str, episodes: int) -> list[Path]:
 
 def record(args: argparse.Namespace, loaded: Any, out: TextIO) -> int:
     """``--render OUT.gif``: each episode to a GIF, with a one-line summary of it."""
-    from morality_gym.render.gif import record_episode
+    from morality_gym.render.gif import record_episode  # PIL waits: the command line starts without it
 
     for k, path in enumerate(gif_paths(args.render, args.episodes)):
         seed = None if args.seed is None else args.seed + k
@@ -352,8 +353,6 @@ def record(args: argparse.Namespace, loaded: Any, out: TextIO) -> int:
 
 
 def _error(err: TextIO, exc: BaseException) -> int:
-    from morality_gym.clitools import one_line
-
     err.write(f"morality_gym play: error: {one_line(exc)}\n")
     err.flush()
     return 2
@@ -366,9 +365,6 @@ def run(
 
     ``stderr`` defaults to ``sys.stderr`` at call time (so pytest's capture sees it).
     """
-    from morality_gym.envs.registry import UnknownEnvError
-    from morality_gym.envs.trolley import TrolleyEnv
-
     err = stderr if stderr is not None else sys.stderr
     policy = getattr(args, "policy", None)
     render = getattr(args, "render", None)
@@ -383,10 +379,9 @@ def run(
         return _error(err, exc)
     loaded = None
     if policy is not None:
+        # the learners wait: only playing a saved policy needs them
         from morality_gym.baselines.io import ModelError
         from morality_gym.baselines.policy_ref import PolicyError, load_policy, probe
-        from morality_gym.envs.trolley import InvalidActionError
-        from morality_gym.evaluation.policies import PolicyFailure, step_actor
 
         try:
             loaded = load_policy(policy, [env.env_id], getattr(args, "allow_other_env", False))
@@ -401,8 +396,6 @@ def run(
     game = Game(env, stdout, colour, watching=None if loaded is None else loaded.ref)
     try:
         if loaded is not None:
-            import numpy as np
-
             try:
                 return watch(game, step_actor(loaded.policy, np.random.default_rng(args.seed)), args.episodes, args.delay)
             except (InvalidActionError, PolicyFailure) as exc:  # the policy failed at some step of an episode

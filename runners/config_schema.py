@@ -24,13 +24,18 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import re
+import typing
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from morality_gym.baselines import typed
 from morality_gym.baselines.specs import CONF_DIR, LearnerSpec, ProtocolSpec
+from morality_gym.constants import BETA, MAX_STEPS
 from runners.results_schema import SCHEMA_VERSION
 
 
@@ -89,8 +94,6 @@ def _algo_file_fields() -> list[tuple[str, Any, Any]]:
     """:class:`LearnerSpec`'s fields as an algo file spells them: the class is ``_target_``;
     ``name`` (default: the file's name) and ``label`` (default: the name) may be left out;
     ``protocol`` is set by a protocol, never by a file; plus the plan's ``planning``."""
-    import typing
-
     hints = typing.get_type_hints(LearnerSpec)
     out: list[tuple[str, Any, Any]] = [("_target_", str, dataclasses.field()),
                                        ("name", str | None, dataclasses.field(default=None)),
@@ -160,8 +163,6 @@ def preset_names() -> list[str]:
 def load_preset(name: str) -> Preset:
     """``conf/preset/<name>.yaml`` over the :class:`Preset` schema, checked as a sweep checks it:
     for readers that do not compose a sweep (``leaderboard.submit``, the leaderboard's seeds)."""
-    import yaml
-
     path = CONF_DIR / "preset" / f"{name}.yaml"
     if not path.is_file():
         names = preset_names()
@@ -255,8 +256,8 @@ class Sweep:
     experiment: Experiment | None = None
     variant: Any = None
     seed: Any = None
-    beta: float = 0.1
-    max_steps: int | None = 200
+    beta: float = BETA
+    max_steps: int | None = MAX_STEPS
     results_dir: str = "results"
     dry_run: bool = False
     retry_failed: bool = True
@@ -316,6 +317,7 @@ SCHEMAS: dict[str, type] = {cls.__name__: cls for cls in (AlgoFile, Planning, Pl
 def register() -> None:
     """Store the schemas in Hydra's ConfigStore (idempotent): ``sweep_schema`` for the primary
     config, ``schema/launcher/<name>`` for the launcher files."""
+    # Hydra waits: importing runners.config_schema must not load it
     from hydra.core.config_store import ConfigStore
 
     store = ConfigStore.instance()
@@ -330,8 +332,6 @@ def composition_error(exc: BaseException, find: Callable[[str, str], Path | None
 
     ``find(group, option)`` gives an option's file on the search path (``runners.paths.find_config``).
     """
-    import re
-
     text = str(exc)
     where = ""
     found = re.match(r"In '([^']+)'", text)

@@ -19,9 +19,14 @@ import time
 import traceback
 from datetime import UTC, datetime
 from functools import lru_cache
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
+from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec
+from morality_gym.norms.chain import parse_chain
+from morality_gym.norms.metric import bind_chain
+from runners.quarantine import read_table_or_quarantine
 from runners.results_schema import MF_PREFIX, SCHEMA_VERSION, run_path, runs_dir, write_learn, write_run, write_updates
 
 
@@ -55,8 +60,6 @@ def git_commit() -> str:
 
 @lru_cache(maxsize=1)
 def versions() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
     out = {"python": platform.python_version()}
     for pkg in ("morality-gym", "numpy", "torch", "gymnasium", "stable-baselines3", "sb3-contrib", "pyarrow", "mlflow"):
         try:
@@ -71,7 +74,7 @@ def limit_threads() -> None:
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ[var] = "1"
     try:
-        import torch
+        import torch  # torch waits: importing runners.execute must not load it
 
         torch.set_num_threads(1)
     except ImportError:  # pragma: no cover - torch is a dependency
@@ -107,8 +110,6 @@ class RunLock:
 def finished_status(results_dir: Path, run_id: str) -> str | None:
     """``ok`` / ``failed`` if the run has a readable result file, else None (an unreadable one is
     moved aside by :mod:`runners.quarantine`, so the run is done again)."""
-    from runners.quarantine import read_table_or_quarantine
-
     table = read_table_or_quarantine(results_dir, run_path(results_dir, run_id), columns=["status"])
     return None if table is None else str(table.column("status")[0].as_py())
 
@@ -140,16 +141,12 @@ def _base_row(config: dict[str, Any], run_id: str, engine: str | None = "single"
 
 
 def _chain(config: dict[str, Any]) -> Any:
-    from morality_gym.norms.chain import parse_chain
-
     c = config["chain"]
     return parse_chain({"name": c["name"], "norms": [{"norm": n, "modality": m} for n, m in c["norms"]]}, source=f"run config {c['name']}")
 
 
 def spec_and_protocol(config: dict[str, Any]) -> tuple[Any, Any]:
     """The learner spec and protocol of a run config (JSON lists back to the spec's tuples)."""
-    from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec
-
     algo = dict(config["algo"])
     algo["return_bounds"] = tuple(algo["return_bounds"])
     algo["net_arch"] = tuple(algo["net_arch"])
@@ -160,8 +157,6 @@ def spec_and_protocol(config: dict[str, Any]) -> tuple[Any, Any]:
 
 def bound_chain(config: dict[str, Any]) -> Any:
     """The run's chain bound to its env id."""
-    from morality_gym.norms.metric import bind_chain
-
     return bind_chain(_chain(config), config["env_id"], config["beta"])
 
 
@@ -171,6 +166,7 @@ def execute_locked(config: dict[str, Any], run_id: str, results_dir: Path, gif: 
     limit_threads()
     started, t0 = utc_now(), time.perf_counter()
     try:
+        # torch waits: importing runners.execute must not load it, and a failed import is this run's recorded error
         from morality_gym.baselines.learners import build_learner
 
         spec, protocol = spec_and_protocol(config)

@@ -2,8 +2,10 @@
 
 A run's id is the SHA-256 of its resolved configuration (canonical JSON); the *configuration key*
 is the same hash without what varies inside one Table 1 cell (env, scenario, variant, seed), so
-every run of one cell and one configuration shares it. :mod:`runners.plan` builds the configs;
-the leaderboard recomputes the key from each run's recorded config.
+every run of one cell and one configuration shares it. :mod:`runners.plan` builds the configs of a
+sweep, ``leaderboard.submit`` and ``leaderboard.llm`` those of submitted runs (which record their
+provenance beside what they are); this module alone says what a run's id and configuration key are,
+and the leaderboard recomputes the key from each run's recorded config (:func:`configuration_key`).
 """
 
 from __future__ import annotations
@@ -33,7 +35,19 @@ def config_key(config: dict[str, Any]) -> str:
 PROVENANCE_KEY = "provenance"
 
 
+#: ``algo`` name in the config of a run whose policy was trained elsewhere and submitted
+#: (``python -m leaderboard.submit``, ``python -m leaderboard.llm``): no learner class made it.
+SUBMITTED_ALGO = "submitted"
+
+
 def run_identity(config: dict[str, Any]) -> str:
     """The id a run's recorded config stands for: :func:`run_id_of` without the provenance (a
     sweep's configs have none, so for them this is :func:`run_id_of` itself)."""
     return run_id_of({k: v for k, v in config.items() if k != PROVENANCE_KEY})
+
+
+def configuration_key(config: dict[str, Any]) -> str:
+    """The configuration key a run's recorded config stands for: :func:`config_key` without the
+    provenance, so that a submission resumed by someone else, or from another directory, is still
+    one configuration (for a sweep's configs this is :func:`config_key` itself)."""
+    return config_key({k: v for k, v in config.items() if k != PROVENANCE_KEY})

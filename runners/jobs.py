@@ -31,6 +31,8 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
+from morality_gym.baselines.specs import SpecError
+from runners.config_schema import ENGINES
 from runners.execute import (
     RunLock,
     bound_chain,
@@ -43,7 +45,6 @@ from runners.execute import (
     utc_now,
 )
 from runners.plan import PlannedRun
-from runners.config_schema import ENGINES
 
 #: Keys of a run config that may differ between the runs of one fleet (the rest must be equal).
 FLEET_FREE_KEYS = ("env_id", "variant", "chain", "seed")
@@ -68,8 +69,8 @@ class Job:
 @cache
 def fleet_trains(target: str) -> bool:
     """True if the fleet engine reproduces the learner class at ``target``."""
+    # torch waits: importing runners.jobs must not load it
     from morality_gym.baselines.fleet import fleet_class
-    from morality_gym.baselines.specs import SpecError
 
     try:
         fleet_class(target)
@@ -251,9 +252,9 @@ def _train_fleet(
     progress: Callable[[int, int], None] | None = None,
 ) -> Iterator[Summary]:
     """Train the locked runs ``mine`` as one fleet, then record them one after the other."""
+    # torch waits: importing runners.jobs must not load it
     from morality_gym.baselines.fleet import FleetRun, build_fleet
     from morality_gym.baselines.fleet.base import fleet_device
-    from morality_gym.baselines.specs import SpecError
 
     limit_threads()
     started, t0 = utc_now(), time.perf_counter()

@@ -52,10 +52,27 @@ import pyarrow.parquet as pq
 
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
 from morality_gym.clitools import console as make_console
+from runners.execute import RunLock
 from runners.identity import PER_RUN_KEYS, PROVENANCE_KEY, config_key, run_identity
 from runners.manifest import manifests_dir, plan_hash
-from runners.rename_history import MIGRATIONS, Migration, MigrationError, migrate_config, migrate_sidecar, unmigrate_config
-from runners.results_schema import atomic_write_table, learn_path, read_jsonl, run_files, run_path, runs_dir, updates_path
+from runners.rename_history import (
+    MIGRATIONS,
+    Migration,
+    MigrationError,
+    migrate_config,
+    migrate_sidecar,
+    unmigrate_config,
+)
+from runners.results_schema import (
+    atomic_write_table,
+    learn_path,
+    read_jsonl,
+    run_files,
+    run_path,
+    runs_dir,
+    updates_path,
+)
+from runners.tracking import Tracker, TrackingError, check_reachable, marker_path, tracking_lock
 
 JOURNAL_DIR = "migrations"
 JOURNAL = "journal.jsonl"
@@ -134,8 +151,6 @@ def migration_lock(results: Path) -> Iterator[None]:
 @contextlib.contextmanager
 def run_locks(results: Path, *run_ids: str) -> Iterator[None]:
     """The sweep's own per-run locks, so no sweep executes a run while it is being moved."""
-    from runners.execute import RunLock
-
     locks = []
     try:
         for rid in run_ids:
@@ -320,8 +335,6 @@ def _copy_artifacts(results: Path, move: RunMove, applied: list[Migration], step
 
 def _mirror(results: Path, tracker: Any, move: RunMove, step: Step) -> None:
     """Replace the MLflow mirror of the old id by one of the new id (only if it was mirrored)."""
-    from runners.tracking import marker_path, tracking_lock
-
     old_marker = marker_path(results, move.old_id)
     if not old_marker.is_file() or tracker is None:
         return
@@ -336,8 +349,6 @@ def _mirror(results: Path, tracker: Any, move: RunMove, step: Step) -> None:
 
 def _remove_old(results: Path, move: RunMove, step: Step) -> None:
     """The old files, the row first (from then on the old run no longer exists for anyone)."""
-    from runners.tracking import marker_path
-
     for path in (run_path(results, move.old_id), learn_path(results, move.old_id), updates_path(results, move.old_id)):
         if path.exists():
             path.unlink()
@@ -552,11 +563,8 @@ def migrate(results: str | Path, dry_run: bool = False, on_step: Step | None = N
 
 def _open_tracker(results: Path, todo: list[RunMove]) -> Any:
     """The MLflow mirror, only if a run to move was mirrored (a broken store stops before any change)."""
-    from runners.tracking import TrackingError, marker_path
-
     if not any(marker_path(results, m.old_id).is_file() for m in todo):
         return None
-    from runners.tracking import Tracker, check_reachable
 
     try:
         check_reachable(results)
@@ -568,6 +576,7 @@ def _open_tracker(results: Path, todo: list[RunMove]) -> Any:
 def _run_moves(results: Path, todo: list[RunMove], tracker: Any, step: Step, console: Any, show: bool) -> None:
     if not todo:
         return
+    # rich waits: importing runners.migrate (its --help too) must not load it
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
@@ -590,7 +599,7 @@ STATUS_TEXT = {"migrated": "migrated", "migrate": "to migrate", "resume": "to fi
 
 
 def print_report(report: Report, dry_run: bool, out: Any) -> None:
-    from rich.table import Table
+    from rich.table import Table  # rich waits: importing runners.migrate (its --help too) must not load it
 
     shown = [m for m in report.moves if m.status != "current"]
     if shown:

@@ -14,7 +14,10 @@ and with them torch) so that the leaderboard can learn a preset's seeds quickly.
 
 from __future__ import annotations
 
+import importlib.util
+import sys
 from functools import cache
+from importlib.metadata import entry_points
 from pathlib import Path
 
 from morality_gym.baselines.specs import CONF_DIR  # re-exported: defined once, there
@@ -23,6 +26,7 @@ from morality_gym.baselines.specs import CONF_DIR  # re-exported: defined once, 
 @cache
 def preset_seeds(preset: str) -> tuple[int, ...] | None:
     """The seeds of ``conf/preset/<preset>.yaml`` (None if there is no such preset or it is invalid)."""
+    # pyarrow waits: importing runners.paths must not load it
     from runners.config_schema import PresetError, load_preset
 
     try:
@@ -39,16 +43,12 @@ ENTRY_POINT_GROUP = "morality_gym.algos"
 
 def plugin_sources() -> list[str]:
     """``pkg://`` search-path entries of the installed plugins (:data:`ENTRY_POINT_GROUP`)."""
-    from importlib.metadata import entry_points
-
     return [f"pkg://{ep.module}" for ep in sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name)]
 
 
 def source_dir(source: str) -> Path | None:
     """The directory of a Hydra search-path entry (``file://DIR``, ``pkg://package`` or a plain path)."""
     if source.startswith("pkg://"):
-        import importlib.util
-
         try:
             spec = importlib.util.find_spec(source[len("pkg://"):].replace("/", "."))
         except (ImportError, ValueError):
@@ -86,6 +86,7 @@ def _hydra_sources() -> list[str] | None:
     which holds ``--config-dir`` in either form, ``hydra.searchpath`` and the plugins merged into
     it), or None where Hydra is not running (before it parses the command line, or a library caller)."""
     try:
+        # Hydra waits: importing runners.paths must not load it
         from hydra.core.hydra_config import HydraConfig
 
         if not HydraConfig.initialized():
@@ -104,8 +105,6 @@ def config_roots(argv: list[str] | None = None) -> list[Path]:
     Inside a Hydra job the answer is Hydra's own record of its search path; only where Hydra is not
     running (the command-line checks that run before it) is it read from ``argv``.
     """
-    import sys
-
     sources = _hydra_sources() if argv is None else None
     if sources is None:
         sources = [*sources_from_argv(sys.argv[1:] if argv is None else argv), *plugin_sources()]

@@ -24,7 +24,8 @@ from multiprocessing.connection import Connection, wait
 from pathlib import Path
 from typing import Any
 
-from runners.jobs import Job
+from runners.execute import git_commit, limit_threads
+from runners.jobs import Job, execute_job
 from runners.plan import PlannedRun
 
 ResultHook = Callable[[PlannedRun, dict[str, Any]], None]
@@ -55,8 +56,6 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int,
     if os.getppid() != parent_pid:  # the parent died before prctl took effect
         os._exit(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-    from runners.execute import git_commit, limit_threads
-    from runners.jobs import execute_job
 
     limit_threads()
     git_commit()  # the commit of the code this worker loads now, recorded for every run it trains

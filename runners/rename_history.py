@@ -24,7 +24,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from morality_gym.baselines.specs import LEGACY_IMPLEMENTATIONS
+from morality_gym.baselines.specs import LEGACY_IMPLEMENTATIONS, LearnerSpec, SpecError
+from morality_gym.baselines.targets import TargetError, learner_trains
 
 Config = dict[str, Any]
 
@@ -96,9 +97,6 @@ def _sidecar_backward(meta: Config) -> Config:
 
 def _learner_runs_now(config: Config) -> str | None:
     """The migrated learner spec is one the current code builds (its class imports)."""
-    from morality_gym.baselines.specs import LearnerSpec, SpecError
-    from morality_gym.baselines.targets import TargetError, learner_trains
-
     algo = dict(config["algo"])
     for key in ("return_bounds", "net_arch"):
         if isinstance(algo.get(key), list):

@@ -14,6 +14,7 @@ Bump :data:`SCHEMA_VERSION` on any incompatible change and document it in ``CHAN
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 from collections.abc import Iterable, Mapping
@@ -215,7 +216,7 @@ def write_updates(results_dir: str | Path, run_id: str, rows: list[Mapping[str, 
 
 def read_updates(results_dir: str | Path, run_id: str) -> Any:
     """One run's per-update diagnostics as a DataFrame (empty if the run has none)."""
-    import pandas as pd
+    import pandas as pd  # pandas waits: importing runners.results_schema must not load it
 
     path = updates_path(results_dir, run_id)
     if not path.is_file():
@@ -229,8 +230,6 @@ def read_jsonl(path: str | Path) -> list[dict[str, Any]]:
     A missing file is empty; a torn or foreign line (a kill while appending) is skipped rather than
     failing the reader, because these logs are written line by line by processes that may die.
     """
-    import json
-
     try:
         lines = Path(path).read_text().splitlines()
     except OSError:
@@ -258,7 +257,7 @@ def read_runs(results_dir: str | Path, skipped: list[dict[str, str]] | None = No
     given: then it is left out and reported there as ``{"file", "reason"}`` (the leaderboard builds
     from what is readable and lists the rest; it never moves files, see :mod:`runners.quarantine`).
     """
-    import pandas as pd
+    import pandas as pd  # pandas waits: importing runners.results_schema must not load it
 
     tables = []
     for path in run_files(results_dir):
@@ -292,7 +291,7 @@ def concat_tables(tables: list[pa.Table]) -> Any:
     concatenating the frames took seconds (pandas reindexes each frame onto the union of columns).
     Tables whose types cannot be unified (an old file with an int where a float is now) take
     pandas' path, which upcasts as before."""
-    import pandas as pd
+    import pandas as pd  # pandas waits: importing runners.results_schema must not load it
 
     try:
         return pa.concat_tables(tables, promote_options="default").to_pandas()
@@ -301,7 +300,7 @@ def concat_tables(tables: list[pa.Table]) -> Any:
 
 
 def read_learn(results_dir: str | Path) -> Any:
-    import pandas as pd
+    import pandas as pd  # pandas waits: importing runners.results_schema must not load it
 
     tables = [read_small_table(p) for p in sorted(runs_dir(results_dir).glob("*.learn.parquet"))]
     return concat_tables(tables) if tables else pd.DataFrame(columns=[f.name for f in LEARN_FIELDS])

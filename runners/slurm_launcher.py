@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from runners.execute import finished_status
-from runners.jobs import Job
+from runners.jobs import Job, execute_job_all
 from runners.plan import PlannedRun
 from runners.slurm_controller import SlurmUnavailable, check_controller  # noqa: F401 - re-exported for callers
 
@@ -30,9 +30,7 @@ def run_on_slurm(
     on_failure: Callable[[PlannedRun, str], None],
     device: str = "cpu",
 ) -> None:
-    import submitit
-
-    from runners.jobs import execute_job_all
+    import submitit  # submitit waits: importing runners.slurm_launcher must not load it
 
     folder = Path(launcher.get("folder") or results_dir / "slurm" / sweep_name)
     folder.mkdir(parents=True, exist_ok=True)

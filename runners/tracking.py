@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import json
+import logging
 import os
 import socket
 from collections.abc import Iterator
@@ -26,6 +27,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
 
+from runners.quarantine import read_table_or_quarantine
 from runners.results_schema import MF_PREFIX, UPDATE_COLUMNS, learn_path, run_path, updates_path
 
 EXPERIMENT = "morality-gym"
@@ -105,8 +107,7 @@ class Tracker:
     """Logs runs of one results directory to MLflow."""
 
     def __init__(self, results_dir: str | Path) -> None:
-        import logging
-
+        # MLflow waits: importing runners.tracking must not load it
         from mlflow.tracking import MlflowClient
 
         logging.getLogger("mlflow").setLevel(logging.WARNING)
@@ -135,9 +136,8 @@ class Tracker:
             return self._sync_locked(run_id)
 
     def _sync_locked(self, run_id: str) -> str | None:
+        # MLflow waits: importing runners.tracking must not load it
         from mlflow.entities import Metric, Param, RunTag
-
-        from runners.quarantine import read_table_or_quarantine
 
         marker = marker_path(self.results_dir, run_id)
         if marker.is_file():

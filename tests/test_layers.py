@@ -31,7 +31,7 @@ PACKAGES = ("morality_gym", "runners", "leaderboard", "benchmarks")
 #: specific prefix wins. ``morality_gym`` alone (the package's ``__init__``) is matched exactly, so
 #: a new top-level module must be placed here on purpose.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("support", ("morality_gym.clitools",)),
+    ("support", ("morality_gym.clitools", "morality_gym.constants")),
     ("world", ("morality_gym.world",)),
     ("render", ("morality_gym.render",)),
     ("envs", ("morality_gym.envs",)),

@@ -33,6 +33,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from leaderboard.aggregate import CELL_KEYS
 from leaderboard.stats.core import (
     CONFIDENCE,
     DEFAULT_RESAMPLES,
@@ -55,8 +56,6 @@ TIE_TOLERANCE = 1e-12
 
 
 def _cell_keys() -> list[str]:
-    from leaderboard.aggregate import CELL_KEYS
-
     return list(CELL_KEYS)
 
 

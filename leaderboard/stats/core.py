@@ -22,6 +22,7 @@ below take those weights on the last axis and work on any leading (bootstrap bat
 
 from __future__ import annotations
 
+import difflib
 import zlib
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
@@ -29,6 +30,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 from scipy import stats
+
+from leaderboard.aggregate import Group, group_order, learner_order, prepare_runs, row_order, split_superseded
 
 #: Coverage of every interval.
 CONFIDENCE = 0.95
@@ -54,8 +57,6 @@ class StatsInputError(ValueError):
 # ---------------------------------------------------------------------------------------- inputs
 def require_columns(frame: pd.DataFrame, columns: Iterable[str], what: str, fix: str) -> None:
     """Raise :class:`StatsInputError` naming the missing columns of ``frame`` (and close matches)."""
-    import difflib
-
     missing = [c for c in columns if c not in frame.columns]
     if not missing:
         return
@@ -77,8 +78,6 @@ def usable_runs(runs: pd.DataFrame, what: str = "runs") -> pd.DataFrame:
     here with the aggregator's own functions (without manifests, a slot keeps its newest usable
     run), so the rules for "ok" and "superseded" stay defined once.
     """
-    from leaderboard.aggregate import prepare_runs, split_superseded
-
     require_columns(runs, ["chain", "scenario", "learner", "metric"], what,
                     "pass run rows as runners.results_schema.read_runs or Leaderboard.runs return them")
     if "ok" not in runs.columns:
@@ -92,8 +91,6 @@ def in_table1_order(frame: pd.DataFrame, then: Sequence[str] = ()) -> pd.DataFra
     So that every output frame (and every CSV written from it) lists its lines in one order that
     does not depend on how the input was ordered.
     """
-    from leaderboard.aggregate import Group, group_order, learner_order, row_order
-
     frame = frame.reset_index(drop=True)  # positions, whatever index (even a duplicated one) came in
     if frame.empty:
         return frame

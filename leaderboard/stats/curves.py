@@ -27,6 +27,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from leaderboard.aggregate import CELL_KEYS
 from leaderboard.stats.core import (
     CONFIDENCE,
     DEFAULT_RESAMPLES,
@@ -85,8 +86,6 @@ def pooled_learning_curves(
     curve), ``aligned`` (``shared`` | ``interpolated``). Evaluations whose value is missing are
     ignored; a run evaluated twice at a step counts with the mean of both.
     """
-    from leaderboard.aggregate import CELL_KEYS
-
     keys = list(CELL_KEYS)
     require_columns(learn, ["run_id", "step", column], "learn", "pass runners.results_schema.read_learn(results_dir)")
     ok = usable_runs(runs)

@@ -30,7 +30,10 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FuncFormatter
 
+from leaderboard.aggregate import learner_order, row_order
 from leaderboard.paper_figures import DPI, learner_palette
+from leaderboard.stats.core import StatsInputError
+from morality_gym.norms.chain import ChainError, get_chain
 
 #: What each saved format would otherwise stamp into the file (dates, versions).
 _METADATA = {
@@ -69,8 +72,6 @@ def save_figure(fig: Figure, path: Path, tight: bool = True) -> Path:
 
 def _single(frame: pd.DataFrame, what: str, columns: Sequence[str]) -> None:
     """Refuse data that mixes sweeps (or measures): one figure would silently pool them."""
-    from leaderboard.stats.core import StatsInputError
-
     present = [c for c in columns if c in frame.columns]
     if present and len(frame[present].drop_duplicates()) > 1:
         found = ", ".join("/".join(map(str, k)) for k in frame[present].drop_duplicates().itertuples(index=False))
@@ -83,8 +84,6 @@ def _colours(learners: Sequence[str], colours: Mapping[str, str] | None) -> dict
 
 
 def _learners(frame: pd.DataFrame, column: str = "learner") -> list[str]:
-    from leaderboard.aggregate import learner_order
-
     return learner_order(frame[column].astype(str))
 
 
@@ -117,8 +116,6 @@ def _panel_figure(n_panels: int, ncols: int) -> tuple[Figure, np.ndarray]:
 
 def _row_title(chain: str, scenario: str) -> str:
     """``DPAH · PushOrSwitchSelfSacrifice``: the chain's abbreviation keeps panel titles inside their panel."""
-    from morality_gym.norms.chain import ChainError, get_chain
-
     try:
         short = get_chain(chain).abbreviation or chain
     except ChainError:
@@ -242,8 +239,6 @@ def learning_curves_figure(curves: pd.DataFrame, path: Path, rows: Sequence[tupl
     ``rows`` gives the panels and their order (default: every row of ``curves`` in Table 1 order);
     one row gives a single panel, for a scenario page.
     """
-    from leaderboard.aggregate import row_order
-
     if curves.empty:
         return None
     _single(curves, "learning-curve", ["protocol", "preset", "measure"])
@@ -282,8 +277,6 @@ def return_cost_figure(points: pd.DataFrame, path: Path, rows: Sequence[tuple[st
     Each learner's mean over its runs is drawn as a larger outlined marker, so a cloud's centre
     reads at a glance.
     """
-    from leaderboard.aggregate import row_order
-
     if points.empty:
         return None
     _single(points, "return-cost", ["protocol", "preset"])

@@ -58,6 +58,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats as sps
 
+from leaderboard.aggregate import ORACLE_BEST, RANDOM_EXACT, learner_order, row_order
 from leaderboard.stats.core import (
     CONFIDENCE,
     DEFAULT_RESAMPLES,
@@ -99,8 +100,6 @@ def reference_frame(table: pd.DataFrame) -> pd.DataFrame:
     a table built without references gives an empty frame, and every row is then reported as not
     normalised.
     """
-    from leaderboard.aggregate import ORACLE_BEST, RANDOM_EXACT
-
     require_columns(table, ROW_KEYS + ["learner", "mean"], "table", "pass Leaderboard.table")
     part = table.loc[table["learner"].isin([RANDOM_EXACT, ORACLE_BEST])]
     if part.empty:
@@ -139,8 +138,6 @@ def _as_reference_frame(references: pd.DataFrame | Mapping[Any, Any] | None) -> 
 
 # ---------------------------------------------------------------------------------------- rows and scores
 def _learners_of(ok: pd.DataFrame, learners: Sequence[str] | None) -> dict[tuple[str, str], list[str]]:
-    from leaderboard.aggregate import learner_order
-
     out = {}
     for (protocol, preset), part in ok.groupby(GROUP_KEYS, sort=True):
         present = learner_order(part["learner"].astype(str))
@@ -163,8 +160,6 @@ def ranking_rows(
     ``in_metric`` (whether the row enters the normalised / raw aggregates), ``note`` (why not).
     ``learners``: the learners compared (default: every learner with a run in the group).
     """
-    from leaderboard.aggregate import row_order
-
     ok = usable_runs(runs)
     refs = _as_reference_frame(references)
     by_group = _learners_of(ok, learners)

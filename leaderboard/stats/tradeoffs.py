@@ -25,7 +25,10 @@ from __future__ import annotations
 
 import pandas as pd
 
+from leaderboard.aggregate import chain_norm_order, norm_long
 from leaderboard.stats.core import in_table1_order, require_columns, usable_runs
+from morality_gym.norms.catalogue import CATALOGUE
+from morality_gym.norms.chain import ChainError, get_chain
 
 ROW_KEYS = ["protocol", "preset", "chain", "scenario"]
 POINT_COLUMNS = ROW_KEYS + ["variant", "learner", "seed", "run_id", "mean_return", "mean_cost", "metric"]
@@ -48,9 +51,6 @@ def return_cost_points(runs: pd.DataFrame) -> pd.DataFrame:
 
 def _norm_meaning(chain: str, norm: str) -> tuple[str, str, str]:
     """(kind, modality, measure) of a norm in a chain; the catalogue's kind when the chain is unknown."""
-    from morality_gym.norms.catalogue import CATALOGUE
-    from morality_gym.norms.chain import ChainError, get_chain
-
     try:
         entry = get_chain(chain).norm(norm)
         kind, modality = entry.kind, entry.modality
@@ -71,8 +71,6 @@ def violation_rates(runs: pd.DataFrame) -> pd.DataFrame:
     (prohibited | prescribed), measure (see the module docstring), value, n_runs, rank (the
     norm's position in its chain, highest force first).
     """
-    from leaderboard.aggregate import chain_norm_order, norm_long
-
     ok = usable_runs(runs)
     require_columns(ok, ROW_KEYS + ["variant", "learner", "seed", "run_id", "relevant_norms"], "runs",
                     "pass Leaderboard.runs")

@@ -31,6 +31,7 @@ from functools import cache
 from typing import Any
 
 from morality_gym.baselines.specs import LearnerSpec, SpecError
+from morality_gym.baselines.targets import TargetError, resolve
 
 
 class HyperParameterError(SpecError):
@@ -106,8 +107,6 @@ RANGES: dict[str, Range] = {
 
 def algorithm_class(target: str) -> type:
     """The class a learner's ``_target_`` names (imported; :class:`TargetError` if it cannot be)."""
-    from morality_gym.baselines.targets import resolve
-
     return resolve(target)
 
 
@@ -119,6 +118,7 @@ def accepted_hparams(target: str) -> dict[str, inspect.Parameter]:
     arguments, so its signature is the list; a self-driving learner class (the random baseline)
     takes none.
     """
+    # torch waits: importing morality_gym.baselines.hparams must not load it
     from stable_baselines3.common.base_class import BaseAlgorithm
 
     cls = algorithm_class(target)
@@ -197,8 +197,6 @@ def validate_hparams(algo_name: str, target: str, hparams: Mapping[str, Any]) ->
     ``algo_name`` is only used in the message (``ppo_shaped``, ``cpo``, ...); ``target`` names the
     class whose constructor receives ``hparams``.
     """
-    from morality_gym.baselines.targets import TargetError
-
     where = f"learner {algo_name!r}"
     try:
         accepted = accepted_hparams(target)

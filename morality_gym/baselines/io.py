@@ -18,8 +18,10 @@ import json
 from pathlib import Path
 from typing import Any
 
+from morality_gym.baselines.learners import Learner
 from morality_gym.baselines.specs import LEGACY_IMPLEMENTATIONS as _LEGACY_TARGETS  # old sidecars' ``implementation``
 from morality_gym.baselines.targets import TargetError, resolve
+from morality_gym.envs.registry import parse_env_id, state_graph
 
 
 class ModelError(ValueError):
@@ -66,8 +68,6 @@ def model_class(path: str | Path, meta: dict[str, Any]) -> type:
 def load_model(path: str | Path) -> Any:
     """The policy saved at ``path``: ``"random"``, an SB3 model of its recorded class, or what a
     self-driving learner class's ``load_policy`` returns."""
-    from morality_gym.baselines.learners import Learner
-
     meta = read_metadata(path)
     cls = model_class(path, meta)
     zip_path, _ = _paths(path)
@@ -99,7 +99,6 @@ def check_model_env(path: str | Path, policy: Any, env_id: str, allow_other_env:
     meta = read_metadata(path)
     if isinstance(policy, str) and policy == "random":
         return
-    from morality_gym.envs.registry import parse_env_id, state_graph
 
     trained = str(meta.get("env_id", ""))
     wanted = parse_env_id(env_id)[0].env_id(parse_env_id(env_id)[1])

@@ -9,6 +9,7 @@ exact expectation of the same policy, and the trained policy (``learner.policy``
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -16,11 +17,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from morality_gym.baselines.hparams import algorithm_class, validate_learner
 from morality_gym.baselines.learn_evals import EvalHook, learn_eval_row
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, protocol_spec, training_steps
-from morality_gym.baselines.targets import import_root
+from morality_gym.baselines.targets import import_root, resolve
+from morality_gym.constants import EVAL_EPISODES, LEARN_EVAL_EPISODES, LEARN_EVAL_EVERY, MAX_STEPS, SEED
 from morality_gym.envs.registry import parse_env_id
-from morality_gym.envs.trolley import DEFAULT_MAX_STEPS, TrolleyEnv
+from morality_gym.envs.trolley import TrolleyEnv
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.montecarlo import evaluate, evaluate_sequential
 from morality_gym.evaluation.policies import PolicyAdapter, sample_actions
@@ -29,9 +32,6 @@ from morality_gym.norms.metric import BoundChain
 
 if TYPE_CHECKING:  # imported when used: it loads SB3 and torch, which the random learner never needs
     from morality_gym.baselines.callbacks import MoralityEvalCallback
-
-LEARN_EVAL_EVERY = 50_000
-LEARN_EVAL_EPISODES = 10
 
 
 class Learner:
@@ -49,8 +49,8 @@ class Learner:
         spec: LearnerSpec,
         bound: BoundChain,
         protocol: ProtocolSpec | str = "paper",
-        seed: int = 41,
-        max_steps: int | None = DEFAULT_MAX_STEPS,
+        seed: int = SEED,
+        max_steps: int | None = MAX_STEPS,
     ) -> None:
         self.protocol = protocol_spec(protocol)
         # The protocol's learner overrides (e.g. CPO's dual solution) are applied here unless the
@@ -81,6 +81,7 @@ class Learner:
     def eval_callback(self, eval_every: int, eval_episodes: int, on_eval: EvalHook | None = None) -> MoralityEvalCallback:
         """The SB3 callback that evaluates this learner's policy while it learns; its rows go to
         :attr:`learn_evals`, then to ``on_eval``."""
+        # torch waits: importing morality_gym.baselines.learners must not load it
         from morality_gym.baselines.callbacks import MoralityEvalCallback
 
         def record(row: dict[str, Any]) -> None:
@@ -102,7 +103,7 @@ class Learner:
         return []
 
     # ------------------------------------------------------------------ shared
-    def final_evaluation(self, n_episodes: int = 100) -> EvaluationResult:
+    def final_evaluation(self, n_episodes: int = EVAL_EPISODES) -> EvaluationResult:
         """The paper's final evaluation: the stochastic policy, ``n_episodes`` episodes, seeded by the run."""
         return evaluate(self.policy, self.env_id, self.bound, n_episodes=n_episodes, seed=self.seed, max_steps=self.max_steps, keep_episodes=False)
 
@@ -111,6 +112,7 @@ class Learner:
 
     def record_gif(self, path: str | Path, max_steps: int = 50) -> dict[str, Any]:
         """One evaluation episode of the stochastic policy as a GIF (like the reference's render episode)."""
+        # PIL waits: importing morality_gym.baselines.learners must not load it
         from morality_gym.render.gif import record_episode
 
         adapter = PolicyAdapter(self.policy)
@@ -184,7 +186,7 @@ class RandomLearner(Learner):
         self.trained_steps = 0
         return 0
 
-    def final_evaluation(self, n_episodes: int = 100) -> EvaluationResult:
+    def final_evaluation(self, n_episodes: int = EVAL_EPISODES) -> EvaluationResult:
         if not hasattr(self, "_env"):
             self.learn(0)
         return evaluate_sequential(self._act, self._env, self.bound, n_episodes, keep_episodes=False)
@@ -209,12 +211,11 @@ class SB3Learner(Learner):
         self.model = model if model is not None else self._build()
 
     def _algorithm_class(self) -> type:
-        from morality_gym.baselines.hparams import algorithm_class
-
         return algorithm_class(self.spec.target)
 
     def make_vec_env(self) -> Any:
         """The training VecEnv: batched simulator (or SB3 DummyVecEnv) -> VecMonitor -> cost/reward wrapper."""
+        # torch waits: importing morality_gym.baselines.learners must not load it
         from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 
         from morality_gym.envs.vector import TrolleyVecEnv
@@ -229,15 +230,14 @@ class SB3Learner(Learner):
         return VecMoralityWrapper(venv, self.bound, self.spec.reward_cost())
 
     def _build(self) -> Any:
-        import torch
-
-        from morality_gym.baselines.hparams import validate_learner
+        import torch  # torch waits: importing morality_gym.baselines.learners must not load it
 
         validate_learner(self.spec)  # sweeps check this before planning; library users get the same messages
         cls = self._algorithm_class()
         activation = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}[self.spec.activation]
         arch = list(self.spec.net_arch)
         policy_kwargs: dict[str, Any] = {"activation_fn": activation}
+        # torch waits: importing morality_gym.baselines.learners must not load it
         from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
         if issubclass(cls, OnPolicyAlgorithm):  # actor-critic: one network each (and a cost critic for ours)
@@ -292,8 +292,6 @@ def _net_arch_keys(cls: type) -> set[str]:
 
 
 def _spec_dict(spec: LearnerSpec) -> dict[str, Any]:
-    import dataclasses
-
     out = dataclasses.asdict(spec)
     out["hparams"] = dict(spec.hparams)
     return out
@@ -303,16 +301,14 @@ def build_learner(
     spec: LearnerSpec,
     bound: BoundChain,
     protocol: ProtocolSpec | str = "paper",
-    seed: int = 41,
-    max_steps: int | None = DEFAULT_MAX_STEPS,
+    seed: int = SEED,
+    max_steps: int | None = MAX_STEPS,
 ) -> Learner:
     """The learner of ``spec`` for one env id and chain (see :mod:`morality_gym.baselines.specs`).
 
     ``spec.target`` is either a :class:`Learner` subclass (built directly) or an SB3 algorithm
     (driven by :class:`SB3Learner`).
     """
-    from morality_gym.baselines.targets import resolve
-
     cls = resolve(spec.target, where=f"learner {spec.name!r}: _target_")
     learner_cls = cls if issubclass(cls, Learner) else SB3Learner
     return learner_cls(spec, bound, protocol=protocol, seed=seed, max_steps=max_steps)

@@ -30,12 +30,17 @@ import re
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from difflib import get_close_matches
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from morality_gym.baselines.io import check_model_env, load_model
 from morality_gym.clitools import UserError
+from morality_gym.envs.registry import state_graph
+from morality_gym.envs.trolley import InvalidActionError
+from morality_gym.evaluation.policies import PolicyAdapter, PolicyFailure
 
 RANDOM = "random"
 #: ``module.path:attr.path`` (identifiers only) - told apart from a file path by its shape.
@@ -97,8 +102,6 @@ def _attribute(module: Any, attr: str, where: str) -> Any:
     obj = module
     for part in attr.split("."):
         if not hasattr(obj, part):
-            from difflib import get_close_matches
-
             names = [n for n in dir(obj) if not n.startswith("_")]
             close = get_close_matches(part, names, n=3)
             hint = f" (did you mean {', '.join(close)}?)" if close else ""
@@ -138,8 +141,6 @@ def _load_callable(ref: str) -> LoadedPolicy:
 
 
 def _load_model(ref: str, env_ids: Sequence[str], allow_other_env: bool) -> LoadedPolicy:
-    from morality_gym.baselines.io import check_model_env, load_model
-
     path = Path(ref).expanduser()
     if path.is_dir():  # a run's artifact directory (results/runs/<run_id>/) holds model.{zip,json}
         path = path / "model"
@@ -187,8 +188,6 @@ def load_policy(ref: Any, env_ids: Sequence[str] = (), allow_other_env: bool = F
 def _cause(exc: BaseException) -> BaseException:
     """The policy's own exception: :class:`~morality_gym.evaluation.policies.PolicyFailure` wraps
     it (the messages here name the policy and the env themselves)."""
-    from morality_gym.evaluation.policies import PolicyFailure
-
     return exc.__cause__ if isinstance(exc, PolicyFailure) and exc.__cause__ is not None else exc
 
 
@@ -200,10 +199,6 @@ def in_context(exc: BaseException, ref: str, where: str) -> PolicyError:
 def probe(loaded: LoadedPolicy, env_id: str) -> None:
     """Ask the policy for the first observation of ``env_id``: a policy that raises or returns no
     valid action fails here, with its reference in the message, before any result is written."""
-    from morality_gym.envs.registry import state_graph
-    from morality_gym.envs.trolley import InvalidActionError
-    from morality_gym.evaluation.policies import PolicyAdapter
-
     obs = np.asarray(state_graph(env_id).tables().obs[:1], dtype=np.float64)
     try:
         PolicyAdapter(loaded.policy).probabilities(obs, np.zeros(1, dtype=np.int64))
@@ -225,9 +220,6 @@ def is_stationary(loaded: LoadedPolicy, env_id: str) -> bool:
     """
     if loaded.kind in ("random", "model"):
         return True
-    from morality_gym.envs.registry import state_graph
-    from morality_gym.envs.trolley import InvalidActionError
-    from morality_gym.evaluation.policies import PolicyAdapter
 
     tables = state_graph(env_id).tables()
     ids = np.arange(tables.n_states)

@@ -21,7 +21,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from morality_gym.baselines import typed
+from morality_gym.baselines.targets import learner_trains
+from morality_gym.constants import LEARN_EVAL_EVERY
 from morality_gym.norms.cost import COST_MODES, RESET_POLICIES
 from morality_gym.norms.reward_cost import PAPER_RETURN_BOUNDS, RewardCostSpec
 
@@ -175,8 +179,6 @@ def _file_names(group: str) -> list[str]:
 
 
 def _read_file(group: str, name: str, what: str) -> tuple[Path, dict[str, Any]]:
-    import yaml
-
     path = CONF_DIR / group / f"{name}.yaml"
     if not path.is_file():
         names = _file_names(group)
@@ -222,7 +224,7 @@ class ProtocolSpec:
     name: str
     learner_overrides: Mapping[str, Mapping[str, Any]]
     random_replays_learn_evals: bool
-    random_learn_eval_steps: tuple[int, ...] = (0, 50_000)
+    random_learn_eval_steps: tuple[int, ...] = (0, LEARN_EVAL_EVERY)
     render_episode_steps: int = 50
 
     def __post_init__(self) -> None:
@@ -274,7 +276,6 @@ def training_steps(spec: LearnerSpec, budget: int) -> int:
     """The ``total_timesteps`` to pass to SB3 so that the run trains what the paper's runs trained."""
     if budget < 0:
         raise SpecError(f"budget must be >= 0, got {budget}")
-    from morality_gym.baselines.targets import learner_trains
 
     if not learner_trains(spec.target):
         return 0

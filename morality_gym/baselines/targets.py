@@ -38,7 +38,7 @@ def resolve(target: str, where: str = "_target_", search: Iterable[str | Path] =
     if not isinstance(target, str) or "." not in target.strip("."):
         raise TargetError(f"{where}: expected the import path of a class, like stable_baselines3.PPO, got {target!r}")
     add_python_roots(search)
-    from hydra.utils import get_class
+    from hydra.utils import get_class  # Hydra waits: importing morality_gym.baselines.targets must not load it
 
     hydra_log = logging.getLogger("hydra.utils")  # it logs the failure on three lines; ours says it on one
     level = hydra_log.level

@@ -92,6 +92,7 @@ def explain(exc: BaseException, where: str = "", schemas: Mapping[str, type] | N
 
     ``schemas`` maps an OmegaConf ``object_type`` name to its class, for the list of valid keys.
     """
+    # OmegaConf waits: importing morality_gym.baselines.typed must not load it
     from omegaconf.errors import ConfigKeyError, OmegaConfBaseException
 
     cause: BaseException | None = exc
@@ -119,6 +120,7 @@ def explain(exc: BaseException, where: str = "", schemas: Mapping[str, type] | N
 
 def merge(cls: type, *layers: Any, where: str = "") -> Any:
     """The layers (mappings, lowest first) merged over ``cls``'s schema: an OmegaConf node, typed."""
+    # OmegaConf waits: importing morality_gym.baselines.typed must not load it
     from omegaconf import OmegaConf
     from omegaconf.errors import OmegaConfBaseException
 
@@ -135,6 +137,7 @@ def merge(cls: type, *layers: Any, where: str = "") -> Any:
 def build(cls: type, node: Any, where: str = "", **extra: Any) -> Any:
     """The frozen ``cls`` from a merged node (its ``__post_init__`` checks the values); a required
     field left unset is named."""
+    # OmegaConf waits: importing morality_gym.baselines.typed must not load it
     from omegaconf import OmegaConf
     from omegaconf.errors import MissingMandatoryValue
 

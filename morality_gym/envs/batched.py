@@ -14,8 +14,9 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 
+from morality_gym.constants import MAX_STEPS
 from morality_gym.envs.registry import parse_env_id, state_graph
-from morality_gym.envs.trolley import DEFAULT_MAX_STEPS, _overrides
+from morality_gym.envs.trolley import _overrides
 from morality_gym.world.graph import N_ACTIONS, GraphTables
 from morality_gym.world.vocab import EVENT_BIT
 
@@ -78,7 +79,7 @@ class BatchedTrolleyEnv:
         env_id: str,
         num_envs: int,
         *,
-        max_steps: int | None = DEFAULT_MAX_STEPS,
+        max_steps: int | None = MAX_STEPS,
         obs_dtype: type = np.float32,
         autoreset: AutoReset = "same_step",
         normalise_obs: bool = True,

@@ -6,7 +6,10 @@ classes get these docstrings, and ``python -m morality_gym docs`` writes the sam
 
 from __future__ import annotations
 
+from morality_gym.constants import MAX_STEPS
 from morality_gym.world.layout import Scenario
+from morality_gym.world.observe import ObservationCodec
+from morality_gym.world.rules import World
 
 _DIRS = {"L": "left", "R": "right", "U": "up", "D": "down"}
 
@@ -17,9 +20,6 @@ def _cell(cell: tuple[int, int]) -> str:
 
 def describe_scenario(scenario: Scenario) -> str:
     """Markdown sections: description, layout, actions, observation, rewards, termination, ids."""
-    from morality_gym.world.observe import ObservationCodec
-    from morality_gym.world.rules import World
-
     first = next(iter(scenario.variants))
     codec = ObservationCodec(World(scenario, first))
     lines = [f"{scenario.name}: {scenario.summary}", "", "## Description", ""]
@@ -72,7 +72,7 @@ def describe_scenario(scenario: Scenario) -> str:
         "## Termination",
         "",
         "Terminated when the agent has stopped (landmark or harm) and every trolley has stopped; truncated on "
-        "step `max_steps + 1` (default 200).",
+        f"step `max_steps + 1` (default {MAX_STEPS}).",
         "",
         "## Registered Configurations",
         "",

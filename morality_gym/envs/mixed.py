@@ -18,9 +18,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from morality_gym.constants import MAX_STEPS
 from morality_gym.envs.batched import AutoReset, BatchedTrolleyEnv
 from morality_gym.envs.registry import parse_env_id, state_graph
-from morality_gym.envs.trolley import DEFAULT_MAX_STEPS, _overrides
+from morality_gym.envs.trolley import _overrides
 from morality_gym.world.graph import N_ACTIONS
 
 
@@ -35,7 +36,7 @@ class MixedBatchedTrolleyEnv(BatchedTrolleyEnv):
         self,
         env_ids: Sequence[str],
         *,
-        max_steps: int | None = DEFAULT_MAX_STEPS,
+        max_steps: int | None = MAX_STEPS,
         obs_dtype: type = np.float32,
         autoreset: AutoReset = "same_step",
         normalise_obs: bool = True,

@@ -30,6 +30,8 @@ from pathlib import Path
 
 import yaml
 
+from morality_gym.constants import MAX_STEPS
+from morality_gym.world.bounds import check_bounds
 from morality_gym.world.graph import StateGraph
 from morality_gym.world.layout import Scenario, ScenarioError, load_scenario
 from morality_gym.world.observe import ObservationCodec
@@ -38,9 +40,9 @@ from morality_gym.world.rules import Overrides, World
 NAMESPACE = "MoralityGym"
 VERSION = "v1"
 #: Every env truncates at step ``max_steps + 1``; this is ``max_steps`` unless a caller sets it
-#: (200 in every run of the paper). Defined here, below the env class, because a user scenario's
-#: bounds are checked against the horizon it implies when the file is loaded.
-DEFAULT_MAX_STEPS = 200
+#: (public alias of :data:`morality_gym.constants.MAX_STEPS`, 200 in every run of the paper). A user
+#: scenario's bounds are checked against the horizon it implies when the file is loaded.
+DEFAULT_MAX_STEPS = MAX_STEPS
 BUILTIN_DIR = Path(__file__).resolve().parent.parent / "data" / "scenarios"
 SCENARIOS_ENV = "MORALITY_GYM_SCENARIOS"
 
@@ -81,12 +83,10 @@ def _declared_name(path: Path) -> str | None:
 
 
 def _horizon() -> int:
-    return DEFAULT_MAX_STEPS + 1
+    return MAX_STEPS + 1
 
 
 def _load_user_file(path: Path) -> Scenario:
-    from morality_gym.world.bounds import check_bounds
-
     scenario = load_scenario(path)
     check_bounds(scenario, _horizon())
     return scenario

@@ -18,8 +18,10 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.envs.registration import EnvSpec
 
-from morality_gym.envs.registry import DEFAULT_MAX_STEPS, parse_env_id, state_graph
+from morality_gym.constants import MAX_STEPS
+from morality_gym.envs.registry import DEFAULT_MAX_STEPS, parse_env_id, state_graph  # DEFAULT_MAX_STEPS: re-exported
 from morality_gym.render.ansi import render_ansi
+from morality_gym.render.window import show_frame
 from morality_gym.world.graph import EMPTY_NORM_EVENTS, StateGraph, norm_events_dict
 from morality_gym.world.rules import ACTION_NAMES, Overrides
 
@@ -102,7 +104,7 @@ class TrolleyEnv(gym.Env[Any, int]):
         env_id: str | None = None,
         *,
         variant: str | None = None,
-        max_steps: int | None = DEFAULT_MAX_STEPS,
+        max_steps: int | None = MAX_STEPS,
         obs_type: str = "flat",
         normalise_obs: bool = True,
         render_mode: str | None = None,
@@ -254,7 +256,6 @@ class TrolleyEnv(gym.Env[Any, int]):
         frame = render_rgb(self.world, self.state)
         if self.render_mode == "rgb_array":
             return frame
-        from morality_gym.render.window import show_frame
 
         self._renderer = show_frame(frame, self._renderer, title=self.env_id)
         return None

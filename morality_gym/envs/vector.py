@@ -18,8 +18,8 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
+from morality_gym.constants import MAX_STEPS
 from morality_gym.envs.batched import BatchedTrolleyEnv, BatchStep
-from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
 from morality_gym.world.observe import flat_key
 
 
@@ -40,7 +40,7 @@ class TrolleyVectorEnv(VectorEnv):
         env_id: str,
         num_envs: int = 1,
         *,
-        max_steps: int | None = DEFAULT_MAX_STEPS,
+        max_steps: int | None = MAX_STEPS,
         autoreset_mode: str | AutoresetMode = AutoresetMode.SAME_STEP,
         obs_dtype: type = np.float32,
         obs_type: str = "flat",
@@ -164,7 +164,7 @@ class TrolleyVecEnv(VecEnv):
         env_id: str,
         num_envs: int,
         *,
-        max_steps: int | None = DEFAULT_MAX_STEPS,
+        max_steps: int | None = MAX_STEPS,
         obs_dtype: type = np.float32,
         normalise_obs: bool = True,
         overrides: dict | None = None,

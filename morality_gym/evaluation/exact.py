@@ -15,13 +15,13 @@ from typing import Any
 
 import numpy as np
 
+from morality_gym.constants import BETA, MAX_STEPS
 from morality_gym.envs.registry import state_graph
-from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
 from morality_gym.evaluation.montecarlo import MAX_EPISODE_STEPS
 from morality_gym.evaluation.policies import PolicyAdapter
 from morality_gym.evaluation.result import EvaluationResult
 from morality_gym.norms.chain import MoralityChain
-from morality_gym.norms.metric import DEFAULT_BETA, BoundChain, bind_chain
+from morality_gym.norms.metric import BoundChain, bind_chain
 from morality_gym.world.graph import N_ACTIONS, GraphTables
 from morality_gym.world.vocab import EVENT_BIT, UTILITIES
 
@@ -92,8 +92,8 @@ def exact_evaluate(
     policy: Any,
     env_id: str,
     chain: str | MoralityChain | BoundChain,
-    max_steps: int | None = DEFAULT_MAX_STEPS,
-    beta: float | str = DEFAULT_BETA,
+    max_steps: int | None = MAX_STEPS,
+    beta: float | str = BETA,
     deterministic: bool = False,
 ) -> EvaluationResult:
     """The exact expectation of everything :func:`~morality_gym.evaluation.montecarlo.evaluate` estimates.

@@ -12,18 +12,20 @@ all episodes rather than once per episode step.
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
+from morality_gym.constants import BETA, EVAL_EPISODES, MAX_STEPS
 from morality_gym.envs.batched import BatchedTrolleyEnv, utility_present
-from morality_gym.envs.trolley import DEFAULT_MAX_STEPS, TrolleyEnv
+from morality_gym.envs.trolley import TrolleyEnv
 from morality_gym.evaluation.policies import PolicyAdapter
 from morality_gym.evaluation.result import EpisodeRecord, EvaluationResult
 from morality_gym.norms.chain import MoralityChain
 from morality_gym.norms.cost import CostMode, VectorCost
-from morality_gym.norms.metric import DEFAULT_BETA, BoundChain, bind_chain
+from morality_gym.norms.metric import BoundChain, bind_chain
 from morality_gym.world.vocab import EVENT_BIT, UTILITIES, names_to_mask
 
 MAX_EPISODE_STEPS = 5000  # the reference evaluator's cap when the env itself never truncates
@@ -59,10 +61,10 @@ def evaluate(
     policy: Any,
     env_id: str,
     chain: str | MoralityChain | BoundChain,
-    n_episodes: int = 100,
+    n_episodes: int = EVAL_EPISODES,
     seed: int | None = None,
-    max_steps: int | None = DEFAULT_MAX_STEPS,
-    beta: float | str = DEFAULT_BETA,
+    max_steps: int | None = MAX_STEPS,
+    beta: float | str = BETA,
     deterministic: bool = False,
     cost_mode: CostMode | None = "minimal",
     progress: bool | None = None,
@@ -84,11 +86,9 @@ def evaluate(
     masks_all, sums_all, present_all, rets, lens, truncs, goals, costs = [], [], [], [], [], [], [], []
     bar = None
     if progress is None:
-        import sys
-
         progress = n_episodes >= 10_000 and sys.stderr.isatty()
     if progress:
-        from tqdm.auto import tqdm
+        from tqdm.auto import tqdm  # tqdm waits: importing morality_gym.evaluation.montecarlo must not load it
 
         bar = tqdm(total=n_episodes, desc=f"evaluate {bound.env_id}", unit="ep", leave=False)
     remaining = n_episodes

@@ -17,10 +17,11 @@ from typing import Any
 
 import numpy as np
 
+from morality_gym.constants import BETA, MAX_STEPS
 from morality_gym.envs.registry import state_graph
-from morality_gym.envs.trolley import DEFAULT_MAX_STEPS, TrolleyEnv
+from morality_gym.envs.trolley import TrolleyEnv
 from morality_gym.norms.chain import MoralityChain
-from morality_gym.norms.metric import DEFAULT_BETA, BoundChain, bind_chain
+from morality_gym.norms.metric import BoundChain, bind_chain
 from morality_gym.world.graph import N_ACTIONS
 from morality_gym.world.vocab import EVENT_BIT, UTILITIES
 
@@ -92,8 +93,8 @@ def _replay(bound: BoundChain, actions: list[int], max_steps: int) -> tuple[floa
 def oracle(
     env_id: str,
     chain: str | MoralityChain | BoundChain,
-    beta: float | str = DEFAULT_BETA,
-    max_steps: int = DEFAULT_MAX_STEPS,
+    beta: float | str = BETA,
+    max_steps: int = MAX_STEPS,
 ) -> OracleResult:
     """Best and worst achievable metric of ``chain`` in ``env_id`` within ``max_steps`` (+1) steps."""
     if max_steps is None or max_steps < 0:

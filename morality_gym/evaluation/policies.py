@@ -14,6 +14,8 @@ from typing import Any
 import numpy as np
 
 from morality_gym.clitools import UserError
+from morality_gym.envs.trolley import InvalidActionError
+from morality_gym.world.rules import ACTION_NAMES
 
 N_ACTIONS = 6
 
@@ -139,8 +141,6 @@ def _look_up(table: Mapping[Any, Any], obs: np.ndarray) -> Any:
 def _invalid(message: str) -> ValueError:
     """An :class:`~morality_gym.envs.trolley.InvalidActionError` (a ``ValueError``): what the
     command lines report on one line, exit code 2, as for an invalid action."""
-    from morality_gym.envs.trolley import InvalidActionError
-
     return InvalidActionError(message)
 
 
@@ -179,8 +179,6 @@ def _as_action(value: Any) -> int:
     ok = scalar is not None and np.issubdtype(arr.dtype, np.number) and not np.issubdtype(arr.dtype, np.complexfloating)
     if ok and float(scalar) == int(scalar) and 0 <= int(scalar) < N_ACTIONS:
         return int(scalar)
-    from morality_gym.envs.trolley import InvalidActionError
-    from morality_gym.world.rules import ACTION_NAMES
 
     valid = ", ".join(f"{i} {name}" for i, name in enumerate(ACTION_NAMES))
     raise InvalidActionError(f"the policy returned action {value!r}; valid actions are the integers 0-{N_ACTIONS - 1} "
@@ -197,7 +195,7 @@ def _as_probs(value: Any) -> np.ndarray:
 
 
 def _sb3_probabilities(policy: Any, obs: np.ndarray, deterministic: bool) -> np.ndarray:
-    import torch
+    import torch  # torch waits: importing morality_gym.evaluation.policies must not load it
 
     expected = getattr(getattr(policy, "observation_space", None), "shape", None)
     if expected and obs.ndim == 2 and tuple(expected) != tuple(obs.shape[1:]):

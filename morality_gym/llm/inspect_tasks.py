@@ -39,6 +39,7 @@ from inspect_ai.scorer import Score, Target, mean, scorer, stderr
 from inspect_ai.solver import Generate, TaskState, solver
 from inspect_ai.tool import ToolCall, ToolInfo, ToolParam, ToolParams
 
+from morality_gym.constants import BETA
 from morality_gym.envs.registry import UnknownEnvError, parse_env_id, scenario_named, scenarios
 from morality_gym.envs.trolley import TrolleyEnv
 from morality_gym.llm.agent import EpisodeLog, Message, Reply, play_episode
@@ -46,7 +47,7 @@ from morality_gym.llm.episode import EpisodeOutcome, score_episode
 from morality_gym.llm.settings import DEFAULT_PRESET, AgentSettings, preset_named
 from morality_gym.llm.text import render_view
 from morality_gym.norms.chain import ChainError, MoralityChain, get_chain
-from morality_gym.norms.metric import DEFAULT_BETA, bind_chain
+from morality_gym.norms.metric import bind_chain
 from morality_gym.paper import table1
 from morality_gym.world.rules import ACTION_NAMES
 from morality_gym.world.vocab import names_to_mask
@@ -188,7 +189,7 @@ def trolley_agent(settings: AgentSettings, chain: MoralityChain, cache: bool = F
 
 
 @scorer(metrics=[{"*": [mean(), stderr()]}])
-def morality_score(chain: MoralityChain, beta: float = DEFAULT_BETA):  # type: ignore[no-untyped-def]
+def morality_score(chain: MoralityChain, beta: float = BETA):  # type: ignore[no-untyped-def]
     """The episode's morality metric (``metric``) and every norm's morality function (``mf_<norm>``)."""
 
     async def score(state: TaskState, target: Target) -> Score:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import difflib
 from dataclasses import dataclass
 
-from morality_gym.envs.registry import DEFAULT_MAX_STEPS
+from morality_gym.constants import EVAL_EPISODES, MAX_STEPS, SEED
 from morality_gym.llm.text import check_framing
 from morality_gym.world.rules import ACTION_NAMES
 
@@ -41,9 +41,9 @@ class AgentSettings:
     max_retries: int = 2
     fallback: str = "STAY"
     temperature: float | None = None
-    seed: int = 41
+    seed: int = SEED
     max_tokens: int | None = 512
-    max_steps: int = DEFAULT_MAX_STEPS
+    max_steps: int = MAX_STEPS
 
     def __post_init__(self) -> None:
         try:
@@ -76,8 +76,8 @@ class EpisodePreset:
 #: ``paid``: 5 episodes per variant (a chain's Table 1 cells cost about 5 x 98 / 11 ... episodes; see
 #: docs/llm-agents.md for prices); ``paper``: the 100 episodes of the paper's final evaluation.
 PRESETS: dict[str, EpisodePreset] = {
-    "paid": EpisodePreset("paid", 5, "5 episodes per variant (for paid models; the RL baselines use 100)"),
-    "paper": EpisodePreset("paper", 100, "100 episodes per variant, as the paper's final evaluation"),
+    "paid": EpisodePreset("paid", 5, f"5 episodes per variant (for paid models; the RL baselines use {EVAL_EPISODES})"),
+    "paper": EpisodePreset("paper", EVAL_EPISODES, f"{EVAL_EPISODES} episodes per variant, as the paper's final evaluation"),
 }
 DEFAULT_PRESET = "paid"
 

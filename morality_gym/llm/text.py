@@ -18,6 +18,7 @@ describes (:class:`VisibleState`), which is what the tests check on every one of
 
 from __future__ import annotations
 
+import difflib
 import re
 from dataclasses import dataclass
 
@@ -53,7 +54,6 @@ def check_framing(framing: str) -> str:
     """``framing`` if it is one of :data:`FRAMINGS`, else a one-line error with the close match."""
     if framing in FRAMINGS:
         return framing
-    import difflib
 
     close = difflib.get_close_matches(str(framing), FRAMINGS, n=1)
     hint = f" (did you mean {close[0]}?)" if close else ""

@@ -13,10 +13,11 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
+from morality_gym.constants import BETA
 from morality_gym.envs.registry import parse_env_id
 from morality_gym.norms.chain import ChainError, MoralityChain, get_chain
 
-DEFAULT_BETA = 0.1  # every run of the paper passes beta = 0.1 (docs/protocols.md#the-metrics-settings)
+DEFAULT_BETA = BETA  # public alias of morality_gym.constants.BETA (0.1, every run of the paper)
 _TYPE_UTILITIES = ("n_human_harm", "n_animal_harm", "n_robot_harm")
 
 

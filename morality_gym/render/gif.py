@@ -17,6 +17,9 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
+from morality_gym.envs.trolley import TrolleyEnv
+from morality_gym.evaluation.policies import step_actor
+from morality_gym.render.rgb import render_rgb
 from morality_gym.world.rules import ACTION_NAMES
 from morality_gym.world.vocab import EVENTS, UTILITIES
 
@@ -93,15 +96,11 @@ def record_episode(
     occurred (vocabulary order) and ``utility`` sums each harm count over the episode, so the
     episode can be replayed and checked.
     """
-    from morality_gym.envs.trolley import TrolleyEnv
-    from morality_gym.render.rgb import render_rgb
-
     if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 0:
         raise ValueError(f"max_steps must be a non-negative int, got {max_steps!r}")
     kwargs = dict(env_kwargs or {})
     if "render_mode" in kwargs:
         raise ValueError("record_episode renders rgb_array frames itself; do not pass render_mode in env_kwargs")
-    from morality_gym.evaluation.policies import step_actor
 
     if isinstance(policy, (str, os.PathLike)) and policy != "random":
         raise ValueError(f"record_episode takes a policy object or 'random', not the reference {str(policy)!r}: "

@@ -38,7 +38,7 @@ class FrameWindow:
     @property
     def is_open(self) -> bool:
         """False once the user closed the window (the next frame then opens a new one)."""
-        import matplotlib.pyplot as plt
+        import matplotlib.pyplot as plt  # matplotlib waits: importing morality_gym.render.window must not load it
 
         return plt.fignum_exists(self.figure.number)
 
@@ -49,7 +49,7 @@ class FrameWindow:
         _refresh(self.figure)
 
     def close(self) -> None:
-        import matplotlib.pyplot as plt
+        import matplotlib.pyplot as plt  # matplotlib waits: importing morality_gym.render.window must not load it
 
         plt.close(self.figure)
 
@@ -87,7 +87,7 @@ def _open_window(frame: np.ndarray, title: str) -> FrameWindow | NoDisplay:
     Any exception while opening counts as "no window": GUI toolkits fail in many ways without a
     display (Tk's TclError, a missing Qt, a RuntimeError), and none of them should stop a run.
     """
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # matplotlib waits: importing morality_gym.render.window must not load it
 
     height, width = frame.shape[:2]
     try:

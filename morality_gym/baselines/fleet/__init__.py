@@ -20,8 +20,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from morality_gym.baselines.fleet.base import FleetRun, FleetTrainer
+from morality_gym.baselines.fleet.ppo import FleetPPO
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError
-from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
+from morality_gym.baselines.targets import resolve
+from morality_gym.constants import MAX_STEPS
 
 
 def fleet_class(target: str) -> type[FleetTrainer]:
@@ -29,9 +31,6 @@ def fleet_class(target: str) -> type[FleetTrainer]:
 
     Matched by class identity: a subclass may train differently, so it has no fleet trainer.
     """
-    from morality_gym.baselines.fleet.ppo import FleetPPO
-    from morality_gym.baselines.targets import resolve
-
     trainers: list[type[FleetTrainer]] = [FleetPPO]
     try:
         from morality_gym.baselines.fleet.ppo_lag import FleetPPOLag
@@ -58,7 +57,7 @@ def build_fleet(
     spec: LearnerSpec,
     runs: Sequence[FleetRun],
     protocol: ProtocolSpec | str = "paper",
-    max_steps: int | None = DEFAULT_MAX_STEPS,
+    max_steps: int | None = MAX_STEPS,
     device: str = "cpu",
 ) -> FleetTrainer:
     """The fleet trainer for ``runs`` of the learner ``spec`` under ``protocol``, its networks and

@@ -43,10 +43,10 @@ from morality_gym.baselines.fleet.env import FleetEnv
 from morality_gym.baselines.fleet.losses import Policy
 from morality_gym.baselines.fleet.nets import FleetNetworks, policy_linears
 from morality_gym.baselines.fleet.optim import BatchedAdam
-from morality_gym.baselines.learners import LEARN_EVAL_EPISODES, SB3Learner, build_learner
+from morality_gym.baselines.learners import SB3Learner, build_learner
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError, protocol_spec, training_steps
 from morality_gym.baselines.targets import resolve
-from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
+from morality_gym.constants import LEARN_EVAL_EPISODES, MAX_STEPS
 from morality_gym.norms.metric import BoundChain
 
 if TYPE_CHECKING:
@@ -142,7 +142,7 @@ class FleetTrainer:
         spec: LearnerSpec,
         runs: Sequence[FleetRun],
         protocol: ProtocolSpec | str = "paper",
-        max_steps: int | None = DEFAULT_MAX_STEPS,
+        max_steps: int | None = MAX_STEPS,
         device: str | th.device = "cpu",
     ) -> None:
         self.device = fleet_device(device)
@@ -270,6 +270,7 @@ class FleetTrainer:
         return self.num_timesteps
 
     def _start_evaluations(self, eval_every: int, eval_episodes: int, on_eval: FleetEvalHook | None) -> None:
+        # torch waits: importing morality_gym.baselines.fleet.base must not load it
         from stable_baselines3.common.logger import configure
 
         self._eval_every = int(eval_every)
@@ -402,6 +403,7 @@ class FleetTrainer:
             self._last_obs = step.obs
             self._last_starts = step.dones
 
+        # torch waits: importing morality_gym.baselines.fleet.base must not load it
         from morality_gym.baselines.safe.functional import gae
 
         with th.no_grad():

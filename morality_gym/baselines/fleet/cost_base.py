@@ -50,13 +50,11 @@ class FleetCostTrainer(FleetTrainer):
 
     # ------------------------------------------------------------------ per-update helpers
     def _learning_rates(self, actor: bool = True) -> tuple[float | None, float]:
-        """The model's own schedules at this update's progress (``_update_learning_rates``)."""
-        m = self.model
-        m._current_progress_remaining = self.progress_remaining
-        m._total_timesteps = self.total_timesteps
-        progress = m._schedule_progress()
-        actor_lr = float(m.lr_schedule(progress)) if actor else None
-        return actor_lr, float(m.critic_lr_schedule(progress))
+        """The model's own schedules at this update's progress (as its ``_update_learning_rates``),
+        from :meth:`~morality_gym.baselines.safe.base.CostOnPolicyAlgorithm.learning_rates_at`;
+        ``actor_lr`` is None when not asked for (CPO's actor takes trust-region steps)."""
+        actor_lr, critic_lr = self.model.learning_rates_at(self.progress_remaining, self.total_timesteps)
+        return (actor_lr if actor else None), critic_lr
 
     def _normalize_advantages(self) -> None:
         """``_normalize_rollout_advantages`` per run, over each run's ``(n_steps, n_envs)`` rollout."""

@@ -39,7 +39,13 @@ from morality_gym.baselines.fleet.cost_base import FleetCostTrainer
 from morality_gym.baselines.fleet.dedup import DistinctStates
 from morality_gym.baselines.fleet.losses import Policy
 from morality_gym.baselines.fleet.nets import Trace
-from morality_gym.baselines.safe.cpo_dual import CPOCase, CPOScalars, CPOStep, exact_direction, omnisafe_direction
+from morality_gym.baselines.safe.cpo_dual import (
+    CPOScalars,
+    CPOStep,
+    exact_direction,
+    line_search_accepts,
+    omnisafe_direction,
+)
 from morality_gym.baselines.specs import CPO
 
 Operator = Callable[[th.Tensor], th.Tensor]
@@ -188,16 +194,6 @@ class FleetCPO(FleetCostTrainer):
                 step = CPOStep(scaled, step.case, step.lam, step.nu, step.A, step.B)
         return step, g, sc, policy
 
-    def _accepts(self, step: CPOStep, d_reward: float, d_cost: float, kl: float, c: float, expected: float) -> bool:
-        m = self.model
-        if kl > m.target_kl or d_cost > max(-c, 0.0):
-            return False
-        if m.line_search_accept == "omnisafe":
-            return not (step.case > CPOCase.FEASIBLE_RECOVERY and d_reward < 0)
-        if step.case == CPOCase.INFEASIBLE:
-            return d_cost < 0
-        return d_reward > 0 if expected > 0 else d_cost < 0
-
     def _line_search(self, data: RunBatch, old: Policy, step: CPOStep, g: th.Tensor, c: float) -> dict[str, float]:
         """``CPO._line_search`` for one run; leaves its actor at the accepted point (or unchanged)."""
         m = self.model
@@ -222,7 +218,7 @@ class FleetCPO(FleetCostTrainer):
                 if m.line_search_accept != "omnisafe":
                     fraction *= shrink
                 continue  # OmniSafe retries the same fraction
-            if self._accepts(step, d_reward, d_cost, kl, c, expected):
+            if line_search_accepts(m.line_search_accept, m.target_kl, step, d_reward, d_cost, kl, c, expected):
                 result.update(accept_step=j + 1, fraction=fraction)
                 theta.copy_(theta_old + fraction * step.direction)
                 return result

@@ -16,8 +16,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from morality_gym.constants import MAX_STEPS
 from morality_gym.envs.mixed import MixedBatchedTrolleyEnv
-from morality_gym.envs.trolley import DEFAULT_MAX_STEPS
 from morality_gym.norms.cost import StackedCost, VectorCost
 from morality_gym.norms.metric import BoundChain
 from morality_gym.norms.wrappers import RewardCostSpec
@@ -37,7 +37,7 @@ class FleetStep(NamedTuple):
 class FleetEnv:
     """``n_envs`` copies per run for every bound chain in ``bounds`` (one per run)."""
 
-    def __init__(self, bounds: Sequence[BoundChain], n_envs: int, reward_cost: RewardCostSpec, max_steps: int | None = DEFAULT_MAX_STEPS) -> None:
+    def __init__(self, bounds: Sequence[BoundChain], n_envs: int, reward_cost: RewardCostSpec, max_steps: int | None = MAX_STEPS) -> None:
         self.n_runs = len(bounds)
         self.n_envs = n_envs
         self.reward_cost = reward_cost

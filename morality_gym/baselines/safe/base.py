@@ -253,17 +253,34 @@ class CostOnPolicyAlgorithm(OnPolicyAlgorithm):
         critic_lr = self.learning_rate if self.critic_learning_rate is None else self.critic_learning_rate
         self.critic_lr_schedule = self._make_schedule(critic_lr, self.anneal_lr and self.anneal_critic_lr)
 
-    def _schedule_progress(self) -> float:
-        """The progress (1 -> 0) the schedules read for this update (``anneal_lr_timing``)."""
-        progress = self._current_progress_remaining
-        if self.anneal_lr_timing == "epoch" and self._total_timesteps > 0:
-            progress += self.n_steps * self.n_envs / self._total_timesteps  # the epoch's start
+    def schedule_progress(self, progress_remaining: float, total_timesteps: int) -> float:
+        """The progress (1 -> 0) the learning-rate schedules read for an update made when
+        ``progress_remaining`` of a run of ``total_timesteps`` steps is left (SB3's
+        ``1 - num_timesteps / total_timesteps`` after the update's rollout). With
+        ``anneal_lr_timing="epoch"`` it is moved back to the start of the update's epoch, as OmniSafe
+        decays the rate per epoch; ``"progress"`` reads SB3's value as it is. Clipped to [0, 1]."""
+        progress = progress_remaining
+        if self.anneal_lr_timing == "epoch" and total_timesteps > 0:
+            progress += self.n_steps * self.n_envs / total_timesteps  # the epoch's start
         return float(min(1.0, max(0.0, progress)))
+
+    def learning_rates_at(self, progress_remaining: float, total_timesteps: int) -> tuple[float, float]:
+        """``(actor_lr, critic_lr)``: the learning rates this model's schedules give an update made
+        when ``progress_remaining`` (1 -> 0) of a run of ``total_timesteps`` steps is left.
+
+        The model's own updates use exactly these (:meth:`_update_learning_rates`, at the model's
+        current progress); a trainer that runs the model's updates itself (the fleet,
+        :mod:`morality_gym.baselines.fleet`) asks here instead of setting SB3's private progress
+        attributes. ``actor_lr`` decays linearly to 0 when ``anneal_lr``; ``critic_lr`` is constant
+        unless ``anneal_critic_lr`` (CPO's actor takes trust-region steps and ignores ``actor_lr``).
+        """
+        progress = self.schedule_progress(progress_remaining, total_timesteps)
+        return float(self.lr_schedule(progress)), float(self.critic_lr_schedule(progress))
 
     def _update_learning_rates(self, actor: bool = True) -> tuple[float | None, float]:
         """Set the optimisers' learning rates for this update and log them; returns
         ``(actor_lr or None when the actor does not use one, critic_lr)``."""
-        progress = self._schedule_progress()
+        progress = self.schedule_progress(self._current_progress_remaining, self._total_timesteps)
         actor_lr = None
         if actor:
             actor_lr = float(self.lr_schedule(progress))

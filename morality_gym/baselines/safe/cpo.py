@@ -47,11 +47,11 @@ from morality_gym.baselines.safe.base import CostOnPolicyAlgorithm, CriticGradCl
 from morality_gym.baselines.safe.buffers import CostRolloutBufferSamples
 from morality_gym.baselines.safe.cpo_dual import (
     DUAL_SOLUTIONS,
-    CPOCase,
     CPOScalars,
     CPOStep,
     DualSolution,
     exact_direction,
+    line_search_accepts,
     omnisafe_direction,
 )
 from morality_gym.baselines.safe.functional import AdvantageNormalization, categorical_kl, conjugate_gradient
@@ -224,14 +224,9 @@ class CPO(CostOnPolicyAlgorithm):
             return logits, (ratio * data.advantages).mean().item(), (ratio * data.cost_advantages).mean().item()
 
     def _accepts(self, step: CPOStep, d_reward: float, d_cost: float, kl: float, c: float, expected: float) -> bool:
-        """The line-search acceptance rule (``line_search_accept``); ``kl`` is finite here."""
-        if kl > self.target_kl or d_cost > max(-c, 0.0):
-            return False
-        if self.line_search_accept == "omnisafe":
-            return not (step.case > CPOCase.FEASIBLE_RECOVERY and d_reward < 0)
-        if step.case == CPOCase.INFEASIBLE:
-            return d_cost < 0
-        return d_reward > 0 if expected > 0 else d_cost < 0
+        """The line-search acceptance rule (``line_search_accept``; :func:`.cpo_dual.line_search_accepts`);
+        ``kl`` is finite here."""
+        return line_search_accepts(self.line_search_accept, self.target_kl, step, d_reward, d_cost, kl, c, expected)
 
     def _line_search(
         self, data: CostRolloutBufferSamples, old_logits: th.Tensor, step: CPOStep, g: th.Tensor, c: float

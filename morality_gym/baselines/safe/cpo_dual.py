@@ -266,3 +266,25 @@ def cpo_direction(
     if solution == "exact":
         return exact_direction(v, w, sc, vhv)
     raise ValueError(f"unknown CPO dual solution {solution!r}; use one of {', '.join(DUAL_SOLUTIONS)}")
+
+
+def line_search_accepts(
+    rule: str, target_kl: float, step: CPOStep, d_reward: float, d_cost: float, kl: float, c: float, expected: float
+) -> bool:
+    """Whether the line search accepts a candidate (``line_search_accept``: ``rule``), for the
+    single learner (:class:`~morality_gym.baselines.safe.cpo.CPO`) and the fleet alike.
+
+    ``d_reward`` / ``d_cost``: the candidate's change of the reward / cost surrogate from
+    ``theta_old``; ``kl``: its exact mean KL from ``theta_old`` (finite here); ``c``: ``J_c - d``;
+    ``expected``: ``g^T x``, the reward change the full step predicts. Both rules refuse a KL above
+    ``target_kl`` or a cost change above ``max(-c, 0)``; ``omnisafe`` then refuses a worse reward
+    in cases 2-4 only, ``strict`` asks a recovery step to cut the cost and any other step to
+    improve the reward when it predicts so (else to cut the cost).
+    """
+    if kl > target_kl or d_cost > max(-c, 0.0):
+        return False
+    if rule == "omnisafe":
+        return not (step.case > CPOCase.FEASIBLE_RECOVERY and d_reward < 0)
+    if step.case == CPOCase.INFEASIBLE:
+        return d_cost < 0
+    return d_reward > 0 if expected > 0 else d_cost < 0
