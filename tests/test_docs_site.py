@@ -96,6 +96,20 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+def test_module_map_lists_every_module_with_its_docstring() -> None:
+    page = hooks().module_map_page()
+    for package in hooks().MAP_PACKAGES:
+        for path in (ROOT / package).rglob("*.py"):
+            if path.read_text(encoding="utf-8").strip():
+                assert f"| `{path.name}` |" in page and f"`{path.parent.relative_to(ROOT).as_posix()}/`" in page, path
+    import ast
+
+    first = ast.get_docstring(ast.parse((ROOT / "runners" / "sweep.py").read_text())).splitlines()[0]
+    sweep = [line for line in page.splitlines() if line.startswith("| `sweep.py` |")]
+    assert len(sweep) == 1 and hooks()._cell(first) in sweep[0]
+    assert "(no docstring)" not in page  # every module says what it is for
+
+
 def test_site_has_every_generated_page(site: Path) -> None:
     import morality_gym
 

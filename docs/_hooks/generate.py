@@ -13,6 +13,8 @@ Nothing here is committed output: every page below is made from its source of tr
   typed schemas of :mod:`runners.config_schema` and the files of ``conf/``.
 * ``reference/results-schema.md`` - every column of the results contract, from
   :mod:`runners.results_schema` (its fields and the comments beside them).
+* ``reference/modules.md`` - every module, folder by folder, with its size and the first line of
+  its docstring.
 
 The functions return ``{path: str | bytes}`` so that tests can call them without MkDocs.
 """
@@ -20,6 +22,7 @@ The functions return ``{path: str | bytes}`` so that tests can call them without
 from __future__ import annotations
 
 import argparse
+import ast
 import dataclasses
 import io
 import re
@@ -480,6 +483,47 @@ def results_schema_page() -> str:
 
 
 # ------------------------------------------------------------------------------------------------
+# The module map
+# ------------------------------------------------------------------------------------------------
+
+#: The packages of the map, in the order of the layers (docs/architecture.md).
+MAP_PACKAGES = ("morality_gym", "runners", "leaderboard", "benchmarks")
+
+
+def _summary(path: Path) -> str:
+    """The first sentence-line of a module's docstring (what the module is for), or a visible gap."""
+    doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8")))
+    first = (doc or "").strip().splitlines()[0] if doc else ""
+    return _cell(first) if first else "**(no docstring)**"
+
+
+def module_map_page() -> str:
+    """Every module with its line count and the first line of its docstring, folder by folder.
+
+    Why generated: the map is how a newcomer finds where something lives from the file list alone;
+    written by hand it would fall behind the first rename."""
+    lines = ["# Module map", "",
+             "Every module of the code base, folder by folder, with its size and the first line of its "
+             "docstring (generated from the code when the site is built). The layers and the rules "
+             "between them are on the [architecture](../architecture.md) page.", ""]
+    for package in MAP_PACKAGES:
+        folders: dict[str, list[Path]] = {}
+        for path in sorted((ROOT / package).rglob("*.py")):
+            if path.name == "__init__.py" and not path.read_text(encoding="utf-8").strip():
+                continue  # an empty package marker says nothing
+            folders.setdefault(path.parent.relative_to(ROOT).as_posix(), []).append(path)
+        total = sum(len(p.read_text(encoding="utf-8").splitlines()) for ps in folders.values() for p in ps)
+        lines += [f"## `{package}` ({total:,} lines)", ""]
+        for folder, paths in folders.items():
+            lines += [f"### `{folder}/`", "", "| module | lines | what it is |", "|---|---:|---|"]
+            for path in paths:
+                n = len(path.read_text(encoding="utf-8").splitlines())
+                lines.append(f"| `{path.name}` | {n} | {_summary(path)} |")
+            lines.append("")
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------------
 # MkDocs events
 # ------------------------------------------------------------------------------------------------
 
@@ -493,6 +537,7 @@ def generated_files() -> dict[str, str | bytes]:
                        ("cli", lambda: {"reference/cli.md": cli_page()}),
                        ("configuration", lambda: {"reference/configuration.md": configuration_page()}),
                        ("results schema", lambda: {"reference/results-schema.md": results_schema_page()}),
+                       ("module map", lambda: {"reference/modules.md": module_map_page()}),
                        ("screenshots", lambda: {f"images/leaderboard-{p.stem}.png": p.read_bytes()
                                                 for p in sorted((ROOT / "leaderboard").glob("*.png"))})):
         start = time.perf_counter()
