@@ -503,9 +503,9 @@ def module_map_page() -> str:
     Why generated: the map is how a newcomer finds where something lives from the file list alone;
     written by hand it would fall behind the first rename."""
     lines = ["# Module map", "",
-             "Every module of the code base, folder by folder, with its size and the first line of its "
+             ("Every module of the code base, folder by folder, with its size and the first line of its "
              "docstring (generated from the code when the site is built). The layers and the rules "
-             "between them are on the [architecture](../architecture.md) page.", ""]
+             "between them are on the [architecture](../architecture.md) page."), ""]
     for package in MAP_PACKAGES:
         folders: dict[str, list[Path]] = {}
         for path in sorted((ROOT / package).rglob("*.py")):
