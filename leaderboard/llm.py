@@ -156,7 +156,8 @@ def episode_row(ep: Episode, config: dict[str, Any], run_id: str) -> dict[str, A
         "metric": ep.metric, "metric_stderr": math.nan, "exact_metric": None,
         "mean_return": float(r["return"]), "mean_cost": None, "mean_length": float(r["length"]),
         "truncation_rate": float(bool(r["truncated"])), "goal_rate": float(bool(r["goal_reached"])),
-        "wall_time_s": ep.wall_time_s, "started_at": ep.started_at, "finished_at": ep.finished_at,
+        # the model's compute is not ours to measure: an Inspect log records wall time only
+        "wall_time_s": ep.wall_time_s, "cpu_time_s": None, "started_at": ep.started_at, "finished_at": ep.finished_at,
         "hostname": socket.gethostname(), "git_commit": code_version(), "versions": versions(),
         "config": json.dumps(config, sort_keys=True), "model_path": None, "gif_path": None, "engine": None,
         **{f"{MF_PREFIX}{n}": ep.functions[n] for n in ep.functions},

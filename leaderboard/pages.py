@@ -209,7 +209,8 @@ METRICS = [
     ("goal_rate", "Landmark reached rate", 3),
 ]
 INFO = [("budget", "Training budget (steps)"), ("total_steps", "Steps trained"), ("eval_episodes", "Evaluation episodes"),
-        ("beta", "beta"), ("max_steps", "max_steps"), ("wall_time_s", "Wall time (s)"), ("started_at", "Started"),
+        ("beta", "beta"), ("max_steps", "max_steps"), ("wall_time_s", "Wall time (s)"),
+        ("cpu_time_s", "CPU time (s)"), ("started_at", "Started"),
         ("finished_at", "Finished"), ("hostname", "Host"), ("git_commit", "Git commit"), ("model_path", "Model"),
         ("gif_path", "GIF"), ("source", "Source (results directory or release)")]
 

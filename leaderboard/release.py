@@ -49,7 +49,7 @@ from leaderboard.aggregate import safe_name
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
 from runners.identity import config_key
 from runners.manifest import manifests_dir, read_manifests
-from runners.results_schema import SCHEMA_VERSION, learn_path, read_runs, run_files, updates_path
+from runners.results_schema import SCHEMA_VERSION, compute_seconds, learn_path, read_runs, run_files, updates_path
 
 #: Where a checkout keeps its releases; the leaderboard shows every release found here by default.
 RELEASES_DIR = Path(__file__).resolve().parents[1] / "releases"
@@ -203,8 +203,9 @@ def machine() -> dict[str, Any]:
 
 def sweeps_summary(results: Path, runs: pd.DataFrame) -> list[dict[str, Any]]:
     """Per launched sweep manifest: its command, protocol, preset, planned runs, and of its runs with
-    a result: first start, last finish, the wall span between them and compute per learner
-    (the sum of ``wall_time_s``, i.e. core-seconds, since every run or fleet share uses one core)."""
+    a result: first start, last finish, the wall span between them and compute per learner in
+    core-seconds (:func:`runners.results_schema.compute_seconds`: CPU time where the runs recorded
+    it, else wall time), with how many runs recorded CPU time."""
     out = []
     for manifest in read_manifests(results):
         if manifest.get("dry_run"):
@@ -213,7 +214,9 @@ def sweeps_summary(results: Path, runs: pd.DataFrame) -> list[dict[str, Any]]:
         mine = runs.loc[runs["run_id"].isin(ids)]
         started = pd.to_datetime(mine["started_at"], errors="coerce", utc=True).dropna()
         finished = pd.to_datetime(mine["finished_at"], errors="coerce", utc=True).dropna()
-        compute = {str(k): round(float(v), 1) for k, v in mine.groupby("learner")["wall_time_s"].sum().items()}
+        compute = {str(k): round(float(v), 1)
+                   for k, v in compute_seconds(mine).groupby(mine["learner"]).sum().items()}
+        cpu_known = int(mine["cpu_time_s"].notna().sum()) if "cpu_time_s" in mine else 0
         out.append({
             "manifest": manifest.get("_file") or manifest.get("name"), "command": manifest.get("command"),
             "protocol": manifest.get("protocol"), "preset": manifest.get("preset"), "planned": len(ids),
@@ -222,6 +225,7 @@ def sweeps_summary(results: Path, runs: pd.DataFrame) -> list[dict[str, Any]]:
             "last_finish": finished.max().isoformat() if len(finished) else None,
             "wall_span_s": round((finished.max() - started.min()).total_seconds(), 1) if len(started) and len(finished) else None,
             "compute_s_per_learner": compute,
+            "runs_with_cpu_time": cpu_known,
         })
     return out
 

@@ -221,7 +221,7 @@ def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: st
     from runners.execute import git_commit, versions
     from runners.results_schema import MF_PREFIX, runs_dir
 
-    started, t0 = _now(), time.perf_counter()
+    started, t0, cpu0 = _now(), time.perf_counter(), time.process_time()
     env_id = config["env_id"]
     bound = bind_chain(cell.chain, env_id, sub.beta)
     final = evaluate(sub.loaded.policy, env_id, bound, n_episodes=sub.eval_episodes, seed=config["seed"],
@@ -249,7 +249,8 @@ def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: st
         "exact_metric": None if exact is None else exact.metric,
         "mean_return": final.mean_return, "mean_cost": final.mean_cost, "mean_length": final.mean_length,
         "truncation_rate": final.truncation_rate, "goal_rate": final.goal_rate,
-        "wall_time_s": time.perf_counter() - t0, "started_at": started, "finished_at": _now(),
+        "wall_time_s": time.perf_counter() - t0, "cpu_time_s": time.process_time() - cpu0,
+        "started_at": started, "finished_at": _now(),
         "hostname": socket.gethostname(), "git_commit": git_commit(), "versions": versions(),
         "config": json.dumps(config, sort_keys=True), "model_path": None, "gif_path": gif_rel,
         "engine": None,  # a submitted policy was not trained here

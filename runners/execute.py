@@ -17,6 +17,7 @@ import socket
 import subprocess
 import time
 import traceback
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from functools import lru_cache
 from importlib.metadata import PackageNotFoundError, version
@@ -160,11 +161,39 @@ def bound_chain(config: dict[str, Any]) -> Any:
     return bind_chain(_chain(config), config["env_id"], config["beta"])
 
 
+@dataclass(frozen=True)
+class RunClock:
+    """When a run started, by the wall clock and by this process's CPU clock.
+
+    Why both: a run's ``wall_time_s`` is what a user waited, but on a shared or oversubscribed
+    machine (a niced sweep beside other work, more workers than cores) it overstates the compute
+    the run needed; ``cpu_time_s`` (CPU seconds of the worker process, every thread counted) is the
+    compute, whatever else the machine did. Budgets and the planner's rates are about compute."""
+
+    started: str
+    wall0: float
+    cpu0: float
+
+    @classmethod
+    def start(cls) -> RunClock:
+        return cls(utc_now(), time.perf_counter(), time.process_time())
+
+    def elapsed(self) -> tuple[float, float]:
+        """(wall seconds, CPU seconds) since the start."""
+        return time.perf_counter() - self.wall0, time.process_time() - self.cpu0
+
+    @classmethod
+    def already_spent(cls, started: str, wall: float, cpu: float) -> RunClock:
+        """A clock that reads (``wall``, ``cpu``) now: a fleet's run starts from its share of the
+        fleet's training, so that summing over the fleet's runs still gives what the fleet spent."""
+        return cls(started, time.perf_counter() - wall, time.process_time() - cpu)
+
+
 def execute_locked(config: dict[str, Any], run_id: str, results_dir: Path, gif: bool) -> dict[str, Any]:
     """Train, evaluate and record one run whose lock the caller holds (the single engine's unit,
     and the fleet engine's fallback for what it does not reproduce)."""
     limit_threads()
-    started, t0 = utc_now(), time.perf_counter()
+    clock = RunClock.start()
     try:
         # torch waits: importing runners.execute must not load it, and a failed import is this run's recorded error
         from morality_gym.baselines.learners import build_learner
@@ -179,8 +208,8 @@ def execute_locked(config: dict[str, Any], run_id: str, results_dir: Path, gif: 
             on_eval=learn_rows.append,
         )
     except Exception as exc:  # noqa: BLE001 - every failure must be recorded, whatever it is
-        return record_outcome(config, run_id, results_dir, gif, None, [], started, t0, error=exc)
-    return record_outcome(config, run_id, results_dir, gif, learner, learn_rows, started, t0)
+        return record_outcome(config, run_id, results_dir, gif, None, [], clock, error=exc)
+    return record_outcome(config, run_id, results_dir, gif, learner, learn_rows, clock)
 
 
 def record_outcome(
@@ -190,8 +219,7 @@ def record_outcome(
     gif: bool,
     learner: Any,
     learn_rows: list[dict[str, Any]],
-    started: str,
-    t0: float,
+    clock: RunClock,
     engine: str = "single",
     error: BaseException | None = None,
 ) -> dict[str, Any]:
@@ -266,7 +294,8 @@ def record_outcome(
             **_EMPTY_RESULT,
             **{f"{MF_PREFIX}{n}": None for n in norms},
         )
-    row.update(started_at=started, finished_at=utc_now(), wall_time_s=time.perf_counter() - t0)
+    wall, cpu = clock.elapsed()
+    row.update(started_at=clock.started, finished_at=utc_now(), wall_time_s=wall, cpu_time_s=cpu)
     write_run(results_dir, row, norms)
     return {"run_id": run_id, "status": row["status"], "error": row["error"], "metric": row["metric"], "wall_time_s": row["wall_time_s"]}
 
@@ -288,6 +317,7 @@ def record_failure(config: dict[str, Any], run_id: str, results_dir: str | Path,
     now = utc_now()
     row.update(
         status="failed", error=error, traceback=trace or None, started_at=now, finished_at=now, wall_time_s=0.0,
+        cpu_time_s=0.0,
         **_EMPTY_RESULT, **{f"{MF_PREFIX}{n}": None for n in norms},
     )
     write_run(results_dir, row, norms)

@@ -24,7 +24,6 @@ from __future__ import annotations
 import heapq
 import json
 import math
-import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cache
@@ -34,6 +33,7 @@ from typing import Any
 from morality_gym.baselines.specs import SpecError
 from runners.config_schema import ENGINES
 from runners.execute import (
+    RunClock,
     RunLock,
     bound_chain,
     execute_locked,
@@ -42,7 +42,6 @@ from runners.execute import (
     limit_threads,
     record_outcome,
     spec_and_protocol,
-    utc_now,
 )
 from runners.plan import PlannedRun
 
@@ -257,14 +256,14 @@ def _train_fleet(
     from morality_gym.baselines.fleet.base import fleet_device
 
     limit_threads()
-    started, t0 = utc_now(), time.perf_counter()
+    clock = RunClock.start()
     engine = f"fleet:{len(mine)}"
     first = mine[0][1]
     try:
         fleet_device(device)
     except SpecError as exc:  # e.g. a SLURM node without the GPU the submitting host had: a failure, not a silent CPU run
         for run_id, config in mine:
-            yield record_outcome(config, run_id, results_dir, gif, None, [], started, t0, engine=engine, error=exc)
+            yield record_outcome(config, run_id, results_dir, gif, None, [], clock, engine=engine, error=exc)
         return
     try:
         spec, protocol = spec_and_protocol(first)
@@ -280,7 +279,7 @@ def _train_fleet(
         return
     except Exception as exc:  # noqa: BLE001 - recorded for every run of the fleet
         for run_id, config in mine:
-            yield record_outcome(config, run_id, results_dir, gif, None, [], started, t0, engine=engine, error=exc)
+            yield record_outcome(config, run_id, results_dir, gif, None, [], clock, engine=engine, error=exc)
         return
     learn_rows: list[list[dict[str, Any]]] = [[] for _ in mine]
     try:
@@ -293,13 +292,13 @@ def _train_fleet(
         )
     except Exception as exc:  # noqa: BLE001
         for run_id, config in mine:
-            yield record_outcome(config, run_id, results_dir, gif, None, [], started, t0, engine=engine, error=exc)
+            yield record_outcome(config, run_id, results_dir, gif, None, [], clock, engine=engine, error=exc)
         return
-    # Each run's wall time is its share of the fleet's training plus its own evaluation and
-    # writes, so that summing wall times over runs still gives the compute spent.
-    share = (time.perf_counter() - t0) / len(mine)
+    # Each run's wall and CPU time is its share of the fleet's training plus its own evaluation
+    # and writes, so that summing them over runs still gives what the fleet spent.
+    wall, cpu = clock.elapsed()
     for k, learner in enumerate(fleet.learners()):
         run_id, config = mine[k]
-        yield record_outcome(config, run_id, results_dir, gif, learner, learn_rows[k], started,
-                             time.perf_counter() - share, engine=engine)
+        own = RunClock.already_spent(clock.started, wall / len(mine), cpu / len(mine))
+        yield record_outcome(config, run_id, results_dir, gif, learner, learn_rows[k], own, engine=engine)
 

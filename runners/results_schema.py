@@ -26,8 +26,9 @@ import pyarrow.parquet as pq
 
 SCHEMA_VERSION = 1
 CHANGES = {
-    1: "first version; compatible addition (2026-11-23): the `engine` column (files written before it lack it, "
-    "readers treat a missing value as the single engine)",
+    1: "first version; compatible additions: the `engine` column (2026-11-23; files written before it lack it, "
+    "readers treat a missing value as the single engine) and the `cpu_time_s` column (2026-11-25; null in files "
+    "written before it: their compute is known only by wall_time_s)",
 }
 
 #: Fixed columns of a run row (``mf_<norm>`` columns come on top, one per norm of the chain).
@@ -63,7 +64,10 @@ RUN_FIELDS: list[pa.Field] = [
     pa.field("truncation_rate", pa.float64()),
     pa.field("goal_rate", pa.float64()),
     # provenance
-    pa.field("wall_time_s", pa.float64()),
+    pa.field("wall_time_s", pa.float64()),  # wall clock; a fleet's run: its share of the fleet + its own evaluation
+    # CPU seconds of the worker process (all threads), shared out like wall_time_s: the compute, even on a busy
+    # machine; null in files written before the column existed
+    pa.field("cpu_time_s", pa.float64()),
     pa.field("started_at", pa.string()),  # ISO 8601, UTC
     pa.field("finished_at", pa.string()),
     pa.field("hostname", pa.string()),
@@ -143,6 +147,18 @@ def run_schema(norms: Iterable[str]) -> pa.Schema:
 
 def learn_schema(norms: Iterable[str]) -> pa.Schema:
     return pa.schema(LEARN_FIELDS + [pa.field(f"{MF_PREFIX}{n}", pa.float64()) for n in norms])
+
+
+def compute_seconds(runs: Any) -> Any:
+    """Each run's compute in core-seconds: ``cpu_time_s`` where recorded, else ``wall_time_s``.
+
+    Why a fallback: files written before ``cpu_time_s`` existed know only their wall time, which
+    equals the compute on a machine that ran nothing else (one worker per core, one thread each) and
+    overstates it otherwise. ``runs`` is a pandas DataFrame of run rows; a Series is returned."""
+    wall = runs["wall_time_s"].astype(float)
+    if "cpu_time_s" not in runs:
+        return wall
+    return runs["cpu_time_s"].astype(float).fillna(wall)
 
 
 def runs_dir(results_dir: str | Path) -> Path:

@@ -31,7 +31,7 @@ from runners.quarantine import read_table_or_quarantine
 from runners.results_schema import MF_PREFIX, UPDATE_COLUMNS, learn_path, run_path, updates_path
 
 EXPERIMENT = "morality-gym"
-_METRICS = ("metric", "metric_stderr", "exact_metric", "mean_return", "mean_cost", "mean_length", "truncation_rate", "goal_rate", "wall_time_s", "total_steps")
+_METRICS = ("metric", "metric_stderr", "exact_metric", "mean_return", "mean_cost", "mean_length", "truncation_rate", "goal_rate", "wall_time_s", "cpu_time_s", "total_steps")
 
 
 def tracking_uri(results_dir: str | Path) -> str:

@@ -149,6 +149,7 @@ def _row(config: dict[str, Any], bound: Any, learner: str, protocol: str, seed: 
         "truncation_rate": None if failed else 0.0,
         "goal_rate": None if failed else 0.9,
         "wall_time_s": 3.5 if failed else 61.0 + seed,
+        "cpu_time_s": 3.0 if failed else 58.0 + seed,
         "started_at": "2025-06-01T10:00:00+00:00",
         "finished_at": "2025-06-01T10:01:01+00:00",
         "hostname": "node-1",

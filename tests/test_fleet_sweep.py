@@ -181,6 +181,9 @@ def test_a_fleet_job_writes_every_run_as_the_single_engine_does(tmp_path: Path) 
     assert sorted(df.run_id) == sorted(r.run_id for r in runs)
     assert set(df.engine) == {"fleet:3"}
     assert (df.total_steps > 0).all() and df.metric.notna().all()
+    # compute: each run's CPU time is its share of the fleet plus its own evaluation; one thread per
+    # worker, so never more than its wall time (a little slack for the clocks' resolution)
+    assert (df.cpu_time_s > 0).all() and (df.cpu_time_s <= df.wall_time_s * 1.05 + 0.05).all(), df[["cpu_time_s", "wall_time_s"]]
     for r in runs:
         assert any((results / "runs" / r.run_id).glob("model*"))  # the saved model, per run
         assert len(read_updates(results, r.run_id)) > 0  # PPO-Lag's per-update diagnostics, per run
