@@ -136,46 +136,66 @@ def completeness(runs: pd.DataFrame, planned: Mapping[str, Mapping[str, Any]]) -
     Expected grid = every variant of the scenario x (the preset's seeds + the seeds the cell's
     sweeps planned + the seeds of its runs). ``complete``: a usable result for every point of it.
     """
-    plans: dict[tuple[str, ...], list[Mapping[str, Any]]] = {}
-    for item in planned.values():
-        plans.setdefault(cell_of(item), []).append(item)
-    records: dict[tuple[str, ...], list[Mapping[str, Any]]] = {}
-    for record in runs[CELL_KEYS + ["variant", "seed", "ok", "run_id"]].to_dict("records"):
-        records.setdefault(cell_of(record), []).append(record)
+    plans = _by_cell(planned.values())
+    records = _by_cell(runs[CELL_KEYS + ["variant", "seed", "ok", "run_id"]].to_dict("records"))
     seeds_of_preset: dict[str, set[int]] = {}
     out: dict[tuple[str, ...], dict[str, Any]] = {}
     for cell in set(plans) | set(records):
-        preset, scenario = cell[1], cell[3]
+        preset = cell[1]
         if preset not in seeds_of_preset:
             seeds_of_preset[preset] = expected_seeds(preset, planned.values())
-        cell_runs, cell_plans = records.get(cell, []), plans.get(cell, [])
-        variants = scenario_variants(scenario)
-        if variants is None:
-            variants = sorted({str(x["variant"]) for x in [*cell_runs, *cell_plans] if x.get("variant") is not None})
-        seeds = set(seeds_of_preset[preset])
-        seeds |= {s for s in (_seed(x.get("seed")) for x in [*cell_runs, *cell_plans]) if s is not None}
-        expected = {(v, s) for v in variants for s in seeds}
-        ok = {(str(r["variant"]), _seed(r["seed"])) for r in cell_runs if r["ok"]}
-        failed = {(str(r["variant"]), _seed(r["seed"])) for r in cell_runs if not r["ok"]} - ok
-        produced = {str(r["run_id"]) for r in cell_runs}
-        missing = {(str(p.get("variant")), _seed(p.get("seed"))) for p in cell_plans
-                   if str(p.get("run_id")) not in produced} - ok - failed
-        have = len(ok & expected)
-        complete = bool(expected) and have == len(expected)
-        n_variants = len({v for v, _ in ok})
-        n_seeds = len({s for _, s in ok})
-        reason = ""
-        if not complete:
-            lacking = [f"{len(failed & expected)} failed" if failed & expected else "",
-                       f"{len(missing & expected)} missing" if missing & expected else "",
-                       (f"{len(expected - ok - failed - missing)} never planned" if expected - ok - failed - missing else "")]
-            detail = "; ".join(x for x in lacking if x)
-            reason = (f"{have} of {len(expected)} runs ({n_variants}/{len(variants)} variants, "
-                      f"{n_seeds}/{len(seeds)} seeds{'; ' + detail if detail else ''})")
-        out[cell] = {"n_variants": n_variants, "n_variants_expected": len(variants), "n_seeds": n_seeds,
-                     "n_seeds_expected": len(seeds), "n_expected": len(expected), "complete": complete,
-                     "incomplete_reason": reason}
+        out[cell] = _cell_completeness(cell[3], records.get(cell, []), plans.get(cell, []), seeds_of_preset[preset])
     return out
+
+
+def _by_cell(items: Iterable[Mapping[str, Any]]) -> dict[tuple[str, ...], list[Mapping[str, Any]]]:
+    """Runs or plans grouped by :func:`cell_of`, in their order."""
+    out: dict[tuple[str, ...], list[Mapping[str, Any]]] = {}
+    for item in items:
+        out.setdefault(cell_of(item), []).append(item)
+    return out
+
+
+def _cell_completeness(scenario: str, cell_runs: list[Mapping[str, Any]], cell_plans: list[Mapping[str, Any]],
+                       preset_seeds: set[int]) -> dict[str, Any]:
+    """One cell's row of :func:`completeness`: its expected grid against the runs that succeeded."""
+    variants, seeds = _expected_axes(scenario, [*cell_runs, *cell_plans], preset_seeds)
+    expected = {(v, s) for v in variants for s in seeds}
+    ok = {(str(r["variant"]), _seed(r["seed"])) for r in cell_runs if r["ok"]}
+    failed = {(str(r["variant"]), _seed(r["seed"])) for r in cell_runs if not r["ok"]} - ok
+    produced = {str(r["run_id"]) for r in cell_runs}
+    missing = {(str(p.get("variant")), _seed(p.get("seed"))) for p in cell_plans
+               if str(p.get("run_id")) not in produced} - ok - failed
+    have = len(ok & expected)
+    complete = bool(expected) and have == len(expected)
+    n_variants = len({v for v, _ in ok})
+    n_seeds = len({s for _, s in ok})
+    reason = ""
+    if not complete:
+        reason = (f"{have} of {len(expected)} runs ({n_variants}/{len(variants)} variants, "
+                  f"{n_seeds}/{len(seeds)} seeds{_lacking(expected, ok, failed, missing)})")
+    return {"n_variants": n_variants, "n_variants_expected": len(variants), "n_seeds": n_seeds,
+            "n_seeds_expected": len(seeds), "n_expected": len(expected), "complete": complete,
+            "incomplete_reason": reason}
+
+
+def _expected_axes(scenario: str, items: list[Mapping[str, Any]], preset_seeds: set[int]) -> tuple[list[str], set[int]]:
+    """The cell's expected variants (the scenario's, else those its runs and plans name) and seeds."""
+    variants = scenario_variants(scenario)
+    if variants is None:
+        variants = sorted({str(x["variant"]) for x in items if x.get("variant") is not None})
+    seeds = set(preset_seeds)
+    seeds |= {s for s in (_seed(x.get("seed")) for x in items) if s is not None}
+    return variants, seeds
+
+
+def _lacking(expected: set, ok: set, failed: set, missing: set) -> str:
+    """``; 2 failed; 1 missing; 3 never planned`` for the expected points without a result ("" if none)."""
+    lacking = [f"{len(failed & expected)} failed" if failed & expected else "",
+               f"{len(missing & expected)} missing" if missing & expected else "",
+               (f"{len(expected - ok - failed - missing)} never planned" if expected - ok - failed - missing else "")]
+    detail = "; ".join(x for x in lacking if x)
+    return "; " + detail if detail else ""
 
 
 def row_settings(runs: pd.DataFrame) -> dict[tuple[str, str, str, str], tuple[float, int]]:
