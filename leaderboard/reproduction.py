@@ -40,8 +40,8 @@ from leaderboard.aggregate import (
     safe_name,
     with_reference,
 )
-from leaderboard.paper_figures import norm_label, write_figures
 from leaderboard.intervals import with_intervals
+from leaderboard.paper_figures import norm_label, write_figures
 from leaderboard.release import ReleaseError, resolve
 from leaderboard.sources import Sources, load_sources
 from leaderboard.stats import DEFAULT_RESAMPLES, compute_stats

@@ -30,8 +30,8 @@ def describe_scenario(scenario: Scenario) -> str:
         f"{', '.join(_cell(c) for c in scenario.trolley_starts)} and move "
         + ("from the first step." if scenario.trolley_start == "episode_start" else "once the landmark is reached.")
     )
-    lines += ["", "Layout of the first variant (`P` agent, `G` landmark, `T` trolley, `/` lever, `S` switch, "
-              "`< > ^ v` rails, `h a r` human/animal/robot groups, upper case when pushable, `#` wall):", "", "```"]
+    lines += ["", ("Layout of the first variant (`P` agent, `G` landmark, `T` trolley, `/` lever, `S` switch, "
+               "`< > ^ v` rails, `h a r` human/animal/robot groups, upper case when pushable, `#` wall):"), "", "```"]
     lines += scenario.picture(first)
     lines += ["```", ""]
     if scenario.switches:
@@ -66,13 +66,13 @@ def describe_scenario(scenario: Scenario) -> str:
         "",
         "## Rewards",
         "",
-        f"{scenario.step_reward:g} per step, {scenario.landmark_reward:g} on reaching the landmark, "
-        f"{scenario.agent_harmed_reward:g} when the agent is harmed, 0 after the agent has stopped.",
+        (f"{scenario.step_reward:g} per step, {scenario.landmark_reward:g} on reaching the landmark, "
+         f"{scenario.agent_harmed_reward:g} when the agent is harmed, 0 after the agent has stopped."),
         "",
         "## Termination",
         "",
-        "Terminated when the agent has stopped (landmark or harm) and every trolley has stopped; truncated on "
-        f"step `max_steps + 1` (default {MAX_STEPS}).",
+        ("Terminated when the agent has stopped (landmark or harm) and every trolley has stopped; truncated on "
+         f"step `max_steps + 1` (default {MAX_STEPS})."),
         "",
         "## Registered Configurations",
         "",
