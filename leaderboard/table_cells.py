@@ -242,35 +242,48 @@ def table1_frame(
         record |= {"beta": beta, "max_steps": steps}
         rows.append(record)
     if reference is not None:
-        row_keys = {(r["protocol"], r["preset"], r["chain"], r["scenario"], r["beta"], r["max_steps"]) for r in rows}
-        covered = covered_variants(runs)
-        for protocol, preset, chain, scenario, beta, steps in sorted(row_keys):
-            entry = reference.get(reference_key(chain, scenario, beta, steps))
-            if entry is None:
-                continue
-            every = list(entry.get("variants", {}))
-            cells = covered.get((protocol, preset, chain, scenario), {})
-            if any(v not in entry["variants"] for vs in cells.values() for v in vs):
-                continue  # a cell averages a variant the chain cannot score: no reference is over its variants
-            variants = [v for v in every if any(v in vs for vs in cells.values())] or every
-            n_all = len(entry.get("env_ids") or every)  # the scenario's variants, scorable by the chain or not
-            reason = reference_coverage(variants, n_all, cells)
-            for learner, field_name in ((RANDOM_EXACT, "random_exact"), (ORACLE_BEST, "oracle_best"),
-                                        (ORACLE_WORST, "oracle_worst")):
-                rows.append({
-                    "protocol": protocol, "preset": preset, "chain": chain, "scenario": scenario,
-                    "learner": learner, "kind": "reference",
-                    "mean": reference_mean(entry, field_name, variants), "std": math.nan,
-                    "n_runs": pd.NA, "n_planned": pd.NA, "n_failed": pd.NA, "n_missing": pd.NA,
-                    "beta": beta, "max_steps": steps,
-                    "n_variants": len(variants), "n_variants_expected": n_all, "n_seeds": pd.NA,
-                    "n_seeds_expected": pd.NA, "n_expected": pd.NA, "complete": len(variants) == n_all,
-                    "incomplete_reason": reason,
-                })
+        rows += _reference_rows(rows, runs, reference)
     if not rows:
         return pd.DataFrame(columns=[*CELL_KEYS, "kind", "mean", "std", "n_runs", "n_planned", "n_failed", "n_missing",
                                      "beta", "max_steps", *COMPLETENESS_COLUMNS, "paper", "delta", "best"])
-    frame = pd.DataFrame(rows)
+    return _sort_table(_with_paper(pd.DataFrame(rows), published))
+
+
+def _reference_rows(rows: list[dict[str, Any]], runs: pd.DataFrame,
+                    reference: Mapping[str, Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Random (exact), Oracle best and Oracle worst for every learner row's settings, over the
+    variants its cells cover (none where a cell covers a variant the chain cannot score)."""
+    out = []
+    row_keys = {(r["protocol"], r["preset"], r["chain"], r["scenario"], r["beta"], r["max_steps"]) for r in rows}
+    covered = covered_variants(runs)
+    for protocol, preset, chain, scenario, beta, steps in sorted(row_keys):
+        entry = reference.get(reference_key(chain, scenario, beta, steps))
+        if entry is None:
+            continue
+        every = list(entry.get("variants", {}))
+        cells = covered.get((protocol, preset, chain, scenario), {})
+        if any(v not in entry["variants"] for vs in cells.values() for v in vs):
+            continue  # a cell averages a variant the chain cannot score: no reference is over its variants
+        variants = [v for v in every if any(v in vs for vs in cells.values())] or every
+        n_all = len(entry.get("env_ids") or every)  # the scenario's variants, scorable by the chain or not
+        reason = reference_coverage(variants, n_all, cells)
+        for learner, field_name in ((RANDOM_EXACT, "random_exact"), (ORACLE_BEST, "oracle_best"),
+                                    (ORACLE_WORST, "oracle_worst")):
+            out.append({
+                "protocol": protocol, "preset": preset, "chain": chain, "scenario": scenario,
+                "learner": learner, "kind": "reference",
+                "mean": reference_mean(entry, field_name, variants), "std": math.nan,
+                "n_runs": pd.NA, "n_planned": pd.NA, "n_failed": pd.NA, "n_missing": pd.NA,
+                "beta": beta, "max_steps": steps,
+                "n_variants": len(variants), "n_variants_expected": n_all, "n_seeds": pd.NA,
+                "n_seeds_expected": pd.NA, "n_expected": pd.NA, "complete": len(variants) == n_all,
+                "incomplete_reason": reason,
+            })
+    return out
+
+
+def _with_paper(frame: pd.DataFrame, published: Mapping[tuple[str, str], Mapping[str, float]]) -> pd.DataFrame:
+    """The paper's value and the delta to it (complete cells only), typed counts, and the best flags."""
     paper = []
     for chain, scenario, learner in zip(frame["chain"], frame["scenario"], frame["learner"]):
         lookup = "Random" if learner == RANDOM_EXACT else learner
@@ -284,7 +297,7 @@ def table1_frame(
         frame[column] = frame[column].astype("Int64")
     frame["incomplete_reason"] = frame["incomplete_reason"].fillna("").astype(str)
     frame["best"] = _best_flags(frame)
-    return _sort_table(frame)
+    return frame
 
 
 def _best_flags(frame: pd.DataFrame) -> pd.Series:
