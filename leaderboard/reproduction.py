@@ -299,7 +299,11 @@ def load_notes(path: Path) -> dict[tuple[str, str, str], str]:
 
 
 def page(lb: Leaderboard, sources: Sources, learn: pd.DataFrame, figure_dir: Path, img_rel: str, notes: dict) -> str:
-    """The whole Markdown page."""
+    """The whole Markdown page.
+
+    Kept as one template, top to bottom in the page's order; the per-cell evidence is
+    :func:`diagnosis`'s and the Figure 2 checks are :func:`figure2_claims`'s.
+    """
     table = cells(lb, PAPER)
     counts = {v: sum(c.verdict == v for c in table) for v in VERDICTS}
     marks = {"reproduces": "✓", "close": "≈", "deviates": "✗", "not run": "…"}
