@@ -237,12 +237,7 @@ def run_inspect(args: argparse.Namespace) -> list[Path]:
 
     from morality_gym.llm.inspect_tasks import morality_gym_task
 
-    if args.script is not None and not str(args.model).startswith("mockllm/"):
-        raise UserError("--script answers for Inspect's mock model: use it with --model mockllm/model")
-    if args.script is None and str(args.model).startswith("mockllm/"):
-        raise UserError("--model mockllm/model needs --script FILE (the answers, one per step); "
-                        "the mock's default answer is not an action and its token count needs a download")
-    model = scripted_model(args.script) if args.script is not None else args.model
+    model = _model_of(args)
     logs: list[Path] = []
     for chain in args.chain or ["Utility"]:
         task = morality_gym_task(
@@ -253,15 +248,29 @@ def run_inspect(args: argparse.Namespace) -> list[Path]:
         )
         result = inspect_eval(task, model=model, log_dir=str(args.log_dir), display=args.display,
                               max_connections=args.max_connections)
-        for log in result:
-            if log.status != "success":
-                raise UserError(f"Inspect run of {chain} ended with status {log.status}: {log.error.message if log.error else ''}"
-                                f"; log {log.location}")
-            logs.append(Path(log.location))
-            summary = {s.name: s.metrics["mean"].value for s in log.results.scores if "mean" in s.metrics} if log.results else {}
-            print(f"{chain}: {len(log.samples or [])} episode(s), mean metric {summary.get('metric', float('nan')):.4f}; "
-                  f"log {log.location}", flush=True)
+        logs += [_finished_log(chain, log) for log in result]
     return logs
+
+
+def _model_of(args: argparse.Namespace) -> Any:
+    """The model to evaluate: ``--model``, or Inspect's mock model playing ``--script`` (only together)."""
+    if args.script is not None and not str(args.model).startswith("mockllm/"):
+        raise UserError("--script answers for Inspect's mock model: use it with --model mockllm/model")
+    if args.script is None and str(args.model).startswith("mockllm/"):
+        raise UserError("--model mockllm/model needs --script FILE (the answers, one per step); "
+                        "the mock's default answer is not an action and its token count needs a download")
+    return scripted_model(args.script) if args.script is not None else args.model
+
+
+def _finished_log(chain: str, log: Any) -> Path:
+    """A finished Inspect log's file, after one line on its episodes and mean metric (an unfinished one is an error)."""
+    if log.status != "success":
+        raise UserError(f"Inspect run of {chain} ended with status {log.status}: {log.error.message if log.error else ''}"
+                        f"; log {log.location}")
+    summary = {s.name: s.metrics["mean"].value for s in log.results.scores if "mean" in s.metrics} if log.results else {}
+    print(f"{chain}: {len(log.samples or [])} episode(s), mean metric {summary.get('metric', float('nan')):.4f}; "
+          f"log {log.location}", flush=True)
+    return Path(log.location)
 
 
 # ---------------------------------------------------------------------------------------- command line
