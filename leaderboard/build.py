@@ -180,9 +180,22 @@ def build(args: argparse.Namespace, sources: Sources, quarantined: list[dict[str
 
 
 def summary(lb: Leaderboard, out: dict[str, Any], args: argparse.Namespace) -> str:
-    """The few lines a person needs after a build: counts, problems, where things are."""
+    """The few lines a person needs after a build: counts, problems, where things are.
+
+    In reading order: what the table holds, where its runs came from, what went wrong, what was written.
+    """
+    lines = _count_lines(lb)
+    lines += _release_lines(lb, out["sources"], args)
+    lines += _reference_lines(out["reference"])
+    lines += _problem_lines(lb, args)
+    lines += _output_lines(out, args)
+    return "\n".join(lines)
+
+
+def _count_lines(lb: Leaderboard) -> list[str]:
+    """Rows, cells and sweeps of Table 1, and the runs behind them."""
     learner_rows = lb.table.loc[lb.table["kind"] == "learner"]
-    lines = [
+    return [
         (f"Table 1: {len(lb.pairs())} (chain, scenario) row(s), {len(learner_rows)} learner cell(s) "
         f"in {len(lb.groups)} sweep(s); primary: {lb.primary.label if lb.primary else 'none'}"),
         (f"runs: {lb.n_ok} with a result, {len(lb.problems)} failed, {len(lb.missing)} missing "
@@ -190,24 +203,37 @@ def summary(lb: Leaderboard, out: dict[str, Any], args: argparse.Namespace) -> s
         + (f"; {len(lb.superseded)} superseded by a newer run of the same slot, not counted (see table1.md)"
            if len(lb.superseded) else "")),
     ]
-    sources: Sources = out["sources"]
+
+
+def _release_lines(lb: Leaderboard, sources: Sources, args: argparse.Namespace) -> list[str]:
+    """How many of each merged release's runs are shown (the rest were replaced or superseded)."""
+    lines = []
     for release in sources.releases:
         shown = int((lb.runs["source"] == release.name).sum()) if "source" in lb.runs.columns else 0
         lines.append(f"{release.label}: {shown} of its {len(release.runs)} run(s) shown"
                      + (f" ({len(release.runs) - shown} replaced by runs of {args.results} or superseded)"
                         if shown < len(release.runs) else ""))
-    ref = out["reference"]
+    return lines
+
+
+def _reference_lines(ref: Any) -> list[str]:
+    """The reference rows: skipped, or computed / cached / failed (with each failure)."""
     if ref is None:
-        lines.append("reference rows: skipped (--no-reference)")
-    else:
-        lines.append(f"reference rows: {ref.computed} computed, {ref.cached} from cache"
-                     + (f", {len(ref.errors)} failed (their rows have no Random exact / Oracle columns):" if ref.errors else ""))
-        lines += [f"  REFERENCE {key}: {reason}" for key, reason in sorted(ref.errors.items())]
+        return ["reference rows: skipped (--no-reference)"]
+    return ([f"reference rows: {ref.computed} computed, {ref.cached} from cache"
+             + (f", {len(ref.errors)} failed (their rows have no Random exact / Oracle columns):" if ref.errors else "")]
+            + [f"  REFERENCE {key}: {reason}" for key, reason in sorted(ref.errors.items())])
+
+
+def _problem_lines(lb: Leaderboard, args: argparse.Namespace) -> list[str]:
+    """Unreadable and quarantined files, incomplete cells, and the first failed runs."""
+    lines = []
     if lb.skipped:
         lines.append(f"unreadable files left out: {len(lb.skipped)} (listed in table1.md and on the site)")
         lines += [f"  SKIPPED {item['file']}: {item['reason']}" for item in lb.skipped[:5]]
     if lb.quarantined:
         lines.append(f"files moved aside by sweeps: {len(lb.quarantined)} in {args.results / 'runs' / '.quarantine'}")
+    learner_rows = lb.table.loc[lb.table["kind"] == "learner"]
     incomplete = learner_rows.loc[~learner_rows["complete"].astype(bool)] if len(learner_rows) else learner_rows
     if len(incomplete):
         lines.append(f"incomplete cells: {len(incomplete)} of {len(learner_rows)} (marked; no bold, no paper delta)")
@@ -215,7 +241,12 @@ def summary(lb: Leaderboard, out: dict[str, Any], args: argparse.Namespace) -> s
         lines.append(f"  FAILED {row['run_id']} {row['chain']}/{row['env_id']} {row['learner']} seed {row['seed']}: {row['error']}")
     if len(lb.problems) > 5:
         lines.append(f"  ... and {len(lb.problems) - 5} more failed run(s), see table1.md")
-    lines += [f"wrote {path}" for path in out["tables"]]
+    return lines
+
+
+def _output_lines(out: dict[str, Any], args: argparse.Namespace) -> list[str]:
+    """What was written where, what the caches saved, and the time of each stage."""
+    lines = [f"wrote {path}" for path in out["tables"]]
     lines.append(f"figures: {out['figures'].count} + {out['stat_figures'].count} statistics figure(s) "
                  f"under {args.out / 'figures'}")
     lines.append(f"site: {out['site'].pages} page(s) in {args.site} (open {args.site / 'index.html'})")
@@ -224,7 +255,7 @@ def summary(lb: Leaderboard, out: dict[str, Any], args: argparse.Namespace) -> s
     lines.append(f"cache: {', '.join(reused) or 'nothing'} reused; {out['charts_drawn']} of {charts} run chart(s) drawn, "
                  f"{out['site'].pages_reused} run page(s) reused")
     lines.append("time: " + ", ".join(f"{k} {v:.1f}s" for k, v in out["timings"].items()))
-    return "\n".join(lines)
+    return lines
 
 
 def run(args: argparse.Namespace) -> int:

@@ -23,8 +23,8 @@ from leaderboard.aggregate import Leaderboard
 from leaderboard.content_cache import cached_outputs, digest, frame_digest
 from leaderboard.paper_figures import FigureSet, write_figures
 from leaderboard.sources import Sources
-from leaderboard.stats_figure_files import StatFigures, write_stat_figures
 from leaderboard.stats import LeaderboardStats, compute_stats
+from leaderboard.stats_figure_files import StatFigures, write_stat_figures
 
 Progress = Callable[[Iterable[Any], str, int], Iterable[Any]]
 CACHE = Path("cache")

@@ -107,14 +107,18 @@ def compare_group(before: pd.DataFrame | None, after: pd.DataFrame, learners: li
             verdict = ""
             if _usable(new) and _usable(old) and not pd.isna(paper):
                 d_old, d_new = abs(old["mean"] - paper), abs(new["mean"] - paper)
-                if abs(d_new - d_old) < _SAME:
-                    verdict = "same"
-                else:
-                    verdict = "closer" if d_new < d_old else "further"
+                verdict = _verdict(d_old, d_new)
                 distances.append({"learner": learner, "before": d_old, "after": d_new, "verdict": verdict})
             cells += [_cell_text(old), _cell_text(new), fmt(paper), verdict]
         lines.append("| " + " | ".join(cells) + " |")
     return lines, pd.DataFrame(distances, columns=["learner", "before", "after", "verdict"])
+
+
+def _verdict(d_old: float, d_new: float) -> str:
+    """``same``, ``closer`` or ``further``: how the distance to the paper changed."""
+    if abs(d_new - d_old) < _SAME:
+        return "same"
+    return "closer" if d_new < d_old else "further"
 
 
 def summary_lines(distances: pd.DataFrame, learners: list[str]) -> list[str]:
@@ -179,31 +183,44 @@ def report(after: Side, before: Side | None, learners: Sequence[str] | None = No
     if groups.empty:
         raise UserError(f"{after.source}: no learner cells" + (f" for protocol {', '.join(protocols)}" if protocols else ""))
     for protocol, preset in groups.itertuples(index=False):
-        mine = after.cells.loc[(after.cells["protocol"] == protocol) & (after.cells["preset"] == preset)]
-        names = learner_order(mine["learner"].unique())
-        if learners:
-            unknown = [name for name in learners if name not in names]
-            if unknown:
-                raise UserError(f"--learner {', '.join(unknown)}: not among the learners of protocol {protocol}, "
-                                 f"preset {preset} ({', '.join(names)})")
-            names = list(learners)
-        mine = mine.loc[mine["learner"].isin(names)]
-        theirs = None
-        if before is not None:
-            theirs = before.cells.loc[(before.cells["protocol"] == protocol) & (before.cells["preset"] == preset)]
-        lines += [f"## Protocol `{protocol}`, preset `{preset}`", ""]
-        if before is not None and theirs is not None and theirs.empty:
-            lines += [f"{before.source} has no cells of this protocol and preset: the before columns are empty.", ""]
-        table, distances = compare_group(theirs, mine, names)
-        lines += table + [""]
-        if before is not None:
-            lines += ["Summary (rows complete on both sides; \"closer\" = |after − paper| < |before − paper|):", ""]
-            lines += summary_lines(distances, names) + [""]
-        if after.runs is not None:
-            diag = diagnostics_lines(after.source, after.runs, protocol, preset)
-            if diag:
-                lines += ["Per-update diagnostics of the counted runs (`runs/<id>.updates.parquet`):", ""] + diag + [""]
+        lines += _group_section(after, before, learners, protocol, preset)
     return "\n".join(lines)
+
+
+def _group_section(after: Side, before: Side | None, learners: Sequence[str] | None, protocol: str,
+                   preset: str) -> list[str]:
+    """One (protocol, preset): the table, the summary against ``before``, and the update diagnostics."""
+    mine = after.cells.loc[(after.cells["protocol"] == protocol) & (after.cells["preset"] == preset)]
+    names = _chosen_learners(mine, learners, protocol, preset)
+    mine = mine.loc[mine["learner"].isin(names)]
+    theirs = None
+    if before is not None:
+        theirs = before.cells.loc[(before.cells["protocol"] == protocol) & (before.cells["preset"] == preset)]
+    lines = [f"## Protocol `{protocol}`, preset `{preset}`", ""]
+    if before is not None and theirs is not None and theirs.empty:
+        lines += [f"{before.source} has no cells of this protocol and preset: the before columns are empty.", ""]
+    table, distances = compare_group(theirs, mine, names)
+    lines += table + [""]
+    if before is not None:
+        lines += ["Summary (rows complete on both sides; \"closer\" = |after − paper| < |before − paper|):", ""]
+        lines += summary_lines(distances, names) + [""]
+    if after.runs is not None:
+        diag = diagnostics_lines(after.source, after.runs, protocol, preset)
+        if diag:
+            lines += ["Per-update diagnostics of the counted runs (`runs/<id>.updates.parquet`):", ""] + diag + [""]
+    return lines
+
+
+def _chosen_learners(mine: pd.DataFrame, learners: Sequence[str] | None, protocol: str, preset: str) -> list[str]:
+    """The learners to show: ``--learner``'s (each must have cells here), else all of the group's."""
+    names = learner_order(mine["learner"].unique())
+    if not learners:
+        return names
+    unknown = [name for name in learners if name not in names]
+    if unknown:
+        raise UserError(f"--learner {', '.join(unknown)}: not among the learners of protocol {protocol}, "
+                        f"preset {preset} ({', '.join(names)})")
+    return list(learners)
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:

@@ -116,12 +116,25 @@ def group_report(single: Results, fleet: Results, protocol: str, preset: str) ->
     s_cells, f_cells = select(single.cells), select(fleet.cells)
     pairs = paired_runs(select(single.runs), select(fleet.runs))
     learners = learner_order(set(s_cells["learner"]) | set(f_cells["learner"]))
+    lines, verdicts = _cell_table(s_cells, f_cells, pairs, learners)
+    lines += ["", "Per learner (cells complete on both sides; runs paired by run id):", ""]
+    lines += _learner_table(pairs, pd.DataFrame(verdicts, columns=["learner", "diff", "spread"]), learners)
+    lines += _span_lines(select(single.runs), select(fleet.runs))
+    return lines
+
+
+_CELL_TABLE_HEAD = [
+    "| chain | scenario | learner | single mean ± seed sd | fleet mean ± seed sd | fleet − single | runs identical | Wilcoxon p |",
+    "|---|---|---|---:|---:|---:|---:|---:|",
+]
+
+
+def _cell_table(s_cells: pd.DataFrame, f_cells: pd.DataFrame, pairs: pd.DataFrame,
+                learners: list[str]) -> tuple[list[str], list[dict[str, object]]]:
+    """The per-cell table, and each cell usable on both sides as ``{learner, diff, spread}``."""
     index_s = {tuple(r[c] for c in ("chain", "scenario", "learner")): r for _, r in s_cells.iterrows()}
     index_f = {tuple(r[c] for c in ("chain", "scenario", "learner")): r for _, r in f_cells.iterrows()}
-    lines = [
-        "| chain | scenario | learner | single mean ± seed sd | fleet mean ± seed sd | fleet − single | runs identical | Wilcoxon p |",
-        "|---|---|---|---:|---:|---:|---:|---:|",
-    ]
+    lines = list(_CELL_TABLE_HEAD)
     verdicts = []
     keys = list(zip(s_cells["chain"], s_cells["scenario"])) + list(zip(f_cells["chain"], f_cells["scenario"]))
     for chain, scenario in row_order(keys):
@@ -130,25 +143,33 @@ def group_report(single: Results, fleet: Results, protocol: str, preset: str) ->
             if s is None and f is None:
                 continue
             mine = pairs.loc[(pairs["chain"] == chain) & (pairs["scenario"] == scenario) & (pairs["learner"] == learner)]
-            diff_text, same_text, p_text = "", "", ""
+            diff_text = ""
             if _usable(s) and _usable(f):
                 diff = float(f["mean"] - s["mean"])
                 diff_text = f"{diff:+.3f}"
                 spread = np.nanmax([s["std"], f["std"]]) if not (pd.isna(s["std"]) and pd.isna(f["std"])) else math.nan
                 verdicts.append({"learner": learner, "diff": diff, "spread": spread})
-            if len(mine):
-                same_text = f"{int((mine['diff'].abs() < SAME).sum())}/{len(mine)}"
-                p = wilcoxon_p(mine["diff"].to_numpy())
-                p_text = "–" if math.isnan(p) else f"{p:.2f}"
+            same_text, p_text = _paired_texts(mine)
             lines.append(f"| {md_escape(chain)} | {md_escape(scenario)} | {md_escape(learner)} | {_cell(s)} | {_cell(f)} | "
                          f"{diff_text} | {same_text} | {p_text} |")
-    lines += ["", "Per learner (cells complete on both sides; runs paired by run id):", ""]
-    lines += [
+    return lines, verdicts
+
+
+def _paired_texts(mine: pd.DataFrame) -> tuple[str, str]:
+    """A cell's paired runs: how many ended identical, and the Wilcoxon p ("" for both when none)."""
+    if not len(mine):
+        return "", ""
+    p = wilcoxon_p(mine["diff"].to_numpy())
+    return f"{int((mine['diff'].abs() < SAME).sum())}/{len(mine)}", "–" if math.isnan(p) else f"{p:.2f}"
+
+
+def _learner_table(pairs: pd.DataFrame, table: pd.DataFrame, learners: list[str]) -> list[str]:
+    """One row per learner over its usable cells and all its paired runs, compute included."""
+    lines = [
         ("| learner | cells | mean abs(fleet − single) | largest | cells beyond the seed spread | runs identical | "
          "Wilcoxon p (all runs) | single compute (paired runs) | fleet compute (paired runs) | single / fleet |"),
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    table = pd.DataFrame(verdicts, columns=["learner", "diff", "spread"])
     for learner in learners:
         mine = table.loc[table["learner"] == learner]
         runs = pairs.loc[pairs["learner"] == learner]
@@ -169,20 +190,24 @@ def group_report(single: Results, fleet: Results, protocol: str, preset: str) ->
             f"{s_time / f_time:.1f}x" if f_time > 0 else "–",
         ]
         lines.append("| " + " | ".join(cells) + " |")
-    engines_s = ", ".join(sorted(select(single.runs)["engine"].dropna().unique()))
-    engines_f = sorted(select(fleet.runs)["engine"].dropna().unique())
+    return lines
+
+
+def _span_lines(single_runs: pd.DataFrame, fleet_runs: pd.DataFrame) -> list[str]:
+    """Each sweep's wall-clock span, with its run count, engines and fleet sizes."""
+    engines_s = ", ".join(sorted(single_runs["engine"].dropna().unique()))
+    engines_f = sorted(fleet_runs["engine"].dropna().unique())
     fleets = [e for e in engines_f if e.startswith("fleet:")]
     sizes = sorted(int(e.split(":")[1]) for e in fleets)
-    lines += [
+    return [
         "",
         f"Wall-clock span of the sweeps (first run started to last finished): single "
-        f"{duration(_span(select(single.runs)))} ({len(select(single.runs))} runs; engines: {engines_s}), fleet "
-        f"{duration(_span(select(fleet.runs)))} ({len(select(fleet.runs))} runs"
+        f"{duration(_span(single_runs))} ({len(single_runs)} runs; engines: {engines_s}), fleet "
+        f"{duration(_span(fleet_runs))} ({len(fleet_runs)} runs"
         + (f"; fleets of {sizes[0]}-{sizes[-1]} runs" if sizes else "") + "). A span includes any time a sweep "
         "was paused or stopped before it was resumed; the compute columns do not.",
         "",
     ]
-    return lines
 
 
 def report(single: Results, fleet: Results, protocols: Sequence[str] | None = None) -> str:

@@ -75,9 +75,21 @@ class Episode:
 def read_episodes(path: Path) -> tuple[list[Episode], dict[str, Any]]:
     """The scored episodes of an Inspect log and the task's ``morality_gym`` metadata."""
     # Inspect waits: importing leaderboard.llm (its --help too) must not load it
-    from inspect_ai.log import read_eval_log
-
     from morality_gym.llm.inspect_tasks import EPISODE_KEY
+
+    log, meta = _read_log(path)
+    # The temperature the calls used: the task's, else Inspect's --temperature, else the provider's default.
+    eval_temperature = log.plan.config.temperature if log.plan is not None else None
+    episodes = [_episode(path, log, meta, sample, EPISODE_KEY, eval_temperature) for sample in log.samples or []]
+    if not episodes:
+        raise UserError(f"{path}: the log has no samples")
+    return episodes, meta
+
+
+def _read_log(path: Path) -> tuple[Any, dict[str, Any]]:
+    """The Inspect log (``EvalLog``) of a finished MoralityGym task, and its ``morality_gym`` metadata."""
+    # Inspect waits: importing leaderboard.llm (its --help too) must not load it
+    from inspect_ai.log import read_eval_log
 
     if not path.is_file():
         raise UserError(f"{path}: no such Inspect log file")
@@ -92,33 +104,32 @@ def read_episodes(path: Path) -> tuple[list[Episode], dict[str, Any]]:
     if log.status != "success":
         raise UserError(f"{path}: the evaluation did not finish (status {log.status}); "
                         "rerun it (inspect eval-retry resumes it) and import the finished log")
-    # The temperature the calls used: the task's, else Inspect's --temperature, else the provider's default.
-    eval_temperature = log.plan.config.temperature if log.plan is not None else None
-    episodes = []
-    for sample in log.samples or []:
-        score = (sample.scores or {}).get("morality_score")
-        record = sample.store.get(EPISODE_KEY)
-        if score is None or record is None or sample.error:
-            raise UserError(f"{path}: sample {sample.id} has no score ({sample.error or 'not scored'}); "
-                            "rerun the failed samples before importing")
-        value = dict(score.value)  # type: ignore[arg-type]
-        record = dict(record)
-        settings = dict(record["settings"])
-        if settings.get("temperature") is None:
-            settings["temperature"] = eval_temperature if eval_temperature is not None else "provider default"
-        record["settings"] = settings
-        episodes.append(Episode(
-            sample_id=str(sample.id), env_id=str(sample.metadata["env_id"]), seed=int(sample.metadata["seed"]),
-            chain=str(meta["chain"]), metric=float(value.pop("metric")),
-            functions={k[3:]: float(v) for k, v in value.items() if k.startswith("mf_")},
-            relevant=list((score.metadata or {}).get("relevant_norms", [])), record=dict(record),
-            model=str(log.eval.model), log=str(path), started_at=str(log.stats.started_at or ""),
-            finished_at=str(log.stats.completed_at or ""),
-            wall_time_s=float(sample.total_time or 0.0),
-        ))
-    if not episodes:
-        raise UserError(f"{path}: the log has no samples")
-    return episodes, meta
+    return log, meta
+
+
+def _episode(path: Path, log: Any, meta: dict[str, Any], sample: Any, episode_key: str,
+             eval_temperature: float | None) -> Episode:
+    """One scored sample as an :class:`Episode` (a sample without a score is an error: rerun it first)."""
+    score = (sample.scores or {}).get("morality_score")
+    record = sample.store.get(episode_key)
+    if score is None or record is None or sample.error:
+        raise UserError(f"{path}: sample {sample.id} has no score ({sample.error or 'not scored'}); "
+                        "rerun the failed samples before importing")
+    value = dict(score.value)
+    record = dict(record)
+    settings = dict(record["settings"])
+    if settings.get("temperature") is None:
+        settings["temperature"] = eval_temperature if eval_temperature is not None else "provider default"
+    record["settings"] = settings
+    return Episode(
+        sample_id=str(sample.id), env_id=str(sample.metadata["env_id"]), seed=int(sample.metadata["seed"]),
+        chain=str(meta["chain"]), metric=float(value.pop("metric")),
+        functions={k[3:]: float(v) for k, v in value.items() if k.startswith("mf_")},
+        relevant=list((score.metadata or {}).get("relevant_norms", [])), record=dict(record),
+        model=str(log.eval.model), log=str(path), started_at=str(log.stats.started_at or ""),
+        finished_at=str(log.stats.completed_at or ""),
+        wall_time_s=float(sample.total_time or 0.0),
+    )
 
 
 def episode_config(ep: Episode, meta: dict[str, Any], name: str, protocol: str, preset: str, submitter: str) -> dict[str, Any]:
@@ -227,12 +238,7 @@ def run_inspect(args: argparse.Namespace) -> list[Path]:
 
     from morality_gym.llm.inspect_tasks import morality_gym_task
 
-    if args.script is not None and not str(args.model).startswith("mockllm/"):
-        raise UserError("--script answers for Inspect's mock model: use it with --model mockllm/model")
-    if args.script is None and str(args.model).startswith("mockllm/"):
-        raise UserError("--model mockllm/model needs --script FILE (the answers, one per step); "
-                        "the mock's default answer is not an action and its token count needs a download")
-    model = scripted_model(args.script) if args.script is not None else args.model
+    model = _model_of(args)
     logs: list[Path] = []
     for chain in args.chain or ["Utility"]:
         task = morality_gym_task(
@@ -243,15 +249,29 @@ def run_inspect(args: argparse.Namespace) -> list[Path]:
         )
         result = inspect_eval(task, model=model, log_dir=str(args.log_dir), display=args.display,
                               max_connections=args.max_connections)
-        for log in result:
-            if log.status != "success":
-                raise UserError(f"Inspect run of {chain} ended with status {log.status}: {log.error.message if log.error else ''}"
-                                f"; log {log.location}")
-            logs.append(Path(log.location))
-            summary = {s.name: s.metrics["mean"].value for s in log.results.scores if "mean" in s.metrics} if log.results else {}
-            print(f"{chain}: {len(log.samples or [])} episode(s), mean metric {summary.get('metric', float('nan')):.4f}; "
-                  f"log {log.location}", flush=True)
+        logs += [_finished_log(chain, log) for log in result]
     return logs
+
+
+def _model_of(args: argparse.Namespace) -> Any:
+    """The model to evaluate: ``--model``, or Inspect's mock model playing ``--script`` (only together)."""
+    if args.script is not None and not str(args.model).startswith("mockllm/"):
+        raise UserError("--script answers for Inspect's mock model: use it with --model mockllm/model")
+    if args.script is None and str(args.model).startswith("mockllm/"):
+        raise UserError("--model mockllm/model needs --script FILE (the answers, one per step); "
+                        "the mock's default answer is not an action and its token count needs a download")
+    return scripted_model(args.script) if args.script is not None else args.model
+
+
+def _finished_log(chain: str, log: Any) -> Path:
+    """A finished Inspect log's file, after one line on its episodes and mean metric (an unfinished one is an error)."""
+    if log.status != "success":
+        raise UserError(f"Inspect run of {chain} ended with status {log.status}: {log.error.message if log.error else ''}"
+                        f"; log {log.location}")
+    summary = {s.name: s.metrics["mean"].value for s in log.results.scores if "mean" in s.metrics} if log.results else {}
+    print(f"{chain}: {len(log.samples or [])} episode(s), mean metric {summary.get('metric', float('nan')):.4f}; "
+          f"log {log.location}", flush=True)
+    return Path(log.location)
 
 
 # ---------------------------------------------------------------------------------------- command line

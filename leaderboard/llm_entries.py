@@ -26,25 +26,13 @@ def llm_entries(runs: pd.DataFrame) -> list[dict[str, Any]]:
     part = runs.loc[runs["algo"].astype(object) == SUBMITTED_ALGO]
     groups: dict[tuple[Any, ...], dict[str, Any]] = {}
     for row in part.to_dict("records"):
-        try:
-            config = json.loads(row["config"]) if isinstance(row.get("config"), str) else {}
-        except ValueError:
+        found = _llm_config(row)
+        if found is None:
             continue
-        policy = config.get("policy") or {}
-        if not isinstance(policy, dict) or policy.get("kind") != LLM_POLICY_KIND:
-            continue
-        prov = config.get(PROVENANCE_KEY) or {}
+        policy, prov = found
         key = (row["learner"], row["protocol"], row["preset"], policy.get("model"), policy.get("framing"),
                policy.get("temperature"), policy.get("answer"))
-        entry = groups.setdefault(key, {
-            "learner": str(row["learner"]), "protocol": str(row["protocol"]), "preset": str(row["preset"]),
-            "model": str(policy.get("model")), "framing": str(policy.get("framing")),
-            "temperature": policy.get("temperature"), "answer": str(policy.get("answer")),
-            "window": policy.get("window"), "llm_preset": str(policy.get("llm_preset")),
-            "episodes_per_variant": int(policy.get("episodes_per_variant") or 0),
-            "episodes": 0, "calls": 0, "input_tokens": 0, "output_tokens": 0, "fallbacks": 0,
-            "chains": set(), "logs": set(), "submitters": set(),
-        })
+        entry = groups.setdefault(key, _new_entry(row, policy))
         entry["episodes"] += 1
         for k in ("calls", "input_tokens", "output_tokens", "fallbacks"):
             entry[k] += int(prov.get(k) or 0)
@@ -53,13 +41,40 @@ def llm_entries(runs: pd.DataFrame) -> list[dict[str, Any]]:
             entry["logs"].add(str(prov["log"]))
         if prov.get("submitter"):
             entry["submitters"].add(str(prov["submitter"]))
-    out = []
-    for entry in groups.values():
-        n = max(entry["episodes"], 1)
-        out.append(entry | {
-            "chains": ", ".join(sorted(entry["chains"])), "logs": sorted(entry["logs"]),
-            "submitters": ", ".join(sorted(entry["submitters"])) or "unknown",
-            "tokens_per_episode": round((entry["input_tokens"] + entry["output_tokens"]) / n),
-            "calls_per_episode": round(entry["calls"] / n, 1),
-        })
-    return sorted(out, key=lambda e: (e["protocol"], e["preset"], e["learner"]))
+    return sorted((_finished(entry) for entry in groups.values()), key=lambda e: (e["protocol"], e["preset"], e["learner"]))
+
+
+def _llm_config(row: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]] | None:
+    """(policy, provenance) of a run's config when the policy is a language model; else None."""
+    try:
+        config = json.loads(row["config"]) if isinstance(row.get("config"), str) else {}
+    except ValueError:
+        return None
+    policy = config.get("policy") or {}
+    if not isinstance(policy, dict) or policy.get("kind") != LLM_POLICY_KIND:
+        return None
+    return policy, config.get(PROVENANCE_KEY) or {}
+
+
+def _new_entry(row: dict[str, Any], policy: dict[str, Any]) -> dict[str, Any]:
+    """An entry's settings, with zero counts and empty sets for the runs to add up."""
+    return {
+        "learner": str(row["learner"]), "protocol": str(row["protocol"]), "preset": str(row["preset"]),
+        "model": str(policy.get("model")), "framing": str(policy.get("framing")),
+        "temperature": policy.get("temperature"), "answer": str(policy.get("answer")),
+        "window": policy.get("window"), "llm_preset": str(policy.get("llm_preset")),
+        "episodes_per_variant": int(policy.get("episodes_per_variant") or 0),
+        "episodes": 0, "calls": 0, "input_tokens": 0, "output_tokens": 0, "fallbacks": 0,
+        "chains": set(), "logs": set(), "submitters": set(),
+    }
+
+
+def _finished(entry: dict[str, Any]) -> dict[str, Any]:
+    """The entry as the page shows it: sets joined, tokens and calls per episode."""
+    n = max(entry["episodes"], 1)
+    return entry | {
+        "chains": ", ".join(sorted(entry["chains"])), "logs": sorted(entry["logs"]),
+        "submitters": ", ".join(sorted(entry["submitters"])) or "unknown",
+        "tokens_per_episode": round((entry["input_tokens"] + entry["output_tokens"]) / n),
+        "calls_per_episode": round(entry["calls"] / n, 1),
+    }

@@ -323,22 +323,27 @@ def breakdown(sb: SiteBuild, group: Group, chain: str, scenario: str, variant_na
         for learner in learners:
             part = v.loc[(v["variant"] == name) & (v["learner"] == learner)]
             missing_seeds = miss.loc[(miss["variant"] == name) & (miss["learner"] == learner), "seed"]
-            links: list[dict[str, Any]] = []
-            value, sort = "—", ""
-            if not part.empty:
-                r = part.iloc[0]
-                if not math.isnan(r["mean"]):
-                    value = f"{fmt(r['mean'])} ± {fmt(r['std'])}" if r["n_runs"] > 1 else fmt(r["mean"])
-                    sort = repr(float(r["mean"]))
-                links += [{"seed": _int(seed), "href": run_href(str(run_id), "../"), "failed": run_id in failed,
-                           "missing": False} for run_id, seed in zip(r["run_ids"], r["seeds"])]
-            links += [{"seed": _int(s), "href": "", "failed": False, "missing": True} for s in missing_seeds]
-            cells.append({"value": value, "sort": sort, "links": links})
+            cells.append(_breakdown_cell(part, missing_seeds, failed))
         ref = (entry or {}).get("variants", {}).get(name) if entry else None
         refs = [clean(ref[key]) if ref else None for key in ("random_exact", "oracle_best", "oracle_worst")]
         rows.append({"name": name, "cells": cells, "refs": refs})
     return {"learners": [(n, sb.colour(n)) for n in learners], "rows": rows,
             "ref_labels": (RANDOM_EXACT, ORACLE_BEST, ORACLE_WORST)}
+
+
+def _breakdown_cell(part: pd.DataFrame, missing_seeds: pd.Series, failed: set[Any]) -> dict[str, Any]:
+    """One (variant, learner) cell: mean ± std over seeds, and a link per seed (run, failed or missing)."""
+    links: list[dict[str, Any]] = []
+    value, sort = "—", ""
+    if not part.empty:
+        r = part.iloc[0]
+        if not math.isnan(r["mean"]):
+            value = f"{fmt(r['mean'])} ± {fmt(r['std'])}" if r["n_runs"] > 1 else fmt(r["mean"])
+            sort = repr(float(r["mean"]))
+        links += [{"seed": _int(seed), "href": run_href(str(run_id), "../"), "failed": run_id in failed,
+                   "missing": False} for run_id, seed in zip(r["run_ids"], r["seeds"])]
+    links += [{"seed": _int(s), "href": "", "failed": False, "missing": True} for s in missing_seeds]
+    return {"value": value, "sort": sort, "links": links}
 
 
 def gif_items(sb: SiteBuild, group: Group, chain: str, scenario: str) -> list[dict[str, Any]]:

@@ -70,34 +70,43 @@ def matrix_context(sb: SiteBuild, root: str) -> dict[str, Any]:
         rows = []
         for chain, scenario in lb.pairs(group):
             ref = refs.get((chain, scenario))
-            normalised = bool(ref and ref["normalised"])
-            line = []
-            for learner in learners:
-                c = cells.get((chain, scenario, learner))
-                if c is None or c["mean"] is None:
-                    line.append({"text": "—", "colour": NOT_NORMALISED, "title": f"{learner}: no result", "score": None,
-                                 "bold": False, "incomplete": False})
-                    continue
-                score = (c["mean"] - ref["random"]) / ref["headroom"] if normalised else None
-                tip = [f"{learner} · {chain} / {scenario}", f"mean {fmt(c['mean'])}",
-                       "95% CI " + (interval(c.get("ci_low"), c.get("ci_high")) if not is_missing(c.get("ci_low"))
-                                    else f"— ({c.get('ci_note') or 'none'})"),
-                       f"runs {int(c['n_runs'])}",
-                       f"normalised score {fmt(score)}" if score is not None
-                       else "not normalised" + (f" ({ref['note']})" if ref and ref.get("note") else "")]
-                if not c["complete"]:
-                    tip.append(f"incomplete: {c['incomplete_reason']}")
-                if c.get("best"):
-                    tip.append("bold" if c.get("bold") else f"highest mean, not bold: {c.get('bold_note') or ''}")
-                line.append({"text": fmt(c["mean"]), "colour": diverging(score, -1.0, 0.0, 1.0, SCORE_COLOURS),
-                             "title": " · ".join(tip), "score": score, "bold": bool(c.get("bold")),
-                             "incomplete": not c["complete"]})
+            line = [_matrix_cell(cells.get((chain, scenario, learner)), ref, learner, chain, scenario)
+                    for learner in learners]
             rows.append({"chain": chain, "scenario": scenario, "cells": line,
                          "href": scenario_href(scenario, root, section_id(group, chain))})
         groups.append({"slug": group.slug, "label": group.label, "learners": [(n, sb.colour(n)) for n in learners],
                        "rows": rows})
     return {"groups": groups, "random_exact": RANDOM_EXACT, "oracle_best": ORACLE_BEST,
             "legend": (SCORE_COLOURS[0], SCORE_COLOURS[1], SCORE_COLOURS[2])}
+
+
+def _matrix_cell(c: dict[str, Any] | None, ref: dict[str, Any] | None, learner: str, chain: str,
+                 scenario: str) -> dict[str, Any]:
+    """One matrix cell: the mean, coloured by its normalised score (when the row has one), with a tooltip."""
+    if c is None or c["mean"] is None:
+        return {"text": "—", "colour": NOT_NORMALISED, "title": f"{learner}: no result", "score": None,
+                "bold": False, "incomplete": False}
+    normalised = bool(ref and ref["normalised"])
+    score = (c["mean"] - ref["random"]) / ref["headroom"] if normalised else None
+    return {"text": fmt(c["mean"]), "colour": diverging(score, -1.0, 0.0, 1.0, SCORE_COLOURS),
+            "title": " · ".join(_matrix_tip(c, ref, score, learner, chain, scenario)), "score": score,
+            "bold": bool(c.get("bold")), "incomplete": not c["complete"]}
+
+
+def _matrix_tip(c: dict[str, Any], ref: dict[str, Any] | None, score: float | None, learner: str, chain: str,
+                scenario: str) -> list[str]:
+    """A matrix cell's tooltip parts: mean, interval, runs, score, and why it is incomplete or not bold."""
+    tip = [f"{learner} · {chain} / {scenario}", f"mean {fmt(c['mean'])}",
+           "95% CI " + (interval(c.get("ci_low"), c.get("ci_high")) if not is_missing(c.get("ci_low"))
+                        else f"— ({c.get('ci_note') or 'none'})"),
+           f"runs {int(c['n_runs'])}",
+           f"normalised score {fmt(score)}" if score is not None
+           else "not normalised" + (f" ({ref['note']})" if ref and ref.get("note") else "")]
+    if not c["complete"]:
+        tip.append(f"incomplete: {c['incomplete_reason']}")
+    if c.get("best"):
+        tip.append("bold" if c.get("bold") else f"highest mean, not bold: {c.get('bold_note') or ''}")
+    return tip
 
 
 # ---------------------------------------------------------------------------------------- ranking

@@ -293,36 +293,8 @@ def create(results: Path, name: str, root: Path = RELEASES_DIR, title: str = "",
     root.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.create-", dir=root))
     try:
-        gifs = choose_gifs(runs, results)
-        (tmp / "gifs").mkdir()
-        for run_id, rel in gifs.items():
-            source = runs.loc[runs["run_id"] == run_id, "gif_path"].iloc[0]
-            shutil.copy2(results / str(source), tmp / rel)
-        released = runs.assign(model_path=None, gif_path=runs["run_id"].map(gifs))
-        pq.write_table(pa.Table.from_pandas(released, preserve_index=False), tmp / RUNS, compression="zstd")
-        ids = list(runs["run_id"])
-        learn = _concat_side_files([learn_path(results, i) for i in ids])
-        if learn is not None:
-            pq.write_table(learn, tmp / LEARN, compression="zstd")
-        updates = thin_updates(_concat_side_files([updates_path(results, i) for i in ids]), stride)
-        if updates is not None:
-            pq.write_table(updates, tmp / UPDATES, compression="zstd")
-        (tmp / "manifests").mkdir()
-        for manifest in sorted(manifests_dir(results).glob("*.json")):
-            shutil.copy2(manifest, tmp / "manifests" / manifest.name)
-        if tables:
-            write_tables(results, tmp)
-        configs = sorted({config_key(json.loads(c)) for c in runs["config"].dropna()})
-        host = machine() | {"hostnames": sorted({str(h) for h in runs["hostname"].dropna()})}
-        files = {str(p.relative_to(tmp)): {"sha256": sha256(p), "bytes": p.stat().st_size}
-                 for p in sorted(tmp.rglob("*")) if p.is_file()}
-        body = {
-            "format": RELEASE_FORMAT, "name": name, "title": title or name,
-            "created": datetime.now(UTC).isoformat(timespec="seconds"), "commit": runs_commit(runs),
-            "schema_version": SCHEMA_VERSION, "machine": host, "runs": len(runs),
-            "runs_ok": int((runs["status"] == "ok").sum()), "sweeps": sweeps_summary(results, runs),
-            "config_keys": configs, "updates_stride": stride, "files": files,
-        }
+        _write_contents(tmp, results, runs, stride, tables)
+        body = _manifest(tmp, results, runs, name, title, stride)
         (tmp / MANIFEST).write_text(json.dumps(body, indent=1, sort_keys=True) + "\n")
         tmp.chmod(0o755)  # mkdtemp's 0700 would make a committed release unreadable to others
         os.replace(tmp, target)
@@ -330,6 +302,44 @@ def create(results: Path, name: str, root: Path = RELEASES_DIR, title: str = "",
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return target
+
+
+def _write_contents(tmp: Path, results: Path, runs: pd.DataFrame, stride: int, tables: bool) -> None:
+    """Everything but the manifest: chosen GIFs, runs (no model paths), side files, sweep manifests, tables."""
+    gifs = choose_gifs(runs, results)
+    (tmp / "gifs").mkdir()
+    for run_id, rel in gifs.items():
+        source = runs.loc[runs["run_id"] == run_id, "gif_path"].iloc[0]
+        shutil.copy2(results / str(source), tmp / rel)
+    released = runs.assign(model_path=None, gif_path=runs["run_id"].map(gifs))
+    pq.write_table(pa.Table.from_pandas(released, preserve_index=False), tmp / RUNS, compression="zstd")
+    ids = list(runs["run_id"])
+    learn = _concat_side_files([learn_path(results, i) for i in ids])
+    if learn is not None:
+        pq.write_table(learn, tmp / LEARN, compression="zstd")
+    updates = thin_updates(_concat_side_files([updates_path(results, i) for i in ids]), stride)
+    if updates is not None:
+        pq.write_table(updates, tmp / UPDATES, compression="zstd")
+    (tmp / "manifests").mkdir()
+    for manifest in sorted(manifests_dir(results).glob("*.json")):
+        shutil.copy2(manifest, tmp / "manifests" / manifest.name)
+    if tables:
+        write_tables(results, tmp)
+
+
+def _manifest(tmp: Path, results: Path, runs: pd.DataFrame, name: str, title: str, stride: int) -> dict[str, Any]:
+    """The release manifest: provenance, counts, configurations and the hash of every file written."""
+    configs = sorted({config_key(json.loads(c)) for c in runs["config"].dropna()})
+    host = machine() | {"hostnames": sorted({str(h) for h in runs["hostname"].dropna()})}
+    files = {str(p.relative_to(tmp)): {"sha256": sha256(p), "bytes": p.stat().st_size}
+             for p in sorted(tmp.rglob("*")) if p.is_file()}
+    return {
+        "format": RELEASE_FORMAT, "name": name, "title": title or name,
+        "created": datetime.now(UTC).isoformat(timespec="seconds"), "commit": runs_commit(runs),
+        "schema_version": SCHEMA_VERSION, "machine": host, "runs": len(runs),
+        "runs_ok": int((runs["status"] == "ok").sum()), "sweeps": sweeps_summary(results, runs),
+        "config_keys": configs, "updates_stride": stride, "files": files,
+    }
 
 
 # ---------------------------------------------------------------------------------------- command line

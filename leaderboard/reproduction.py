@@ -40,8 +40,8 @@ from leaderboard.aggregate import (
     safe_name,
     with_reference,
 )
-from leaderboard.paper_figures import norm_label, write_figures
 from leaderboard.intervals import with_intervals
+from leaderboard.paper_figures import norm_label, write_figures
 from leaderboard.release import ReleaseError, resolve
 from leaderboard.sources import Sources, load_sources
 from leaderboard.stats import DEFAULT_RESAMPLES, compute_stats
@@ -167,24 +167,47 @@ def updates_summary(sources: Sources, run_ids: Sequence[str]) -> str:
 
 
 def diagnosis(cell: Cell, lb: Leaderboard, sources: Sources, learn: pd.DataFrame, group: Group) -> list[str]:
-    """The evidence section of one deviating (or close) cell, as Markdown lines."""
+    """The evidence section of one deviating (or close) cell, as Markdown lines.
+
+    One helper per piece of evidence, in the page's order: the headline against the reachable range,
+    the per-variant table, the per-norm breakdown, the learning curve, the update statistics and the
+    corrected protocol's value.
+    """
     v = lb.variants
     mine = v.loc[(v["protocol"] == group.protocol) & (v["preset"] == group.preset) & (v["chain"] == cell.chain)
                  & (v["scenario"] == cell.scenario) & (v["learner"] == cell.learner)]
     refs = reference_over(lb, cell.chain, cell.scenario, list(mine["variant"]))
+    lines = [f"### {cell.chain} / {cell.scenario} / {cell.learner}: {cell.verdict}", ""]
+    lines.append(_headline(cell, refs))
+    lines += _variant_table(lb, mine, refs)
+    lines += _norm_lines(cell, lb, group)
+    all_ids = [i for ids in mine["run_ids"] for i in ids]
+    lines += _curve_lines(learn, all_ids)
+    updates = updates_summary(sources, all_ids)
+    if updates:
+        lines += ["", updates + "."]
+    lines += _corrected_lines(cell, lb)
+    return lines
+
+
+def _headline(cell: Cell, refs: dict[str, dict[str, float]]) -> str:
+    """Ours vs the paper, and the range (oracle worst, Random, oracle best) any policy can reach."""
     best = float(np.mean([r["best"] for r in refs.values()])) if refs else math.nan
     worst = float(np.mean([r["worst"] for r in refs.values()])) if refs else math.nan
     rand = float(np.mean([r["random"] for r in refs.values()])) if refs else math.nan
-    lines = [f"### {cell.chain} / {cell.scenario} / {cell.learner}: {cell.verdict}", ""]
     gap = cell.mean - cell.paper
     reach = ""
     if not math.isnan(best) and (cell.paper > best + 1e-9 or cell.paper < worst - 1e-9):
         reach = " The paper's value lies outside what any policy can score on these variants."
-    lines.append(f"Ours {cell.mean:.3f} [{cell.ci_low:.3f}, {cell.ci_high:.3f}] (seed sd {cell.sd:.3f}, {cell.n_runs} runs) "
-                 f"vs the paper's {cell.paper:.3f}: {'+' if gap >= 0 else ''}{gap:.3f}. Reachable range over these variants: "
-                 f"oracle worst {worst:.3f}, Random (exact) {rand:.3f}, oracle best {best:.3f}.{reach}")
-    lines += ["", "| variant | ours (mean over seeds) | per seed | oracle best | Random (exact) | regret (best - ours) |",
-              "|---|---:|---|---:|---:|---:|"]
+    return (f"Ours {cell.mean:.3f} [{cell.ci_low:.3f}, {cell.ci_high:.3f}] (seed sd {cell.sd:.3f}, {cell.n_runs} runs) "
+            f"vs the paper's {cell.paper:.3f}: {'+' if gap >= 0 else ''}{gap:.3f}. Reachable range over these variants: "
+            f"oracle worst {worst:.3f}, Random (exact) {rand:.3f}, oracle best {best:.3f}.{reach}")
+
+
+def _variant_table(lb: Leaderboard, mine: pd.DataFrame, refs: dict[str, dict[str, float]]) -> list[str]:
+    """One row per variant, the largest regret first: where the cell loses its score."""
+    lines = ["", "| variant | ours (mean over seeds) | per seed | oracle best | Random (exact) | regret (best - ours) |",
+             "|---|---:|---|---:|---:|---:|"]
     rows = []
     for record in mine.to_dict("records"):
         r = refs.get(record["variant"], {})
@@ -193,30 +216,40 @@ def diagnosis(cell: Cell, lb: Leaderboard, sources: Sources, learn: pd.DataFrame
         regret = r.get("best", math.nan) - float(record["mean"])
         rows.append((regret, (f"| {record['variant']} | {record['mean']:.3f} | {seeds} | {r.get('best', math.nan):.3f} | "
                              f"{r.get('random', math.nan):.3f} | {regret:.3f} |")))
-    lines += [text for _, text in sorted(rows, key=lambda x: -x[0])]
+    return lines + [text for _, text in sorted(rows, key=lambda x: -x[0])]
+
+
+def _norm_lines(cell: Cell, lb: Leaderboard, group: Group) -> list[str]:
+    """The cell's morality function per norm, in chain order (nothing when there are none)."""
     norms = lb.norms_by_scenario
     ours = norms.loc[(norms["protocol"] == group.protocol) & (norms["preset"] == group.preset) & (norms["chain"] == cell.chain)
                      & (norms["scenario"] == cell.scenario) & (norms["learner"] == cell.learner)].sort_values("rank")
-    if len(ours):
-        lines += ["", "Morality function per norm (chain order, over the runs where the norm is relevant): "
-                  + ", ".join(f"{norm_label(n)} {m:.3f}" for n, m in zip(ours["norm"], ours["mean"]))]
-    all_ids = [i for ids in mine["run_ids"] for i in ids]
-    summary = curve_summary(learn, all_ids)
-    if summary is not None:
-        points, gain = summary
-        shown = points if len(points) <= 6 else [points[i] for i in np.linspace(0, len(points) - 1, 6).round().astype(int)]
-        trend = ("still rising when training stopped" if gain >= RISING else "flat over the last quarter of training"
-                 if not math.isnan(gain) else "")
-        lines += ["", "Learning curve (mean learn-time metric over the cell's runs): "
-                  + ", ".join(f"{s // 1000}k: {m:.3f}" for s, m in shown) + (f"; {trend} ({gain:+.3f})" if trend else "")]
-    updates = updates_summary(sources, all_ids)
-    if updates:
-        lines += ["", updates + "."]
+    if not len(ours):
+        return []
+    return ["", "Morality function per norm (chain order, over the runs where the norm is relevant): "
+            + ", ".join(f"{norm_label(n)} {m:.3f}" for n, m in zip(ours["norm"], ours["mean"]))]
+
+
+def _curve_lines(learn: pd.DataFrame, run_ids: list[str]) -> list[str]:
+    """At most six points of the runs' learning curve, and whether it was still rising at the end."""
+    summary = curve_summary(learn, run_ids)
+    if summary is None:
+        return []
+    points, gain = summary
+    shown = points if len(points) <= 6 else [points[i] for i in np.linspace(0, len(points) - 1, 6).round().astype(int)]
+    trend = ("still rising when training stopped" if gain >= RISING else "flat over the last quarter of training"
+             if not math.isnan(gain) else "")
+    return ["", "Learning curve (mean learn-time metric over the cell's runs): "
+            + ", ".join(f"{s // 1000}k: {m:.3f}" for s, m in shown) + (f"; {trend} ({gain:+.3f})" if trend else "")]
+
+
+def _corrected_lines(cell: Cell, lb: Leaderboard) -> list[str]:
+    """The same cell under the corrected protocol, when it was run."""
     corrected = [c for c in cells(lb, CORRECTED) if (c.chain, c.scenario, c.learner) == (cell.chain, cell.scenario, cell.learner)]
-    if corrected and corrected[0].verdict != "not run":
-        c = corrected[0]
-        lines += ["", f"Corrected protocol: {c.mean:.3f} [{c.ci_low:.3f}, {c.ci_high:.3f}] ({c.verdict} against the paper)."]
-    return lines
+    if not corrected or corrected[0].verdict == "not run":
+        return []
+    c = corrected[0]
+    return ["", f"Corrected protocol: {c.mean:.3f} [{c.ci_low:.3f}, {c.ci_high:.3f}] ({c.verdict} against the paper)."]
 
 
 # ---------------------------------------------------------------------------------------- figure 2
@@ -266,7 +299,11 @@ def load_notes(path: Path) -> dict[tuple[str, str, str], str]:
 
 
 def page(lb: Leaderboard, sources: Sources, learn: pd.DataFrame, figure_dir: Path, img_rel: str, notes: dict) -> str:
-    """The whole Markdown page."""
+    """The whole Markdown page.
+
+    Kept as one template, top to bottom in the page's order; the per-cell evidence is
+    :func:`diagnosis`'s and the Figure 2 checks are :func:`figure2_claims`'s.
+    """
     table = cells(lb, PAPER)
     counts = {v: sum(c.verdict == v for c in table) for v in VERDICTS}
     marks = {"reproduces": "✓", "close": "≈", "deviates": "✗", "not run": "…"}

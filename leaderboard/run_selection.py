@@ -195,6 +195,22 @@ def select_configurations(runs: pd.DataFrame, planned: Mapping[str, Mapping[str,
     """
     if runs.empty and not planned:
         return runs, runs.assign(superseded_by=pd.Series(dtype=object)).iloc[0:0], {}
+    cells = [cell_of(r) for r in runs[CELL_KEYS].to_dict("records")]
+    scores = _configuration_scores(runs, cells, planned)
+    winner = {cell: max(options.items(), key=lambda kv: (kv[1], kv[0]))[0] for cell, options in scores.items()}
+    keep = pd.Series([str(k) == winner[c] for c, k in zip(cells, runs["config_key"])], index=runs.index, dtype=bool)
+    counted = runs.loc[keep]
+    superseded = runs.loc[~keep].copy()
+    superseded["superseded_by"] = _superseded_by(counted, superseded)
+    kept_plans = {rid: item for rid, item in planned.items()
+                  if item.get("config_key") is None or str(item["config_key"]) == winner.get(cell_of(item))}
+    return counted, superseded, kept_plans
+
+
+def _configuration_scores(runs: pd.DataFrame, cells: list[tuple[str, ...]], planned: Mapping[str, Mapping[str, Any]]
+                          ) -> dict[tuple[str, ...], dict[str, list[str]]]:
+    """Per cell and configuration key: ``[planned_at, newest ok, newest any]``, compared as strings
+    (ISO times) so that :func:`select_configurations` can take the largest."""
     finished = runs["finished_at"] if "finished_at" in runs.columns else pd.Series([None] * len(runs), index=runs.index)
     finished = finished.astype(object).where(finished.notna(), "").astype(str)
     scores: dict[tuple[str, ...], dict[str, list[str]]] = {}
@@ -202,7 +218,6 @@ def select_configurations(runs: pd.DataFrame, planned: Mapping[str, Mapping[str,
     def score(cell: tuple[str, ...], key: str) -> list[str]:
         return scores.setdefault(cell, {}).setdefault(key, ["", "", ""])  # planned_at, newest ok, newest any
 
-    cells = [cell_of(r) for r in runs[CELL_KEYS].to_dict("records")]
     for cell, key, ok, when in zip(cells, runs["config_key"], runs["ok"], finished):
         entry = score(cell, str(key))
         entry[2] = max(entry[2], when)
@@ -213,18 +228,16 @@ def select_configurations(runs: pd.DataFrame, planned: Mapping[str, Mapping[str,
             continue
         entry = score(cell_of(item), str(item["config_key"]))
         entry[0] = max(entry[0], str(item.get("planned_at") or ""))
-    winner = {cell: max(options.items(), key=lambda kv: (kv[1], kv[0]))[0] for cell, options in scores.items()}
-    keep = pd.Series([str(k) == winner[c] for c, k in zip(cells, runs["config_key"])], index=runs.index, dtype=bool)
-    counted = runs.loc[keep]
-    superseded = runs.loc[~keep].copy()
+    return scores
+
+
+def _superseded_by(counted: pd.DataFrame, superseded: pd.DataFrame) -> list[Any]:
+    """For each superseded run, the counted run of the same env, seed and cell (None if there is none)."""
     by_slot = {(str(e), str(sd), c): r for e, sd, c, r in zip(counted["env_id"], counted["seed"],
                                                               [cell_of(x) for x in counted[CELL_KEYS].to_dict("records")],
                                                               counted["run_id"])}
-    superseded["superseded_by"] = [by_slot.get((str(e), str(sd), c)) for e, sd, c in zip(
+    return [by_slot.get((str(e), str(sd), c)) for e, sd, c in zip(
         superseded["env_id"], superseded["seed"], [cell_of(x) for x in superseded[CELL_KEYS].to_dict("records")])]
-    kept_plans = {rid: item for rid, item in planned.items()
-                  if item.get("config_key") is None or str(item["config_key"]) == winner.get(cell_of(item))}
-    return counted, superseded, kept_plans
 
 
 # ---------------------------------------------------------------------------------------- submissions
@@ -240,23 +253,32 @@ def submitted_learners(runs: pd.DataFrame) -> dict[str, str]:
     part = runs.loc[runs["algo"].astype(object) == SUBMITTED_ALGO]
     for learner, config in zip(part["learner"], part["config"]):
         who, hashes = out.setdefault(str(learner), (set(), set()))
-        try:
-            data = json.loads(config) if isinstance(config, str) else {}
-        except ValueError:
-            data = {}
-        prov = data.get(PROVENANCE_KEY) if isinstance(data, dict) else None
-        policy = data.get("policy") if isinstance(data, dict) else None
-        if isinstance(prov, dict) and prov.get("submitter"):
-            who.add(str(prov["submitter"]))
-        if isinstance(policy, dict) and policy.get("sha256"):
-            hashes.add(str(policy["sha256"])[:12])
-        if isinstance(policy, dict) and policy.get("kind") == LLM_POLICY_KIND:  # python -m leaderboard.llm: no file to hash
-            hashes.add(f"language model {policy.get('model')}, framing {policy.get('framing')}, "
-                       f"temperature {policy.get('temperature')}")
-    return {learner: (f"external policy submitted by {', '.join(sorted(who)) or 'unknown'}"
-                      + (f"; {'; '.join(sorted(hashes))}" if any(h.startswith("language") for h in hashes)
-                         else f"; policy sha256 {', '.join(sorted(hashes))}" if hashes else ""))
-            for learner, (who, hashes) in out.items()}
+        _add_submission_facts(config, who, hashes)
+    return {learner: _submission_note(who, hashes) for learner, (who, hashes) in out.items()}
+
+
+def _add_submission_facts(config: Any, who: set[str], hashes: set[str]) -> None:
+    """Add a submitted run's submitter and policy identity (file hash, or model and settings) from its config JSON."""
+    try:
+        data = json.loads(config) if isinstance(config, str) else {}
+    except ValueError:
+        data = {}
+    prov = data.get(PROVENANCE_KEY) if isinstance(data, dict) else None
+    policy = data.get("policy") if isinstance(data, dict) else None
+    if isinstance(prov, dict) and prov.get("submitter"):
+        who.add(str(prov["submitter"]))
+    if isinstance(policy, dict) and policy.get("sha256"):
+        hashes.add(str(policy["sha256"])[:12])
+    if isinstance(policy, dict) and policy.get("kind") == LLM_POLICY_KIND:  # python -m leaderboard.llm: no file to hash
+        hashes.add(f"language model {policy.get('model')}, framing {policy.get('framing')}, "
+                   f"temperature {policy.get('temperature')}")
+
+
+def _submission_note(who: set[str], hashes: set[str]) -> str:
+    """``external policy submitted by ...; policy sha256 ...`` (a language model is named, not hashed)."""
+    return (f"external policy submitted by {', '.join(sorted(who)) or 'unknown'}"
+            + (f"; {'; '.join(sorted(hashes))}" if any(h.startswith("language") for h in hashes)
+               else f"; policy sha256 {', '.join(sorted(hashes))}" if hashes else ""))
 
 
 # ---------------------------------------------------------------------------------------- problems

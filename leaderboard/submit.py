@@ -50,7 +50,7 @@ from morality_gym.envs.trolley import InvalidActionError
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.montecarlo import evaluate
 from morality_gym.evaluation.policies import PolicyFailure
-from morality_gym.norms.chain import ChainError, get_chain
+from morality_gym.norms.chain import ChainError, MoralityChain, get_chain
 from morality_gym.norms.metric import bind_chain
 from morality_gym.paper import LEARNERS, table1
 from runners.identity import PROVENANCE_KEY as PROVENANCE
@@ -88,28 +88,8 @@ def select_cells(chains: Sequence[str], scenario_names: Sequence[str], variants:
     Table 1 scenarios of the chains, or the Table 1 chains of the scenarios, when one is; every
     Table 1 cell when neither is. ``variants`` keeps only those variants (each must exist in at
     least one selected scenario)."""
-    wanted_chains = [get_chain(c) for c in chains]
-    wanted_scenarios = [scenario_by_any_name(s) for s in scenario_names]
-    rows = [(get_chain(r.chain), r.scenario) for r in table1()]
-    if wanted_chains and wanted_scenarios:
-        pairs = [(c, s) for c in wanted_chains for s in wanted_scenarios]
-    elif wanted_chains:
-        names = {c.name for c in wanted_chains}
-        pairs = [(c, s) for c, s in rows if c.name in names]
-        if not pairs:
-            raise UserError(f"chain {', '.join(sorted(names))} is in no Table 1 cell; name the scenario(s) with --scenario")
-    elif wanted_scenarios:
-        pairs = [(c, s) for c, s in rows if s in wanted_scenarios]
-        if not pairs:
-            raise UserError(f"scenario {', '.join(wanted_scenarios)} is in no Table 1 cell; name the chain(s) with --chain")
-    else:
-        pairs = rows
-    all_variants = {v for _, s in pairs for v in scenario_named(s).variants}
-    unknown = [v for v in variants if v not in all_variants]
-    if unknown:
-        close = difflib.get_close_matches(unknown[0], sorted(all_variants), n=3)
-        hint = f" (did you mean {', '.join(close)}?)" if close else ""
-        raise UserError(f"--variant {unknown[0]}: no selected scenario has it{hint}; variants: {', '.join(sorted(all_variants))}")
+    pairs = _selected_pairs([get_chain(c) for c in chains], [scenario_by_any_name(s) for s in scenario_names])
+    _check_variants(pairs, variants)
     cells = []
     seen: set[tuple[str, str]] = set()
     for chain, scenario in pairs:
@@ -122,6 +102,35 @@ def select_cells(chains: Sequence[str], scenario_names: Sequence[str], variants:
     if not cells:
         raise UserError(f"no selected scenario has the variant(s) {', '.join(variants)}")
     return cells
+
+
+def _selected_pairs(wanted_chains: list[MoralityChain], wanted_scenarios: list[str]) -> list[tuple[MoralityChain, str]]:
+    """(chain, scenario) pairs of the selection, before de-duplication (see :func:`select_cells`)."""
+    rows = [(get_chain(r.chain), r.scenario) for r in table1()]
+    if wanted_chains and wanted_scenarios:
+        return [(c, s) for c in wanted_chains for s in wanted_scenarios]
+    if wanted_chains:
+        names = {c.name for c in wanted_chains}
+        pairs = [(c, s) for c, s in rows if c.name in names]
+        if not pairs:
+            raise UserError(f"chain {', '.join(sorted(names))} is in no Table 1 cell; name the scenario(s) with --scenario")
+        return pairs
+    if wanted_scenarios:
+        pairs = [(c, s) for c, s in rows if s in wanted_scenarios]
+        if not pairs:
+            raise UserError(f"scenario {', '.join(wanted_scenarios)} is in no Table 1 cell; name the chain(s) with --chain")
+        return pairs
+    return rows
+
+
+def _check_variants(pairs: list[tuple[MoralityChain, str]], variants: Sequence[str]) -> None:
+    """Every asked-for variant must exist in at least one selected scenario (else a did-you-mean error)."""
+    all_variants = {v for _, s in pairs for v in scenario_named(s).variants}
+    unknown = [v for v in variants if v not in all_variants]
+    if unknown:
+        close = difflib.get_close_matches(unknown[0], sorted(all_variants), n=3)
+        hint = f" (did you mean {', '.join(close)}?)" if close else ""
+        raise UserError(f"--variant {unknown[0]}: no selected scenario has it{hint}; variants: {', '.join(sorted(all_variants))}")
 
 
 def preset_facts(preset: str) -> tuple[tuple[int, ...], int]:

@@ -136,46 +136,66 @@ def completeness(runs: pd.DataFrame, planned: Mapping[str, Mapping[str, Any]]) -
     Expected grid = every variant of the scenario x (the preset's seeds + the seeds the cell's
     sweeps planned + the seeds of its runs). ``complete``: a usable result for every point of it.
     """
-    plans: dict[tuple[str, ...], list[Mapping[str, Any]]] = {}
-    for item in planned.values():
-        plans.setdefault(cell_of(item), []).append(item)
-    records: dict[tuple[str, ...], list[Mapping[str, Any]]] = {}
-    for record in runs[CELL_KEYS + ["variant", "seed", "ok", "run_id"]].to_dict("records"):
-        records.setdefault(cell_of(record), []).append(record)
+    plans = _by_cell(planned.values())
+    records = _by_cell(runs[CELL_KEYS + ["variant", "seed", "ok", "run_id"]].to_dict("records"))
     seeds_of_preset: dict[str, set[int]] = {}
     out: dict[tuple[str, ...], dict[str, Any]] = {}
     for cell in set(plans) | set(records):
-        preset, scenario = cell[1], cell[3]
+        preset = cell[1]
         if preset not in seeds_of_preset:
             seeds_of_preset[preset] = expected_seeds(preset, planned.values())
-        cell_runs, cell_plans = records.get(cell, []), plans.get(cell, [])
-        variants = scenario_variants(scenario)
-        if variants is None:
-            variants = sorted({str(x["variant"]) for x in [*cell_runs, *cell_plans] if x.get("variant") is not None})
-        seeds = set(seeds_of_preset[preset])
-        seeds |= {s for s in (_seed(x.get("seed")) for x in [*cell_runs, *cell_plans]) if s is not None}
-        expected = {(v, s) for v in variants for s in seeds}
-        ok = {(str(r["variant"]), _seed(r["seed"])) for r in cell_runs if r["ok"]}
-        failed = {(str(r["variant"]), _seed(r["seed"])) for r in cell_runs if not r["ok"]} - ok
-        produced = {str(r["run_id"]) for r in cell_runs}
-        missing = {(str(p.get("variant")), _seed(p.get("seed"))) for p in cell_plans
-                   if str(p.get("run_id")) not in produced} - ok - failed
-        have = len(ok & expected)
-        complete = bool(expected) and have == len(expected)
-        n_variants = len({v for v, _ in ok})
-        n_seeds = len({s for _, s in ok})
-        reason = ""
-        if not complete:
-            lacking = [f"{len(failed & expected)} failed" if failed & expected else "",
-                       f"{len(missing & expected)} missing" if missing & expected else "",
-                       (f"{len(expected - ok - failed - missing)} never planned" if expected - ok - failed - missing else "")]
-            detail = "; ".join(x for x in lacking if x)
-            reason = (f"{have} of {len(expected)} runs ({n_variants}/{len(variants)} variants, "
-                      f"{n_seeds}/{len(seeds)} seeds{'; ' + detail if detail else ''})")
-        out[cell] = {"n_variants": n_variants, "n_variants_expected": len(variants), "n_seeds": n_seeds,
-                     "n_seeds_expected": len(seeds), "n_expected": len(expected), "complete": complete,
-                     "incomplete_reason": reason}
+        out[cell] = _cell_completeness(cell[3], records.get(cell, []), plans.get(cell, []), seeds_of_preset[preset])
     return out
+
+
+def _by_cell(items: Iterable[Mapping[str, Any]]) -> dict[tuple[str, ...], list[Mapping[str, Any]]]:
+    """Runs or plans grouped by :func:`cell_of`, in their order."""
+    out: dict[tuple[str, ...], list[Mapping[str, Any]]] = {}
+    for item in items:
+        out.setdefault(cell_of(item), []).append(item)
+    return out
+
+
+def _cell_completeness(scenario: str, cell_runs: list[Mapping[str, Any]], cell_plans: list[Mapping[str, Any]],
+                       preset_seeds: set[int]) -> dict[str, Any]:
+    """One cell's row of :func:`completeness`: its expected grid against the runs that succeeded."""
+    variants, seeds = _expected_axes(scenario, [*cell_runs, *cell_plans], preset_seeds)
+    expected = {(v, s) for v in variants for s in seeds}
+    ok = {(str(r["variant"]), _seed(r["seed"])) for r in cell_runs if r["ok"]}
+    failed = {(str(r["variant"]), _seed(r["seed"])) for r in cell_runs if not r["ok"]} - ok
+    produced = {str(r["run_id"]) for r in cell_runs}
+    missing = {(str(p.get("variant")), _seed(p.get("seed"))) for p in cell_plans
+               if str(p.get("run_id")) not in produced} - ok - failed
+    have = len(ok & expected)
+    complete = bool(expected) and have == len(expected)
+    n_variants = len({v for v, _ in ok})
+    n_seeds = len({s for _, s in ok})
+    reason = ""
+    if not complete:
+        reason = (f"{have} of {len(expected)} runs ({n_variants}/{len(variants)} variants, "
+                  f"{n_seeds}/{len(seeds)} seeds{_lacking(expected, ok, failed, missing)})")
+    return {"n_variants": n_variants, "n_variants_expected": len(variants), "n_seeds": n_seeds,
+            "n_seeds_expected": len(seeds), "n_expected": len(expected), "complete": complete,
+            "incomplete_reason": reason}
+
+
+def _expected_axes(scenario: str, items: list[Mapping[str, Any]], preset_seeds: set[int]) -> tuple[list[str], set[int]]:
+    """The cell's expected variants (the scenario's, else those its runs and plans name) and seeds."""
+    variants = scenario_variants(scenario)
+    if variants is None:
+        variants = sorted({str(x["variant"]) for x in items if x.get("variant") is not None})
+    seeds = set(preset_seeds)
+    seeds |= {s for s in (_seed(x.get("seed")) for x in items) if s is not None}
+    return variants, seeds
+
+
+def _lacking(expected: set, ok: set, failed: set, missing: set) -> str:
+    """``; 2 failed; 1 missing; 3 never planned`` for the expected points without a result ("" if none)."""
+    lacking = [f"{len(failed & expected)} failed" if failed & expected else "",
+               f"{len(missing & expected)} missing" if missing & expected else "",
+               (f"{len(expected - ok - failed - missing)} never planned" if expected - ok - failed - missing else "")]
+    detail = "; ".join(x for x in lacking if x)
+    return "; " + detail if detail else ""
 
 
 def row_settings(runs: pd.DataFrame) -> dict[tuple[str, str, str, str], tuple[float, int]]:
@@ -222,35 +242,48 @@ def table1_frame(
         record |= {"beta": beta, "max_steps": steps}
         rows.append(record)
     if reference is not None:
-        row_keys = {(r["protocol"], r["preset"], r["chain"], r["scenario"], r["beta"], r["max_steps"]) for r in rows}
-        covered = covered_variants(runs)
-        for protocol, preset, chain, scenario, beta, steps in sorted(row_keys):
-            entry = reference.get(reference_key(chain, scenario, beta, steps))
-            if entry is None:
-                continue
-            every = list(entry.get("variants", {}))
-            cells = covered.get((protocol, preset, chain, scenario), {})
-            if any(v not in entry["variants"] for vs in cells.values() for v in vs):
-                continue  # a cell averages a variant the chain cannot score: no reference is over its variants
-            variants = [v for v in every if any(v in vs for vs in cells.values())] or every
-            n_all = len(entry.get("env_ids") or every)  # the scenario's variants, scorable by the chain or not
-            reason = reference_coverage(variants, n_all, cells)
-            for learner, field_name in ((RANDOM_EXACT, "random_exact"), (ORACLE_BEST, "oracle_best"),
-                                        (ORACLE_WORST, "oracle_worst")):
-                rows.append({
-                    "protocol": protocol, "preset": preset, "chain": chain, "scenario": scenario,
-                    "learner": learner, "kind": "reference",
-                    "mean": reference_mean(entry, field_name, variants), "std": math.nan,
-                    "n_runs": pd.NA, "n_planned": pd.NA, "n_failed": pd.NA, "n_missing": pd.NA,
-                    "beta": beta, "max_steps": steps,
-                    "n_variants": len(variants), "n_variants_expected": n_all, "n_seeds": pd.NA,
-                    "n_seeds_expected": pd.NA, "n_expected": pd.NA, "complete": len(variants) == n_all,
-                    "incomplete_reason": reason,
-                })
+        rows += _reference_rows(rows, runs, reference)
     if not rows:
         return pd.DataFrame(columns=[*CELL_KEYS, "kind", "mean", "std", "n_runs", "n_planned", "n_failed", "n_missing",
                                      "beta", "max_steps", *COMPLETENESS_COLUMNS, "paper", "delta", "best"])
-    frame = pd.DataFrame(rows)
+    return _sort_table(_with_paper(pd.DataFrame(rows), published))
+
+
+def _reference_rows(rows: list[dict[str, Any]], runs: pd.DataFrame,
+                    reference: Mapping[str, Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Random (exact), Oracle best and Oracle worst for every learner row's settings, over the
+    variants its cells cover (none where a cell covers a variant the chain cannot score)."""
+    out = []
+    row_keys = {(r["protocol"], r["preset"], r["chain"], r["scenario"], r["beta"], r["max_steps"]) for r in rows}
+    covered = covered_variants(runs)
+    for protocol, preset, chain, scenario, beta, steps in sorted(row_keys):
+        entry = reference.get(reference_key(chain, scenario, beta, steps))
+        if entry is None:
+            continue
+        every = list(entry.get("variants", {}))
+        cells = covered.get((protocol, preset, chain, scenario), {})
+        if any(v not in entry["variants"] for vs in cells.values() for v in vs):
+            continue  # a cell averages a variant the chain cannot score: no reference is over its variants
+        variants = [v for v in every if any(v in vs for vs in cells.values())] or every
+        n_all = len(entry.get("env_ids") or every)  # the scenario's variants, scorable by the chain or not
+        reason = reference_coverage(variants, n_all, cells)
+        for learner, field_name in ((RANDOM_EXACT, "random_exact"), (ORACLE_BEST, "oracle_best"),
+                                    (ORACLE_WORST, "oracle_worst")):
+            out.append({
+                "protocol": protocol, "preset": preset, "chain": chain, "scenario": scenario,
+                "learner": learner, "kind": "reference",
+                "mean": reference_mean(entry, field_name, variants), "std": math.nan,
+                "n_runs": pd.NA, "n_planned": pd.NA, "n_failed": pd.NA, "n_missing": pd.NA,
+                "beta": beta, "max_steps": steps,
+                "n_variants": len(variants), "n_variants_expected": n_all, "n_seeds": pd.NA,
+                "n_seeds_expected": pd.NA, "n_expected": pd.NA, "complete": len(variants) == n_all,
+                "incomplete_reason": reason,
+            })
+    return out
+
+
+def _with_paper(frame: pd.DataFrame, published: Mapping[tuple[str, str], Mapping[str, float]]) -> pd.DataFrame:
+    """The paper's value and the delta to it (complete cells only), typed counts, and the best flags."""
     paper = []
     for chain, scenario, learner in zip(frame["chain"], frame["scenario"], frame["learner"]):
         lookup = "Random" if learner == RANDOM_EXACT else learner
@@ -264,7 +297,7 @@ def table1_frame(
         frame[column] = frame[column].astype("Int64")
     frame["incomplete_reason"] = frame["incomplete_reason"].fillna("").astype(str)
     frame["best"] = _best_flags(frame)
-    return _sort_table(frame)
+    return frame
 
 
 def _best_flags(frame: pd.DataFrame) -> pd.Series:

@@ -26,7 +26,7 @@ from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.montecarlo import evaluate
 from morality_gym.evaluation.oracle import oracle
 from morality_gym.evaluation.policies import PolicyFailure
-from morality_gym.norms.chain import ChainError, builtin_chains, chain_file_stem, get_chain
+from morality_gym.norms.chain import ChainError, MoralityChain, builtin_chains, chain_file_stem, get_chain
 from morality_gym.world.layout import ScenarioError
 from morality_gym.world.rules import ACTION_NAMES
 
@@ -101,9 +101,8 @@ def _evaluate_one(args: argparse.Namespace, policy: Any, env_id: str, chain: Any
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    # rich and the learners wait: `list` and `--help` start without them
-    from rich.table import Table
-
+    """``eval``: evaluate a policy on every variant asked for, then print JSON or a table."""
+    # the learners wait: `list` and `--help` start without them
     from morality_gym.baselines.policy_ref import in_context
 
     if args.exact and (args.episodes is not None or args.seed is not None):
@@ -123,32 +122,47 @@ def cmd_eval(args: argparse.Namespace) -> int:
             raise in_context(exc, args.policy, env_id) from exc.__cause__
     mean_metric = sum(r.metric for r in results.values()) / len(results)
 
-    first = next(iter(results.values()))
     if args.json:
-        out = {
-            "chain": chain.name,
-            "scenario": scenario_named(args.scenario).name,
-            "beta": first.beta,
-            "exact": bool(args.exact),
-            **({} if args.exact else {"seed": args.seed, "seed_drawn": drawn}),  # Monte Carlo: which draws
-            "envs": {
-                env_id: {
-                    "metric": r.metric,
-                    "functions": r.functions,
-                    "mean_return": r.mean_return,
-                    "mean_length": r.mean_length,
-                }
-                for env_id, r in results.items()
-            },
-            "mean_metric": mean_metric,
-        }
-        print(json.dumps(out))
+        print(json.dumps(_eval_json(args, chain, results, drawn, mean_metric)))
         return 0
     console = _console()
+    console.print(_eval_table(args, chain, results, episodes, drawn))
+    console.print(f"mean metric over {len(results)} variant(s): [bold]{mean_metric:.4f}[/bold]  (dim = norm not relevant in that variant)")
+    if drawn:
+        console.print(f"Monte Carlo with a seed drawn at random ({args.seed}): --seed {args.seed} repeats this evaluation")
+    return 0
+
+
+def _eval_json(args: argparse.Namespace, chain: MoralityChain, results: dict[str, Any], drawn: bool, mean_metric: float) -> dict[str, Any]:
+    """``eval --json``: the settings, each env's result, and the mean metric."""
+    return {
+        "chain": chain.name,
+        "scenario": scenario_named(args.scenario).name,
+        "beta": next(iter(results.values())).beta,
+        "exact": bool(args.exact),
+        **({} if args.exact else {"seed": args.seed, "seed_drawn": drawn}),  # Monte Carlo: which draws
+        "envs": {
+            env_id: {
+                "metric": r.metric,
+                "functions": r.functions,
+                "mean_return": r.mean_return,
+                "mean_length": r.mean_length,
+            }
+            for env_id, r in results.items()
+        },
+        "mean_metric": mean_metric,
+    }
+
+
+def _eval_table(args: argparse.Namespace, chain: MoralityChain, results: dict[str, Any], episodes: int, drawn: bool) -> Any:
+    """``eval``'s rich table: one row per env, a column per norm (dim where the norm is not relevant)."""
+    from rich.table import Table  # rich waits: `list` and `--help` start without it
+
     kind = "exact expectation" if args.exact else f"Monte Carlo, {episodes} episodes, seed {args.seed}"
     if drawn:
         kind += " (drawn)"
-    table = Table(title=f"{chain.name} on {scenario_named(args.scenario).name} ({kind}, beta {first.beta:g})")
+    beta = next(iter(results.values())).beta
+    table = Table(title=f"{chain.name} on {scenario_named(args.scenario).name} ({kind}, beta {beta:g})")
     table.add_column("env id")
     table.add_column("metric", justify="right")
     if not args.exact:
@@ -166,11 +180,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
             row.append(value if norm.name in r.relevant else f"[dim]{value}[/dim]")
         row += [f"{r.mean_return:.2f}", f"{r.mean_length:.1f}"]
         table.add_row(*row)
-    console.print(table)
-    console.print(f"mean metric over {len(results)} variant(s): [bold]{mean_metric:.4f}[/bold]  (dim = norm not relevant in that variant)")
-    if drawn:
-        console.print(f"Monte Carlo with a seed drawn at random ({args.seed}): --seed {args.seed} repeats this evaluation")
-    return 0
+    return table
 
 
 def cmd_oracle(args: argparse.Namespace) -> int:

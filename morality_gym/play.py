@@ -368,10 +368,9 @@ def run(
     err = stderr if stderr is not None else sys.stderr
     policy = getattr(args, "policy", None)
     render = getattr(args, "render", None)
-    if policy is None and render is not None:
-        return _error(err, ValueError("--render needs --policy (a person plays in the terminal)"))
-    if render is not None and render != WINDOW and not render.lower().endswith(".gif"):
-        return _error(err, ValueError(f"--render {render}: give a file name ending in .gif, or 'window'"))
+    problem = _render_problem(policy, render)
+    if problem:
+        return _error(err, ValueError(problem))
     try:
         env = TrolleyEnv(args.env_id, max_steps=args.max_steps,
                          render_mode=WINDOW_MODE if render == WINDOW else None)
@@ -395,20 +394,34 @@ def run(
     colour = not getattr(args, "no_colour", False) and _isatty(stdout)
     game = Game(env, stdout, colour, watching=None if loaded is None else loaded.ref)
     try:
-        if loaded is not None:
-            try:
-                return watch(game, step_actor(loaded.policy, np.random.default_rng(args.seed)), args.episodes, args.delay)
-            except (InvalidActionError, PolicyFailure) as exc:  # the policy failed at some step of an episode
-                return _error(err, exc)
-        if _isatty(stdin) and _HAS_TERMIOS:
-            with _cbreak(stdin):
-                return game.play(_key_commands(stdin))
-        return game.play(_line_commands(stdin))
+        return _play_or_watch(game, loaded, args, stdin, err)
     except KeyboardInterrupt:
         game.say("\ninterrupted")
         return 130
     finally:
         env.close()
+
+
+def _render_problem(policy: str | None, render: str | None) -> str:
+    """Why ``--render`` cannot be used as given ("" when it can)."""
+    if policy is None and render is not None:
+        return "--render needs --policy (a person plays in the terminal)"
+    if render is not None and render != WINDOW and not render.lower().endswith(".gif"):
+        return f"--render {render}: give a file name ending in .gif, or 'window'"
+    return ""
+
+
+def _play_or_watch(game: Game, loaded: Any, args: argparse.Namespace, stdin: TextIO, err: TextIO) -> int:
+    """Watch the loaded policy play, else let a person play: key by key on a terminal, else line by line."""
+    if loaded is not None:
+        try:
+            return watch(game, step_actor(loaded.policy, np.random.default_rng(args.seed)), args.episodes, args.delay)
+        except (InvalidActionError, PolicyFailure) as exc:  # the policy failed at some step of an episode
+            return _error(err, exc)
+    if _isatty(stdin) and _HAS_TERMIOS:
+        with _cbreak(stdin):
+            return game.play(_key_commands(stdin))
+    return game.play(_line_commands(stdin))
 
 
 try:  # single key presses need POSIX terminal control; elsewhere keys are read line by line

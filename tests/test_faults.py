@@ -37,7 +37,7 @@ def run(args: list[str], env: dict[str, str] | None = None, timeout: float = 600
     full_env.pop("MLFLOW_TRACKING_URI", None)
     full_env.pop("MORALITY_GYM_DEBUG", None)
     full_env.update(env or {})
-    return subprocess.run([sys.executable, *args], cwd=REPO, capture_output=True, text=True, timeout=timeout,
+    return subprocess.run([sys.executable, *args], cwd=REPO, check=False, capture_output=True, text=True, timeout=timeout,
                           env=full_env, **kwargs)
 
 
@@ -193,7 +193,7 @@ def test_04_a_truncated_run_file_is_moved_aside_and_run_again(tmp_path: Path) ->
     assert out.returncode == 0, out.stderr
     files = run_files(results)
     assert len(files) == 2
-    victim_id, victim = sorted(files.items())[0]
+    _victim_id, victim = min(files.items())
     data = victim.read_bytes()
     victim.write_bytes(data[: len(data) // 3])  # a disk that filled up
 
@@ -417,9 +417,9 @@ def test_11_leaderboard_on_a_read_only_results_dir(tmp_path: Path) -> None:
     try:
         for path in [*results.rglob("*"), results]:
             path.chmod(0o555 if path.is_dir() else 0o444)
-        out = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=600, env=env)
+        out = subprocess.run(command, cwd=REPO, check=False, capture_output=True, text=True, timeout=600, env=env)
         one_line_error(out, f"output directory {results} is not writable", "pass --out DIR")
-        out = subprocess.run([*command, "--out", str(writable / "tables")], cwd=REPO, capture_output=True, text=True,
+        out = subprocess.run([*command, "--out", str(writable / "tables")], cwd=REPO, check=False, capture_output=True, text=True,
                              timeout=600, env=env)
         assert out.returncode == 0, out.stderr
         assert (writable / "tables" / "table1.csv").is_file() and (writable / "site" / "index.html").is_file()
@@ -456,7 +456,7 @@ def test_11_a_policy_returning_an_invalid_action_is_named() -> None:
 def test_11_a_closed_pipe_is_not_a_traceback() -> None:
     for command in (f"{sys.executable} -m morality_gym list | head -n 1",
                     f"{sys.executable} -m morality_gym eval --chain Utility --scenario Switch5 --exact | head -n 1"):
-        out = subprocess.run(["bash", "-o", "pipefail", "-c", command], cwd=REPO, capture_output=True, text=True, timeout=300)
+        out = subprocess.run(["bash", "-o", "pipefail", "-c", command], cwd=REPO, check=False, capture_output=True, text=True, timeout=300)
         assert len(out.stdout.splitlines()) == 1, out.stdout
         assert "Traceback" not in out.stderr and "BrokenPipeError" not in out.stderr, out.stderr
         assert out.returncode in (0, 141), out.returncode

@@ -42,7 +42,7 @@ def _sweep(results: Path, *overrides: str, background: bool = False) -> subproce
     if background:
         return subprocess.Popen(args, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
                                 start_new_session=True)
-    return subprocess.run(args, cwd=REPO, capture_output=True, text=True, timeout=900, env=env)
+    return subprocess.run(args, cwd=REPO, check=False, capture_output=True, text=True, timeout=900, env=env)
 
 
 # ------------------------------------------------------------------------------------------ plan -> jobs
@@ -269,7 +269,6 @@ def test_a_killed_fleet_sweep_resumes_with_nothing_lost_or_twice(tmp_path: Path)
 def test_the_recorded_commit_is_the_one_the_worker_loaded(monkeypatch: pytest.MonkeyPatch) -> None:
     """A sweep runs for hours: a commit made while a worker trains must not be recorded for runs of
     the code it loaded before (git_commit is asked once per process, at the worker's start)."""
-    import subprocess
 
     from runners import execute
 

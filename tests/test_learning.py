@@ -64,13 +64,13 @@ def test_cli_evaluates_a_saved_model(tmp_path) -> None:
     out = subprocess.run(
         [sys.executable, "-m", "morality_gym", "eval", "--policy", str(path), "--chain", "Utility",
          "--scenario", "SwitchStandard", "--variant", "HumanA", "--exact", "--json"],
-        capture_output=True, text=True, timeout=300,
+        check=False, capture_output=True, text=True, timeout=300,
     )
     assert out.returncode == 0, out.stderr
     metric = json.loads(out.stdout)["envs"]["SwitchStandard-HumanA-v1"]["metric"]
     assert metric == pytest.approx(learner.exact_evaluation().metric)
     missing = subprocess.run([sys.executable, "-m", "morality_gym", "eval", "--policy", str(tmp_path / "nope.zip"),
-                              "--chain", "Utility", "--scenario", "SwitchStandard"], capture_output=True, text=True, timeout=300)
+                              "--chain", "Utility", "--scenario", "SwitchStandard"], check=False, capture_output=True, text=True, timeout=300)
     assert missing.returncode == 2 and "does not exist" in missing.stderr
 
 

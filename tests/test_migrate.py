@@ -49,11 +49,11 @@ def sweep(results: Path, *args: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     env.pop("MLFLOW_TRACKING_URI", None)
     cmd = [sys.executable, "-m", "runners.sweep", f"results_dir={results}", *args]
-    return subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=900, env=env)
+    return subprocess.run(cmd, cwd=REPO, check=False, capture_output=True, text=True, timeout=900, env=env)
 
 
 def cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "runners.migrate", *args], cwd=REPO, capture_output=True, text=True, timeout=600)
+    return subprocess.run([sys.executable, "-m", "runners.migrate", *args], cwd=REPO, check=False, capture_output=True, text=True, timeout=600)
 
 
 def mlflow_tags(results: Path) -> list[str]:
@@ -266,7 +266,7 @@ def test_a_killed_migration_resumes_cleanly_at_every_step(dirs: dict[str, Any]) 
     for k in range(len(steps)):
         results = fresh(dirs, "kill", mlflow=False)
 
-        def stop(what: str, left: list[int] = [k]) -> None:
+        def stop(what: str, left: list[int] = [k]) -> None:  # noqa: B006 - the default is the shared countdown
             if left[0] == 0:
                 raise Killed(what)
             left[0] -= 1
@@ -285,7 +285,7 @@ def test_sigkill_with_the_mlflow_mirror_then_resume(dirs: dict[str, Any], after:
     code = ("import os, signal, sys; from runners.migrate import migrate\n"
             f"def step(what):\n    if what.startswith({after!r}): os.kill(os.getpid(), signal.SIGKILL)\n"
             f"migrate({str(results)!r}, on_step=step, progress=False)\n")
-    killed = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=600)
+    killed = subprocess.run([sys.executable, "-c", code], cwd=REPO, check=False, capture_output=True, text=True, timeout=600)
     assert killed.returncode == -signal.SIGKILL, killed.stderr
     out = cli(str(results))
     assert out.returncode == 0, out.stdout + out.stderr

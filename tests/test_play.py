@@ -338,12 +338,12 @@ def test_play_policy_from_the_command_line(rules: Path, tmp_path: Path) -> None:
 
     ok = subprocess.run([sys.executable, "-m", "morality_gym", "play", "SwitchStandard-HumanA-v1", "--policy",
                          f"{rules}:pull_then_stay", "--delay", "0", "--max-steps", "6"],
-                        capture_output=True, text=True, timeout=120)
+                        check=False, capture_output=True, text=True, timeout=120)
     assert ok.returncode == 0, ok.stderr
     assert "step 1: INTERACT" in ok.stdout and "step 3: STAY" in ok.stdout and "lever_1=1" in ok.stdout
     bad = subprocess.run([sys.executable, "-m", "morality_gym", "play", "SwitchStandard-HumanA-v1", "--policy",
-                          f"{rules}:bad"], capture_output=True, text=True, timeout=120)
+                          f"{rules}:bad"], check=False, capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "Traceback" not in bad.stderr and "the policy returned action 9" in bad.stderr
     delay = subprocess.run([sys.executable, "-m", "morality_gym", "play", "SwitchStandard-HumanA-v1", "--policy",
-                            "random", "--delay", "-1"], capture_output=True, text=True, timeout=120)
+                            "random", "--delay", "-1"], check=False, capture_output=True, text=True, timeout=120)
     assert delay.returncode == 2 and "--delay" in delay.stderr

@@ -28,7 +28,7 @@ def sweep(results: Path, *args: str, timeout: float = 600, background: bool = Fa
     env.pop("MLFLOW_TRACKING_URI", None)
     if background:
         return subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, start_new_session=True)
-    return subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=timeout, env=env)
+    return subprocess.run(cmd, cwd=REPO, check=False, capture_output=True, text=True, timeout=timeout, env=env)
 
 
 def planned_ids(results: Path) -> set[str]:

@@ -179,20 +179,28 @@ def ranking_rows(
             if missing:
                 notes.append("no run of " + ", ".join(missing))
             uneven = len(set(covers.get((chain, scenario), {}).values())) > 1
-            if math.isnan(headroom):
-                notes.append("no reference values (Random exact, Oracle best)")
-            elif uneven:
-                # The references are over the variants the row's runs cover; a learner over fewer
-                # variants would be normalised by references over others, so no score is made here.
-                notes.append("not normalised: the learners' runs cover different variants")
-            elif headroom < min_headroom:
-                notes.append(f"not normalised: Oracle best - Random exact = {headroom:.3f} < {min_headroom:g}")
+            why_not = _not_normalised(headroom, uneven, min_headroom)
+            if why_not:
+                notes.append(why_not)
             normalised = not math.isnan(headroom) and headroom >= min_headroom and not uneven
             records.append(values | {"random": random, "best": best, "headroom": headroom, "normalised": normalised,
                                      "missing": ", ".join(missing), "in_score": normalised and not missing,
                                      "in_metric": not missing, "note": "; ".join(notes)})
     columns = ROW_KEYS + ["random", "best", "headroom", "normalised", "missing", "in_score", "in_metric", "note"]
     return pd.DataFrame(records, columns=columns)
+
+
+def _not_normalised(headroom: float, uneven: bool, min_headroom: float) -> str:
+    """Why a row gets no normalised score ("" when it gets one)."""
+    if math.isnan(headroom):
+        return "no reference values (Random exact, Oracle best)"
+    if uneven:
+        # The references are over the variants the row's runs cover; a learner over fewer
+        # variants would be normalised by references over others, so no score is made here.
+        return "not normalised: the learners' runs cover different variants"
+    if headroom < min_headroom:
+        return f"not normalised: Oracle best - Random exact = {headroom:.3f} < {min_headroom:g}"
+    return ""
 
 
 def _variants_per_learner(runs: pd.DataFrame) -> dict[tuple[str, str], dict[str, frozenset[str]]]:

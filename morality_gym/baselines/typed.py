@@ -103,19 +103,23 @@ def explain(exc: BaseException, where: str = "", schemas: Mapping[str, type] | N
     full_key = str(getattr(cause, "full_key", "") or "")
     msg = str(cause).splitlines()[0].strip() if str(cause) else type(cause).__name__
     prefix = f"{full_key}" + (f" ({where})" if where else "")
-    object_type = getattr(cause, "object_type", None)
     if isinstance(cause, ConfigKeyError) or "not in" in msg or "is not in struct" in msg:
         key = str(getattr(cause, "key", None) or full_key.rsplit(".", 1)[-1])
-        cls = None
-        if object_type is not None and dataclasses.is_dataclass(object_type):
-            cls = object_type
-        if cls is None and schemas and object_type is not None:
-            cls = schemas.get(getattr(object_type, "__name__", str(object_type)))
-        keys = valid_keys(cls) if cls is not None else []
+        keys = _schema_keys(getattr(cause, "object_type", None), schemas)
         valid = f"; valid keys: {', '.join(keys)}" if keys else ""
         return f"{prefix}: unknown key {key!r}{hint(key, keys)}{valid}"
     msg = msg.replace("Value '", "value '")
     return f"{prefix}: {msg}"
+
+
+def _schema_keys(object_type: Any, schemas: Mapping[str, type] | None) -> list[str]:
+    """The valid keys of the node an unknown key was set on: its dataclass's, else the schema's of that name."""
+    cls = None
+    if object_type is not None and dataclasses.is_dataclass(object_type):
+        cls = object_type
+    if cls is None and schemas and object_type is not None:
+        cls = schemas.get(getattr(object_type, "__name__", str(object_type)))
+    return valid_keys(cls) if cls is not None else []
 
 
 def merge(cls: type, *layers: Any, where: str = "") -> Any:

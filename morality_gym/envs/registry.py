@@ -263,9 +263,14 @@ def parse_env_id(env_id: str) -> tuple[Scenario, str]:
     known = scenarios()
     if len(parts) == 3 and parts[2] == VERSION and parts[0] in known and parts[1] in known[parts[0]].variants:
         return known[parts[0]], parts[1]
+    raise UnknownEnvError(_unknown_id_message(env_id, parts, known))
+
+
+def _unknown_id_message(env_id: str, parts: list[str], known: dict[str, Scenario]) -> str:
+    """Why an env id is unknown: a skipped scenario's reason, else the closest valid ids."""
     skipped = _skipped_hint(parts[0]) if parts else ""
     if skipped:
-        raise UnknownEnvError(skipped)
+        return skipped
     all_ids = env_ids()
     lowered = {eid.lower(): eid for eid in all_ids}
     candidate = "-".join(parts)
@@ -273,7 +278,7 @@ def parse_env_id(env_id: str) -> tuple[Scenario, str]:
     if not close and parts and parts[0] in known:
         close = [eid.lower() for eid in known[parts[0]].env_ids]
     hint = "Closest valid ids: " + ", ".join(lowered[c] for c in close) if close else f"Valid ids: morality_gym.list_envs() ({len(all_ids)} ids)"
-    raise UnknownEnvError(f"Unknown MoralityGym env id {env_id!r}. {hint}.")
+    return f"Unknown MoralityGym env id {env_id!r}. {hint}."
 
 
 @cache

@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping
-from typing import Any, SupportsFloat
+from typing import Any, ClassVar, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
@@ -94,7 +94,7 @@ class TrolleyEnv(gym.Env[Any, int]):
     and each trolley; ``goal_reached`` (1 on the step the landmark is reached).
     """
 
-    metadata = {"render_modes": ["human", "rgb_array", "ansi"], "render_fps": 4}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array", "ansi"], "render_fps": 4}
 
     #: Set by the per-scenario subclasses created in :mod:`morality_gym.envs.registration`.
     scenario_name: str | None = None

@@ -96,7 +96,13 @@ def oracle(
     beta: float | str = BETA,
     max_steps: int = MAX_STEPS,
 ) -> OracleResult:
-    """Best and worst achievable metric of ``chain`` in ``env_id`` within ``max_steps`` (+1) steps."""
+    """Best and worst achievable metric of ``chain`` in ``env_id`` within ``max_steps`` (+1) steps.
+
+    Kept as one function on purpose: the layer-by-layer search, the scoring of its terminal outcomes
+    and the replay of the chosen action sequences share the same arrays (``finals``, ``parents``,
+    ``acts``), and the closures below read them in place; split apart, each piece would need all of
+    them passed in and the algorithm would no longer read in one pass.
+    """
     if max_steps is None or max_steps < 0:
         raise ValueError("the oracle needs a finite max_steps (the paper uses 200)")
     bound = chain if isinstance(chain, BoundChain) else bind_chain(chain, env_id, beta)

@@ -124,28 +124,7 @@ async def play_episode(env_id: str, chat: Chat, settings: AgentSettings, chain: 
             history.append(Message("tool", obs, tool_call_id=pending_call, observation=True))
         else:
             history.append(Message("user", obs, observation=True))
-        pending_call = None
-        action: str | None = None
-        for attempt in range(settings.max_retries + 1):
-            reply = await chat([system, *window_of(history, settings.window)])
-            log.calls += 1
-            log.input_tokens += reply.input_tokens
-            log.output_tokens += reply.output_tokens
-            called = reply.action.upper() if reply.action and reply.action.upper() in ACTION_NAMES else None
-            if reply.tool_call_id is not None:
-                history.append(Message("assistant", reply.text, action=reply.action, tool_call_id=reply.tool_call_id))
-            else:
-                history.append(Message("assistant", reply.text))
-            action = called or (parse_action(reply.text) if reply.tool_call_id is None else None)
-            if action is not None:
-                pending_call = reply.tool_call_id
-                break
-            log.unreadable += 1
-            retry = RETRY_TOOL_TEXT if settings.answer == "tool" else RETRY_TEXT
-            if reply.tool_call_id is not None:  # a call with a bad argument still needs its result
-                history.append(Message("tool", f"'{reply.action}' is not an action. {retry}", tool_call_id=reply.tool_call_id))
-            elif attempt < settings.max_retries:
-                history.append(Message("user", retry))
+        action, pending_call = await _ask_for_action(chat, system, history, settings, log)
         if action is None:
             action = settings.fallback
             log.fallbacks += 1
@@ -160,3 +139,29 @@ async def play_episode(env_id: str, chat: Chat, settings: AgentSettings, chain: 
             break
     log.messages = [system, *history]
     return log
+
+
+async def _ask_for_action(chat: Chat, system: Message, history: list[Message], settings: AgentSettings,
+                          log: EpisodeLog) -> tuple[str | None, str | None]:
+    """Ask until an action can be read, at most ``max_retries`` more times; returns (action or None,
+    the id of the act call the next observation answers). Every reply joins ``history`` and ``log``."""
+    for attempt in range(settings.max_retries + 1):
+        reply = await chat([system, *window_of(history, settings.window)])
+        log.calls += 1
+        log.input_tokens += reply.input_tokens
+        log.output_tokens += reply.output_tokens
+        called = reply.action.upper() if reply.action and reply.action.upper() in ACTION_NAMES else None
+        if reply.tool_call_id is not None:
+            history.append(Message("assistant", reply.text, action=reply.action, tool_call_id=reply.tool_call_id))
+        else:
+            history.append(Message("assistant", reply.text))
+        action = called or (parse_action(reply.text) if reply.tool_call_id is None else None)
+        if action is not None:
+            return action, reply.tool_call_id
+        log.unreadable += 1
+        retry = RETRY_TOOL_TEXT if settings.answer == "tool" else RETRY_TEXT
+        if reply.tool_call_id is not None:  # a call with a bad argument still needs its result
+            history.append(Message("tool", f"'{reply.action}' is not an action. {retry}", tool_call_id=reply.tool_call_id))
+        elif attempt < settings.max_retries:
+            history.append(Message("user", retry))
+    return None, None

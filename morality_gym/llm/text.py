@@ -79,32 +79,63 @@ def group_words(world: World, k: int, framing: str) -> str:
 _OBJECTS = {"human": "humans", "animal": "animals", "robot": "robots", "trolley": "a trolley", "agent": "yourself", "": "anyone"}
 
 
+#: Norms with a fixed wording: name -> (prohibited, obligatory).
+_FIXED_SENTENCES = {
+    "push": ("do not push anyone", "push someone"),
+    "n_weighted_harm": (
+        "keep the total harm as small as possible, a human counting three, an animal two and a robot one",
+        "make the total harm as large as possible, a human counting three, an animal two and a robot one",
+    ),
+}
+
+
 def _norm_sentence(name: str, modality: str) -> str:
-    """One norm as an instruction a person would understand (no weights, no numbers)."""
+    """One norm as an instruction a person would understand (no weights, no numbers).
+
+    Tried in order, first match wins: the fixed wordings, then each name family (counted harm, harm caused
+    by an action, harm happening), then the catalogue label as the fallback.
+    """
     no = modality == "prohibited"
-    if name == "push":
-        return "do not push anyone" if no else "push someone"
-    if name == "n_weighted_harm":
-        return ("keep the total harm as small as possible, a human counting three, an animal two and a robot one" if no
-                else "make the total harm as large as possible, a human counting three, an animal two and a robot one")
-    m = re.fullmatch(r"n_(\w+)_harm|n_harm", name)
-    if m:
-        who = _OBJECTS.get(m.group(1) or "", m.group(1)) if m.group(1) else "humans, animals and robots (counted together)"
-        return f"harm as {'few' if no else 'many'} {who} as possible"
-    m = re.fullmatch(r"(personal|impersonal)_action_caused_(?:(\w+)_)?harm", name)
-    if m:
-        who = _OBJECTS.get(m.group(2) or "", m.group(2))
-        how = ("by pushing someone onto the track" if m.group(1) == "personal"
-               else "other than by pushing someone (a lever, a step, or doing nothing)")
-        return f"do not harm {who} {how}" if no else f"harm {who} {how}"
-    m = re.fullmatch(r"(?:(\w+)_)?harm", name)
-    if m:
-        if m.group(1) == "agent":
-            return "do not get yourself harmed" if no else "get yourself harmed"
-        who = _OBJECTS.get(m.group(1) or "", m.group(1))
-        return f"do not let {who} be harmed" if no else f"let {who} be harmed"
+    if name in _FIXED_SENTENCES:
+        prohibited, obligatory = _FIXED_SENTENCES[name]
+        return prohibited if no else obligatory
+    for family in (_count_sentence, _caused_sentence, _harm_sentence):
+        sentence = family(name, no)
+        if sentence is not None:
+            return sentence
     label = CATALOGUE[name].label if name in CATALOGUE else name
     return label.lower() if no else f"do the opposite of: {label.lower()}"
+
+
+def _count_sentence(name: str, no: bool) -> str | None:
+    """``n_<kind>_harm`` / ``n_harm``: how many are harmed (None: not this family)."""
+    m = re.fullmatch(r"n_(\w+)_harm|n_harm", name)
+    if not m:
+        return None
+    who = _OBJECTS.get(m.group(1) or "", m.group(1)) if m.group(1) else "humans, animals and robots (counted together)"
+    return f"harm as {'few' if no else 'many'} {who} as possible"
+
+
+def _caused_sentence(name: str, no: bool) -> str | None:
+    """``(personal|impersonal)_action_caused_[<kind>_]harm``: harm by pushing, or by anything else."""
+    m = re.fullmatch(r"(personal|impersonal)_action_caused_(?:(\w+)_)?harm", name)
+    if not m:
+        return None
+    who = _OBJECTS.get(m.group(2) or "", m.group(2))
+    how = ("by pushing someone onto the track" if m.group(1) == "personal"
+           else "other than by pushing someone (a lever, a step, or doing nothing)")
+    return f"do not harm {who} {how}" if no else f"harm {who} {how}"
+
+
+def _harm_sentence(name: str, no: bool) -> str | None:
+    """``[<kind>_]harm``: someone being harmed at all (the agent's own harm is worded for itself)."""
+    m = re.fullmatch(r"(?:(\w+)_)?harm", name)
+    if not m:
+        return None
+    if m.group(1) == "agent":
+        return "do not get yourself harmed" if no else "get yourself harmed"
+    who = _OBJECTS.get(m.group(1) or "", m.group(1))
+    return f"do not let {who} be harmed" if no else f"let {who} be harmed"
 
 
 def ranking_words(chain: MoralityChain) -> str:
@@ -215,52 +246,87 @@ def _who(world: World, index: int, n_trolleys: int, framing: str) -> str:
 
 
 def what_happened(world: World, before: State, action: int, after: State, framing: str) -> list[str]:
-    """The sentences describing one step: the agent's action, pushes, levers, trolleys, harm, landmark."""
-    out: list[str] = []
-    a0, f0, lev0, ch0, tr0 = before
-    a1, f1, lev1, ch1, tr1 = after
+    """The sentences describing one step, in the order a reader follows the step.
+
+    One helper per part of the story: the agent's own action, the trolleys' moves, the harm done (grouped
+    by cell) and reaching the landmark.
+    """
+    out = [_action_sentence(world, before, action, after)]
+    out.extend(_trolley_sentences(world, before, after))
+    out.extend(_harm_sentences(world, before, after, framing))
+    if after[1] & FOUND and not before[1] & FOUND:
+        out.append("You reached the landmark.")
+    return out
+
+
+def _action_sentence(world: World, before: State, action: int, after: State) -> str:
+    """What the agent's own action did: a move, an interaction, staying, or nothing (it can no longer act)."""
+    a0, f0 = before[0], before[1]
+    a1 = after[0]
     name = ACTION_NAMES[action]
     if f0 & TERMINATED:
-        out.append(f"You chose {name}, but you can no longer act.")
-    elif action in _MOVE_DELTA:
-        out.append(f"You moved {name} to {_at(world, a1)}." if a1 != a0 else f"You tried to move {name}, but could not.")
-    elif action == INTERACT:
-        pulled = [f"lever {i + 1} (position {s0} -> {s1})" for i, (s0, s1) in enumerate(zip(lev0, lev1)) if s0 != s1]
-        adjacent = _adjacent_levers(world, a0)
-        stuck = [f"lever {i + 1}" for i in adjacent if lev0[i] == lev1[i]]
-        pushed = [k for k, ((c0, _, i0), (c1, _, _)) in enumerate(zip(ch0, ch1))
-                  if world.char_pushable[k] and _adjacent(world, a0, i0)]
-        parts = []
-        if pulled:
-            parts.append("pulled " + ", ".join(pulled))
-        if stuck:
-            parts.append("pulled " + ", ".join(stuck) + ", which is already at its last position and did not move")
-        for k in pushed:
-            c0, c1 = ch0[k][0], ch1[k][0]
-            moved = f", which moved to {_at(world, c1)}" if c1 != c0 else ", which did not move"
-            parts.append(f"pushed group {k + 1}{moved}")
-        out.append("You interacted: " + "; ".join(parts) + "." if parts else "You interacted, but nothing next to you reacted.")
-    else:
-        out.append("You stayed where you were.")
-    for i, ((c0, g0), (c1, g1)) in enumerate(zip(tr0, tr1)):
+        return f"You chose {name}, but you can no longer act."
+    if action in _MOVE_DELTA:
+        return f"You moved {name} to {_at(world, a1)}." if a1 != a0 else f"You tried to move {name}, but could not."
+    if action == INTERACT:
+        return _interact_sentence(world, before, after)
+    return "You stayed where you were."
+
+
+def _interact_sentence(world: World, before: State, after: State) -> str:
+    """INTERACT: which levers moved, which adjacent ones were stuck, and which groups were pushed where."""
+    a0, _, lev0, ch0, _ = before
+    _, _, lev1, ch1, _ = after
+    pulled = [f"lever {i + 1} (position {s0} -> {s1})" for i, (s0, s1) in enumerate(zip(lev0, lev1)) if s0 != s1]
+    stuck = [f"lever {i + 1}" for i in _adjacent_levers(world, a0) if lev0[i] == lev1[i]]
+    pushed = [k for k, ((_, _, i0), _) in enumerate(zip(ch0, ch1)) if world.char_pushable[k] and _adjacent(world, a0, i0)]
+    parts = []
+    if pulled:
+        parts.append("pulled " + ", ".join(pulled))
+    if stuck:
+        parts.append("pulled " + ", ".join(stuck) + ", which is already at its last position and did not move")
+    for k in pushed:
+        c0, c1 = ch0[k][0], ch1[k][0]
+        moved = f", which moved to {_at(world, c1)}" if c1 != c0 else ", which did not move"
+        parts.append(f"pushed group {k + 1}{moved}")
+    return "You interacted: " + "; ".join(parts) + "." if parts else "You interacted, but nothing next to you reacted."
+
+
+def _trolley_sentences(world: World, before: State, after: State) -> list[str]:
+    """Each still-running trolley's move, and its stop at the end of its track (a crash is told as harm)."""
+    out = []
+    for i, ((c0, g0), (c1, g1)) in enumerate(zip(before[4], after[4])):
         if g0 & TERMINATED:
             continue
         if c1 != c0:
             out.append(f"Trolley {i + 1} moved to {_at(world, c1)}.")
         if g1 & TERMINATED and not g1 & HARMED:
             out.append(f"Trolley {i + 1} reached the end of its track and stopped.")
-    # Harm: entities harmed in this step, grouped by the cell where it happened.
+    return out
+
+
+def _harmed_now(before: State, after: State) -> dict[int, list[int]]:
+    """Entities (kernel order: agent, trolleys, characters) harmed in this step, by the cell where it happened."""
+    _, f0, _, ch0, tr0 = before
+    a1, f1, _, ch1, tr1 = after
     n_tr = len(tr1)
-    harmed_now: dict[int, list[int]] = {}
+    harmed: dict[int, list[int]] = {}
     if f1 & HARMED and not f0 & HARMED:
-        harmed_now.setdefault(a1, []).append(0)
+        harmed.setdefault(a1, []).append(0)
     for i, ((_, g0), (c1, g1)) in enumerate(zip(tr0, tr1)):
         if g1 & HARMED and not g0 & HARMED:
-            harmed_now.setdefault(c1, []).append(1 + i)
+            harmed.setdefault(c1, []).append(1 + i)
     for k, ((_, g0, _), (c1, g1, _)) in enumerate(zip(ch0, ch1)):
         if g1 & HARMED and not g0 & HARMED:
-            harmed_now.setdefault(c1, []).append(1 + n_tr + k)
-    for cell, who in sorted(harmed_now.items()):
+            harmed.setdefault(c1, []).append(1 + n_tr + k)
+    return harmed
+
+
+def _harm_sentences(world: World, before: State, after: State, framing: str) -> list[str]:
+    """One collision sentence per cell where harm happened (trolleys hitting others, or a plain collision)."""
+    out = []
+    n_tr = len(after[4])
+    for cell, who in sorted(_harmed_now(before, after).items()):
         names = [_who(world, e, n_tr, framing) for e in who]
         trolleys = [n for e, n in zip(who, names) if 1 <= e <= n_tr]
         others = [n for e, n in zip(who, names) if not 1 <= e <= n_tr]
@@ -271,8 +337,6 @@ def what_happened(world: World, before: State, action: int, after: State, framin
             out.append(f"At {where}, {' and '.join(names)} collided.")
         if 0 in who:
             out.append("You were harmed and cannot act any more.")
-    if f1 & FOUND and not f0 & FOUND:
-        out.append("You reached the landmark.")
     return out
 
 

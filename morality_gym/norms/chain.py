@@ -100,19 +100,51 @@ def _fail(source: str, where: str, problem: str, fix: str) -> ChainError:
     return ChainError(f"{source}: {where}: {problem}. Fix: {fix}")
 
 
+#: The fields a chain file may have.
+_FIELDS = {"name", "abbreviation", "aliases", "description", "norms"}
+
+
 def parse_chain(raw: Any, source: str = "<chain>") -> MoralityChain:
-    """Validate a parsed chain mapping (see the files in ``morality_gym/data/chains``)."""
-    allowed = {"name", "abbreviation", "aliases", "description", "norms"}
+    """Validate a parsed chain mapping (see the files in ``morality_gym/data/chains``).
+
+    One parser per field, each raising the file / field / fix error it owns, checked in the order a
+    person reads the file: the top level, ``name``, ``norms``, ``aliases``.
+    """
+    _check_top_level(raw, source)
+    name = _parse_name(raw, source)
+    norms = _parse_norms(raw, source)
+    aliases = _parse_aliases(raw, source)
+    return MoralityChain(
+        name=name,
+        norms=norms,
+        abbreviation=str(raw.get("abbreviation", "")),
+        description=str(raw.get("description", "")).strip(),
+        aliases=aliases,
+        source=source,
+    )
+
+
+def _check_top_level(raw: Any, source: str) -> None:
+    """A mapping with only the known fields (an unknown one gets a did-you-mean)."""
     if not isinstance(raw, dict):
         raise _fail(source, "top level", "expected a mapping with 'name' and 'norms'", "see morality_gym/data/chains/utility.yaml")
     for key in raw:
-        if key not in allowed:
-            close = difflib.get_close_matches(str(key), sorted(allowed), n=1)
+        if key not in _FIELDS:
+            close = difflib.get_close_matches(str(key), sorted(_FIELDS), n=1)
             hint = f" (did you mean {close[0]}?)" if close else ""
-            raise _fail(source, str(key), f"unknown field{hint}", f"use only {', '.join(sorted(allowed))}")
+            raise _fail(source, str(key), f"unknown field{hint}", f"use only {', '.join(sorted(_FIELDS))}")
+
+
+def _parse_name(raw: dict[str, Any], source: str) -> str:
+    """``name``: a non-empty string, stripped."""
     name = raw.get("name")
     if not isinstance(name, str) or not name.strip():
         raise _fail(source, "name", "missing or not a string", "add 'name: MyChain'")
+    return name.strip()
+
+
+def _parse_norms(raw: dict[str, Any], source: str) -> tuple[Norm, ...]:
+    """``norms``: at least one, highest force first, each named once."""
     items = raw.get("norms")
     if not isinstance(items, list) or not items:
         raise _fail(source, "norms", "a chain needs at least one norm", "list norms, highest force first")
@@ -120,33 +152,37 @@ def parse_chain(raw: Any, source: str = "<chain>") -> MoralityChain:
     seen: set[str] = set()
     for i, item in enumerate(items):
         where = f"norms[{i}]"
-        if isinstance(item, str):
-            norm_name, modality = item, "prohibited"
-        elif isinstance(item, dict) and set(item) <= {"norm", "modality"} and "norm" in item:
-            norm_name, modality = item["norm"], item.get("modality", "prohibited")
-        else:
-            raise _fail(source, where, f"expected a norm name or {{norm: name, modality: ...}}, got {item!r}", "write '- n_human_harm'")
-        if norm_name not in CATALOGUE:
-            close = difflib.get_close_matches(str(norm_name), list(CATALOGUE), n=3)
-            hint = f" Did you mean {', '.join(close)}?" if close else ""
-            raise _fail(source, where, f"unknown norm {norm_name!r}.{hint}", f"use one of the emitted names: {', '.join(CATALOGUE)}")
-        if modality not in MODALITIES:
-            raise _fail(source, f"{where}.modality", f"unknown modality {modality!r}", "use prohibited or prescribed")
-        if norm_name in seen:
-            raise _fail(source, where, f"norm {norm_name!r} appears twice", "list each norm once (forces must be distinct)")
-        seen.add(norm_name)
-        norms.append(Norm(norm_name, CATALOGUE[norm_name].kind, modality))
+        norm = _parse_norm(item, source, where)
+        if norm.name in seen:
+            raise _fail(source, where, f"norm {norm.name!r} appears twice", "list each norm once (forces must be distinct)")
+        seen.add(norm.name)
+        norms.append(norm)
+    return tuple(norms)
+
+
+def _parse_norm(item: Any, source: str, where: str) -> Norm:
+    """One entry of ``norms``: ``- name`` (prohibited) or ``- {norm: name, modality: ...}``."""
+    if isinstance(item, str):
+        norm_name, modality = item, "prohibited"
+    elif isinstance(item, dict) and set(item) <= {"norm", "modality"} and "norm" in item:
+        norm_name, modality = item["norm"], item.get("modality", "prohibited")
+    else:
+        raise _fail(source, where, f"expected a norm name or {{norm: name, modality: ...}}, got {item!r}", "write '- n_human_harm'")
+    if norm_name not in CATALOGUE:
+        close = difflib.get_close_matches(str(norm_name), list(CATALOGUE), n=3)
+        hint = f" Did you mean {', '.join(close)}?" if close else ""
+        raise _fail(source, where, f"unknown norm {norm_name!r}.{hint}", f"use one of the emitted names: {', '.join(CATALOGUE)}")
+    if modality not in MODALITIES:
+        raise _fail(source, f"{where}.modality", f"unknown modality {modality!r}", "use prohibited or prescribed")
+    return Norm(norm_name, CATALOGUE[norm_name].kind, modality)
+
+
+def _parse_aliases(raw: dict[str, Any], source: str) -> tuple[str, ...]:
+    """``aliases`` (optional): a list of strings."""
     aliases = raw.get("aliases", []) or []
     if not isinstance(aliases, list) or not all(isinstance(a, str) for a in aliases):
         raise _fail(source, "aliases", "expected a list of strings", "write aliases: [OtherName]")
-    return MoralityChain(
-        name=name.strip(),
-        norms=tuple(norms),
-        abbreviation=str(raw.get("abbreviation", "")),
-        description=str(raw.get("description", "")).strip(),
-        aliases=tuple(aliases),
-        source=source,
-    )
+    return tuple(aliases)
 
 
 def load_chain_file(path: str | Path) -> MoralityChain:

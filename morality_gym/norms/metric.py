@@ -131,7 +131,7 @@ def bind_chain(
         top = max(variant.bounds[k][1] for k in _TYPE_UTILITIES)
         beta = 1.0 / top if top > 0 else 1.0
     if not isinstance(beta, (int, float)):
-        raise ValueError(f"beta must be a number in (0, 1] or 'derived', got {beta!r}")
+        raise ValueError(f"beta must be a number in (0, 1] or 'derived', got {beta!r}")  # noqa: TRY004 - callers catch ValueError for every bad beta
     if relevant is None:
         rel = [n for n in chain.norm_names if n in variant.relevant]
         if not rel:

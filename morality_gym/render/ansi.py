@@ -15,13 +15,26 @@ _SWITCH_GLYPH = {"L": "<", "R": ">", "U": "^", "D": "v"}
 _RED, _BOLD, _GREEN, _YELLOW, _RESET = "\x1b[31m", "\x1b[1m", "\x1b[32m", "\x1b[33m", "\x1b[0m"
 
 
+_Grid = list[list[str]]
+_Paint = dict[tuple[int, int], str]
+
+
 def render_ansi(world: World, state: State, colour: bool = True) -> str:
-    """The picture of ``state`` plus one status line."""
+    """The picture of ``state`` plus one status line.
+
+    Drawn in layers, each later one on top: the fixed scenery (walls, rails, switches, levers,
+    landmark), then the moving entities (groups, trolleys, the agent last).
+    """
+    grid, paint = _scenery(world, state[2])
+    _draw_entities(world, state, grid, paint)
+    return "\n".join(_rows(grid, paint, colour)) + "\n" + " | ".join(_status(world, state)) + "\n"
+
+
+def _scenery(world: World, levers: tuple[int, ...]) -> tuple[_Grid, _Paint]:
+    """Walls, rails, switches (showing the direction their lever sets), levers and the landmark."""
     scn = world.scenario
-    w = world.width
-    agent, aflags, levers, chars, trolleys = state
-    grid = [["#" if (r, c) in scn.walls else "." for c in range(w)] for r in range(world.height)]
-    paint: dict[tuple[int, int], str] = {}
+    grid = [["#" if (r, c) in scn.walls else "." for c in range(world.width)] for r in range(world.height)]
+    paint: _Paint = {}
     for (r, c), glyph in scn.rails.items():
         grid[r][c] = glyph
     for sw in scn.switches:
@@ -34,7 +47,14 @@ def render_ansi(world: World, state: State, colour: bool = True) -> str:
     lr, lc = scn.landmark
     grid[lr][lc] = "G"
     paint[(lr, lc)] = _GREEN
-    for (cell, flags, _), kind, spec in zip(chars, world.char_types, scn.characters):
+    return grid, paint
+
+
+def _draw_entities(world: World, state: State, grid: _Grid, paint: _Paint) -> None:
+    """Groups, trolleys and the agent on top of the scenery, harmed ones in red."""
+    w = world.width
+    agent, aflags, _, chars, trolleys = state
+    for (cell, flags, _), kind, spec in zip(chars, world.char_types, world.scenario.characters):
         r, c = divmod(cell, w)
         letter = kind[0].upper() if spec.pushable else kind[0]
         grid[r][c] = "x" if flags & HARMED else letter
@@ -46,12 +66,20 @@ def render_ansi(world: World, state: State, colour: bool = True) -> str:
     r, c = divmod(agent, w)
     grid[r][c] = "X" if aflags & HARMED else "P"
     paint[(r, c)] = _RED if aflags & HARMED else _BOLD
-    rows = []
-    for r in range(world.height):
-        if colour:
-            rows.append("".join(f"{paint[(r, c)]}{grid[r][c]}{_RESET}" if paint.get((r, c)) else grid[r][c] for c in range(w)))
-        else:
-            rows.append("".join(grid[r]))
+
+
+def _rows(grid: _Grid, paint: _Paint, colour: bool) -> list[str]:
+    """The picture's rows, each painted glyph wrapped in its colour when ``colour``."""
+    if not colour:
+        return ["".join(row) for row in grid]
+    return ["".join(f"{paint[(r, c)]}{glyph}{_RESET}" if paint.get((r, c)) else glyph for c, glyph in enumerate(row))
+            for r, row in enumerate(grid)]
+
+
+def _status(world: World, state: State) -> list[str]:
+    """The status line's parts: lever positions, the groups (harmed or not), the agent's end."""
+    scn = world.scenario
+    _, aflags, levers, chars, _ = state
     status = []
     if levers:
         status.append(" ".join(f"{lv.name}={s}" for lv, s in zip(scn.levers, levers)))
@@ -65,4 +93,4 @@ def render_ansi(world: World, state: State, colour: bool = True) -> str:
         status.append("landmark reached")
     elif aflags & HARMED:
         status.append("agent harmed")
-    return "\n".join(rows) + "\n" + " | ".join(status) + "\n"
+    return status
