@@ -422,27 +422,10 @@ def _new_entry(entry: dict[str, Any], ids: dict[str, str], new_keys: dict[str, s
                templates: dict[str, dict[str, Any]]) -> dict[str, Any] | None:
     """A manifest entry under the current ids, or None if it is current or cannot be rebuilt."""
     rid = str(entry.get("run_id"))
-    candidates = []
-    if entry.get("config_key") in templates:
-        candidates = [templates[entry["config_key"]]]
-    elif rid not in ids:
-        candidates = [t for t in templates.values()
-                      if t.get("preset") == entry.get("preset") and (t.get("algo") or {}).get("name") == entry.get("algo")
-                      and (t.get("protocol") or {}).get("name") == entry.get("protocol")
-                      and (t.get("chain") or {}).get("name") == entry.get("chain")]
-    new_id, new_key = ids.get(rid), None
-    for template in candidates:
-        config = {**template, **{k: entry.get(k) for k in PER_RUN_KEYS}}
-        if run_identity(config) != rid:
-            continue
-        try:
-            migrated, applied = migrate_config(config)
-        except MigrationError:
-            return None
-        if not applied:
-            return None
-        new_id, new_key = run_identity(migrated), config_key(migrated)
-        break
+    rebuilt = _rebuild(entry, rid, _candidates(entry, rid, ids, templates))
+    if rebuilt is False:
+        return None
+    new_id, new_key = rebuilt or (ids.get(rid), None)
     if new_id is None:
         return None
     new_key = new_key or new_keys.get(new_id)
@@ -452,39 +435,93 @@ def _new_entry(entry: dict[str, Any], ids: dict[str, str], new_keys: dict[str, s
     return out
 
 
+def _candidates(entry: dict[str, Any], rid: str, ids: dict[str, str],
+                templates: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
+    """The templates that may rebuild the entry's config: the one of its ``config_key``, else (for
+    an id no run file moved) every template of its preset, algo, protocol and chain."""
+    if entry.get("config_key") in templates:
+        return [templates[entry["config_key"]]]
+    if rid in ids:
+        return []
+    return [t for t in templates.values()
+            if t.get("preset") == entry.get("preset") and (t.get("algo") or {}).get("name") == entry.get("algo")
+            and (t.get("protocol") or {}).get("name") == entry.get("protocol")
+            and (t.get("chain") or {}).get("name") == entry.get("chain")]
+
+
+def _rebuild(entry: dict[str, Any], rid: str, candidates: list[dict[str, Any]]) -> tuple[str, str] | bool | None:
+    """``(new id, new config key)`` from the first candidate whose config, with the entry's per-run
+    keys, has the entry's id; False when that config cannot be migrated or needs no migration (the
+    entry stays as it is); None when no candidate has the entry's id."""
+    for template in candidates:
+        config = {**template, **{k: entry.get(k) for k in PER_RUN_KEYS}}
+        if run_identity(config) != rid:
+            continue
+        try:
+            migrated, applied = migrate_config(config)
+        except MigrationError:
+            return False
+        if not applied:
+            return False
+        return run_identity(migrated), config_key(migrated)
+    return None
+
+
 def _manifest_moves(results: Path, moves: list[RunMove], journal: list[dict[str, Any]]
                     ) -> list[tuple[Path, str, dict[str, Any], int]]:
     """``(old file, new name, new body, entries changed)`` of every manifest that names old ids."""
+    ids, new_keys = _known_ids(moves, journal)
+    templates = _templates(results, moves, journal)
+    directory = manifests_dir(results)
+    out = []
+    for path in sorted(directory.glob("*.json")) if directory.is_dir() else []:
+        body = _read_manifest(path)
+        rewritten = _rewrite_manifest(path, body, ids, new_keys, templates) if body is not None else None
+        if rewritten is not None:
+            out.append(rewritten)
+    return out
+
+
+def _known_ids(moves: list[RunMove], journal: list[dict[str, Any]]) -> tuple[dict[str, str], dict[str, str]]:
+    """Old id -> new id of every run moved (by the journal of an earlier, interrupted migration,
+    and by this one), and new id -> its config key."""
     ids = {str(e["old"]): str(e["new"]) for e in journal if e.get("event") == "begin"}
     new_keys: dict[str, str] = {}
     for move in moves:
         if move.new_id and move.new_config is not None:
             ids[move.old_id] = move.new_id
             new_keys[move.new_id] = config_key({k: v for k, v in move.new_config.items() if k != PROVENANCE_KEY})
-    templates = _templates(results, moves, journal)
-    out = []
-    directory = manifests_dir(results)
-    for path in sorted(directory.glob("*.json")) if directory.is_dir() else []:
-        try:
-            body = json.loads(path.read_text())
-        except (OSError, ValueError):
-            continue
-        if not isinstance(body, dict) or not isinstance(body.get("runs"), list):
-            continue
-        entries, changed = [], 0
-        for entry in body["runs"]:
-            new = _new_entry(entry, ids, new_keys, templates) if isinstance(entry, dict) else None
-            entries.append(new if new is not None else entry)
-            changed += new is not None
-        if not changed:
-            continue
-        name = path.stem
-        old_ids = [str(e.get("run_id")) for e in body["runs"] if isinstance(e, dict)]
-        suffix = f"-{plan_hash(old_ids)}"
-        if name.endswith(suffix):
-            name = name[: -len(suffix)] + f"-{plan_hash(str(e.get('run_id')) for e in entries if isinstance(e, dict))}"
-        out.append((path, name, {**body, "name": name if body.get("name") == path.stem else body.get("name"), "runs": entries}, changed))
-    return out
+    return ids, new_keys
+
+
+def _read_manifest(path: Path) -> dict[str, Any] | None:
+    """The manifest's body, or None when it is unreadable or not a manifest (it is left alone)."""
+    try:
+        body = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(body, dict) or not isinstance(body.get("runs"), list):
+        return None
+    return body
+
+
+def _rewrite_manifest(path: Path, body: dict[str, Any], ids: dict[str, str], new_keys: dict[str, str],
+                      templates: dict[str, dict[str, Any]]) -> tuple[Path, str, dict[str, Any], int] | None:
+    """The manifest under the current ids, or None when none of its entries changes. A name that
+    ends in the hash of its plan's ids gets the hash of the new ids."""
+    entries, changed = [], 0
+    for entry in body["runs"]:
+        new = _new_entry(entry, ids, new_keys, templates) if isinstance(entry, dict) else None
+        entries.append(new if new is not None else entry)
+        changed += new is not None
+    if not changed:
+        return None
+    name = path.stem
+    old_ids = [str(e.get("run_id")) for e in body["runs"] if isinstance(e, dict)]
+    suffix = f"-{plan_hash(old_ids)}"
+    if name.endswith(suffix):
+        name = name[: -len(suffix)] + f"-{plan_hash(str(e.get('run_id')) for e in entries if isinstance(e, dict))}"
+    return path, name, {**body, "name": name if body.get("name") == path.stem else body.get("name"), "runs": entries}, changed
 
 
 def _write_json(path: Path, body: dict[str, Any]) -> None:
@@ -599,17 +636,11 @@ STATUS_TEXT = {"migrated": "migrated", "migrate": "to migrate", "resume": "to fi
 
 
 def print_report(report: Report, dry_run: bool, out: Any) -> None:
-    from rich.table import Table  # rich waits: importing runners.migrate (its --help too) must not load it
-
+    """What was (or, with ``dry_run``, would be) done: a table of the runs not already current,
+    a line per manifest rewritten, and a line of counts."""
     shown = [m for m in report.moves if m.status != "current"]
     if shown:
-        table = Table(title="runs" + (" (dry run: nothing written)" if dry_run else ""))
-        for column in ("old id", "new id", "learner", "env", "status", "why"):
-            table.add_column(column, overflow="fold", no_wrap=column != "why")
-        for m in sorted(shown, key=lambda m: (m.status, m.learner, m.env_id, m.old_id)):
-            why = m.reason or ", ".join(m.migrations)
-            table.add_row(m.old_id, m.new_id or "-", m.learner, m.env_id, STATUS_TEXT.get(m.status, m.status), why)
-        out.print(table)
+        out.print(_runs_table(shown, dry_run))
     for old, new, changed in report.manifests:
         verb = "would be rewritten" if dry_run else "rewritten"
         out.print(f"manifest {old}: {changed} planned run(s) {verb}" + (f", renamed {new}" if new != old else ""))
@@ -619,6 +650,18 @@ def print_report(report: Report, dry_run: bool, out: Any) -> None:
     out.print(f"{len(report.moves)} run(s): {summary}; {verb}" + ("; nothing was written" if dry_run else ""))
     if not dry_run and not report.count("migrated") and not report.manifests:
         out.print("nothing to do: every run is at the current ids")
+
+
+def _runs_table(shown: list[RunMove], dry_run: bool) -> Any:
+    from rich.table import Table  # rich waits: importing runners.migrate (its --help too) must not load it
+
+    table = Table(title="runs" + (" (dry run: nothing written)" if dry_run else ""))
+    for column in ("old id", "new id", "learner", "env", "status", "why"):
+        table.add_column(column, overflow="fold", no_wrap=column != "why")
+    for m in sorted(shown, key=lambda m: (m.status, m.learner, m.env_id, m.old_id)):
+        why = m.reason or ", ".join(m.migrations)
+        table.add_row(m.old_id, m.new_id or "-", m.learner, m.env_id, STATUS_TEXT.get(m.status, m.status), why)
+    return table
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
