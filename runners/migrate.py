@@ -120,7 +120,7 @@ def held_run_locks(results: Path) -> list[str]:
     directory = runs_dir(results) / ".locks"
     for path in sorted(directory.glob("*.lock")) if directory.is_dir() else []:
         try:
-            fh = open(path)
+            fh = open(path)  # noqa: SIM115 - closed by the `with fh` below; only a failed open skips the file
         except OSError:
             continue
         with fh:
@@ -225,14 +225,7 @@ def decide(results: Path, path: Path) -> RunMove:
         return RunMove(old_id, None, "left", f"unreadable ({type(exc).__name__}: {str(exc)[:120]}); a sweep moves it to runs/.quarantine")
     move = RunMove(old_id, None, "left", learner=str(row.get("learner") or ""), env_id=str(row.get("env_id") or ""),
                    protocol=str(row.get("protocol") or ""), old_config=config)
-    if not isinstance(config, dict):
-        move.reason = "its config column is not a JSON object"
-    elif row.get("run_id") != old_id:
-        move.reason = f"its row says run_id {row.get('run_id')!r}, not the file's name"
-    elif json.dumps(config, sort_keys=True) != row["config"]:
-        move.reason = "its config column is not the canonical JSON a sweep writes"
-    elif run_identity(config) != old_id:
-        move.reason = "its stored config does not hash to its run id (written by other hashing, or edited)"
+    move.reason = _not_a_sweeps_row(row, config, old_id)
     if move.reason:
         return move
     try:
@@ -245,22 +238,38 @@ def decide(results: Path, path: Path) -> RunMove:
         return move
     move.new_config, move.migrations = new_config, [m.name for m in applied]
     move.new_id = run_identity(new_config)
-    target = run_path(results, move.new_id)
+    move.status, move.reason = _against_target(results, row, old_id, move.new_id, new_config)
+    return move
+
+
+def _not_a_sweeps_row(row: dict[str, Any], config: Any, old_id: str) -> str:
+    """Why the row is not one a sweep wrote for this file (so it cannot be migrated safely), or ""."""
+    if not isinstance(config, dict):
+        return "its config column is not a JSON object"
+    if row.get("run_id") != old_id:
+        return f"its row says run_id {row.get('run_id')!r}, not the file's name"
+    if json.dumps(config, sort_keys=True) != row["config"]:
+        return "its config column is not the canonical JSON a sweep writes"
+    if run_identity(config) != old_id:
+        return "its stored config does not hash to its run id (written by other hashing, or edited)"
+    return ""
+
+
+def _against_target(results: Path, row: dict[str, Any], old_id: str, new_id: str,
+                    new_config: dict[str, Any]) -> tuple[str, str]:
+    """``(status, reason)`` of a run to migrate, by what its new file holds: nothing (``migrate``),
+    this very row rewritten by a stopped migration (``resume``), or another result (``duplicate``)."""
+    target = run_path(results, new_id)
     if not target.exists():
-        move.status = "migrate"
-        return move
+        return "migrate", ""
     try:
         _, existing = _read_row(target)
     except (pa.ArrowException, OSError, ValueError) as exc:
-        move.status, move.reason = "duplicate", f"runs/{move.new_id}.parquet exists but is unreadable ({type(exc).__name__})"
-        return move
-    if existing == new_row(row, old_id, move.new_id, new_config):
-        move.status, move.reason = "resume", "copied by a migration that was stopped; the old files are removed now"
-    else:
-        move.status = "duplicate"
-        move.reason = (f"runs/{move.new_id}.parquet already holds a result of this configuration (run again at the "
-                       "current code); the old run is kept as it is and reported superseded")
-    return move
+        return "duplicate", f"runs/{new_id}.parquet exists but is unreadable ({type(exc).__name__})"
+    if existing == new_row(row, old_id, new_id, new_config):
+        return "resume", "copied by a migration that was stopped; the old files are removed now"
+    return "duplicate", (f"runs/{new_id}.parquet already holds a result of this configuration (run again at the "
+                         "current code); the old run is kept as it is and reported superseded")
 
 
 def plan_moves(results: Path, journal: list[dict[str, Any]]) -> list[RunMove]:
@@ -644,12 +653,17 @@ def print_report(report: Report, dry_run: bool, out: Any) -> None:
     for old, new, changed in report.manifests:
         verb = "would be rewritten" if dry_run else "rewritten"
         out.print(f"manifest {old}: {changed} planned run(s) {verb}" + (f", renamed {new}" if new != old else ""))
+    out.print(_summary_line(report, dry_run))
+    if not dry_run and not report.count("migrated") and not report.manifests:
+        out.print("nothing to do: every run is at the current ids")
+
+
+def _summary_line(report: Report, dry_run: bool) -> str:
+    """How many runs had each status, and how long it took (or that it was a dry run)."""
     counts = {s: report.count(s) for s in STATUS_TEXT if report.count(s)}
     summary = ", ".join(f"{n} {STATUS_TEXT[s]}" for s, n in counts.items()) or "no runs"
     verb = "dry run" if dry_run else f"done in {report.seconds:.1f} s"
-    out.print(f"{len(report.moves)} run(s): {summary}; {verb}" + ("; nothing was written" if dry_run else ""))
-    if not dry_run and not report.count("migrated") and not report.manifests:
-        out.print("nothing to do: every run is at the current ids")
+    return f"{len(report.moves)} run(s): {summary}; {verb}" + ("; nothing was written" if dry_run else "")
 
 
 def _runs_table(shown: list[RunMove], dry_run: bool) -> Any:
