@@ -109,13 +109,15 @@ def _is_number(value: Any) -> bool:
     return value is not None and not (isinstance(value, float) and math.isnan(value))
 
 
-def _row_metrics(row: dict[str, Any]) -> list[Any]:
-    """The run's summary metrics and moral-foundation scores, all at the run's last step."""
-    from mlflow.entities import Metric  # MLflow waits: importing runners.tracking must not load it
+#: A metric as ``(key, value, step)``; :meth:`Tracker._log` makes MLflow's entities of them.
+MetricPoint = tuple[str, float, int]
 
+
+def _row_metrics(row: dict[str, Any]) -> list[MetricPoint]:
+    """The run's summary metrics and moral-foundation scores, all at the run's last step."""
     step = int(row.get("total_steps") or 0)
-    metrics = [Metric(k, float(row[k]), 0, step) for k in _METRICS if row.get(k) is not None]
-    metrics += [Metric(k, float(v), 0, step) for k, v in row.items() if k.startswith(MF_PREFIX) and v is not None]
+    metrics = [(k, float(row[k]), step) for k in _METRICS if row.get(k) is not None]
+    metrics += [(k, float(v), step) for k, v in row.items() if k.startswith(MF_PREFIX) and v is not None]
     return metrics
 
 
@@ -183,38 +185,35 @@ class Tracker:
         run = self.client.create_run(self.experiment_id, tags=tags, run_name=f"{row['learner']} {row['env_id']} {row['chain']} s{row['seed']}")
         return run.info.run_id
 
-    def _learn_metrics(self, run_id: str) -> list[Any]:
+    def _learn_metrics(self, run_id: str) -> list[MetricPoint]:
         """The learning curve, one ``learn/<key>`` metric per evaluation step."""
-        from mlflow.entities import Metric  # MLflow waits: importing runners.tracking must not load it
-
         learn = read_table_or_quarantine(self.results_dir, learn_path(self.results_dir, run_id))
         if learn is None:
             return []
-        return [Metric(f"learn/{key}", float(r[key]), 0, int(r["step"]))
+        return [(f"learn/{key}", float(r[key]), int(r["step"]))
                 for r in learn.to_pylist()
                 for key in ("metric", "exact_metric", "mean_return", "mean_cost", "mean_length")
                 if _is_number(r.get(key))]
 
-    def _update_metrics(self, run_id: str) -> list[Any]:
+    def _update_metrics(self, run_id: str) -> list[MetricPoint]:
         """Per-update diagnostics of PPO-Lag / CPO, over environment steps (``update/<key>``)."""
-        from mlflow.entities import Metric  # MLflow waits: importing runners.tracking must not load it
-
         updates = read_table_or_quarantine(self.results_dir, updates_path(self.results_dir, run_id))
         if updates is None:
             return []
         numeric = [c for c in UPDATE_COLUMNS if c not in ("schema_version", "run_id", "update", "timesteps")]
-        return [Metric(f"update/{key}", float(r[key]), 0, int(r["timesteps"]))
+        return [(f"update/{key}", float(r[key]), int(r["timesteps"]))
                 for r in updates.to_pylist()
                 for key in numeric
                 if _is_number(r.get(key))]
 
-    def _log(self, mid: str, params: dict[str, str], metrics: list[Any], row: dict[str, Any]) -> None:
+    def _log(self, mid: str, params: dict[str, str], points: list[MetricPoint], row: dict[str, Any]) -> None:
         """Params, metrics and the error in batches under MLflow's per-call limits."""
-        from mlflow.entities import Param, RunTag  # MLflow waits: importing runners.tracking must not load it
+        from mlflow.entities import Metric, Param, RunTag  # MLflow waits: importing runners.tracking must not load it
 
         items = list(params.items())
         for i in range(0, max(1, len(items)), 100):
             self.client.log_batch(mid, params=[Param(k, v[:6000]) for k, v in items[i : i + 100]])
+        metrics = [Metric(key, value, 0, step) for key, value, step in points]
         for i in range(0, len(metrics), 900):
             self.client.log_batch(mid, metrics=metrics[i : i + 900])
         if row.get("error"):
