@@ -44,7 +44,7 @@ def evaluation_speed(ctx: Context) -> Section:
     def sequential() -> None:
         for chain, env_id in pairs:
             rng = np.random.default_rng(41)
-            evaluate_sequential(lambda _obs: int(rng.integers(6)), TrolleyEnv(env_id), bind_chain(chain, env_id), 100, keep_episodes=False)
+            evaluate_sequential(lambda _obs, rng=rng: int(rng.integers(6)), TrolleyEnv(env_id), bind_chain(chain, env_id), 100, keep_episodes=False)
 
     seq = best_time(sequential, 1)
     task.advance()

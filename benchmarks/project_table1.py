@@ -189,12 +189,21 @@ def job_seconds(job: Any, rates: dict[str, Rate], factors: dict[tuple[str, str],
 def report(results_dir: Path, preset: str, protocol: str, engine: str, workers: Sequence[int],
            extra: Sequence[str] = (), reference: Path | None = None) -> str:
     """The measured rates and the projection (scenarios weighted by ``reference``'s sweep, if given), as Markdown."""
-    # pyarrow, OmegaConf wait: only the benchmark that runs it needs them
-    from runners.jobs import jobs_estimate, makespan
-
     rates = measured_rates(results_dir, protocol, preset, engine)
     factors = scenario_factors(reference, protocol, engine, rates) if reference else {}
-    title = f" ({', '.join(extra)})" if extra else ""
+    lines = _measured_table(results_dir, preset, protocol, engine, rates)
+    lines += _projected_table(preset, protocol, engine, workers, extra, rates, factors)
+    lines += ["", ("Each job is priced at the measured core-seconds per step of its learner times its runs' budgets "
+                   "(evaluations included, as they are in each run's wall time); the workers take the jobs in the sweep's "
+                   "order (longest estimated first), each as soon as it is free. The planner's estimate is what "
+                   "`dry_run=true` prints for the same sweep.")]
+    if factors:
+        lines += _factors_table(reference, factors)
+    return "\n".join(lines) + "\n"
+
+
+def _measured_table(results_dir: Path, preset: str, protocol: str, engine: str, rates: dict[str, Rate]) -> list[str]:
+    """One row per learner measured: its runs, the rows they came from, fleet sizes and cost per step."""
     lines = [f"### Measured: `{results_dir}` ({preset} preset, {protocol} protocol, engine {engine})", "",
              "| learner | runs | rows | fleet sizes | core time | core-s per run per 1M steps |",
              "|---|---:|---|---|---:|---:|"]
@@ -203,9 +212,19 @@ def report(results_dir: Path, preset: str, protocol: str, engine: str, workers: 
         rows = "; ".join(rate.rows) if len(rate.rows) <= 3 else f"{len(rate.rows)} rows"
         lines.append(f"| {learner_spec(algo).label} | {rate.runs} | {rows} | "
                      f"{', '.join(map(str, rate.fleet_sizes)) or 'single'} | {duration(rate.core_seconds)} | {per} |")
-    lines += ["", f"### Projected: the whole Table 1 ({preset} preset, {protocol} protocol, engine {engine}){title}", "",
-              "| workers (cores) | runs | jobs | core time | projected wall time | planner's estimate | unmeasured learners |",
-              "|---:|---:|---:|---:|---:|---:|---|"]
+    return lines
+
+
+def _projected_table(preset: str, protocol: str, engine: str, workers: Sequence[int], extra: Sequence[str],
+                     rates: dict[str, Rate], factors: dict[tuple[str, str], float]) -> list[str]:
+    """One row per worker count: the whole Table 1's jobs priced at the measured rates."""
+    # pyarrow, OmegaConf wait: only the benchmark that runs it needs them
+    from runners.jobs import jobs_estimate, makespan
+
+    title = f" ({', '.join(extra)})" if extra else ""
+    lines = ["", f"### Projected: the whole Table 1 ({preset} preset, {protocol} protocol, engine {engine}){title}", "",
+             "| workers (cores) | runs | jobs | core time | projected wall time | planner's estimate | unmeasured learners |",
+             "|---:|---:|---:|---:|---:|---:|---|"]
     with tempfile.TemporaryDirectory() as scratch:
         runs, sweep = table1_plan(preset, protocol, engine, Path(scratch), extra)  # composed and planned once
         for w in workers:
@@ -216,19 +235,20 @@ def report(results_dir: Path, preset: str, protocol: str, engine: str, workers: 
             lines.append(f"| {w} | {sum(len(j.runs) for j in jobs):,} | {len(jobs)} | {duration(sum(p for p, _ in priced))} | "
                          f"**{duration(makespan((p for p, _ in priced), w))}** | {duration(jobs_estimate(jobs, set(), w))} | "
                          f"{', '.join(missing) or 'none'} |")
-    lines += ["", ("Each job is priced at the measured core-seconds per step of its learner times its runs' budgets "
-                   "(evaluations included, as they are in each run's wall time); the workers take the jobs in the sweep's "
-                   "order (longest estimated first), each as soon as it is free. The planner's estimate is what "
-                   "`dry_run=true` prints for the same sweep.")]
-    if factors:
-        lines += ["", (f"Each scenario's cost per step relative to the measured scenarios is that of `{reference}` "
-                       "(same protocol and engine), per learner:"), "",
-                  "| learner | " + " | ".join(sorted({sc for _, sc in factors})) + " |",
-                  "|---|" + "---:|" * len({sc for _, sc in factors})]
-        for algo in sorted({a for a, _ in factors}):
-            lines.append(f"| {learner_spec(algo).label} | "
-                         + " | ".join(f"{factors.get((algo, sc), 1.0):.2f}" for sc in sorted({sc for _, sc in factors})) + " |")
-    return "\n".join(lines) + "\n"
+    return lines
+
+
+def _factors_table(reference: Path | None, factors: dict[tuple[str, str], float]) -> list[str]:
+    """The per-scenario cost factors taken from ``reference``, one row per learner."""
+    scenarios = sorted({sc for _, sc in factors})
+    lines = ["", (f"Each scenario's cost per step relative to the measured scenarios is that of `{reference}` "
+                  "(same protocol and engine), per learner:"), "",
+             "| learner | " + " | ".join(scenarios) + " |",
+             "|---|" + "---:|" * len(scenarios)]
+    for algo in sorted({a for a, _ in factors}):
+        lines.append(f"| {learner_spec(algo).label} | "
+                     + " | ".join(f"{factors.get((algo, sc), 1.0):.2f}" for sc in scenarios) + " |")
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -38,7 +38,7 @@ import gymnasium as gym
 import numpy as np
 
 import benchmarks
-from benchmarks import Context, Section, Timing, best_time, fmt_rate, ordered, register
+from benchmarks import Benchmark, Context, Section, Timing, best_time, fmt_rate, ordered, register
 from benchmarks.baseline import comparison, measure_at
 from morality_gym import BatchedTrolleyEnv, TrolleyEnv
 from morality_gym.constants import MAX_STEPS as PAPER_MAX_STEPS
@@ -403,13 +403,7 @@ def _version(package: str) -> str:
 
 def machine_facts(cpu: int | None) -> list[tuple[str, str]]:
     """What the numbers depend on: hardware, OS, interpreter, library versions, threads, code version."""
-    cpuinfo = _read("/proc/cpuinfo")
-    model = next((ln.split(":", 1)[1].strip() for ln in cpuinfo.splitlines() if ln.startswith("model name")), "")
-    physical = set()
-    for chunk in cpuinfo.split("\n\n"):  # one block per logical CPU
-        fields = {k.strip(): v.strip() for k, v in (ln.split(":", 1) for ln in chunk.splitlines() if ":" in ln)}
-        if "core id" in fields:
-            physical.add((fields.get("physical id"), fields["core id"]))
+    model, physical = _cpu_model_and_cores(_read("/proc/cpuinfo"))
     mem_kb = next((int(ln.split()[1]) for ln in _read("/proc/meminfo").splitlines() if ln.startswith("MemTotal")), 0)
     os_name = next(
         (
@@ -421,30 +415,12 @@ def machine_facts(cpu: int | None) -> list[tuple[str, str]]:
     )
     import torch  # torch waits: only the benchmark that runs it needs it
 
-    try:
-        commit = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], cwd=REPO, check=False, capture_output=True, text=True, timeout=10
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain"], cwd=REPO, check=False, capture_output=True, text=True, timeout=10
-        ).stdout.strip()
-        code = f"{commit}{' + uncommitted changes' if dirty else ''}" if commit else "unknown"
-    except (OSError, subprocess.SubprocessError):
-        code = "unknown"
-    now = dt.datetime.now().astimezone()
-    utc = now.astimezone(dt.UTC)
-    date = f"{utc:%Y-%m-%d %H:%M:%S} UTC" + (
-        "" if now.utcoffset() == dt.timedelta(0) else f" ({now:%Y-%m-%d %H:%M:%S %Z})"
-    )
+    code = _code_version()
+    pinned = f"run pinned to CPU {cpu}" if cpu is not None else "not pinned"
     return [
-        ("Date", date),
+        ("Date", _date()),
         ("CPU", model or platform.processor() or "unknown"),
-        (
-            "Cores",
-            f"{os.cpu_count()} logical, {len(physical) or '?'} physical; run pinned to CPU {cpu}"
-            if cpu is not None
-            else f"{os.cpu_count()} logical, {len(physical) or '?'} physical; not pinned",
-        ),
+        ("Cores", f"{os.cpu_count()} logical, {physical or '?'} physical; {pinned}"),
         ("RAM", f"{mem_kb / 1024 / 1024:.1f} GiB" if mem_kb else "unknown"),
         ("OS", f"{os_name}, kernel {platform.release()}"),
         ("Python", f"{platform.python_implementation()} {platform.python_version()}"),
@@ -455,6 +431,40 @@ def machine_facts(cpu: int | None) -> list[tuple[str, str]]:
         ("morality-gym", f"{_version('morality-gym')}, commit {code}"),
         ("Threads", ", ".join(f"{v}=1" for v in benchmarks.THREAD_VARIABLES)),
     ]
+
+
+def _cpu_model_and_cores(cpuinfo: str) -> tuple[str, int]:
+    """The CPU's model name ("" if unknown) and its number of physical cores (0 if unknown)."""
+    model = next((ln.split(":", 1)[1].strip() for ln in cpuinfo.splitlines() if ln.startswith("model name")), "")
+    physical = set()
+    for chunk in cpuinfo.split("\n\n"):  # one block per logical CPU
+        fields = {k.strip(): v.strip() for k, v in (ln.split(":", 1) for ln in chunk.splitlines() if ":" in ln)}
+        if "core id" in fields:
+            physical.add((fields.get("physical id"), fields["core id"]))
+    return model, len(physical)
+
+
+def _code_version() -> str:
+    """The checkout's short commit, marked when the working tree differs from it."""
+    try:
+        commit = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=REPO, check=False, capture_output=True, text=True, timeout=10
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain"], cwd=REPO, check=False, capture_output=True, text=True, timeout=10
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return f"{commit}{' + uncommitted changes' if dirty else ''}" if commit else "unknown"
+
+
+def _date() -> str:
+    """Now in UTC, and in local time too when the machine's zone is not UTC."""
+    now = dt.datetime.now().astimezone()
+    utc = now.astimezone(dt.UTC)
+    return f"{utc:%Y-%m-%d %H:%M:%S} UTC" + (
+        "" if now.utcoffset() == dt.timedelta(0) else f" ({now:%Y-%m-%d %H:%M:%S %Z})"
+    )
 
 
 def load_average() -> str:
@@ -497,7 +507,7 @@ def keep_other_sections(markdown: str, replaced: set[str]) -> list[tuple[str, st
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.run", description=__doc__.splitlines()[0])
     parser.add_argument("--output", type=Path, default=Path("BENCHMARKS.md"), help="Markdown file to write")
     parser.add_argument("--quick", action="store_true", help="about a tenth of the work (smoke check)")
@@ -517,6 +527,13 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="also run the selected sections at git revision REV and set its figures beside these (before/after)",
     )
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the selected sections (pinned to one CPU, one thread), optionally again at a baseline
+    revision, and write the report."""
+    parser = _parser()
     args = parser.parse_args(argv)
 
     _discover_extensions()
@@ -535,7 +552,39 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(1)
     # rich waits: only the benchmark that runs it needs it
     from rich.console import Console
-    from rich.progress import (
+
+    import morality_gym  # noqa: F401  (registers the env ids)
+
+    console = Console(stderr=True)
+    repeats = args.repeats or (2 if args.quick else 5)
+    started = time.perf_counter()
+    sections = _run_sections(selected, args, repeats, console)
+    if args.baseline:
+        console.print(f"measuring the same sections at {args.baseline} (temporary worktree)...")
+        baseline_commit, before = measure_at(
+            args.baseline, [b.key for b in selected], repeats, cpu, args.quick
+        )
+        sections = [
+            part for section in sections for part in (section, comparison(section, before.get(section.title), baseline_commit))
+        ]
+    elapsed = time.perf_counter() - started
+
+    facts = machine_facts(cpu)
+    facts.append(
+        ("Load average (1 min) at start / end", f"{load_before} / {load_average()} ({os.cpu_count()} logical CPUs)")
+    )
+    command = "python -m benchmarks.run " + " ".join(sys.argv[1:] if argv is None else argv)
+    lines = _header(command, args, repeats, cpu, facts) + _body(args, sections)
+    lines.append(f"Total benchmark time: {elapsed:,.0f} s.")
+    lines.append("")
+    args.output.write_text("\n".join(lines))
+    console.print(f"wrote {args.output} ({elapsed:,.0f} s)")
+    return 0
+
+
+def _run_sections(selected: list[Benchmark], args: argparse.Namespace, repeats: int, console: Any) -> list[Section]:
+    """Each selected benchmark's section, under a progress bar (none with ``--no-progress``)."""
+    from rich.progress import (  # rich waits: only the benchmark that runs it needs it
         BarColumn,
         MofNCompleteColumn,
         Progress,
@@ -544,11 +593,6 @@ def main(argv: list[str] | None = None) -> int:
         TimeRemainingColumn,
     )
 
-    import morality_gym  # noqa: F401  (registers the env ids)
-
-    console = Console(stderr=True)
-    repeats = args.repeats or (2 if args.quick else 5)
-    started = time.perf_counter()
     sections: list[Section] = []
     with Progress(
         TextColumn("{task.description}"),
@@ -567,23 +611,13 @@ def main(argv: list[str] | None = None) -> int:
             section.title = bench.title
             sections.append(section)
             progress.advance(overall)
-    baseline_commit = None
-    if args.baseline:
-        console.print(f"measuring the same sections at {args.baseline} (temporary worktree)...")
-        baseline_commit, before = measure_at(
-            args.baseline, [b.key for b in selected], repeats, cpu, args.quick
-        )
-        sections = [
-            part for section in sections for part in (section, comparison(section, before.get(section.title), baseline_commit))
-        ]
-    elapsed = time.perf_counter() - started
+    return sections
 
-    facts = machine_facts(cpu)
-    facts.append(
-        ("Load average (1 min) at start / end", f"{load_before} / {load_average()} ({os.cpu_count()} logical CPUs)")
-    )
-    command = "python -m benchmarks.run " + " ".join(sys.argv[1:] if argv is None else argv)
-    lines = [
+
+def _header(command: str, args: argparse.Namespace, repeats: int, cpu: int | None,
+            facts: list[tuple[str, str]]) -> list[str]:
+    """The report's title, how it was made, and the machine table."""
+    return [
         "# MoralityGym benchmarks",
         "",
         (
@@ -599,30 +633,27 @@ def main(argv: list[str] | None = None) -> int:
         *[f"| {k} | {v} |" for k, v in facts],
         "",
     ]
-    if args.only and args.output.exists():
-        # A partial run refreshes its own sections and keeps the others' figures (from an earlier
-        # run, which the note says), instead of throwing the rest of the report away.
-        kept = keep_other_sections(args.output.read_text(), {s.title for s in sections})
-        if kept:
-            lines.append(
-                "Sections not re-run by this invocation keep the figures of an earlier run (their machine facts are in "
-                "this file's git history): " + ", ".join(f"*{t}*" for t, _ in kept) + "."
-            )
-            lines.append("")
-        body = {title: text for title, text in kept}
-        order = [b.title for b in ordered()]
-        new = {s.title: s.markdown() for s in sections}
-        body.update(new)
-        titles = sorted(body, key=lambda t: (order.index(t.split(": before (")[0]) if t.split(": before (")[0] in order else len(order), t))
-        lines += [body[t] for t in titles]
-    else:
-        for section in sections:
-            lines.append(section.markdown())
-    lines.append(f"Total benchmark time: {elapsed:,.0f} s.")
-    lines.append("")
-    args.output.write_text("\n".join(lines))
-    console.print(f"wrote {args.output} ({elapsed:,.0f} s)")
-    return 0
+
+
+def _body(args: argparse.Namespace, sections: list[Section]) -> list[str]:
+    """The sections' Markdown. A partial run (``--only``) refreshes its own sections and keeps the
+    others' figures (from an earlier run, which the note says), in the registry's order, instead of
+    throwing the rest of the report away."""
+    if not (args.only and args.output.exists()):
+        return [section.markdown() for section in sections]
+    lines: list[str] = []
+    kept = keep_other_sections(args.output.read_text(), {s.title for s in sections})
+    if kept:
+        lines.append(
+            "Sections not re-run by this invocation keep the figures of an earlier run (their machine facts are in "
+            "this file's git history): " + ", ".join(f"*{t}*" for t, _ in kept) + "."
+        )
+        lines.append("")
+    body = {title: text for title, text in kept}
+    order = [b.title for b in ordered()]
+    body.update({s.title: s.markdown() for s in sections})
+    titles = sorted(body, key=lambda t: (order.index(t.split(": before (")[0]) if t.split(": before (")[0] in order else len(order), t))
+    return lines + [body[t] for t in titles]
 
 
 if __name__ == "__main__":

@@ -92,7 +92,7 @@ class RunLock:
         self.fh: Any = None
 
     def acquire(self) -> bool:
-        self.fh = open(self.path, "a+")
+        self.fh = open(self.path, "a+")  # noqa: SIM115 - held open while the lock is held; closed by release()
         try:
             fcntl.flock(self.fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
             return True
@@ -301,10 +301,10 @@ def record_outcome(
 
 
 #: The result columns of a run that produced no result.
-_EMPTY_RESULT: dict[str, Any] = dict(
-    total_steps=0, relevant_norms=[], metric=None, metric_stderr=None, exact_metric=None, mean_return=None,
-    mean_cost=None, mean_length=None, truncation_rate=None, goal_rate=None, model_path=None, gif_path=None,
-)
+_EMPTY_RESULT: dict[str, Any] = {
+    "total_steps": 0, "relevant_norms": [], "metric": None, "metric_stderr": None, "exact_metric": None, "mean_return": None,
+    "mean_cost": None, "mean_length": None, "truncation_rate": None, "goal_rate": None, "model_path": None, "gif_path": None,
+}
 
 
 def record_failure(config: dict[str, Any], run_id: str, results_dir: str | Path, error: str, trace: str = "", engine: str | None = None) -> None:

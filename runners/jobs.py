@@ -123,44 +123,64 @@ def make_jobs(
         raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
     if fleet_size < 1:
         raise ValueError(f"fleet_size must be >= 1, got {fleet_size}")
-    speedups = speedups or {}
     if engine == "single":
-        return [Job((r,), "single", r.est_seconds) for r in runs]
+        return [_single(r) for r in runs]
+    groups, order = _group(runs)
+    parts = _parts(groups, fleet_size, workers, singles=sum(isinstance(item, PlannedRun) for item in order))
+    jobs: list[Job] = []
+    for item in order:
+        if isinstance(item, PlannedRun):
+            jobs.append(_single(item))
+        else:
+            jobs += [_fleet_job(chunk, speedups or {}) for chunk in _split(groups[item], parts[item])]
+    return jobs
+
+
+def _single(run: PlannedRun) -> Job:
+    return Job((run,), "single", run.est_seconds)
+
+
+def _group(runs: Sequence[PlannedRun]) -> tuple[dict[str, list[PlannedRun]], list[str | PlannedRun]]:
+    """The fleet-compatible runs grouped by :func:`_group_key`, and the plan's order of its items:
+    a run that trains alone (no budget, or a learner the fleet engine does not reproduce), or the
+    key of a group at the place of the group's first run."""
     groups: dict[str, list[PlannedRun]] = {}
-    order: list[tuple[int, str | PlannedRun]] = []
-    for i, run in enumerate(runs):
+    order: list[str | PlannedRun] = []
+    for run in runs:
         c = run.config
         if int(c["budget"]) <= 0 or not fleet_trains(str(c["algo"]["target"])):
-            order.append((i, run))
+            order.append(run)
             continue
         key = _group_key(c)
         if key not in groups:
             groups[key] = []
-            order.append((i, key))
+            order.append(key)
         groups[key].append(run)
+    return groups, order
+
+
+def _parts(groups: Mapping[str, list[PlannedRun]], fleet_size: int, workers: int, singles: int) -> dict[str, int]:
+    """Into how many fleets each group is cut: ``ceil(n / fleet_size)``, then, while there are
+    fewer jobs than ``workers``, one more for the group of the widest fleets (down to fleets of 2)."""
     parts = {key: max(1, math.ceil(len(g) / fleet_size)) for key, g in groups.items()}
-    singles = sum(1 for _, item in order if isinstance(item, PlannedRun))
     while singles + sum(parts.values()) < workers:
         splittable = [k for k, g in groups.items() if len(g) // (parts[k] + 1) >= 2]
         if not splittable:
             break
         widest = max(splittable, key=lambda k: len(groups[k]) / parts[k])
         parts[widest] += 1
-    jobs: list[Job] = []
-    for _, item in order:
-        if isinstance(item, PlannedRun):
-            jobs.append(Job((item,), "single", item.est_seconds))
-            continue
-        for chunk in _split(groups[item], parts[item]):
-            if len(chunk) == 1:
-                jobs.append(Job((chunk[0],), "single", chunk[0].est_seconds))
-                continue
-            measured = float(speedups.get(chunk[0].config["algo"]["name"], 1.0))
-            # only training is shared; each run's evaluations and writes stay its own
-            overhead = sum(r.overhead_s for r in chunk)
-            est = overhead + (sum(r.est_seconds for r in chunk) - overhead) / fleet_speedup(measured, len(chunk))
-            jobs.append(Job(tuple(chunk), "fleet", est))
-    return jobs
+    return parts
+
+
+def _fleet_job(chunk: list[PlannedRun], speedups: Mapping[str, float]) -> Job:
+    """One chunk of a group as a job: a fleet, or a single run when the chunk holds one."""
+    if len(chunk) == 1:
+        return _single(chunk[0])
+    measured = float(speedups.get(chunk[0].config["algo"]["name"], 1.0))
+    # only training is shared; each run's evaluations and writes stay its own
+    overhead = sum(r.overhead_s for r in chunk)
+    est = overhead + (sum(r.est_seconds for r in chunk) - overhead) / fleet_speedup(measured, len(chunk))
+    return Job(tuple(chunk), "fleet", est)
 
 
 def dispatch_order(jobs: Sequence[Job], workers: int) -> list[Job]:

@@ -120,7 +120,7 @@ def held_run_locks(results: Path) -> list[str]:
     directory = runs_dir(results) / ".locks"
     for path in sorted(directory.glob("*.lock")) if directory.is_dir() else []:
         try:
-            fh = open(path)
+            fh = open(path)  # noqa: SIM115 - closed by the `with fh` below; only a failed open skips the file
         except OSError:
             continue
         with fh:
@@ -225,14 +225,7 @@ def decide(results: Path, path: Path) -> RunMove:
         return RunMove(old_id, None, "left", f"unreadable ({type(exc).__name__}: {str(exc)[:120]}); a sweep moves it to runs/.quarantine")
     move = RunMove(old_id, None, "left", learner=str(row.get("learner") or ""), env_id=str(row.get("env_id") or ""),
                    protocol=str(row.get("protocol") or ""), old_config=config)
-    if not isinstance(config, dict):
-        move.reason = "its config column is not a JSON object"
-    elif row.get("run_id") != old_id:
-        move.reason = f"its row says run_id {row.get('run_id')!r}, not the file's name"
-    elif json.dumps(config, sort_keys=True) != row["config"]:
-        move.reason = "its config column is not the canonical JSON a sweep writes"
-    elif run_identity(config) != old_id:
-        move.reason = "its stored config does not hash to its run id (written by other hashing, or edited)"
+    move.reason = _not_a_sweeps_row(row, config, old_id)
     if move.reason:
         return move
     try:
@@ -245,22 +238,38 @@ def decide(results: Path, path: Path) -> RunMove:
         return move
     move.new_config, move.migrations = new_config, [m.name for m in applied]
     move.new_id = run_identity(new_config)
-    target = run_path(results, move.new_id)
+    move.status, move.reason = _against_target(results, row, old_id, move.new_id, new_config)
+    return move
+
+
+def _not_a_sweeps_row(row: dict[str, Any], config: Any, old_id: str) -> str:
+    """Why the row is not one a sweep wrote for this file (so it cannot be migrated safely), or ""."""
+    if not isinstance(config, dict):
+        return "its config column is not a JSON object"
+    if row.get("run_id") != old_id:
+        return f"its row says run_id {row.get('run_id')!r}, not the file's name"
+    if json.dumps(config, sort_keys=True) != row["config"]:
+        return "its config column is not the canonical JSON a sweep writes"
+    if run_identity(config) != old_id:
+        return "its stored config does not hash to its run id (written by other hashing, or edited)"
+    return ""
+
+
+def _against_target(results: Path, row: dict[str, Any], old_id: str, new_id: str,
+                    new_config: dict[str, Any]) -> tuple[str, str]:
+    """``(status, reason)`` of a run to migrate, by what its new file holds: nothing (``migrate``),
+    this very row rewritten by a stopped migration (``resume``), or another result (``duplicate``)."""
+    target = run_path(results, new_id)
     if not target.exists():
-        move.status = "migrate"
-        return move
+        return "migrate", ""
     try:
         _, existing = _read_row(target)
     except (pa.ArrowException, OSError, ValueError) as exc:
-        move.status, move.reason = "duplicate", f"runs/{move.new_id}.parquet exists but is unreadable ({type(exc).__name__})"
-        return move
-    if existing == new_row(row, old_id, move.new_id, new_config):
-        move.status, move.reason = "resume", "copied by a migration that was stopped; the old files are removed now"
-    else:
-        move.status = "duplicate"
-        move.reason = (f"runs/{move.new_id}.parquet already holds a result of this configuration (run again at the "
-                       "current code); the old run is kept as it is and reported superseded")
-    return move
+        return "duplicate", f"runs/{new_id}.parquet exists but is unreadable ({type(exc).__name__})"
+    if existing == new_row(row, old_id, new_id, new_config):
+        return "resume", "copied by a migration that was stopped; the old files are removed now"
+    return "duplicate", (f"runs/{new_id}.parquet already holds a result of this configuration (run again at the "
+                         "current code); the old run is kept as it is and reported superseded")
 
 
 def plan_moves(results: Path, journal: list[dict[str, Any]]) -> list[RunMove]:
@@ -422,27 +431,10 @@ def _new_entry(entry: dict[str, Any], ids: dict[str, str], new_keys: dict[str, s
                templates: dict[str, dict[str, Any]]) -> dict[str, Any] | None:
     """A manifest entry under the current ids, or None if it is current or cannot be rebuilt."""
     rid = str(entry.get("run_id"))
-    candidates = []
-    if entry.get("config_key") in templates:
-        candidates = [templates[entry["config_key"]]]
-    elif rid not in ids:
-        candidates = [t for t in templates.values()
-                      if t.get("preset") == entry.get("preset") and (t.get("algo") or {}).get("name") == entry.get("algo")
-                      and (t.get("protocol") or {}).get("name") == entry.get("protocol")
-                      and (t.get("chain") or {}).get("name") == entry.get("chain")]
-    new_id, new_key = ids.get(rid), None
-    for template in candidates:
-        config = {**template, **{k: entry.get(k) for k in PER_RUN_KEYS}}
-        if run_identity(config) != rid:
-            continue
-        try:
-            migrated, applied = migrate_config(config)
-        except MigrationError:
-            return None
-        if not applied:
-            return None
-        new_id, new_key = run_identity(migrated), config_key(migrated)
-        break
+    rebuilt = _rebuild(entry, rid, _candidates(entry, rid, ids, templates))
+    if rebuilt is False:
+        return None
+    new_id, new_key = rebuilt or (ids.get(rid), None)
     if new_id is None:
         return None
     new_key = new_key or new_keys.get(new_id)
@@ -452,39 +444,93 @@ def _new_entry(entry: dict[str, Any], ids: dict[str, str], new_keys: dict[str, s
     return out
 
 
+def _candidates(entry: dict[str, Any], rid: str, ids: dict[str, str],
+                templates: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
+    """The templates that may rebuild the entry's config: the one of its ``config_key``, else (for
+    an id no run file moved) every template of its preset, algo, protocol and chain."""
+    if entry.get("config_key") in templates:
+        return [templates[entry["config_key"]]]
+    if rid in ids:
+        return []
+    return [t for t in templates.values()
+            if t.get("preset") == entry.get("preset") and (t.get("algo") or {}).get("name") == entry.get("algo")
+            and (t.get("protocol") or {}).get("name") == entry.get("protocol")
+            and (t.get("chain") or {}).get("name") == entry.get("chain")]
+
+
+def _rebuild(entry: dict[str, Any], rid: str, candidates: list[dict[str, Any]]) -> tuple[str, str] | bool | None:
+    """``(new id, new config key)`` from the first candidate whose config, with the entry's per-run
+    keys, has the entry's id; False when that config cannot be migrated or needs no migration (the
+    entry stays as it is); None when no candidate has the entry's id."""
+    for template in candidates:
+        config = {**template, **{k: entry.get(k) for k in PER_RUN_KEYS}}
+        if run_identity(config) != rid:
+            continue
+        try:
+            migrated, applied = migrate_config(config)
+        except MigrationError:
+            return False
+        if not applied:
+            return False
+        return run_identity(migrated), config_key(migrated)
+    return None
+
+
 def _manifest_moves(results: Path, moves: list[RunMove], journal: list[dict[str, Any]]
                     ) -> list[tuple[Path, str, dict[str, Any], int]]:
     """``(old file, new name, new body, entries changed)`` of every manifest that names old ids."""
+    ids, new_keys = _known_ids(moves, journal)
+    templates = _templates(results, moves, journal)
+    directory = manifests_dir(results)
+    out = []
+    for path in sorted(directory.glob("*.json")) if directory.is_dir() else []:
+        body = _read_manifest(path)
+        rewritten = _rewrite_manifest(path, body, ids, new_keys, templates) if body is not None else None
+        if rewritten is not None:
+            out.append(rewritten)
+    return out
+
+
+def _known_ids(moves: list[RunMove], journal: list[dict[str, Any]]) -> tuple[dict[str, str], dict[str, str]]:
+    """Old id -> new id of every run moved (by the journal of an earlier, interrupted migration,
+    and by this one), and new id -> its config key."""
     ids = {str(e["old"]): str(e["new"]) for e in journal if e.get("event") == "begin"}
     new_keys: dict[str, str] = {}
     for move in moves:
         if move.new_id and move.new_config is not None:
             ids[move.old_id] = move.new_id
             new_keys[move.new_id] = config_key({k: v for k, v in move.new_config.items() if k != PROVENANCE_KEY})
-    templates = _templates(results, moves, journal)
-    out = []
-    directory = manifests_dir(results)
-    for path in sorted(directory.glob("*.json")) if directory.is_dir() else []:
-        try:
-            body = json.loads(path.read_text())
-        except (OSError, ValueError):
-            continue
-        if not isinstance(body, dict) or not isinstance(body.get("runs"), list):
-            continue
-        entries, changed = [], 0
-        for entry in body["runs"]:
-            new = _new_entry(entry, ids, new_keys, templates) if isinstance(entry, dict) else None
-            entries.append(new if new is not None else entry)
-            changed += new is not None
-        if not changed:
-            continue
-        name = path.stem
-        old_ids = [str(e.get("run_id")) for e in body["runs"] if isinstance(e, dict)]
-        suffix = f"-{plan_hash(old_ids)}"
-        if name.endswith(suffix):
-            name = name[: -len(suffix)] + f"-{plan_hash(str(e.get('run_id')) for e in entries if isinstance(e, dict))}"
-        out.append((path, name, {**body, "name": name if body.get("name") == path.stem else body.get("name"), "runs": entries}, changed))
-    return out
+    return ids, new_keys
+
+
+def _read_manifest(path: Path) -> dict[str, Any] | None:
+    """The manifest's body, or None when it is unreadable or not a manifest (it is left alone)."""
+    try:
+        body = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(body, dict) or not isinstance(body.get("runs"), list):
+        return None
+    return body
+
+
+def _rewrite_manifest(path: Path, body: dict[str, Any], ids: dict[str, str], new_keys: dict[str, str],
+                      templates: dict[str, dict[str, Any]]) -> tuple[Path, str, dict[str, Any], int] | None:
+    """The manifest under the current ids, or None when none of its entries changes. A name that
+    ends in the hash of its plan's ids gets the hash of the new ids."""
+    entries, changed = [], 0
+    for entry in body["runs"]:
+        new = _new_entry(entry, ids, new_keys, templates) if isinstance(entry, dict) else None
+        entries.append(new if new is not None else entry)
+        changed += new is not None
+    if not changed:
+        return None
+    name = path.stem
+    old_ids = [str(e.get("run_id")) for e in body["runs"] if isinstance(e, dict)]
+    suffix = f"-{plan_hash(old_ids)}"
+    if name.endswith(suffix):
+        name = name[: -len(suffix)] + f"-{plan_hash(str(e.get('run_id')) for e in entries if isinstance(e, dict))}"
+    return path, name, {**body, "name": name if body.get("name") == path.stem else body.get("name"), "runs": entries}, changed
 
 
 def _write_json(path: Path, body: dict[str, Any]) -> None:
@@ -599,26 +645,37 @@ STATUS_TEXT = {"migrated": "migrated", "migrate": "to migrate", "resume": "to fi
 
 
 def print_report(report: Report, dry_run: bool, out: Any) -> None:
-    from rich.table import Table  # rich waits: importing runners.migrate (its --help too) must not load it
-
+    """What was (or, with ``dry_run``, would be) done: a table of the runs not already current,
+    a line per manifest rewritten, and a line of counts."""
     shown = [m for m in report.moves if m.status != "current"]
     if shown:
-        table = Table(title="runs" + (" (dry run: nothing written)" if dry_run else ""))
-        for column in ("old id", "new id", "learner", "env", "status", "why"):
-            table.add_column(column, overflow="fold", no_wrap=column != "why")
-        for m in sorted(shown, key=lambda m: (m.status, m.learner, m.env_id, m.old_id)):
-            why = m.reason or ", ".join(m.migrations)
-            table.add_row(m.old_id, m.new_id or "-", m.learner, m.env_id, STATUS_TEXT.get(m.status, m.status), why)
-        out.print(table)
+        out.print(_runs_table(shown, dry_run))
     for old, new, changed in report.manifests:
         verb = "would be rewritten" if dry_run else "rewritten"
         out.print(f"manifest {old}: {changed} planned run(s) {verb}" + (f", renamed {new}" if new != old else ""))
+    out.print(_summary_line(report, dry_run))
+    if not dry_run and not report.count("migrated") and not report.manifests:
+        out.print("nothing to do: every run is at the current ids")
+
+
+def _summary_line(report: Report, dry_run: bool) -> str:
+    """How many runs had each status, and how long it took (or that it was a dry run)."""
     counts = {s: report.count(s) for s in STATUS_TEXT if report.count(s)}
     summary = ", ".join(f"{n} {STATUS_TEXT[s]}" for s, n in counts.items()) or "no runs"
     verb = "dry run" if dry_run else f"done in {report.seconds:.1f} s"
-    out.print(f"{len(report.moves)} run(s): {summary}; {verb}" + ("; nothing was written" if dry_run else ""))
-    if not dry_run and not report.count("migrated") and not report.manifests:
-        out.print("nothing to do: every run is at the current ids")
+    return f"{len(report.moves)} run(s): {summary}; {verb}" + ("; nothing was written" if dry_run else "")
+
+
+def _runs_table(shown: list[RunMove], dry_run: bool) -> Any:
+    from rich.table import Table  # rich waits: importing runners.migrate (its --help too) must not load it
+
+    table = Table(title="runs" + (" (dry run: nothing written)" if dry_run else ""))
+    for column in ("old id", "new id", "learner", "env", "status", "why"):
+        table.add_column(column, overflow="fold", no_wrap=column != "why")
+    for m in sorted(shown, key=lambda m: (m.status, m.learner, m.env_id, m.old_id)):
+        why = m.reason or ", ".join(m.migrations)
+        table.add_row(m.old_id, m.new_id or "-", m.learner, m.env_id, STATUS_TEXT.get(m.status, m.status), why)
+    return table
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:

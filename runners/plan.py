@@ -20,9 +20,9 @@ from morality_gym.baselines.targets import learner_trains
 from morality_gym.envs.registry import scenario_named
 from morality_gym.norms.chain import chain_fingerprint
 from runners.config import SweepConfig
+from runners.config_schema import Run
 from runners.identity import PER_RUN_KEYS, config_key, run_id_of  # noqa: F401 - re-exported
 from runners.results_schema import SCHEMA_VERSION
-from runners.config_schema import Run
 
 
 @dataclass(frozen=True)

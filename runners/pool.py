@@ -127,76 +127,102 @@ class WorkerPool:
         progress: JobProgress | None = None,
     ) -> None:
         """Execute ``jobs``; a worker that dies takes only its job's unreported runs with it
-        (``on_failure``); ``progress`` hears of fleets' training steps."""
-        progress = progress or JobProgress()
-        queue: deque[Job] = deque(jobs)
+        (``on_failure``); ``progress`` hears of fleets' training steps.
+
+        One loop of three phases: hand queued jobs to ready idle workers, wait up to a second for
+        any worker's pipe or death, then handle each event. The state of one ``run`` (the queue,
+        the workers that said "ready", the hooks) lives on the pool for its duration so each
+        phase is a method of its own."""
+        self._queue: deque[Job] = deque(jobs)
+        self._ready: set[int] = set()
+        self._deferred_until = 0.0
+        self._on_result, self._on_failure = on_result, on_failure
+        self._progress = progress or JobProgress()
         self._workers = [self._start() for _ in range(min(self.n_workers, max(1, len(jobs))))]
-        ready: set[int] = set()
-        deferred_until = 0.0
-
-        def busy() -> bool:
-            return any(w.job is not None for w in self._workers)
-
         try:
-            while queue or busy():
-                for w in self._workers:
-                    if w.job is None and queue and id(w) in ready and time.monotonic() >= deferred_until:
-                        w.job = queue.popleft()
-                        w.pending = {r.run_id: r for r in w.job.runs}
-                        w.conn.send((w.job.items, w.job.engine))
-                waitables: list[Any] = []
-                for w in self._workers:
-                    waitables += [w.conn, w.process.sentinel]
-                for obj in wait(waitables, timeout=1.0):
-                    # A dead worker makes both its pipe and its sentinel ready; handle it once.
-                    worker = next((w for w in self._workers if obj in (w.conn, w.process.sentinel)), None)
-                    if worker is None:
-                        continue
-                    message = None
-                    if obj is worker.conn:
-                        try:
-                            message = worker.conn.recv()
-                        except (EOFError, OSError):
-                            message = None
-                    if message is not None and message[0] == "ready":
-                        ready.add(id(worker))
-                        continue
-                    if message is not None and message[0] == "free":
-                        if worker.job is not None:
-                            progress.end(worker.job)
-                        worker.job, worker.pending = None, {}
-                        continue
-                    if message is not None and message[0] == "progress":
-                        if worker.job is not None:
-                            progress.update(worker.job, *message[1])
-                        continue
-                    if message is not None and message[0] == "done":
-                        summary = message[1]
-                        run = worker.pending.pop(summary["run_id"], None)
-                        if run is not None and summary["status"] == "busy":
-                            # another process holds the run: try it again later, on its own
-                            queue.append(Job((run,), "single", run.est_seconds))
-                            deferred_until = time.monotonic() + 1.0
-                        elif run is not None:
-                            on_result(run, summary)
-                        continue
-                    # The worker died (killed, crashed, out of memory).
-                    worker.process.join(timeout=5)
-                    code = worker.process.exitcode
-                    reason = f"signal {-code}" if code is not None and code < 0 else f"exit code {code}"
-                    what = "this configuration" if worker.job is None or len(worker.job.runs) == 1 else \
-                        f"a fleet of {len(worker.job.runs)} runs including this configuration"
-                    for run in worker.pending.values():
-                        on_failure(run, f"worker process died ({reason}) while running {what}")
-                    if worker.job is not None:
-                        progress.end(worker.job)
-                    worker.job, worker.pending = None, {}
-                    self._workers.remove(worker)
-                    ready.discard(id(worker))
-                    if queue or busy():
-                        self._workers.append(self._start())
+            while self._queue or self._busy():
+                self._dispatch()
+                for obj in wait(self._waitables(), timeout=1.0):
+                    self._handle(obj)
         finally:
             self.close()
+
+    def _busy(self) -> bool:
+        return any(w.job is not None for w in self._workers)
+
+    def _dispatch(self) -> None:
+        """Give the next queued job to each idle worker that has finished its imports, unless a
+        busy run was just requeued (``_deferred_until``: retry it a second later, not at once)."""
+        for w in self._workers:
+            if w.job is None and self._queue and id(w) in self._ready and time.monotonic() >= self._deferred_until:
+                w.job = self._queue.popleft()
+                w.pending = {r.run_id: r for r in w.job.runs}
+                w.conn.send((w.job.items, w.job.engine))
+
+    def _waitables(self) -> list[Any]:
+        waitables: list[Any] = []
+        for w in self._workers:
+            waitables += [w.conn, w.process.sentinel]
+        return waitables
+
+    def _handle(self, obj: Any) -> None:
+        """One ready pipe or sentinel: a message from its worker, or the worker's death."""
+        # A dead worker makes both its pipe and its sentinel ready; handle it once.
+        worker = next((w for w in self._workers if obj in (w.conn, w.process.sentinel)), None)
+        if worker is None:
+            return
+        message = self._receive(worker) if obj is worker.conn else None
+        if message is None:
+            self._bury(worker)
+        elif message[0] == "ready":
+            self._ready.add(id(worker))
+        elif message[0] == "free":
+            self._job_over(worker)
+        elif message[0] == "progress":
+            if worker.job is not None:
+                self._progress.update(worker.job, *message[1])
+        elif message[0] == "done":
+            self._run_done(worker, message[1])
+        else:
+            self._bury(worker)
+
+    @staticmethod
+    def _receive(worker: _Worker) -> Any:
+        """The worker's next message, or None when its pipe is closed (it died)."""
+        try:
+            return worker.conn.recv()
+        except (EOFError, OSError):
+            return None
+
+    def _job_over(self, worker: _Worker) -> None:
+        if worker.job is not None:
+            self._progress.end(worker.job)
+        worker.job, worker.pending = None, {}
+
+    def _run_done(self, worker: _Worker, summary: dict[str, Any]) -> None:
+        run = worker.pending.pop(summary["run_id"], None)
+        if run is not None and summary["status"] == "busy":
+            # another process holds the run: try it again later, on its own
+            self._queue.append(Job((run,), "single", run.est_seconds))
+            self._deferred_until = time.monotonic() + 1.0
+        elif run is not None:
+            self._on_result(run, summary)
+
+    def _bury(self, worker: _Worker) -> None:
+        """The worker died (killed, crashed, out of memory): fail its unreported runs, and start a
+        replacement if there is work left."""
+        worker.process.join(timeout=5)
+        code = worker.process.exitcode
+        reason = f"signal {-code}" if code is not None and code < 0 else f"exit code {code}"
+        what = "this configuration" if worker.job is None or len(worker.job.runs) == 1 else \
+            f"a fleet of {len(worker.job.runs)} runs including this configuration"
+        for run in worker.pending.values():
+            self._on_failure(run, f"worker process died ({reason}) while running {what}")
+        self._job_over(worker)
+        self._workers.remove(worker)
+        self._ready.discard(id(worker))
+        if self._queue or self._busy():
+            self._workers.append(self._start())
 
     def close(self) -> None:
         for w in self._workers:

@@ -30,6 +30,21 @@ def run_on_slurm(
     on_failure: Callable[[PlannedRun, str], None],
     device: str = "cpu",
 ) -> None:
+    """Submit ``jobs_`` as one array and poll it, reporting each run as its array task ends."""
+    jobs = _submit(jobs_, launcher, results_dir, gif, sweep_name, device)
+    pending = dict(zip(range(len(jobs_)), jobs))
+    poll = float(launcher.get("poll_s", 2.0))
+    while pending:
+        for i in list(pending):
+            if pending[i].done():
+                _collect(pending.pop(i), jobs_[i], results_dir, on_result, on_failure)
+        if pending:
+            time.sleep(poll)
+
+
+def _submit(jobs_: list[Job], launcher: Mapping[str, Any], results_dir: Path, gif: bool, sweep_name: str,
+            device: str) -> list[Any]:
+    """One submitit array task per job, with the launcher's partition and resources."""
     import submitit  # submitit waits: importing runners.slurm_launcher must not load it
 
     folder = Path(launcher.get("folder") or results_dir / "slurm" / sweep_name)
@@ -45,7 +60,7 @@ def run_on_slurm(
         tasks_per_node=1,
         nodes=1,
     )
-    jobs = executor.map_array(
+    return executor.map_array(
         execute_job_all,
         [j.items for j in jobs_],
         [str(results_dir)] * len(jobs_),
@@ -53,35 +68,36 @@ def run_on_slurm(
         [j.engine for j in jobs_],
         [device] * len(jobs_),
     )
-    pending = dict(zip(range(len(jobs_)), jobs))
-    poll = float(launcher.get("poll_s", 2.0))
-    while pending:
-        for i in list(pending):
-            job = pending[i]
-            if not job.done():
-                continue
-            del pending[i]
-            runs = {r.run_id: r for r in jobs_[i].runs}
-            try:
-                summaries = job.result()
-            except Exception as exc:  # noqa: BLE001 - a lost job is recorded, whatever SLURM says
-                lost = f"SLURM job {job.job_id} ended without a result: {type(exc).__name__}: {str(exc)[:500]}"
-                for run in runs.values():
-                    status = finished_status(results_dir, run.run_id)
-                    if status is not None:  # written before the job died
-                        on_result(run, {"run_id": run.run_id, "status": status, "error": None})
-                    else:
-                        on_failure(run, lost)
-                continue
-            for summary in summaries:
-                run = runs.pop(summary["run_id"], None)
-                if run is None:
-                    continue
-                if summary.get("status") == "busy":
-                    on_failure(run, f"SLURM job {job.job_id}: the run was locked by another process")
-                else:
-                    on_result(run, summary)
-            for run in runs.values():  # not reported by the task (should not happen): never silently lost
-                on_failure(run, f"SLURM job {job.job_id} returned no result for this run")
-        if pending:
-            time.sleep(poll)
+
+
+def _collect(
+    job: Any,
+    planned: Job,
+    results_dir: Path,
+    on_result: Callable[[PlannedRun, dict[str, Any]], None],
+    on_failure: Callable[[PlannedRun, str], None],
+) -> None:
+    """Report every run of a finished array task: its summaries, or, for a task that died without
+    a result, what each run wrote before it died. No run is silently lost."""
+    runs = {r.run_id: r for r in planned.runs}
+    try:
+        summaries = job.result()
+    except Exception as exc:  # noqa: BLE001 - a lost job is recorded, whatever SLURM says
+        lost = f"SLURM job {job.job_id} ended without a result: {type(exc).__name__}: {str(exc)[:500]}"
+        for run in runs.values():
+            status = finished_status(results_dir, run.run_id)
+            if status is not None:  # written before the job died
+                on_result(run, {"run_id": run.run_id, "status": status, "error": None})
+            else:
+                on_failure(run, lost)
+        return
+    for summary in summaries:
+        run = runs.pop(summary["run_id"], None)
+        if run is None:
+            continue
+        if summary.get("status") == "busy":
+            on_failure(run, f"SLURM job {job.job_id}: the run was locked by another process")
+        else:
+            on_result(run, summary)
+    for run in runs.values():  # not reported by the task (should not happen): never silently lost
+        on_failure(run, f"SLURM job {job.job_id} returned no result for this run")

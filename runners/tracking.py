@@ -20,6 +20,7 @@ import contextlib
 import fcntl
 import json
 import logging
+import math
 import os
 import socket
 from collections.abc import Iterator
@@ -103,6 +104,23 @@ def _flatten(prefix: str, value: Any, out: dict[str, str]) -> None:
         out[prefix] = json.dumps(value) if isinstance(value, (list, tuple)) else str(value)
 
 
+def _is_number(value: Any) -> bool:
+    """Present and not NaN (NaN marks a value a row had no way to measure)."""
+    return value is not None and not (isinstance(value, float) and math.isnan(value))
+
+
+#: A metric as ``(key, value, step)``; :meth:`Tracker._log` makes MLflow's entities of them.
+MetricPoint = tuple[str, float, int]
+
+
+def _row_metrics(row: dict[str, Any]) -> list[MetricPoint]:
+    """The run's summary metrics and moral-foundation scores, all at the run's last step."""
+    step = int(row.get("total_steps") or 0)
+    metrics = [(k, float(row[k]), step) for k in _METRICS if row.get(k) is not None]
+    metrics += [(k, float(v), step) for k, v in row.items() if k.startswith(MF_PREFIX) and v is not None]
+    return metrics
+
+
 class Tracker:
     """Logs runs of one results directory to MLflow."""
 
@@ -136,9 +154,9 @@ class Tracker:
             return self._sync_locked(run_id)
 
     def _sync_locked(self, run_id: str) -> str | None:
-        # MLflow waits: importing runners.tracking must not load it
-        from mlflow.entities import Metric, Param, RunTag
-
+        """Mirror ``run_id`` under the tracking lock, in the order that makes a crash harmless:
+        the marker is written last, so a run without one is mirrored again from scratch (the
+        half-mirrored MLflow run of an interrupted attempt is deleted first)."""
         marker = marker_path(self.results_dir, run_id)
         if marker.is_file():
             return json.loads(marker.read_text())["mlflow_run_id"]
@@ -149,48 +167,73 @@ class Tracker:
         row = table.to_pylist()[0]
         for old in self.client.search_runs([self.experiment_id], filter_string=f"tags.run_id = '{run_id}'"):
             self.client.delete_run(old.info.run_id)  # an interrupted earlier mirror
+        mid = self._create_run(row)
+        params: dict[str, str] = {}
+        _flatten("", json.loads(row["config"]), params)
+        metrics = _row_metrics(row) + self._learn_metrics(run_id) + self._update_metrics(run_id)
+        self._log(mid, params, metrics, row)
+        self._log_artifacts(mid, path, row)
+        self.client.set_terminated(mid, "FINISHED" if row["status"] == "ok" else "FAILED")
+        self._write_marker(marker, mid)
+        return mid
+
+    def _create_run(self, row: dict[str, Any]) -> str:
+        """An MLflow run tagged with the run's identity; returns its MLflow id."""
         tags = {k: str(row[k]) for k in ("run_id", "env_id", "scenario", "variant", "chain", "algo", "learner", "protocol", "preset", "seed", "status")}
         if row.get("engine"):  # absent in rows written before the column existed
             tags["engine"] = str(row["engine"])
         run = self.client.create_run(self.experiment_id, tags=tags, run_name=f"{row['learner']} {row['env_id']} {row['chain']} s{row['seed']}")
-        mid = run.info.run_id
-        params: dict[str, str] = {}
-        _flatten("", json.loads(row["config"]), params)
-        metrics = [Metric(k, float(row[k]), 0, int(row.get("total_steps") or 0)) for k in _METRICS if row.get(k) is not None]
-        metrics += [Metric(k, float(v), 0, int(row.get("total_steps") or 0)) for k, v in row.items() if k.startswith(MF_PREFIX) and v is not None]
+        return run.info.run_id
+
+    def _learn_metrics(self, run_id: str) -> list[MetricPoint]:
+        """The learning curve, one ``learn/<key>`` metric per evaluation step."""
         learn = read_table_or_quarantine(self.results_dir, learn_path(self.results_dir, run_id))
-        if learn is not None:
-            for r in learn.to_pylist():
-                for key in ("metric", "exact_metric", "mean_return", "mean_cost", "mean_length"):
-                    if r.get(key) is not None and r[key] == r[key]:
-                        metrics.append(Metric(f"learn/{key}", float(r[key]), 0, int(r["step"])))
+        if learn is None:
+            return []
+        return [(f"learn/{key}", float(r[key]), int(r["step"]))
+                for r in learn.to_pylist()
+                for key in ("metric", "exact_metric", "mean_return", "mean_cost", "mean_length")
+                if _is_number(r.get(key))]
+
+    def _update_metrics(self, run_id: str) -> list[MetricPoint]:
+        """Per-update diagnostics of PPO-Lag / CPO, over environment steps (``update/<key>``)."""
         updates = read_table_or_quarantine(self.results_dir, updates_path(self.results_dir, run_id))
-        if updates is not None:  # per-update diagnostics of PPO-Lag / CPO, over environment steps
-            numeric = [c for c in UPDATE_COLUMNS if c not in ("schema_version", "run_id", "update", "timesteps")]
-            for r in updates.to_pylist():
-                for key in numeric:
-                    value = r.get(key)
-                    if value is not None and value == value:
-                        metrics.append(Metric(f"update/{key}", float(value), 0, int(r["timesteps"])))
+        if updates is None:
+            return []
+        numeric = [c for c in UPDATE_COLUMNS if c not in ("schema_version", "run_id", "update", "timesteps")]
+        return [(f"update/{key}", float(r[key]), int(r["timesteps"]))
+                for r in updates.to_pylist()
+                for key in numeric
+                if _is_number(r.get(key))]
+
+    def _log(self, mid: str, params: dict[str, str], points: list[MetricPoint], row: dict[str, Any]) -> None:
+        """Params, metrics and the error in batches under MLflow's per-call limits."""
+        from mlflow.entities import Metric, Param, RunTag  # MLflow waits: importing runners.tracking must not load it
+
         items = list(params.items())
         for i in range(0, max(1, len(items)), 100):
             self.client.log_batch(mid, params=[Param(k, v[:6000]) for k, v in items[i : i + 100]])
+        metrics = [Metric(key, value, 0, step) for key, value, step in points]
         for i in range(0, len(metrics), 900):
             self.client.log_batch(mid, metrics=metrics[i : i + 900])
         if row.get("error"):
             self.client.log_batch(mid, tags=[RunTag("error", str(row["error"])[:5000])])
+
+    def _log_artifacts(self, mid: str, path: Path, row: dict[str, Any]) -> None:
+        """The run's Parquet row, its GIF and its model (with the model's JSON sidecar)."""
         self.client.log_artifact(mid, str(path))
         for key in ("gif_path", "model_path"):
-            if row.get(key):
-                artifact = self.results_dir / row[key]
-                if artifact.is_file():
-                    self.client.log_artifact(mid, str(artifact))
-                    sidecar = artifact.with_suffix(".json")
-                    if key == "model_path" and sidecar.is_file():
-                        self.client.log_artifact(mid, str(sidecar))
-        self.client.set_terminated(mid, "FINISHED" if row["status"] == "ok" else "FAILED")
+            artifact = self.results_dir / row[key] if row.get(key) else None
+            if artifact is None or not artifact.is_file():
+                continue
+            self.client.log_artifact(mid, str(artifact))
+            sidecar = artifact.with_suffix(".json")
+            if key == "model_path" and sidecar.is_file():
+                self.client.log_artifact(mid, str(sidecar))
+
+    def _write_marker(self, marker: Path, mid: str) -> None:
+        """Atomically (write then rename): a marker is either whole or absent."""
         marker.parent.mkdir(parents=True, exist_ok=True)
         tmp = marker.with_suffix(".tmp")
         tmp.write_text(json.dumps({"mlflow_run_id": mid, "experiment_id": self.experiment_id, "tracking_uri": tracking_uri(self.results_dir)}))
         os.replace(tmp, marker)
-        return mid
