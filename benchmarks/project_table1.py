@@ -5,8 +5,8 @@ Why this exists: the sweep planner's estimate comes from per-learner rates fitte
 budget a Table 1 takes hours, so a claim such as "the paper preset fits a workstation" should rest
 on runs that were measured, not on the planner alone. This tool reads the finished runs of a
 results directory (a few Table 1 rows run at the preset in question), measures each learner's
-core-seconds per training step (every run's ``wall_time_s``: its share of its fleet's training
-plus its own evaluations and writes), and prices every job of the full Table 1 plan with it. The
+core-seconds per training step (every run's ``cpu_time_s``, or its ``wall_time_s`` in files written
+before that column: its share of its fleet's training plus its own evaluations and writes), and prices every job of the full Table 1 plan with it. The
 jobs are those the sweep itself would make (:func:`runners.jobs.make_jobs`, fleets of up to
 ``fleet_size``), handed to ``W`` workers in the sweep's dispatch order (longest estimated job
 first) as each becomes free, as the local pool does, so the projection includes the tail where
@@ -34,6 +34,7 @@ from typing import Any
 from morality_gym.baselines.specs import learner_spec
 from morality_gym.clitools import duration
 from runners.paths import CONF_DIR
+from runners.results_schema import compute_seconds
 
 
 @dataclass(frozen=True)
@@ -100,7 +101,7 @@ def measured_rates(results_dir: Path, protocol: str, preset: str, engine: str) -
         rates[str(algo)] = Rate(
             runs=len(group),
             steps=int(group["budget"].sum()) if trained else len(group),
-            core_seconds=float(group["wall_time_s"].sum()),
+            core_seconds=float(compute_seconds(group).sum()),
             rows=tuple(sorted({f"{c} / {s}" for c, s in zip(group["chain"], group["scenario"], strict=True)})),
             fleet_sizes=tuple(sizes),
             scenarios=tuple(sorted(set(group["scenario"]))),
@@ -125,11 +126,12 @@ def scenario_factors(reference_dir: Path, protocol: str, engine: str, rates: dic
         mine = frame[frame["algo"] == algo] if not frame.empty else frame
         if mine.empty or rate.steps == rate.runs:
             continue
-        per_step = mine.groupby("scenario")["wall_time_s"].sum() / mine.groupby("scenario")["budget"].sum()
+        compute = compute_seconds(mine)
+        per_step = compute.groupby(mine["scenario"]).sum() / mine.groupby("scenario")["budget"].sum()
         base_rows = mine[mine["scenario"].isin(rate.scenarios)]
         if base_rows.empty:
             continue
-        base = float(base_rows["wall_time_s"].sum() / base_rows["budget"].sum())
+        base = float(compute[base_rows.index].sum() / base_rows["budget"].sum())
         factors.update({(algo, str(scenario)): float(value) / base for scenario, value in per_step.items()})
     return factors
 

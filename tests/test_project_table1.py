@@ -33,14 +33,15 @@ def test_makespan_takes_jobs_in_order_on_the_first_free_worker() -> None:
 
 
 def test_rates_are_the_runs_core_seconds_per_step(measured: tuple[Path, list[dict]]) -> None:
+    """Core-seconds are the runs' CPU time (runners.results_schema.compute_seconds), not their wall time."""
     results, records = measured
     rates = measured_rates(results, "paper", "quick", "single")
     ppo = [r for r in records if r["algo"] == "ppo" and r["protocol"] == "paper"]
     assert rates["ppo"].runs == len(ppo)
-    assert rates["ppo"].seconds_per_step == pytest.approx(sum(r["wall_time_s"] for r in ppo) / sum(r["budget"] for r in ppo))
+    assert rates["ppo"].seconds_per_step == pytest.approx(sum(r["cpu_time_s"] for r in ppo) / sum(r["budget"] for r in ppo))
     randoms = [r for r in records if r["algo"] == "random" and r["protocol"] == "paper"]
     per = max(r["budget"] for r in randoms) > 0 and sum(r["budget"] for r in randoms) or len(randoms)  # real sweeps: budget 0
-    assert rates["random"].seconds_per_step == pytest.approx(sum(r["wall_time_s"] for r in randoms) / per)
+    assert rates["random"].seconds_per_step == pytest.approx(sum(r["cpu_time_s"] for r in randoms) / per)
     assert measured_rates(results, "paper", "quick", "fleet").keys() == {"random"}  # no trained run was a fleet's
 
 
@@ -77,9 +78,9 @@ def test_scenario_factors_weight_the_rates_by_the_reference_sweep(measured: tupl
     rates = measured_rates(results, "paper", "quick", "single")
     factors = scenario_factors(results, "paper", "single", rates)
     ppo = [r for r in records if r["algo"] == "ppo" and r["protocol"] == "paper"]
-    per_step = {sc: sum(r["wall_time_s"] for r in ppo if r["scenario"] == sc) / sum(r["budget"] for r in ppo if r["scenario"] == sc)
+    per_step = {sc: sum(r["cpu_time_s"] for r in ppo if r["scenario"] == sc) / sum(r["budget"] for r in ppo if r["scenario"] == sc)
                 for sc in {r["scenario"] for r in ppo}}
-    overall = sum(r["wall_time_s"] for r in ppo) / sum(r["budget"] for r in ppo)
+    overall = sum(r["cpu_time_s"] for r in ppo) / sum(r["budget"] for r in ppo)
     for scenario, value in per_step.items():  # the reference is the measured sweep itself: relative to its mean
         assert factors[("ppo", scenario)] == pytest.approx(value / overall)
     jobs, _sweep = table1_jobs("quick", "paper", "fleet", 1, tmp_path / "scratch")
