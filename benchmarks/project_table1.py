@@ -253,7 +253,8 @@ def _factors_table(reference: Path | None, factors: dict[tuple[str, str], float]
     return lines
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command's parser, apart from parsing: the docs' command-line reference is generated from it."""
     parser = argparse.ArgumentParser(prog="python -m benchmarks.project_table1", description=__doc__.split("\n\n")[0])
     parser.add_argument("results_dir", type=Path, help="a results directory holding finished runs of some Table 1 rows")
     parser.add_argument("--preset", default="paper")
@@ -266,6 +267,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="a sweep of every Table 1 scenario (e.g. the quick Table 1) whose per-scenario costs "
                              "weight the measured rates: the rows measured may be cheaper or dearer than the rest")
     parser.add_argument("--out", type=Path, help="also write the Markdown here")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if not (args.results_dir / "runs").is_dir():
         parser.error(f"{args.results_dir}: no runs/ directory (not a results directory)")

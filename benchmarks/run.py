@@ -507,7 +507,8 @@ def keep_other_sections(markdown: str, replaced: set[str]) -> list[tuple[str, st
     return out
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
+    """The command's parser, apart from parsing: the docs' command-line reference is generated from it."""
     parser = argparse.ArgumentParser(prog="python -m benchmarks.run", description=__doc__.splitlines()[0])
     parser.add_argument("--output", type=Path, default=Path("BENCHMARKS.md"), help="Markdown file to write")
     parser.add_argument("--quick", action="store_true", help="about a tenth of the work (smoke check)")
@@ -533,7 +534,7 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run the selected sections (pinned to one CPU, one thread), optionally again at a baseline
     revision, and write the report."""
-    parser = _parser()
+    parser = build_parser()
     args = parser.parse_args(argv)
 
     _discover_extensions()

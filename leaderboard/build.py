@@ -62,7 +62,8 @@ def progress(items: Iterable[T], description: str, total: int) -> Iterable[T]:
     return items
 
 
-def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """The command's parser, apart from parsing: the docs' command-line reference is generated from it."""
     parser = OneLineParser(prog="python -m leaderboard.build", description=__doc__.splitlines()[0])
     parser.add_argument("--results", type=Path, default=Path("results"), help="results directory (default: results)")
     parser.add_argument("--out", type=Path, default=None,
@@ -76,7 +77,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help="also show a results release (releases/<name>; 'all': every release in releases/); "
                              "repeatable. Runs of the results directory win over a release's copy of the same run")
     add_debug_flag(parser)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    args = build_parser().parse_args(argv)
     if args.out is None:
         args.out = args.results
     if args.site is None:

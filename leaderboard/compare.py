@@ -223,7 +223,8 @@ def _chosen_learners(mine: pd.DataFrame, learners: Sequence[str] | None, protoco
     return list(learners)
 
 
-def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """The command's parser, apart from parsing: the docs' command-line reference is generated from it."""
     parser = OneLineParser(prog="python -m leaderboard.compare", description=__doc__.split("\n\n")[0])
     parser.add_argument("after", type=Path, help="results directory (or table1_all.csv) with the new runs")
     parser.add_argument("--before", type=Path, help="results directory or table1_all.csv of the earlier runs")
@@ -231,7 +232,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--protocol", action="append", help="protocol to show (repeatable); default: all")
     parser.add_argument("--out", type=Path, help="write the Markdown here instead of stdout")
     parser.add_argument("--debug", action="store_true", help="show the traceback of an error")
-    return parser.parse_args(argv)
+    return parser
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    return build_parser().parse_args(argv)
 
 
 def run(args: argparse.Namespace) -> int:

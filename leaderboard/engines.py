@@ -224,14 +224,19 @@ def report(single: Results, fleet: Results, protocols: Sequence[str] | None = No
     return "\n".join(lines)
 
 
-def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """The command's parser, apart from parsing: the docs' command-line reference is generated from it."""
     parser = OneLineParser(prog="python -m leaderboard.engines", description=__doc__.split("\n\n")[0])
     parser.add_argument("single", type=Path, help="results directory of the sweep run with engine=single")
     parser.add_argument("fleet", type=Path, help="results directory of the same sweep run with engine=fleet")
     parser.add_argument("--protocol", action="append", help="protocol to show (repeatable); default: all")
     parser.add_argument("--out", type=Path, help="write the Markdown here instead of stdout")
     parser.add_argument("--debug", action="store_true", help="show the traceback of an error")
-    return parser.parse_args(argv)
+    return parser
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    return build_parser().parse_args(argv)
 
 
 def run(args: argparse.Namespace) -> int:

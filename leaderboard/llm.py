@@ -285,8 +285,8 @@ def _add_entry_args(p: argparse.ArgumentParser) -> None:
     add_debug_flag(p)
 
 
-def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-
+def build_parser() -> argparse.ArgumentParser:
+    """The command's parser, apart from parsing: the docs' command-line reference is generated from it."""
     d = AgentSettings()
     parser = OneLineParser(prog="python -m leaderboard.llm", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
@@ -317,7 +317,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     imp = sub.add_parser("import", help="turn finished Inspect logs into submitted runs")
     imp.add_argument("logs", nargs="+", type=Path, help="Inspect log files (.eval)")
     _add_entry_args(imp)
-    return parser.parse_args(argv)
+    return parser
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    return build_parser().parse_args(argv)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -343,7 +343,8 @@ def _manifest(tmp: Path, results: Path, runs: pd.DataFrame, name: str, title: st
 
 
 # ---------------------------------------------------------------------------------------- command line
-def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """The command's parser, apart from parsing: the docs' command-line reference is generated from it."""
     parser = OneLineParser(prog="python -m leaderboard.release", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     make = sub.add_parser("create", help="freeze a results directory into releases/<name>/")
@@ -356,7 +357,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     check = sub.add_parser("verify", help="check every file of a release against its checksum")
     check.add_argument("release", type=Path)
     add_debug_flag(parser)
-    return parser.parse_args(argv)
+    return parser
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    return build_parser().parse_args(argv)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -346,7 +346,8 @@ def page(lb: Leaderboard, sources: Sources, learn: pd.DataFrame, figure_dir: Pat
     return "\n".join(lines) + "\n"
 
 
-def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """The command's parser, apart from parsing: the docs' command-line reference is generated from it."""
     parser = OneLineParser(prog="python -m leaderboard.reproduction", description=__doc__.splitlines()[0])
     parser.add_argument("--results", type=Path, default=None, help="a results directory (optional with --release)")
     parser.add_argument("--release", action="append", metavar="DIR|all", help="a results release (repeatable)")
@@ -356,7 +357,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help="reference-row cache (exact Random and oracle values)")
     parser.add_argument("--resamples", type=int, default=DEFAULT_RESAMPLES, help="bootstrap resamples of the intervals")
     add_debug_flag(parser)
-    return parser.parse_args(argv)
+    return parser
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    return build_parser().parse_args(argv)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -7,6 +7,7 @@ services would otherwise stall or log errors). Each launch gets a fresh, empty p
 
 from __future__ import annotations
 
+import argparse
 import sys
 import tempfile
 from collections.abc import Sequence
@@ -66,14 +67,20 @@ def screenshot(site: Path, out: Path, page_name: str = "index.html", full_page: 
     return out
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
+def build_parser() -> argparse.ArgumentParser:
+    """The command's parser, apart from parsing: the docs' command-line reference is generated from it."""
     parser = OneLineParser(prog="python -m leaderboard.screenshot", description=__doc__.splitlines()[0])
     parser.add_argument("--site", type=Path, default=DEFAULT_SITE, help=f"built site (default: {DEFAULT_SITE})")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"PNG to write (default: {DEFAULT_OUT})")
     parser.add_argument("--page", default="index.html", help="page relative to the site root (default: index.html)")
     parser.add_argument("--viewport-only", action="store_true", help="only the first screen, not the full page")
     add_debug_flag(parser)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
 
     def body() -> int:
         args = parser.parse_args(argv)

@@ -340,7 +340,8 @@ def stored_scores(results: Path, run_id: str) -> tuple[float, float | None]:
 
 
 # ---------------------------------------------------------------------------------------- command line
-def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """The command's parser, apart from parsing: the docs' command-line reference is generated from it."""
     parser = OneLineParser(prog="python -m leaderboard.submit", description=__doc__.splitlines()[0])
     parser.add_argument("policy", help="path/to/file.py:function, package.module:function (a callable obs -> action or "
                                        "6 probabilities), a saved model (model.zip) or 'random'")
@@ -361,7 +362,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help="a saved model: evaluate it on other variants than the one it was trained on")
     parser.add_argument("--no-gif", action="store_true", help="do not record a GIF of one episode per run")
     add_debug_flag(parser)
-    return parser.parse_args(argv)
+    return parser
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    return build_parser().parse_args(argv)
 
 
 def _submitter(given: str | None) -> str:

@@ -678,14 +678,19 @@ def _runs_table(shown: list[RunMove], dry_run: bool) -> Any:
     return table
 
 
-def parse_args(argv: list[str]) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """The command's parser, apart from parsing: the docs' command-line reference is generated from it."""
     parser = OneLineParser(prog="python -m runners.migrate", description=(
         "Rewrite the runs of a results directory written before a change of the run config's vocabulary "
         f"({', '.join(f'{m.name} ({m.commit})' for m in MIGRATIONS)}) under the ids the current code gives them."))
     parser.add_argument("results_dir", type=Path, help="the results directory of a sweep (holds runs/)")
     parser.add_argument("--dry-run", action="store_true", help="print what would be done; write nothing")
     add_debug_flag(parser)
-    return parser.parse_args(argv)
+    return parser
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    return build_parser().parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> int:

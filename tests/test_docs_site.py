@@ -96,6 +96,21 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+def test_every_documented_command_exposes_the_parser_it_parses_with() -> None:
+    """The command-line reference is made from each command's build_parser(); parse_args must use
+    the same parser, so an option added to one shows on the page."""
+    import importlib
+
+    for module, _ in hooks().COMMANDS:
+        parser = hooks().capture_parser(module)
+        assert parser.prog.endswith(module if module != "morality_gym" else "morality_gym"), (module, parser.prog)
+        mod = importlib.import_module(module + (".__main__" if module == "morality_gym" else ""))
+        if hasattr(mod, "parse_args"):
+            with pytest.raises(SystemExit) as exit_:
+                mod.parse_args(["--help"])
+            assert exit_.value.code == 0, module
+
+
 def test_module_map_lists_every_module_with_its_docstring() -> None:
     page = hooks().module_map_page()
     for package in hooks().MAP_PACKAGES:

@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import ast
 import dataclasses
+import importlib
 import io
 import re
 import sys
@@ -207,35 +208,14 @@ COMMANDS: list[tuple[str, str]] = [
 ]
 
 
-class _Captured(Exception):
-    def __init__(self, parser: argparse.ArgumentParser) -> None:
-        super().__init__(parser.prog)
-        self.parser = parser
-
-
 def capture_parser(module: str) -> argparse.ArgumentParser:
-    """The parser ``python -m <module>`` builds: its ``parse_args`` (or ``main``) is run with
-    ``ArgumentParser.parse_args`` replaced by a trap that hands back the parser, so that the
-    page shows exactly the parser the command uses, with nothing run."""
-    import importlib
-
+    """The parser ``python -m <module>`` uses: every listed command exposes ``build_parser()`` (the
+    parser apart from parsing), so the page shows exactly what the command accepts and runs nothing."""
     mod = importlib.import_module(module + (".__main__" if module == "morality_gym" else ""))
-    if hasattr(mod, "build_parser"):
-        return mod.build_parser()
-    original = argparse.ArgumentParser.parse_args
-
-    def trap(self: argparse.ArgumentParser, *args: Any, **kwargs: Any) -> Any:
-        raise _Captured(self)
-
-    argparse.ArgumentParser.parse_args = trap  # type: ignore[method-assign]
-    try:
-        entry = getattr(mod, "parse_args", None) or mod.main
-        entry([])
-    except _Captured as caught:
-        return caught.parser
-    finally:
-        argparse.ArgumentParser.parse_args = original  # type: ignore[method-assign]
-    raise RuntimeError(f"{module} built no parser")
+    build = getattr(mod, "build_parser", None)
+    if build is None:
+        raise RuntimeError(f"{module} has no build_parser(): a command listed in COMMANDS must expose its parser")
+    return build()
 
 
 def _rst(text: str) -> str:
