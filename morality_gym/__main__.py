@@ -1,7 +1,7 @@
 """Command line: ``python -m morality_gym {play,eval,oracle,list,docs}``.
 
 ``eval`` and ``oracle`` are stable interfaces (other tools call them with ``--json``); their JSON
-shapes are documented in the README and covered by tests. User errors (unknown names, bad numbers,
+shapes are documented in docs/getting-started.md ("A first evaluation") and covered by tests. User errors (unknown names, bad numbers,
 unusable model files, invalid scenario files) print one line and exit 2; ``--debug`` shows their
 traceback (:mod:`morality_gym.clitools`).
 """
