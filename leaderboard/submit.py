@@ -33,10 +33,8 @@ import math
 import os
 import socket
 import sys
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
@@ -227,10 +225,10 @@ def run_config(sub: Submission, cell: Cell, variant: str, seed: int, stationary:
 def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: str, results: Path) -> dict[str, Any]:
     """Evaluate one (cell, variant, seed) and return its schema row (nothing written yet)."""
     # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
-    from runners.execute import git_commit, versions
-    from runners.results_schema import MF_PREFIX, runs_dir
+    from runners.execute import RunClock, git_commit, utc_now, versions
+    from runners.results_schema import MF_PREFIX, SCHEMA_VERSION, runs_dir
 
-    started, t0, cpu0 = _now(), time.perf_counter(), time.process_time()
+    clock = RunClock.start()
     env_id = config["env_id"]
     bound = bind_chain(cell.chain, env_id, sub.beta)
     final = evaluate(sub.loaded.policy, env_id, bound, n_episodes=sub.eval_episodes, seed=config["seed"],
@@ -245,9 +243,7 @@ def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: st
         record_episode(env_id, sub.loaded.policy, gif, max_steps=GIF_STEPS, seed=config["seed"] + 7919,
                        env_kwargs={"max_steps": sub.max_steps})
         gif_rel = str(gif.relative_to(results))
-    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
-    from runners.results_schema import SCHEMA_VERSION
-
+    wall, cpu = clock.elapsed()
     return {
         "schema_version": SCHEMA_VERSION, "run_id": run_id, "status": "ok", "error": None, "traceback": None,
         "env_id": env_id, "scenario": cell.scenario, "variant": config["variant"], "chain": cell.chain.name,
@@ -258,17 +254,12 @@ def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: st
         "exact_metric": None if exact is None else exact.metric,
         "mean_return": final.mean_return, "mean_cost": final.mean_cost, "mean_length": final.mean_length,
         "truncation_rate": final.truncation_rate, "goal_rate": final.goal_rate,
-        "wall_time_s": time.perf_counter() - t0, "cpu_time_s": time.process_time() - cpu0,
-        "started_at": started, "finished_at": _now(),
+        "wall_time_s": wall, "cpu_time_s": cpu, "started_at": clock.started, "finished_at": utc_now(),
         "hostname": socket.gethostname(), "git_commit": git_commit(), "versions": versions(),
         "config": json.dumps(config, sort_keys=True), "model_path": None, "gif_path": gif_rel,
         "engine": None,  # a submitted policy was not trained here
         **{f"{MF_PREFIX}{n}": final.functions[n] for n in cell.chain.norm_names},
     }
-
-
-def _now() -> str:
-    return datetime.now(UTC).isoformat(timespec="seconds")
 
 
 def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = print) -> dict[str, int]:

@@ -470,11 +470,10 @@ def results_schema_page() -> str:
 MAP_PACKAGES = ("morality_gym", "runners", "leaderboard", "benchmarks")
 
 
-def _summary(path: Path) -> str:
-    """The first sentence-line of a module's docstring (what the module is for), or a visible gap."""
-    doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8")))
-    first = (doc or "").strip().splitlines()[0] if doc else ""
-    return _cell(first) if first else "**(no docstring)**"
+def _summary(source: str) -> str:
+    """The first line of a module's docstring (what the module is for), or a visible gap."""
+    doc = ast.get_docstring(ast.parse(source))
+    return _cell(doc.strip().splitlines()[0]) if doc and doc.strip() else "**(no docstring)**"
 
 
 def module_map_page() -> str:
@@ -484,21 +483,20 @@ def module_map_page() -> str:
     written by hand it would fall behind the first rename."""
     lines = ["# Module map", "",
              ("Every module of the code base, folder by folder, with its size and the first line of its "
-             "docstring (generated from the code when the site is built). The layers and the rules "
-             "between them are on the [architecture](../architecture.md) page."), ""]
+              "docstring (generated from the code when the site is built). The layers and the rules "
+              "between them are on the [architecture](../architecture.md) page."), ""]
     for package in MAP_PACKAGES:
-        folders: dict[str, list[Path]] = {}
+        folders: dict[str, list[tuple[str, str]]] = {}  # folder -> (file name, source), each file read once
         for path in sorted((ROOT / package).rglob("*.py")):
-            if path.name == "__init__.py" and not path.read_text(encoding="utf-8").strip():
+            source = path.read_text(encoding="utf-8")
+            if path.name == "__init__.py" and not source.strip():
                 continue  # an empty package marker says nothing
-            folders.setdefault(path.parent.relative_to(ROOT).as_posix(), []).append(path)
-        total = sum(len(p.read_text(encoding="utf-8").splitlines()) for ps in folders.values() for p in ps)
+            folders.setdefault(path.parent.relative_to(ROOT).as_posix(), []).append((path.name, source))
+        total = sum(len(source.splitlines()) for files in folders.values() for _, source in files)
         lines += [f"## `{package}` ({total:,} lines)", ""]
-        for folder, paths in folders.items():
+        for folder, files in folders.items():
             lines += [f"### `{folder}/`", "", "| module | lines | what it is |", "|---|---:|---|"]
-            for path in paths:
-                n = len(path.read_text(encoding="utf-8").splitlines())
-                lines.append(f"| `{path.name}` | {n} | {_summary(path)} |")
+            lines += [f"| `{name}` | {len(source.splitlines())} | {_summary(source)} |" for name, source in files]
             lines.append("")
     return "\n".join(lines)
 
