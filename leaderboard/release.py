@@ -58,6 +58,8 @@ RUNS, LEARN, UPDATES = "runs.parquet", "learn.parquet", "updates.parquet"
 TABLES = ("table1.csv", "table1.md", "table1.tex")
 #: Bump when the layout above changes meaning (a reader refuses releases of another version).
 RELEASE_FORMAT = 1
+#: How a manifest's ``commit`` starts when its runs were made at several commits (``mixed:657de81,9c3783b``).
+MIXED = "mixed:"
 #: Default thinning of the per-update diagnostics: every 8th update and each run's last keeps a
 #: 1M-step PPO-Lag/CPO run's 488 updates as 62 rows (the curves' shape, a release under 25 MB).
 DEFAULT_UPDATE_STRIDE = 8
@@ -134,9 +136,15 @@ class Release:
 
     @property
     def label(self) -> str:
-        """``release <name> (commit abc1234, 2026-11-26)``: how pages name where numbers come from."""
-        commit = str(self.manifest.get("commit") or "unknown")[:7]
-        return f"release {self.name} (commit {commit}, {str(self.manifest.get('created', ''))[:10]})"
+        """``release <name> (commit abc1234, 2026-11-26)``: how pages name where numbers come from.
+
+        A release whose runs were made at several commits (a sweep resumed after the code moved on)
+        names them all (``commits 657de81, 9c3783b``) rather than one that made only some runs."""
+        commit = str(self.manifest.get("commit") or "unknown")
+        created = str(self.manifest.get("created", ""))[:10]
+        if commit.startswith(MIXED):
+            return f"release {self.name} (commits {commit[len(MIXED):].replace(',', ', ')}, {created})"
+        return f"release {self.name} (commit {commit[:7]}, {created})"
 
 
 def load(release: Path) -> Release:
@@ -179,7 +187,7 @@ def runs_commit(runs: pd.DataFrame) -> str:
     commits = sorted({str(c) for c in runs.get("git_commit", pd.Series(dtype=str)).dropna()})
     if len(commits) == 1:
         return commits[0]
-    return "mixed:" + ",".join(c[:7] for c in commits) if commits else "unknown"
+    return MIXED + ",".join(c[:7] for c in commits) if commits else "unknown"
 
 
 def machine() -> dict[str, Any]:

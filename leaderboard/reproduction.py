@@ -15,6 +15,7 @@ paper. Figure 2 is drawn from the same runs and checked against the paper's own 
 from __future__ import annotations
 
 import argparse
+import difflib
 import math
 import shutil
 import sys
@@ -252,6 +253,47 @@ def _corrected_lines(cell: Cell, lb: Leaderboard) -> list[str]:
     return ["", f"Corrected protocol: {c.mean:.3f} [{c.ci_low:.3f}, {c.ci_high:.3f}] ({c.verdict} against the paper)."]
 
 
+def corrected_section(lb: Leaderboard) -> list[str]:
+    """The cells run under the corrected protocol beside the same cells under the paper's.
+
+    The corrected protocol fixes only the reference's arithmetic bugs in the constrained learners
+    (``docs/protocols.md``); a cell "moved" when the two protocols' 95% intervals do not overlap,
+    which is what tells a reader whether a deviation from the paper comes from those bugs."""
+    paper_cells = {(c.chain, c.scenario, c.learner): c for c in cells(lb, PAPER)}
+    run = [c for c in cells(lb, CORRECTED) if c.verdict != "not run"]
+    lines = ["## The corrected protocol", "",
+             ("The `corrected` protocol fixes only the reference's arithmetic bugs in PPO-Lag and CPO "
+              "([Protocols](protocols.md)); the other learners train identically under both. Verdicts by the same rule; "
+              "**moved**: the two protocols' 95% intervals do not overlap."), ""]
+    if not run:
+        return lines + ["No cell has been run in full under the corrected protocol yet.", ""]
+    counts = {v: sum(c.verdict == v for c in run) for v in VERDICTS}
+    lines += [(f"**{len(run)} cells run under the corrected protocol: {counts['reproduces']} reproduce, "
+               f"{counts['close']} are close, {counts['deviates']} deviate.**"), "",
+              "| chain | scenario | learner | paper protocol | corrected | 95% interval | seed sd | runs | paper | verdict | moved |",
+              "|---|---|---|---:|---:|---|---:|---:|---:|---|---|"]
+    for c in run:
+        before = paper_cells.get((c.chain, c.scenario, c.learner))
+        ran_before = before is not None and before.verdict != "not run"
+        moved = "—" if not ran_before else ("yes" if c.ci_high < before.ci_low or c.ci_low > before.ci_high else "no")
+        lines.append(f"| {c.chain} | {c.scenario} | {c.learner} | {f'{before.mean:.3f}' if ran_before else '—'} | "
+                     f"{c.mean:.3f} | [{c.ci_low:.3f}, {c.ci_high:.3f}] | {c.sd:.3f} | {c.n_runs}/{c.n_expected} | "
+                     f"{c.paper:.3f} | {c.verdict} | {moved} |")
+    return lines + [""]
+
+
+def check_notes(notes: dict[tuple[str, str, str], str], path: Path) -> None:
+    """Refuse a curated reading keyed to no Table 1 cell: a typo would silently drop it from the page."""
+    known = {(chain, scenario, learner) for (chain, scenario), row in paper_values().items() for learner in row}
+    labels = [" / ".join(k) for k in sorted(known)]
+    for key in notes:
+        if key not in known:
+            label = " / ".join(key)
+            close = difflib.get_close_matches(label, labels, n=3)
+            hint = f"; did you mean {', '.join(repr(c) for c in close)}?" if close else ""
+            raise UserError(f"{path}: {label!r} is not a cell of Table 1 (chain / scenario / learner){hint}")
+
+
 # ---------------------------------------------------------------------------------------- figure 2
 def figure2_claims(lb: Leaderboard, group: Group) -> list[tuple[str, str, str]]:
     """(claim, our numbers, holds / does not hold / not run) for each statement of the paper about Figure 2."""
@@ -333,6 +375,7 @@ def page(lb: Leaderboard, sources: Sources, learn: pd.DataFrame, figure_dir: Pat
         if note:
             lines += ["", f"*Our reading:* {note}"]
         lines.append("")
+    lines += corrected_section(lb)
     lines += ["## Figure 2 from the same runs", "",
               ("The paper's Figure 2 shows, per chain, the mean morality function of each norm over the runs in which the norm "
               "is relevant (error bars: sd over seeds). Ours, from the runs above:"), ""]
@@ -373,6 +416,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("nothing to read: pass --results DIR and/or --release DIR")
     if args.results is not None and not args.results.is_dir():
         raise UserError(f"results directory {args.results} does not exist")
+    if args.notes != NOTES_FILE and not args.notes.is_file():
+        raise UserError(f"--notes {args.notes}: no such file")
+    notes = load_notes(args.notes)
+    check_notes(notes, args.notes)
     sources = load_sources(args.results, releases)
     lb = aggregate(sources.runs, sources.planned)
     reference = compute_reference(reference_requests(lb.table), args.cache, None, chain_definitions(lb.runs))
@@ -387,7 +434,7 @@ def run(args: argparse.Namespace) -> int:
         if group == PAPER:
             shutil.copyfile(path, img_dir / f"bars_{safe_name(chain)}.png")
     shutil.rmtree(args.out.parent / ".reproduction-figures", ignore_errors=True)
-    text = page(lb, sources, learn, img_dir, "img/reproduction", load_notes(args.notes))
+    text = page(lb, sources, learn, img_dir, "img/reproduction", notes)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(text)
     table = cells(lb, PAPER)

@@ -164,3 +164,15 @@ def test_create_refuses_bad_input_and_never_overwrites(released: tuple[Path, Pat
     assert out.returncode == 2 and "holds no runs" in out.stderr
     assert (release / "release.json").read_bytes() == before
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no half release left behind
+
+
+def test_label_names_every_commit_of_a_mixed_release() -> None:
+    from leaderboard.release import Release, runs_commit
+
+    empty = pd.DataFrame()
+    one = Release(Path("r"), {"name": "r", "commit": "657de81aaaa", "created": "2026-11-26T10:00:00+00:00"}, empty, empty, empty)
+    assert one.label == "release r (commit 657de81, 2026-11-26)"
+    commit = runs_commit(pd.DataFrame({"git_commit": ["9c3783bffff", "657de81aaaa", "9c3783bffff"]}))
+    assert commit == "mixed:657de81,9c3783b"
+    mixed = Release(Path("r"), {"name": "r", "commit": commit, "created": "2026-11-26T10:00:00+00:00"}, empty, empty, empty)
+    assert mixed.label == "release r (commits 657de81, 9c3783b, 2026-11-26)"

@@ -11,7 +11,16 @@ import pytest
 
 from leaderboard.aggregate import aggregate, compute_reference, reference_requests, with_reference
 from leaderboard.intervals import with_intervals
-from leaderboard.reproduction import PAPER, cells, figure2_claims, load_notes, page, verdict
+from leaderboard.reproduction import (
+    PAPER,
+    cells,
+    check_notes,
+    corrected_section,
+    figure2_claims,
+    load_notes,
+    page,
+    verdict,
+)
 from leaderboard.sources import load_sources
 from leaderboard.stats import compute_stats
 from morality_gym.clitools import UserError
@@ -85,3 +94,31 @@ def test_notes_keys_are_checked(tmp_path: Path) -> None:
     with pytest.raises(UserError, match="must be 'chain / scenario / learner'"):
         load_notes(bad)
     assert load_notes(tmp_path / "absent.yaml") == {}
+
+
+def test_notes_must_name_a_cell_of_table1(tmp_path: Path) -> None:
+    check_notes({("Utility", "Switch5", "CPO"): "text"}, tmp_path / "notes.yaml")
+    with pytest.raises(UserError, match=r"'Utility / Swich5 / CPO' is not a cell of Table 1.*did you mean 'Utility / Switch5 / CPO'"):
+        check_notes({("Utility", "Swich5", "CPO"): "text"}, tmp_path / "notes.yaml")
+
+
+def test_corrected_section_sets_each_corrected_cell_beside_the_paper_protocol(tmp_path: Path) -> None:
+    runs, learn = synthetic_runs(seeds=(41, 42, 43), protocols=("paper", "corrected"), learners=("CPO",), preset="paper")
+    runs["config"] = [json.dumps({"learner": name}) for name in runs["learner"]]
+    # under the corrected protocol, Utility / Switch5 moves far up; every other run scores as under the paper protocol
+    paper_metric = dict(zip(runs["run_id"], runs["metric"]))
+    corrected = runs["protocol"] == "corrected"
+    runs.loc[corrected, "metric"] = [paper_metric["paper" + i[len("corrected"):]] for i in runs.loc[corrected, "run_id"]]
+    moved = (runs["protocol"] == "corrected") & (runs["chain"] == "Utility") & (runs["scenario"] == "Switch5")
+    runs.loc[moved, "metric"] = 0.999
+    lb = aggregate(runs, {})
+    stats = compute_stats(lb.runs, lb.table, learn, n_resamples=200)
+    lb = with_intervals(lb, stats.cells)
+    text = "\n".join(corrected_section(lb))
+    rows = {line.split("|")[2].strip(): line for line in text.splitlines() if line.startswith("| ") and "---" not in line}
+    assert "**14 cells run under the corrected protocol:" in text  # one CPO cell per Table 1 row
+    assert rows["Switch5"].rstrip().endswith("| yes |")
+    same = [line for name, line in rows.items() if name not in ("Switch5", "scenario")]
+    assert len(same) >= 10 and all(line.rstrip().endswith("| no |") for line in same)
+    empty = aggregate(runs.loc[runs["protocol"] == "paper"], {})
+    assert "No cell has been run in full under the corrected protocol yet." in corrected_section(empty)
