@@ -99,6 +99,7 @@ class SweepConfig:
     engine: str  # fleet | single (runners/jobs.py; default: runners.config_schema.Sweep)
     fleet_size: int  # most runs trained together in one fleet
     device: str = "cpu"  # where fleets train (runners.config_schema.Sweep)
+    progress_every_s: float = 60.0  # plain progress lines when stderr is not a terminal (runners.config_schema.Sweep)
     chain_files: Mapping[str, str] = field(default_factory=dict)  # chain name -> config option name
     warnings: tuple[str, ...] = ()  # shown with the plan: valid, but probably not what the user meant
     results_dir_setting: str = ""  # results_dir as written in the configuration, for messages about it
@@ -525,6 +526,12 @@ def _beta(value: Any) -> float:
     return float(value)
 
 
+def _progress_every(value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
+        raise ConfigError(f"progress_every_s: expected a number of seconds >= 0 (0: no progress lines), got {value!r}")
+    return float(value)
+
+
 def _check_budgets(algos: tuple[AlgoChoice, ...], pairs: list[tuple[MoralityChain, str]], preset: Preset) -> None:
     """A learner that trains needs a budget above 0 on every scenario it is swept on."""
     for algo in algos:
@@ -621,6 +628,7 @@ def validate(cfg: DictConfig) -> SweepConfig:
         retry_failed=cfg.get("retry_failed"),
         mlflow=cfg.get("mlflow"),
         gif=cfg.get("gif"),
+        progress_every_s=_progress_every(cfg.get("progress_every_s")),
         name=_sweep_name(cfg.get("name"), experiment, algos, chains, protocol, preset),
         chain_files={chain.name: option for option, chain in chains.items()},
         engine=engine,

@@ -239,7 +239,9 @@ class Sweep:
     env truncation on step max_steps + 1, as in the paper; ``results_dir``: Parquet runs, models,
     GIFs, manifests and the MLflow store; ``dry_run``: list the runs without running anything;
     ``retry_failed``: run again runs recorded as failed; ``mlflow``: mirror runs into MLflow;
-    ``gif``: a GIF of one evaluation episode per run; ``name``: the manifest's sweep name (null:
+    ``gif``: a GIF of one evaluation episode per run; ``progress_every_s``: when stderr is not a
+    terminal (``nohup``, a SLURM batch log, CI), where the live bars draw nothing, a plain progress
+    line at most this often (0: none); ``name``: the manifest's sweep name (null:
     derived from the selection); ``engine``: ``fleet`` trains the runs that differ only in variant,
     chain and seed together, up to ``fleet_size`` per fleet (the gain saturates by about 12,
     BENCHMARKS.md), ``single`` trains one run per process (:mod:`runners.jobs`); ``device``: where
@@ -263,6 +265,7 @@ class Sweep:
     retry_failed: bool = True
     mlflow: bool = True
     gif: bool = True
+    progress_every_s: float = 60.0
     name: str | None = None
     engine: str = "fleet"
     fleet_size: int = 36
