@@ -59,6 +59,8 @@ RULE = ("**reproduces**: the paper's value lies inside our 95% bootstrap interva
 VERDICTS = ("reproduces", "close", "deviates", "not run")
 #: A learning curve still "rising" gained at least this much metric over its last quarter of training.
 RISING = 0.02
+#: A learning curve "swings" when its last quarter spans at least this much metric without rising.
+SWINGING = 0.05
 
 
 @dataclass(frozen=True)
@@ -183,7 +185,7 @@ def diagnosis(cell: Cell, lb: Leaderboard, sources: Sources, learn: pd.DataFrame
     lines += _variant_table(lb, mine, refs)
     lines += _norm_lines(cell, lb, group)
     all_ids = [i for ids in mine["run_ids"] for i in ids]
-    lines += _curve_lines(learn, all_ids)
+    lines += _curve_lines(learn, all_ids, cell.paper, cell.mean)
     updates = updates_summary(sources, all_ids)
     if updates:
         lines += ["", updates + "."]
@@ -231,17 +233,36 @@ def _norm_lines(cell: Cell, lb: Leaderboard, group: Group) -> list[str]:
             + ", ".join(f"{norm_label(n)} {m:.3f}" for n, m in zip(ours["norm"], ours["mean"]))]
 
 
-def _curve_lines(learn: pd.DataFrame, run_ids: list[str]) -> list[str]:
-    """At most six points of the runs' learning curve, and whether it was still rising at the end."""
+def _curve_lines(learn: pd.DataFrame, run_ids: list[str], paper: float, mean: float = math.nan) -> list[str]:
+    """At most six points of the runs' learning curve, and how it ended: still rising, swinging
+    (the mean over the runs moved by :data:`SWINGING` or more over the last quarter of training,
+    so the final value is one draw from that range; the page says whether the paper's value lies
+    inside it) or flat; and whether the cell's final evaluation (``mean``) is far from the last
+    learn-time one (the policy changed in the training after it)."""
     summary = curve_summary(learn, run_ids)
     if summary is None:
         return []
     points, gain = summary
     shown = points if len(points) <= 6 else [points[i] for i in np.linspace(0, len(points) - 1, 6).round().astype(int)]
-    trend = ("still rising when training stopped" if gain >= RISING else "flat over the last quarter of training"
-             if not math.isnan(gain) else "")
+    last = points[-1][0]
+    tail = [m for s, m in points if s >= 0.75 * last]
+    low, high = min(tail), max(tail)
+    if math.isnan(gain):
+        trend = ""
+    elif gain >= RISING:
+        trend = f"; still rising when training stopped ({gain:+.3f} over the last quarter)"
+    elif high - low >= SWINGING:
+        inside = "inside" if low - 1e-12 <= paper <= high + 1e-12 else "outside"
+        trend = (f"; swinging between {low:.3f} and {high:.3f} over the last quarter of training "
+                 f"(the paper's {paper:.3f} lies {inside} that range)")
+    else:
+        trend = f"; flat over the last quarter of training ({gain:+.3f})"
+    final = ""
+    if not math.isnan(mean) and abs(mean - points[-1][1]) >= SWINGING:
+        final = (f". The final evaluation ({mean:.3f}) differs from the last learn-time one ({points[-1][1]:.3f} at "
+                 f"{last // 1000}k) by {mean - points[-1][1]:+.3f}: the policy moved again after it")
     return ["", "Learning curve (mean learn-time metric over the cell's runs): "
-            + ", ".join(f"{s // 1000}k: {m:.3f}" for s, m in shown) + (f"; {trend} ({gain:+.3f})" if trend else "")]
+            + ", ".join(f"{s // 1000}k: {m:.3f}" for s, m in shown) + trend + final]
 
 
 def _corrected_lines(cell: Cell, lb: Leaderboard) -> list[str]:

@@ -7,6 +7,7 @@ import json
 import math
 from pathlib import Path
 
+import pandas as pd
 import pytest
 
 from leaderboard.aggregate import aggregate, compute_reference, reference_requests, with_reference
@@ -122,3 +123,30 @@ def test_corrected_section_sets_each_corrected_cell_beside_the_paper_protocol(tm
     assert len(same) >= 10 and all(line.rstrip().endswith("| no |") for line in same)
     empty = aggregate(runs.loc[runs["protocol"] == "paper"], {})
     assert "No cell has been run in full under the corrected protocol yet." in corrected_section(empty)
+
+
+@pytest.mark.parametrize(
+    "curve, paper, expected",
+    [
+        ([0.1, 0.5, 0.6, 0.7, 0.8], 0.8, "still rising when training stopped (+0.200 over the last quarter)"),
+        ([0.1, 0.6, 0.83, 0.72, 0.79], 0.786, ("swinging between 0.720 and 0.830 over the last quarter of training "
+                                               "(the paper's 0.786 lies inside that range)")),
+        ([0.1, 0.6, 0.83, 0.72, 0.79], 0.9, "(the paper's 0.900 lies outside that range)"),
+        ([0.1, 0.6, 0.70, 0.71, 0.71], 0.9, "flat over the last quarter of training (+0.010)"),
+    ],
+)
+def test_learning_curve_says_how_training_ended(curve: list[float], paper: float, expected: str) -> None:
+    from leaderboard.reproduction import _curve_lines
+
+    steps = [0, 250_000, 750_000, 875_000, 1_000_000]
+    learn = pd.DataFrame({"run_id": "a", "step": steps, "metric": curve, "exact_metric": curve})
+    assert expected in _curve_lines(learn, ["a"], paper)[1]
+
+
+def test_learning_curve_flags_a_final_evaluation_far_from_the_last_learn_time_one() -> None:
+    from leaderboard.reproduction import _curve_lines
+
+    learn = pd.DataFrame({"run_id": "a", "step": [0, 500_000, 1_000_000], "metric": [0.1, 0.8, 0.795]})
+    line = _curve_lines(learn, ["a"], 0.786, mean=0.699)[1]
+    assert "The final evaluation (0.699) differs from the last learn-time one (0.795 at 1000k) by -0.096" in line
+    assert "final evaluation" not in _curve_lines(learn, ["a"], 0.786, mean=0.78)[1]
