@@ -243,3 +243,179 @@ def test_a_state_that_fails_half_way_leaves_the_fleet_at_step_0(tmp_path: Path) 
     with pytest.raises(ValueError, match="simulator state"):
         fresh.load_state_dict(state)
     assert_identical(before, fresh.state_dict())
+
+
+# ---------------------------------------------------------------------------------- the sweep
+SWEEP = ["algo=ppo_lag", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "seed=[1]",
+         "variant=[HumanA,HumanB,AnimalA]", "preset.budget=8192", "preset.learn_eval_every=3000"]
+#: What two trainings of the same runs may differ in: when and where they ran.
+TIMING = ["wall_time_s", "cpu_time_s", "hostname", "started_at", "finished_at"]
+
+
+def _sweep_config(tmp_path: Path, *overrides: str) -> Any:
+    from tests.test_fleet_sweep import _sweep_config as compose
+
+    return compose(tmp_path, *overrides)
+
+
+def _recorded(results: Path) -> dict[str, Any]:
+    """Every run's row, learn-time evaluations and diagnostics, without the timing columns."""
+    from runners.results_schema import read_learn, read_runs, read_updates
+
+    runs = read_runs(results).drop(columns=TIMING).sort_values("run_id").reset_index(drop=True)
+    learn = read_learn(results).drop(columns=["wall_time_s"]).sort_values(["run_id", "step"]).reset_index(drop=True)
+    updates = {r: read_updates(results, r).reset_index(drop=True) for r in runs.run_id}
+    return {"runs": runs, "learn": learn, "updates": updates}
+
+
+def assert_same_records(a: dict[str, Any], b: dict[str, Any]) -> None:
+    import pandas as pd
+
+    pd.testing.assert_frame_equal(a["runs"], b["runs"], check_exact=True)
+    pd.testing.assert_frame_equal(a["learn"], b["learn"], check_exact=True)
+    assert a["updates"].keys() == b["updates"].keys()
+    for run_id in a["updates"]:
+        pd.testing.assert_frame_equal(a["updates"][run_id], b["updates"][run_id], check_exact=True)
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory: pytest.TempPathFactory) -> tuple[list[Any], dict[str, Any]]:
+    """The sweep's runs and what an uninterrupted fleet job records for them."""
+    from runners.jobs import execute_job, make_jobs
+    from runners.plan import plan
+
+    tmp = tmp_path_factory.mktemp("whole")
+    runs = plan(_sweep_config(tmp, *SWEEP))
+    (job,) = make_jobs(runs, "fleet", 36, 1)
+    summaries = list(execute_job(job.items, tmp / "r", gif=False, engine="fleet", checkpoint_every_s=1e-6))
+    assert [s["status"] for s in summaries] == ["ok"] * 3
+    assert not list((tmp / "r" / "checkpoints").glob("*.pt"))  # removed once every run was recorded
+    return runs, _recorded(tmp / "r")
+
+
+@pytest.mark.slow
+def test_a_fleet_killed_while_recording_resumes_at_the_end_of_training(
+    tmp_path: Path, uninterrupted: tuple[list[Any], dict[str, Any]], caplog: pytest.LogCaptureFixture
+) -> None:
+    """The checkpoint written when training ends: a worker killed after recording one run builds
+    the whole fleet again, restores it at its last step (no training) and records the other two."""
+    from runners.jobs import execute_job
+
+    runs, expected = uninterrupted
+    results = tmp_path / "r"
+    items = [(r.run_id, r.config) for r in runs]
+    job = execute_job(items, results, gif=False, engine="fleet", checkpoint_every_s=1e-6)
+    assert next(job)["status"] == "ok"
+    job.close()  # the kill: the other runs are never recorded
+    assert len(list((results / "checkpoints").glob("*.pt"))) == 1
+    with caplog.at_level(logging.WARNING):
+        summaries = list(execute_job(items, results, gif=False, engine="fleet", checkpoint_every_s=1e-6))
+    assert [s.get("skipped", False) for s in summaries] == [True, False, False]
+    assert "fleet of 3 runs resumed at 8,192 of 8,192 steps from" in caplog.text
+    assert_same_records(expected, _recorded(results))
+    assert not list((results / "checkpoints").iterdir())
+    from runners.results_schema import read_runs
+
+    assert read_runs(results).started_at.nunique() == 1  # the resumed runs started when the fleet did
+
+
+@pytest.mark.slow
+def test_a_killed_fleet_sweep_resumes_its_training_from_the_checkpoint(
+    tmp_path: Path, uninterrupted: tuple[list[Any], dict[str, Any]]
+) -> None:
+    """SIGKILL a sweep once its fleet has checkpointed; the next sweep forms the same fleet,
+    resumes it (a log line says where) and records exactly what an uninterrupted fleet records."""
+    import os
+    import signal
+    import time
+
+    from tests.test_fleet_sweep import _sweep
+
+    _, expected = uninterrupted
+    results = tmp_path / "r"
+    args = [*SWEEP, "launcher.workers=1", "checkpoint_every_s=0.000001"]
+    first = _sweep(results, *args, background=True)
+    deadline = time.monotonic() + 120
+    while not list((results / "checkpoints").glob("*.pt")):
+        assert first.poll() is None and time.monotonic() < deadline, first.stdout.read() if first.stdout else ""
+        time.sleep(0.02)
+    os.killpg(first.pid, signal.SIGKILL)
+    first.wait(timeout=30)
+    assert not (results / "runs").exists() or not list((results / "runs").glob("*.parquet"))
+    second = _sweep(results, *args)
+    assert second.returncode == 0, second.stderr
+    resumed = [line for line in second.stderr.splitlines() if "resumed at" in line]
+    assert len(resumed) == 1 and resumed[0].startswith("fleet of 3 runs resumed at ") and "of 8,192 steps from" in resumed[0]
+    assert int(resumed[0].split("resumed at ")[1].split(" of")[0].replace(",", "")) < 8192  # killed while training
+    assert_same_records(expected, _recorded(results))
+    assert not list((results / "checkpoints").iterdir())
+
+
+def test_make_jobs_forms_a_checkpointed_fleet_again(tmp_path: Path) -> None:
+    from runners.jobs import make_jobs
+    from runners.plan import plan
+
+    runs = plan(_sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "seed=[1,2]"))
+    assert len(runs) == 24
+    ids = [r.run_id for r in runs]
+    fleet = (ids[3], ids[17], ids[5])  # not a chunk the plan would cut
+    jobs = make_jobs(runs, "fleet", fleet_size=10, workers=1, checkpointed=[fleet])
+    assert sorted(r.run_id for j in jobs for r in j.runs) == sorted(ids)  # every run once
+    assert [r.run_id for r in jobs[0].runs] == [ids[3], ids[5], ids[17]] and jobs[0].engine == "fleet"  # first, in plan order
+    assert sorted(len(j.runs) for j in jobs[1:]) == [7, 7, 7]  # the other 21 runs cut as before
+    # a fleet with a run not to do (finished), or of two groups, is not formed; no checkpoint: as before
+    assert make_jobs(runs[1:], "fleet", 10, 1, checkpointed=[(ids[0], ids[1])]) == make_jobs(runs[1:], "fleet", 10, 1)
+    assert make_jobs(runs, "fleet", 10, 3) == make_jobs(runs, "fleet", 10, 3, checkpointed=[])
+
+
+def test_the_checkpoint_interval_is_a_sweep_setting_outside_every_run(tmp_path: Path) -> None:
+    from runners.config import ConfigError
+    from runners.plan import plan
+
+    default = _sweep_config(tmp_path, "algo=[ppo,cpo]", "chain=utility", "scenario=[switch_standard]", "preset=smoke")
+    assert default.checkpoint_every_s == 300.0
+    for value in ("0", "12.5"):
+        other = _sweep_config(tmp_path, "algo=[ppo,cpo]", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
+                              f"checkpoint_every_s={value}")
+        assert other.checkpoint_every_s == float(value)
+        assert [(r.run_id, r.config) for r in plan(other)] == [(r.run_id, r.config) for r in plan(default)]
+    with pytest.raises(ConfigError, match="checkpoint_every_s: expected a number of seconds >= 0"):
+        _sweep_config(tmp_path, "algo=ppo", "checkpoint_every_s=-1")
+
+
+def test_stale_checkpoints_are_removed_and_only_those(tmp_path: Path) -> None:
+    from runners import fleet_checkpoints as fc
+    from runners.jobs import execute_job
+    from runners.plan import plan
+
+    runs = plan(_sweep_config(tmp_path, "algo=random", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
+                              "variant=[HumanA,HumanB,AnimalA]"))
+    results = tmp_path / "r"
+    list(execute_job([(r.run_id, r.config) for r in runs[:2]], results, gif=False))  # two runs finish ok
+    done = fc.write_fleet_runs(results, [(r.run_id, r.config) for r in runs[:2]])
+    open_ = fc.write_fleet_runs(results, [(r.run_id, r.config) for r in runs[1:]])
+    for path in (done, open_):
+        path.write_bytes(b"state")
+    assert sorted(fc.checkpointed_fleets(results)) == sorted([tuple(sorted(r.run_id for r in runs[:2])),
+                                                              tuple(sorted(r.run_id for r in runs[1:]))])
+    # run 1 of the open fleet is recorded: its run still to do is one, too few to form a fleet again
+    assert fc.fleets_to_form(results, [runs[2].run_id]) == []
+    assert fc.remove_stale(results) == [done]
+    assert not done.exists() and not done.with_suffix(".json").exists() and open_.exists()
+
+
+def test_a_resumed_fleet_counts_the_time_spent_before_the_kill() -> None:
+    """A run's ``wall_time_s`` and ``cpu_time_s`` (compute accounting) include the training before
+    the checkpoint: the time spent travels in the checkpoint's extra data."""
+    from runners.execute import RunClock
+    from runners.jobs import FleetTraining
+
+    runs = [("a", {}), ("b", {})]
+    before = FleetTraining(runs, RunClock.already_spent("2026-01-01T00:00:00+00:00", 5000.0, 3000.0))  # trained a while
+    extra = before._extra()
+    assert extra["wall_s"] >= 5000 and extra["cpu_s"] >= 3000 and extra["learn_rows"] == [[], []]
+    after = FleetTraining(runs, RunClock.start())
+    after._resume(8192, {**extra, "learn_rows": [[{"step": 0}], []]})
+    wall, cpu = after.spent()
+    assert wall >= extra["wall_s"] and cpu >= extra["cpu_s"]
+    assert after.clock.started == "2026-01-01T00:00:00+00:00" and after.learn_rows == [[{"step": 0}], []]
