@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import heapq
 import json
+import logging
 import math
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -53,6 +54,8 @@ from runners.plan import PlannedRun
 FLEET_FREE_KEYS = ("env_id", "variant", "chain", "seed")
 
 Summary = dict[str, Any]
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -389,13 +392,18 @@ class FleetTraining:
 
     def checkpoint(self, results_dir: Path, spec: Any, protocol: Any, device: str, every_s: float) -> Any:
         """The fleet's checkpoint in ``results_dir`` (:mod:`runners.fleet_checkpoints`), keyed by
-        the runs, the learner, protocol and device, and the commit of the code that trains."""
+        the runs, the learner, protocol and device, and the commit of the code that trains (None,
+        with a warning, when the directory cannot be written)."""
         # torch waits: importing runners.jobs must not load it
         from morality_gym.baselines.fleet import FleetCheckpoint
 
         key = {"runs": sorted(self.run_ids), "learner": spec.name, "protocol": protocol.name, "device": device,
                "fleet_size": len(self.run_ids), "commit": git_commit()}
-        path = write_fleet_runs(results_dir, self.runs)
+        try:
+            path = write_fleet_runs(results_dir, self.runs)
+        except OSError as exc:  # e.g. a full disk: train without checkpoints rather than not at all
+            log.warning("fleet of %d runs trains without checkpoints: %s", len(self.runs), exc)
+            return None
         return FleetCheckpoint(path, every_s=every_s, key=key, extra=self._extra, on_resume=self._resume)
 
     def _extra(self) -> dict[str, Any]:

@@ -118,6 +118,13 @@ class Plan:
     counts: Mapping[str, Any]
     estimate_s: float
     moved: tuple[Quarantined, ...] = ()
+    checkpointed: tuple[tuple[str, ...], ...] = ()  # run ids of fleets formed again to resume from a checkpoint
+
+    @property
+    def resuming(self) -> tuple[Job, ...]:
+        """The fleets that resume their training from a checkpoint (:mod:`runners.fleet_checkpoints`)."""
+        sets = {frozenset(ids) for ids in self.checkpointed}
+        return tuple(j for j in self.fleets if frozenset(r.run_id for r in j.runs) in sets)
 
     @property
     def fleets(self) -> tuple[Job, ...]:
@@ -141,7 +148,7 @@ def make_plan(sweep: SweepConfig) -> Plan:
                                     {a.spec.name: a.fleet_speedup for a in sweep.algos}, checkpointed), workers)
     estimate = jobs_estimate(jobs, done, workers) + sweep_overheads(sweep, len(todo))
     return Plan(runs=tuple(runs), status=status, todo=tuple(todo), jobs=tuple(jobs), workers=workers,
-                counts=describe(runs, done, workers), estimate_s=estimate, moved=tuple(moved))
+                counts=describe(runs, done, workers), estimate_s=estimate, moved=tuple(moved), checkpointed=tuple(checkpointed))
 
 
 def _warn(console: Console, text: str) -> None:
@@ -153,9 +160,11 @@ def _engine_line(plan_: Plan, sweep: SweepConfig) -> str | None:
     fleets, todo = plan_.fleets, plan_.todo
     if fleets:
         in_fleets = sum(len(j.runs) for j in fleets)
+        resuming = len(plan_.resuming)
         return (f"engine [bold]fleet[/bold]: {in_fleets} of {len(todo)} runs to do train in {len(fleets)} fleet(s) of "
                 f"{min(len(j.runs) for j in fleets)}-{max(len(j.runs) for j in fleets)} runs, the other {len(todo) - in_fleets} "
-                "one by one (engine=single trains every run on its own)")
+                "one by one (engine=single trains every run on its own)"
+                + (f"; {resuming} fleet(s) resume their training from a checkpoint" if resuming else ""))
     if todo:
         return "engine [bold]single[/bold]: every run trains on its own" + (
             "" if sweep.engine == "single" else " (no two runs to do can share a fleet)")

@@ -344,6 +344,7 @@ def test_a_killed_fleet_sweep_resumes_its_training_from_the_checkpoint(
     assert not (results / "runs").exists() or not list((results / "runs").glob("*.parquet"))
     second = _sweep(results, *args)
     assert second.returncode == 0, second.stderr
+    assert "1 fleet(s) resume their training from a checkpoint" in " ".join(second.stderr.split()), second.stderr  # the plan
     resumed = [line for line in second.stderr.splitlines() if "resumed at" in line]
     assert len(resumed) == 1 and resumed[0].startswith("fleet of 3 runs resumed at ") and "of 8,192 steps from" in resumed[0]
     assert int(resumed[0].split("resumed at ")[1].split(" of")[0].replace(",", "")) < 8192  # killed while training
