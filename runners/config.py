@@ -100,6 +100,7 @@ class SweepConfig:
     fleet_size: int  # most runs trained together in one fleet
     device: str = "cpu"  # where fleets train (runners.config_schema.Sweep)
     progress_every_s: float = 60.0  # plain progress lines when stderr is not a terminal (runners.config_schema.Sweep)
+    checkpoint_every_s: float = 300.0  # how often a fleet checkpoints its training; 0: never (runners.config_schema.Sweep)
     chain_files: Mapping[str, str] = field(default_factory=dict)  # chain name -> config option name
     warnings: tuple[str, ...] = ()  # shown with the plan: valid, but probably not what the user meant
     results_dir_setting: str = ""  # results_dir as written in the configuration, for messages about it
@@ -568,6 +569,13 @@ def _engine(cfg: DictConfig) -> tuple[str, int, str]:
     return str(engine), fleet_size, device
 
 
+def _checkpoint_every_s(value: Any) -> float:
+    """Seconds between two checkpoints of a fleet's training: a number >= 0 (0: none)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
+        raise ConfigError(f"checkpoint_every_s: expected a number of seconds >= 0 (0: no checkpoints), got {value!r}")
+    return float(value)
+
+
 def _sweep_name(name: Any, experiment: Mapping[str, Any], algos: tuple[AlgoChoice, ...],
                 chains: Mapping[str, MoralityChain], protocol: ProtocolSpec, preset: Preset) -> str:
     """``name=``, else the experiment's name or the algos and chains, then the protocol and preset."""
@@ -612,6 +620,7 @@ def validate(cfg: DictConfig) -> SweepConfig:
     warnings = tuple(w for algo in algos if (w := _rollout_warning(algo.spec, preset, pairs)))
     launcher = _launcher(_group(cfg, "launcher"))
     engine, fleet_size, device = _engine(cfg)
+    checkpoint_every_s = _checkpoint_every_s(cfg.get("checkpoint_every_s"))
     return SweepConfig(
         pairs=tuple(pairs),
         variants=tuple(variants) if variants is not None else None,
@@ -634,5 +643,6 @@ def validate(cfg: DictConfig) -> SweepConfig:
         engine=engine,
         fleet_size=fleet_size,
         device=device,
+        checkpoint_every_s=checkpoint_every_s,
         warnings=warnings,
     )

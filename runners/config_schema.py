@@ -246,7 +246,11 @@ class Sweep:
     chain and seed together, up to ``fleet_size`` per fleet (the gain saturates by about 12,
     BENCHMARKS.md), ``single`` trains one run per process (:mod:`runners.jobs`); ``device``: where
     a fleet's networks and updates run (``cpu``, or ``cuda`` when torch sees a GPU; single runs and
-    every run's evaluation stay on the CPU).
+    every run's evaluation stay on the CPU); ``checkpoint_every_s``: a fleet writes its training
+    state to ``<results_dir>/checkpoints/`` at most every so many seconds (and when its training
+    ends), and a sweep resumed after a kill continues the fleet from there, bit for bit, instead of
+    training it again (0: no checkpoints). Like the other sweep-wide settings it is no part of any
+    run's configuration or id.
     """
 
     scenario: Mapping[str, ScenarioFile] = field(default_factory=dict)
@@ -270,6 +274,7 @@ class Sweep:
     engine: str = "fleet"
     fleet_size: int = 36
     device: str = "cpu"
+    checkpoint_every_s: float = 300.0
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ same run at once when a sweep is resumed while an orphan is still busy. Any exce
 from __future__ import annotations
 
 import fcntl
+import hashlib
 import json
 import os
 import platform
@@ -37,7 +38,6 @@ def utc_now() -> str:
 
 
 @lru_cache(maxsize=1)
-@lru_cache(maxsize=1)
 def git_commit() -> str:
     """The commit of the checkout this code runs from, or "unknown" (an installed package: its
     version is recorded with the others). A package installed into a virtual environment that
@@ -57,6 +57,32 @@ def git_commit() -> str:
     if out.returncode != 0 or len(lines) != 2 or (Path(lines[0]) / "runners" / "execute.py").resolve() != here:
         return "unknown"
     return lines[1]
+
+
+@lru_cache(maxsize=1)
+def training_code() -> str:
+    """A fingerprint of the code and data a run trains with: a hash of every file of the
+    ``morality_gym`` package (its Python modules and its YAML scenarios, chains and learner
+    settings) and of the versions of the libraries whose arithmetic it uses.
+
+    What a fleet checkpoint is keyed by (:mod:`runners.fleet_checkpoints`): a half-trained fleet
+    must be finished by the code that began it, and the commit is too coarse for that (a commit
+    of documentation or of the leaderboard would throw away every checkpoint) and too blind (an
+    uncommitted edit keeps the commit). Asked once per process at the worker's start, as
+    :func:`git_commit`, so that it describes the code the worker loaded."""
+    return code_fingerprint(Path(__file__).resolve().parents[1] / "morality_gym", versions())
+
+
+#: The files of a package that decide what a run computes (modules and the data they read).
+CODE_SUFFIXES = (".py", ".yaml", ".yml", ".json")
+
+
+def code_fingerprint(package: Path, versions_text: str) -> str:
+    """A hash of ``package``'s :data:`CODE_SUFFIXES` files (paths and contents) and ``versions_text``."""
+    digest = hashlib.sha256(versions_text.encode())
+    for path in sorted(p for p in package.rglob("*") if p.suffix in CODE_SUFFIXES and p.is_file()):
+        digest.update(str(path.relative_to(package)).encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()[:16]
 
 
 @lru_cache(maxsize=1)

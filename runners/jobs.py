@@ -9,9 +9,12 @@ Everything else (Random, the oracle, a user's learner, a group of one) stays a s
 Why per-run files stay exactly as before: a fleet only *trains*; every run is then evaluated,
 saved, rendered and written by :func:`runners.execute.record_outcome`, the same function the single
 engine uses, one run after the other, each Parquet row last. A fleet killed while training loses
-the runs it had not finished (all of them, when killed before the end of training); those, and
-only those, are planned again by the next sweep. Runs already finished by another process are
-skipped, and runs another process holds are reported ``busy`` and retried, as single runs are.
+the runs it had not finished; those, and only those, are planned again by the next sweep. Its
+training is not lost with them: a fleet checkpoints its training in the results directory
+(``checkpoint_every_s``, :mod:`runners.fleet_checkpoints`), the next sweep forms the same fleet
+again (:func:`make_jobs`) and it resumes from the checkpoint, ending bit for bit where it would
+have. Runs already finished by another process are skipped, and runs another process holds are
+reported ``busy`` and retried, as single runs are.
 
 The run id does not include the engine: the fleet reproduces each run's arithmetic to float
 tolerance, not bit for bit (batched products may sum in another order), so a fleet run and a
@@ -23,6 +26,7 @@ from __future__ import annotations
 
 import heapq
 import json
+import logging
 import math
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -42,13 +46,17 @@ from runners.execute import (
     limit_threads,
     record_outcome,
     spec_and_protocol,
+    training_code,
 )
+from runners.fleet_checkpoints import fleet_to_train, remove_fleet, write_fleet_runs
 from runners.plan import PlannedRun
 
 #: Keys of a run config that may differ between the runs of one fleet (the rest must be equal).
 FLEET_FREE_KEYS = ("env_id", "variant", "chain", "seed")
 
 Summary = dict[str, Any]
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -111,6 +119,7 @@ def make_jobs(
     fleet_size: int = 36,
     workers: int = 1,
     speedups: Mapping[str, float] | None = None,
+    checkpointed: Iterable[Sequence[str]] = (),
 ) -> list[Job]:
     """The plan's runs as jobs, in plan order of each job's first run.
 
@@ -118,6 +127,11 @@ def make_jobs(
     balanced fleets; while there are fewer jobs than ``workers``, the largest fleet is cut again
     (down to fleets of 2), so that no worker idles while one trains everything. ``speedups`` maps
     an algo name to its measured fleet speed-up (``planning.fleet_speedup``) for the estimate.
+
+    ``checkpointed``: the run ids of fleets that have a training checkpoint
+    (:func:`runners.fleet_checkpoints.checkpointed_fleets`). A fleet whose runs are all among one
+    group's runs is formed again first, exactly (whatever ``fleet_size`` and ``workers`` say), so
+    that it resumes its training instead of starting over; the rest of the group is cut as above.
     """
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
@@ -126,14 +140,36 @@ def make_jobs(
     if engine == "single":
         return [_single(r) for r in runs]
     groups, order = _group(runs)
-    parts = _parts(groups, fleet_size, workers, singles=sum(isinstance(item, PlannedRun) for item in order))
+    kept = _take_checkpointed(groups, checkpointed)
+    singles = sum(isinstance(item, PlannedRun) for item in order) + sum(len(fleets) for fleets in kept.values())
+    parts = _parts({key: g for key, g in groups.items() if g}, fleet_size, workers, singles=singles)
     jobs: list[Job] = []
     for item in order:
         if isinstance(item, PlannedRun):
             jobs.append(_single(item))
-        else:
+            continue
+        jobs += [_fleet_job(chunk, speedups or {}) for chunk in kept.get(item, [])]
+        if groups[item]:
             jobs += [_fleet_job(chunk, speedups or {}) for chunk in _split(groups[item], parts[item])]
     return jobs
+
+
+def _take_checkpointed(groups: dict[str, list[PlannedRun]], checkpointed: Iterable[Sequence[str]]) -> dict[str, list[list[PlannedRun]]]:
+    """Move each checkpointed fleet whose runs are all in one group (still to do) out of that
+    group; returns the fleets per group key, their runs in plan order. Largest fleets first; a
+    fleet that shares a run with one taken before it is left (its checkpoint cannot be used)."""
+    kept: dict[str, list[list[PlannedRun]]] = {}
+    for ids in sorted({tuple(sorted(c)) for c in checkpointed}, key=lambda c: (-len(c), c)):
+        wanted = set(ids)
+        if len(wanted) < 2:
+            continue
+        for key, group in groups.items():
+            chosen = [r for r in group if r.run_id in wanted]
+            if len(chosen) == len(wanted):
+                kept.setdefault(key, []).append(chosen)
+                groups[key] = [r for r in group if r.run_id not in wanted]
+                break
+    return kept
 
 
 def _single(run: PlannedRun) -> Job:
@@ -223,15 +259,18 @@ def execute_job(
     engine: str = "single",
     device: str = "cpu",
     progress: Callable[[int, int], None] | None = None,
+    checkpoint_every_s: float = 0.0,
 ) -> Iterator[Summary]:
     """Execute a job's runs, yielding each run's summary as soon as its result is written.
 
     Each run is locked first (a run another live process holds is yielded as ``busy``; one already
     finished ``ok`` as skipped); the rest are trained together when ``engine == "fleet"`` and more
-    than one remains, else one by one. A fleet's networks and updates run on ``device``, and it
-    calls ``progress(steps, total)`` as it trains.
+    than one remains, else one by one. A fleet's networks and updates run on ``device``, it
+    calls ``progress(steps, total)`` as it trains, and, with ``checkpoint_every_s > 0``, it
+    checkpoints its training at most that often (and resumes from a checkpoint it finds).
     """
     git_commit()  # fixed before training: a SLURM task's job may outlast a commit (runners.execute.git_commit)
+    training_code()  # likewise: what a fleet checkpoint is keyed by
     results_dir = Path(results_dir)
     locks: list[RunLock] = []
     mine: list[tuple[str, dict[str, Any]]] = []
@@ -247,7 +286,7 @@ def execute_job(
                 continue
             mine.append((run_id, config))
         if engine == "fleet" and len(mine) > 1:
-            yield from _train_fleet(mine, results_dir, gif, device, progress)
+            yield from _train_fleet(mine, results_dir, gif, device, progress, checkpoint_every_s)
         else:
             for run_id, config in mine:
                 yield execute_locked(config, run_id, results_dir, gif)
@@ -257,10 +296,11 @@ def execute_job(
 
 
 def execute_job_all(
-    items: Sequence[tuple[str, dict[str, Any]]], results_dir: str, gif: bool = True, engine: str = "single", device: str = "cpu"
+    items: Sequence[tuple[str, dict[str, Any]]], results_dir: str, gif: bool = True, engine: str = "single", device: str = "cpu",
+    checkpoint_every_s: float = 0.0,
 ) -> list[Summary]:
     """:func:`execute_job` as one list (what a SLURM array task returns to the parent)."""
-    return list(execute_job(items, results_dir, gif, engine, device))
+    return list(execute_job(items, results_dir, gif, engine, device, checkpoint_every_s=checkpoint_every_s))
 
 
 def _train_fleet(
@@ -269,15 +309,23 @@ def _train_fleet(
     gif: bool,
     device: str = "cpu",
     progress: Callable[[int, int], None] | None = None,
+    checkpoint_every_s: float = 0.0,
 ) -> Iterator[Summary]:
-    """Train the locked runs ``mine`` as one fleet, then record them one after the other."""
+    """Train the locked runs ``mine`` as one fleet, then record them one after the other.
+
+    With ``checkpoint_every_s > 0`` the training is checkpointed in the results directory
+    (:class:`FleetTraining`), and the checkpoint is deleted once every run is recorded. A fleet
+    killed while it recorded its runs is built again with all of its runs, to restore its
+    checkpoint (:func:`runners.fleet_checkpoints.fleet_to_train`); only ``mine`` are recorded."""
     # torch waits: importing runners.jobs must not load it
     from morality_gym.baselines.fleet import FleetRun, build_fleet
     from morality_gym.baselines.fleet.base import fleet_device
 
     limit_threads()
     clock = RunClock.start()
-    engine = f"fleet:{len(mine)}"
+    ours = {run_id for run_id, _ in mine}
+    trained = fleet_to_train(results_dir, mine) if checkpoint_every_s > 0 else mine
+    engine = f"fleet:{len(trained)}"
     first = mine[0][1]
     try:
         fleet_device(device)
@@ -288,7 +336,7 @@ def _train_fleet(
     try:
         spec, protocol = spec_and_protocol(first)
         fleet = build_fleet(
-            spec, [FleetRun(bound_chain(c), int(c["seed"])) for _, c in mine], protocol, max_steps=first["max_steps"],
+            spec, [FleetRun(bound_chain(c), int(c["seed"])) for _, c in trained], protocol, max_steps=first["max_steps"],
             device=device,
         )
     except SpecError:
@@ -301,24 +349,72 @@ def _train_fleet(
         for run_id, config in mine:
             yield record_outcome(config, run_id, results_dir, gif, None, [], clock, engine=engine, error=exc)
         return
-    learn_rows: list[list[dict[str, Any]]] = [[] for _ in mine]
+    training = FleetTraining(trained, clock)
+    checkpoint = training.checkpoint(results_dir, spec, protocol, device, checkpoint_every_s) if checkpoint_every_s > 0 else None
     try:
         fleet.learn(
             int(first["budget"]),
             eval_every=int(first["learn_eval_every"]),
             eval_episodes=int(first["learn_eval_episodes"]),
-            on_eval=lambda k, row: learn_rows[k].append(row),
+            on_eval=lambda k, row: training.learn_rows[k].append(row),
             on_progress=progress,
+            checkpoint=checkpoint,
         )
     except Exception as exc:  # noqa: BLE001
         for run_id, config in mine:
-            yield record_outcome(config, run_id, results_dir, gif, None, [], clock, engine=engine, error=exc)
+            yield record_outcome(config, run_id, results_dir, gif, None, [], training.clock, engine=engine, error=exc)
         return
-    # Each run's wall and CPU time is its share of the fleet's training plus its own evaluation
-    # and writes, so that summing them over runs still gives what the fleet spent.
-    wall, cpu = clock.elapsed()
+    # Each run's wall and CPU time is its share of the fleet's training (before a resume too) plus
+    # its own evaluation and writes, so that summing them over runs still gives what the fleet spent.
+    wall, cpu = training.spent()
     for k, learner in enumerate(fleet.learners()):
-        run_id, config = mine[k]
-        own = RunClock.already_spent(clock.started, wall / len(mine), cpu / len(mine))
-        yield record_outcome(config, run_id, results_dir, gif, learner, learn_rows[k], own, engine=engine)
+        run_id, config = trained[k]
+        if run_id not in ours:  # recorded before a kill
+            continue
+        own = RunClock.already_spent(training.clock.started, wall / len(trained), cpu / len(trained))
+        yield record_outcome(config, run_id, results_dir, gif, learner, training.learn_rows[k], own, engine=engine)
+    if checkpoint is not None:
+        remove_fleet(checkpoint.path)
+
+
+class FleetTraining:
+    """What the sweep keeps of a fleet's training besides the fleet: each run's learn-time
+    evaluation rows and the time spent, which a checkpoint carries across a kill (its ``extra``
+    data), so that a resumed fleet records every row and the whole time it trained."""
+
+    def __init__(self, runs: Sequence[tuple[str, dict[str, Any]]], clock: RunClock) -> None:
+        self.runs = list(runs)
+        self.run_ids = [run_id for run_id, _ in runs]
+        self.clock = clock
+        self.learn_rows: list[list[dict[str, Any]]] = [[] for _ in runs]
+
+    def spent(self) -> tuple[float, float]:
+        """(wall, CPU) seconds of training so far, those before a resume included."""
+        return self.clock.elapsed()
+
+    def checkpoint(self, results_dir: Path, spec: Any, protocol: Any, device: str, every_s: float) -> Any:
+        """The fleet's checkpoint in ``results_dir`` (:mod:`runners.fleet_checkpoints`), keyed by
+        the runs, the learner, protocol and device, and the fingerprint of the training code
+        (:func:`runners.execute.training_code`; None,
+        with a warning, when the directory cannot be written)."""
+        # torch waits: importing runners.jobs must not load it
+        from morality_gym.baselines.fleet import FleetCheckpoint
+
+        key = {"runs": sorted(self.run_ids), "learner": spec.name, "protocol": protocol.name, "device": device,
+               "fleet_size": len(self.run_ids), "code": training_code()}
+        try:
+            path = write_fleet_runs(results_dir, self.runs)
+        except OSError as exc:  # e.g. a full disk: train without checkpoints rather than not at all
+            log.warning("fleet of %d runs trains without checkpoints: %s", len(self.runs), exc)
+            return None
+        return FleetCheckpoint(path, every_s=every_s, key=key, extra=self._extra, on_resume=self._resume)
+
+    def _extra(self) -> dict[str, Any]:
+        wall, cpu = self.spent()
+        return {"learn_rows": self.learn_rows, "started": self.clock.started, "wall_s": wall, "cpu_s": cpu}
+
+    def _resume(self, steps: int, extra: Any) -> None:
+        """Take back the rows and the time of the training before the checkpoint."""
+        self.learn_rows = [list(rows) for rows in extra["learn_rows"]]
+        self.clock = RunClock.already_spent(str(extra["started"]), float(extra["wall_s"]), float(extra["cpu_s"]))
 

@@ -24,7 +24,7 @@ from multiprocessing.connection import Connection, wait
 from pathlib import Path
 from typing import Any
 
-from runners.execute import git_commit, limit_threads
+from runners.execute import git_commit, limit_threads, training_code
 from runners.jobs import Job, execute_job
 from runners.plan import PlannedRun
 
@@ -51,7 +51,8 @@ def _die_with_parent() -> None:
         pass
 
 
-def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int, device: str = "cpu") -> None:
+def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int, device: str = "cpu",
+                 checkpoint_every_s: float = 0.0) -> None:
     _die_with_parent()
     if os.getppid() != parent_pid:  # the parent died before prctl took effect
         os._exit(1)
@@ -59,6 +60,7 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int,
 
     limit_threads()
     git_commit()  # the commit of the code this worker loads now, recorded for every run it trains
+    training_code()  # and its fingerprint, which keys the fleet checkpoints it writes
     import stable_baselines3  # noqa: F401
 
     import morality_gym  # noqa: F401 - warm imports before the first run
@@ -72,7 +74,7 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int,
         if message is None:
             return
         items, engine = message
-        for summary in execute_job(items, results_dir, gif, engine, device, _throttled_progress(conn)):
+        for summary in execute_job(items, results_dir, gif, engine, device, _throttled_progress(conn), checkpoint_every_s):
             conn.send(("done", summary))
         conn.send(("free", None))
 
@@ -101,18 +103,20 @@ class _Worker:
 class WorkerPool:
     """Run planned runs on ``n_workers`` processes; ``on_result`` is called in the parent."""
 
-    def __init__(self, n_workers: int, results_dir: Path, gif: bool, device: str = "cpu") -> None:
+    def __init__(self, n_workers: int, results_dir: Path, gif: bool, device: str = "cpu", checkpoint_every_s: float = 0.0) -> None:
         self.n_workers = n_workers
         self.results_dir = str(results_dir)
         self.gif = gif
         self.device = device
+        self.checkpoint_every_s = checkpoint_every_s  # how often fleets checkpoint their training (0: never)
         self._ctx = mp.get_context("spawn")
         self._workers: list[_Worker] = []
 
     def _start(self) -> _Worker:
         parent, child = self._ctx.Pipe()
         process = self._ctx.Process(
-            target=_worker_main, args=(child, self.results_dir, self.gif, os.getpid(), self.device), daemon=True,
+            target=_worker_main, args=(child, self.results_dir, self.gif, os.getpid(), self.device, self.checkpoint_every_s),
+            daemon=True,
             name="morality-gym-worker"
         )
         process.start()

@@ -29,9 +29,11 @@ def run_on_slurm(
     on_result: Callable[[PlannedRun, dict[str, Any]], None],
     on_failure: Callable[[PlannedRun, str], None],
     device: str = "cpu",
+    checkpoint_every_s: float = 0.0,
 ) -> None:
-    """Submit ``jobs_`` as one array and poll it, reporting each run as its array task ends."""
-    jobs = _submit(jobs_, launcher, results_dir, gif, sweep_name, device)
+    """Submit ``jobs_`` as one array and poll it, reporting each run as its array task ends (a
+    fleet checkpoints its training every ``checkpoint_every_s`` seconds; 0: never)."""
+    jobs = _submit(jobs_, launcher, results_dir, gif, sweep_name, device, checkpoint_every_s)
     pending = dict(zip(range(len(jobs_)), jobs))
     poll = float(launcher.get("poll_s", 2.0))
     while pending:
@@ -43,7 +45,7 @@ def run_on_slurm(
 
 
 def _submit(jobs_: list[Job], launcher: Mapping[str, Any], results_dir: Path, gif: bool, sweep_name: str,
-            device: str) -> list[Any]:
+            device: str, checkpoint_every_s: float = 0.0) -> list[Any]:
     """One submitit array task per job, with the launcher's partition and resources."""
     import submitit  # submitit waits: importing runners.slurm_launcher must not load it
 
@@ -67,6 +69,7 @@ def _submit(jobs_: list[Job], launcher: Mapping[str, Any], results_dir: Path, gi
         [gif] * len(jobs_),
         [j.engine for j in jobs_],
         [device] * len(jobs_),
+        [checkpoint_every_s] * len(jobs_),
     )
 
 

@@ -62,6 +62,7 @@ from morality_gym.norms.chain import ChainError
 from runners.config import ConfigError, SweepConfig  # also stores the schemas (runners.config_schema)
 from runners.config_schema import SweepOverheads
 from runners.execute import finished_status, record_failure
+from runners.fleet_checkpoints import fleets_to_form, remove_stale
 from runners.jobs import Job, dispatch_order, jobs_estimate, make_jobs
 from runners.manifest import manifest_name, write_manifest
 from runners.plan import PlannedRun, describe, plan
@@ -117,6 +118,13 @@ class Plan:
     counts: Mapping[str, Any]
     estimate_s: float
     moved: tuple[Quarantined, ...] = ()
+    checkpointed: tuple[tuple[str, ...], ...] = ()  # run ids of fleets formed again to resume from a checkpoint
+
+    @property
+    def resuming(self) -> tuple[Job, ...]:
+        """The fleets that resume their training from a checkpoint (:mod:`runners.fleet_checkpoints`)."""
+        sets = {frozenset(ids) for ids in self.checkpointed}
+        return tuple(j for j in self.fleets if frozenset(r.run_id for r in j.runs) in sets)
 
     @property
     def fleets(self) -> tuple[Job, ...]:
@@ -134,11 +142,13 @@ def make_plan(sweep: SweepConfig) -> Plan:
     done = {rid for rid, s in status.items() if s == "ok" or (s == "failed" and not sweep.retry_failed)}
     workers = _workers(sweep)
     todo = [r for r in runs if r.run_id not in done]
+    # fleets with a training checkpoint are formed again, to resume (runners.fleet_checkpoints)
+    checkpointed = fleets_to_form(sweep.results_dir, [r.run_id for r in todo]) if sweep.checkpoint_every_s > 0 else []
     jobs = dispatch_order(make_jobs(todo, sweep.engine, sweep.fleet_size, workers,
-                                    {a.spec.name: a.fleet_speedup for a in sweep.algos}), workers)
+                                    {a.spec.name: a.fleet_speedup for a in sweep.algos}, checkpointed), workers)
     estimate = jobs_estimate(jobs, done, workers) + sweep_overheads(sweep, len(todo))
     return Plan(runs=tuple(runs), status=status, todo=tuple(todo), jobs=tuple(jobs), workers=workers,
-                counts=describe(runs, done, workers), estimate_s=estimate, moved=tuple(moved))
+                counts=describe(runs, done, workers), estimate_s=estimate, moved=tuple(moved), checkpointed=tuple(checkpointed))
 
 
 def _warn(console: Console, text: str) -> None:
@@ -150,9 +160,11 @@ def _engine_line(plan_: Plan, sweep: SweepConfig) -> str | None:
     fleets, todo = plan_.fleets, plan_.todo
     if fleets:
         in_fleets = sum(len(j.runs) for j in fleets)
+        resuming = len(plan_.resuming)
         return (f"engine [bold]fleet[/bold]: {in_fleets} of {len(todo)} runs to do train in {len(fleets)} fleet(s) of "
                 f"{min(len(j.runs) for j in fleets)}-{max(len(j.runs) for j in fleets)} runs, the other {len(todo) - in_fleets} "
-                "one by one (engine=single trains every run on its own)")
+                "one by one (engine=single trains every run on its own)"
+                + (f"; {resuming} fleet(s) resume their training from a checkpoint" if resuming else ""))
     if todo:
         return "engine [bold]single[/bold]: every run trains on its own" + (
             "" if sweep.engine == "single" else " (no two runs to do can share a fleet)")
@@ -341,9 +353,9 @@ def dispatch(plan_: Plan, sweep: SweepConfig, tracker: Tracker | None, console: 
             return
         if sweep.launcher["name"] == "slurm":
             run_on_slurm(list(plan_.jobs), sweep.launcher, sweep.results_dir, sweep.gif, sweep.name, outcomes.finish,
-                         outcomes.fail, sweep.device)
+                         outcomes.fail, sweep.device, sweep.checkpoint_every_s)
         else:
-            WorkerPool(plan_.workers, sweep.results_dir, sweep.gif, sweep.device).run(
+            WorkerPool(plan_.workers, sweep.results_dir, sweep.gif, sweep.device, sweep.checkpoint_every_s).run(
                 list(plan_.jobs), outcomes.finish, outcomes.fail, FleetBars(progress) if lines is None else _Both(FleetBars(progress), lines))
 
 
@@ -390,6 +402,7 @@ def run_sweep(sweep: SweepConfig, console: Console | None = None, command: str |
         print_dry_run(plan_, console)
         return 0
     started = time.perf_counter()
+    remove_stale(sweep.results_dir)  # checkpoints of fleets whose runs all finished: nothing to resume
     dispatch(plan_, sweep, tracker, console)
     if tracker is not None:
         mirror_finished(plan_, sweep, tracker, console)

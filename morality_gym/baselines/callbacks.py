@@ -76,6 +76,19 @@ class MoralityEvalCallback(BaseCallback):
             self.on_eval(row)
         return row
 
+    def state_dict(self) -> dict[str, Any]:
+        """What carries from one evaluation to the next: the evaluation count (it seeds the next
+        evaluation's episodes), the next step due and the wall time since the start (the rows'
+        ``wall_time_s``). For a fleet's training checkpoint (:mod:`morality_gym.baselines.fleet.checkpoint`)."""
+        return {"count": self._count, "next": self._next, "elapsed_s": time.perf_counter() - self._started}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Continue from :meth:`state_dict`: the next evaluation is seeded as it would have been,
+        and its ``wall_time_s`` counts the time before the checkpoint too."""
+        self._count = int(state["count"])
+        self._next = int(state["next"])
+        self._started = time.perf_counter() - float(state["elapsed_s"])
+
     def _on_training_start(self) -> None:
         self._next = 0
         if self.eval_every > 0:

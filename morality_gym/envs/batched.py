@@ -173,6 +173,22 @@ class BatchedTrolleyEnv:
             obs = self._gather(nxt)
         return BatchStep(obs, reward, terminated, truncated, events, k, final_obs)
 
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """What a step changes (each copy's state, steps taken, ended flag), as copies: with the
+        same env ids, :meth:`load_state_dict` puts the simulator back where it was (a training
+        checkpoint, :mod:`morality_gym.baselines.fleet.checkpoint`). Stepping draws no random
+        number, so there is no RNG to keep."""
+        return {"state": self.state.copy(), "elapsed": self.elapsed.copy(), "ended": self.ended.copy()}
+
+    def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
+        """Restore :meth:`state_dict`'s arrays (shapes and dtypes must match this simulator's)."""
+        for name in ("state", "elapsed", "ended"):
+            current = getattr(self, name)
+            value = np.asarray(state[name])
+            if value.shape != current.shape:
+                raise ValueError(f"simulator {name}: expected shape {current.shape}, got {value.shape}")
+            setattr(self, name, value.astype(current.dtype, copy=True))
+
     # ------------------------------------------------------------------ helpers
     def _gather(self, states: np.ndarray) -> np.ndarray:
         return self._obs[states]

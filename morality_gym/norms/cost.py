@@ -46,6 +46,15 @@ class _UtilityTerm:
     counts_living_only: bool  # n_harm is reported only when a human, animal or robot is harmed
 
 
+def _restore(owner: object, attr: str, value: np.ndarray, what: str) -> None:
+    """Set ``owner.attr`` to a copy of ``value`` in the current array's dtype, refusing another shape."""
+    current = getattr(owner, attr)
+    value = np.asarray(value)
+    if value.shape != current.shape:
+        raise ValueError(f"{what}: expected shape {current.shape}, got {value.shape}")
+    setattr(owner, attr, value.astype(current.dtype, copy=True))
+
+
 class VectorCost:
     """Costs for ``num_envs`` parallel episodes from event masks and utility arrays."""
 
@@ -109,6 +118,16 @@ class VectorCost:
         self.charged[sl] = 0
         self._occurred[sl] = 0
         self._totals[sl] = 0.0
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """The cost memory (first violations charged, prescribed norms' episode records), as copies:
+        what a training checkpoint keeps (:mod:`morality_gym.baselines.fleet.checkpoint`)."""
+        return {"charged": self.charged.copy(), "occurred": self._occurred.copy(), "totals": self._totals.copy()}
+
+    def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
+        """Restore :meth:`state_dict`'s memory (shapes must match)."""
+        for name, attr in (("charged", "charged"), ("occurred", "_occurred"), ("totals", "_totals")):
+            _restore(self, attr, state[name], f"cost memory {name}")
 
     def __call__(
         self,
@@ -260,6 +279,13 @@ class StackedCost:
         if any(c._prescribed_events or c._prescribed_utilities for _, c in groups):
             return None
         return cls(groups, n_copies)
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """The cost memory (first violations charged per copy), as a copy (see :meth:`VectorCost.state_dict`)."""
+        return {"charged": self.charged.copy()}
+
+    def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
+        _restore(self, "charged", state["charged"], "cost memory charged")
 
     def reset(self, mask: np.ndarray | None = None) -> None:
         """Forget first violations (all copies, or where ``mask`` is true)."""

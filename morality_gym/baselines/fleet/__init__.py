@@ -12,7 +12,8 @@ arithmetic (tested: a fleet of one and the single learner end at the same parame
 tolerance; changing one run's seed changes no other run). Modules: :mod:`.env` (all runs' copies
 in one simulator, per-run cost and reward), :mod:`.nets` (parameters stacked along a run axis,
 batched matrix products), :mod:`.optim` (per-run Adam and clipping), :mod:`.base` (start, rollouts,
-learn loop), :mod:`.ppo`, :mod:`.ppo_lag`, :mod:`.cpo` (the updates).
+learn loop), :mod:`.ppo`, :mod:`.ppo_lag`, :mod:`.cpo` (the updates), :mod:`.checkpoint` (a killed
+fleet resumes bit for bit).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from morality_gym.baselines.fleet.base import FleetRun, FleetTrainer
+from morality_gym.baselines.fleet.checkpoint import FleetCheckpoint
 from morality_gym.baselines.fleet.ppo import FleetPPO
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError
 from morality_gym.baselines.targets import resolve
@@ -66,4 +68,4 @@ def build_fleet(
     return fleet_class(spec.target)(spec, runs, protocol=protocol, max_steps=max_steps, device=device)
 
 
-__all__ = ["FleetRun", "FleetTrainer", "build_fleet", "fleet_class"]
+__all__ = ["FleetCheckpoint", "FleetRun", "FleetTrainer", "build_fleet", "fleet_class"]

@@ -51,6 +51,7 @@ from morality_gym.norms.metric import BoundChain
 
 if TYPE_CHECKING:
     from morality_gym.baselines.callbacks import MoralityEvalCallback
+    from morality_gym.baselines.fleet.checkpoint import FleetCheckpoint
 
 #: Called with (run index, learn-time evaluation row) as a single run's ``on_eval`` is with the row.
 FleetEvalHook = Callable[[int, dict[str, Any]], None]
@@ -215,6 +216,17 @@ class FleetTrainer:
     def _export_optimisers(self, k: int, model: Any) -> None:
         """Copy run ``k``'s optimiser state into its single-run model (for saving)."""
 
+    def _optimisers(self) -> dict[str, BatchedAdam]:
+        """Every optimiser of the trainer by name (their moments and step counts are checkpointed)."""
+        raise NotImplementedError
+
+    def _extra_state(self) -> dict[str, Any]:
+        """State a subclass keeps between updates besides networks and optimisers (checkpointed)."""
+        return {}
+
+    def _load_extra_state(self, state: dict[str, Any]) -> None:
+        """Restore :meth:`_extra_state` (in place where other tensors view it)."""
+
     # ------------------------------------------------------------------ helpers
     def _unsupported(self, setting: str, value: Any, supported: str) -> SpecError:
         return SpecError(
@@ -245,20 +257,23 @@ class FleetTrainer:
         eval_episodes: int = LEARN_EVAL_EPISODES,
         on_eval: FleetEvalHook | None = None,
         on_progress: Callable[[int, int], None] | None = None,
+        checkpoint: FleetCheckpoint | None = None,
     ) -> int:
         """Train every run on ``budget`` environment steps (as :meth:`SB3Learner.learn` counts
         them); learn-time evaluations as the single runs make them when ``eval_every > 0``;
         ``on_progress(steps, total)`` after every update (a fleet at the paper's budget trains for
-        many minutes before its first run is written). Returns the steps each run trained."""
+        many minutes before its first run is written). Returns the steps each run trained.
+
+        With a ``checkpoint`` (:class:`~.checkpoint.FleetCheckpoint`) the training state is written
+        to its file at update boundaries (at most every ``every_s`` seconds, and once when training
+        ends), and a matching file found at the start is restored first: training continues from
+        its step count and ends exactly (bit for bit) as it would have without the interruption.
+        ``on_progress`` is then told the resumed step count before the first update."""
         self.total_timesteps = training_steps(self.spec, budget)
         self._start_evaluations(eval_every, eval_episodes, on_eval)
-        self.num_timesteps = 0
-        self.progress_remaining = 1.0
-        self._last_obs = self.env.reset()
-        self._last_starts = np.ones(self.n_runs * self.n_envs, dtype=bool)
-        self._running_ep_cost = np.zeros(self.n_runs * self.n_envs, dtype=np.float64)
-        window = int(getattr(self.model, "ep_cost_window", 1))
-        self.ep_cost_buffers: list[deque[float]] = [deque(maxlen=window) for _ in self.runs]
+        self._start_training()
+        if checkpoint is not None and checkpoint.restore(self) and on_progress is not None:
+            on_progress(self.num_timesteps, self.total_timesteps)
         self._evaluate_if_due()
         while self.num_timesteps < self.total_timesteps:
             self._collect_rollout()
@@ -266,14 +281,138 @@ class FleetTrainer:
             self._train()
             if on_progress is not None:
                 on_progress(self.num_timesteps, self.total_timesteps)
+            if checkpoint is not None and checkpoint.due():
+                checkpoint.write(self)
+        if checkpoint is not None:
+            checkpoint.write(self)  # a kill while the runs are recorded does not retrain them
         self._finish()
         return self.num_timesteps
+
+    def _start_training(self) -> None:
+        """The state of a run at step 0: every copy reset, no episode cost recorded yet."""
+        self.num_timesteps = 0
+        self.progress_remaining = 1.0
+        self._last_obs = self.env.reset()
+        self._last_starts = np.ones(self.n_runs * self.n_envs, dtype=bool)
+        self._running_ep_cost = np.zeros(self.n_runs * self.n_envs, dtype=np.float64)
+        window = int(getattr(self.model, "ep_cost_window", 1))
+        self.ep_cost_buffers: list[deque[float]] = [deque(maxlen=window) for _ in self.runs]
+
+    # ------------------------------------------------------------------ checkpoints
+    def identity(self) -> dict[str, Any]:
+        """What a checkpoint of this fleet's training only fits: the learner (every hyper-parameter),
+        the protocol, each run's env id, chain and seed, the budget, the evaluation schedule and the
+        device. :meth:`load_state_dict` refuses a state of another identity."""
+        return {
+            "algorithm": self.algorithm,
+            "spec": repr(self.spec),
+            "protocol": repr(self.protocol),
+            "runs": [[r.bound.env_id, r.bound.chain.name, float(r.bound.beta), int(r.seed)] for r in self.runs],
+            "max_steps": self.max_steps,
+            "n_envs": self.n_envs,
+            "total_timesteps": self.total_timesteps,
+            "eval_every": self._eval_every,
+            "eval_episodes": self._eval_episodes,
+            "device": str(self.device),
+        }
+
+    def state_dict(self) -> dict[str, Any]:
+        """The whole training state between two updates (call it at an update boundary of
+        :meth:`learn`), as tensors (on the CPU) and plain Python data, so that it can be written
+        with ``torch.save`` and read back with ``torch.load(weights_only=True)``.
+
+        Everything an update or a rollout reads and changes: the stacked networks, every
+        optimiser's moments and step counts (and a subclass's :meth:`_extra_state`, PPO-Lag's
+        multipliers), each run's torch and numpy generator, the simulator and the cost memory,
+        the last observations and episode starts, the episode-cost bookkeeping, the step count and
+        progress, the diagnostics rows, and the learn-time evaluations' schedule, seed counters and
+        rows. What is rebuilt each rollout (the rollout, its action noise and distinct states) and
+        what never changes (hyper-parameters, schedules) is not kept. Nothing of training uses the
+        global RNGs (the runs' generators are their own, evaluations seed their own), so they are
+        not kept either (a test changes them between interruption and resume).
+        """
+        return {
+            "identity": self.identity(),
+            "num_timesteps": int(self.num_timesteps),
+            "progress_remaining": float(self.progress_remaining),
+            "next_eval": int(self._next_eval),
+            "nets": {head: [t.detach().cpu().clone() for layer in layers for t in layer] for head, layers in self.nets.heads.items()},
+            "optimisers": {name: opt.state_dict() for name, opt in self._optimisers().items()},
+            "extra": self._extra_state(),
+            "torch_generators": [g.get_state() for g in self.torch_generators],
+            "np_generators": [_random_state_dict(rng) for rng in self.np_generators],
+            "env": _tensors(self.env.state_dict()),
+            "last_obs": th.from_numpy(self._last_obs.copy()),
+            "last_starts": th.from_numpy(self._last_starts.copy()),
+            "running_ep_cost": th.from_numpy(self._running_ep_cost.copy()),
+            "ep_cost_buffers": [[float(c) for c in buf] for buf in self.ep_cost_buffers],
+            "update_logs": plain_data(self.update_logs),
+            "evaluations": [cb.state_dict() for cb in self._callbacks],
+            "learn_evals": [plain_data(learner.learn_evals) for learner in self._learners],
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Continue from :meth:`state_dict` of a fleet of the same :meth:`identity` (raises
+        :class:`CheckpointMismatch` otherwise, before changing anything). Called by :meth:`learn`
+        after it set up step 0 and the evaluations. Tensors are copied *in place*: the networks'
+        parameters are views into their optimisers' flat buffers. Should a part fail to load
+        (a damaged file), the state from before the call is put back and the error raised."""
+        mine, theirs = self.identity(), state.get("identity")
+        if theirs != mine:
+            raise CheckpointMismatch(_difference(mine, theirs))
+        before = self.state_dict()
+        try:
+            self._load(state)
+        except Exception:
+            self._load(before)
+            raise
+
+    @th.no_grad()
+    def _load(self, state: dict[str, Any]) -> None:
+        for head, layers in self.nets.heads.items():
+            saved = state["nets"][head]
+            tensors = [t for layer in layers for t in layer]
+            if len(saved) != len(tensors) or any(a.shape != b.shape for a, b in zip(saved, tensors)):
+                raise ValueError(f"head {head!r}: the saved layers do not fit the network")
+            for t, value in zip(tensors, saved):
+                t.copy_(value)
+        optimisers = self._optimisers()
+        if set(state["optimisers"]) != set(optimisers):
+            raise ValueError(f"optimisers: expected {sorted(optimisers)}, got {sorted(state['optimisers'])}")
+        for name, opt in optimisers.items():
+            opt.load_state_dict(state["optimisers"][name])
+        self._load_extra_state(state["extra"])
+        if len(state["torch_generators"]) != self.n_runs or len(state["np_generators"]) != self.n_runs:
+            raise ValueError("one generator per run expected")
+        for gen, gen_state in zip(self.torch_generators, state["torch_generators"]):
+            gen.set_state(gen_state)
+        for rng, rng_state in zip(self.np_generators, state["np_generators"]):
+            _load_random_state(rng, rng_state)
+        self.env.load_state_dict(state["env"])
+        self._last_obs = _array_like(self._last_obs, state["last_obs"], "last observations")
+        self._last_starts = _array_like(self._last_starts, state["last_starts"], "episode starts")
+        self._running_ep_cost = _array_like(self._running_ep_cost, state["running_ep_cost"], "running episode costs")
+        window = int(getattr(self.model, "ep_cost_window", 1))
+        self.ep_cost_buffers = [deque((float(c) for c in costs), maxlen=window) for costs in state["ep_cost_buffers"]]
+        self.num_timesteps = int(state["num_timesteps"])
+        self.progress_remaining = float(state["progress_remaining"])
+        self._next_eval = int(state["next_eval"])
+        self.update_logs = [[dict(row) for row in rows] for rows in state["update_logs"]]
+        if len(state["evaluations"]) != len(self._callbacks) or len(state["learn_evals"]) != self.n_runs:
+            raise ValueError("evaluation state does not fit the fleet's evaluations")
+        for callback, cb_state in zip(self._callbacks, state["evaluations"]):
+            callback.load_state_dict(cb_state)
+        for learner, rows in zip(self._learners, state["learn_evals"]):
+            learner.learn_evals = [dict(row) for row in rows]
+        if len(self.update_logs) != self.n_runs or len(self.ep_cost_buffers) != self.n_runs:
+            raise ValueError("per-run state of another number of runs")
 
     def _start_evaluations(self, eval_every: int, eval_episodes: int, on_eval: FleetEvalHook | None) -> None:
         # torch waits: importing morality_gym.baselines.fleet.base must not load it
         from stable_baselines3.common.logger import configure
 
         self._eval_every = int(eval_every)
+        self._eval_episodes = int(eval_episodes)
         self._next_eval = 0
         self._callbacks: list[MoralityEvalCallback] = []
         if self._eval_every <= 0 and self.total_timesteps > 0:
@@ -455,3 +594,63 @@ class FleetTrainer:
         """A numpy array as a tensor on the fleet's device (shared memory on the CPU)."""
         return th.from_numpy(arr).to(self.device)
 
+
+
+class CheckpointMismatch(ValueError):
+    """A saved training state that belongs to another fleet (learner, runs, budget, device...)."""
+
+
+def _difference(mine: dict[str, Any], theirs: Any) -> str:
+    """The first field in which a saved identity differs from this fleet's, in words."""
+    if not isinstance(theirs, dict):
+        return "the file holds no fleet identity"
+    for key, value in mine.items():
+        if theirs.get(key) != value:
+            return f"{key} differs (saved {theirs.get(key)!r}, this fleet {value!r})"
+    return f"saved fields {sorted(set(theirs) - set(mine))} are unknown here"
+
+
+def plain_data(value: Any) -> Any:
+    """``value`` (dicts, lists, scalars, as diagnostics and evaluation rows hold them) with numpy
+    scalars as Python scalars and tuples as lists, which ``torch.load(weights_only=True)`` reads back.
+    Exact: a float64 is a Python float, an integer an int."""
+    if isinstance(value, dict):
+        return {k: plain_data(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, deque)):
+        return [plain_data(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _tensors(value: Any) -> Any:
+    """``value`` with every numpy array as a tensor (unsigned 32-bit as int64: exact, and a type
+    ``torch.save`` handles everywhere); readers cast back to their arrays' dtypes."""
+    if isinstance(value, dict):
+        return {k: _tensors(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_tensors(v) for v in value]
+    if isinstance(value, np.ndarray):
+        arr = value.astype(np.int64) if value.dtype == np.uint32 else value
+        return th.from_numpy(np.ascontiguousarray(arr).copy())
+    return value
+
+
+def _array_like(current: np.ndarray, value: th.Tensor, what: str) -> np.ndarray:
+    """``value`` as a numpy array of ``current``'s shape and dtype (a copy)."""
+    arr = value.numpy()
+    if arr.shape != current.shape:
+        raise ValueError(f"{what}: expected shape {current.shape}, got {arr.shape}")
+    return arr.astype(current.dtype, copy=True)
+
+
+def _random_state_dict(rng: np.random.RandomState) -> dict[str, Any]:
+    """A ``RandomState``'s Mersenne Twister state as a tensor and plain numbers."""
+    name, keys, pos, has_gauss, gauss = rng.get_state(legacy=True)  # type: ignore[misc]
+    return {"name": str(name), "keys": th.from_numpy(keys.astype(np.int64)), "pos": int(pos), "has_gauss": int(has_gauss),
+            "gauss": float(gauss)}
+
+
+def _load_random_state(rng: np.random.RandomState, state: dict[str, Any]) -> None:
+    keys = state["keys"].numpy().astype(np.uint32)
+    rng.set_state((state["name"], keys, int(state["pos"]), int(state["has_gauss"]), float(state["gauss"])))

@@ -44,6 +44,9 @@ class FleetCostTrainer(FleetTrainer):
         self.actor_optimizer = BatchedAdam(self.actor_params, self.n_runs, betas=a["betas"], eps=a["eps"])
         self.critic_optimizer = BatchedAdam(self.critic_params, self.n_runs, betas=c["betas"], eps=c["eps"])
 
+    def _optimisers(self) -> dict[str, BatchedAdam]:
+        return {"actor": self.actor_optimizer, "critic": self.critic_optimizer}
+
     def _export_optimisers(self, k: int, model: Any) -> None:
         self._export_adam(self.actor_optimizer, k, model.policy.optimizer, model.policy, ("pi",))
         self._export_adam(self.critic_optimizer, k, model.policy.critic_optimizer, model.policy, ("vf", "cf"))

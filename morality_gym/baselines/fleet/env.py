@@ -12,7 +12,7 @@ them. Nothing is exchanged between runs except the arrays they are stepped in.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -56,6 +56,21 @@ class FleetEnv:
         # all groups in one pass (the same bits as the loop over groups; None with a prescribed norm)
         self._stacked = StackedCost.of_groups(self._costs, self.n_runs * n_envs)
         self._all = np.ones(self.n_runs * n_envs, dtype=bool)
+
+    def state_dict(self) -> dict[str, Any]:
+        """Everything stepping changes: the simulator's copies and every cost memory (the stacked
+        one, or one per group). Nothing here draws random numbers. For a training checkpoint."""
+        costs = [self._stacked.state_dict()] if self._stacked is not None else [cost.state_dict() for _, cost in self._costs]
+        return {"sim": self.sim.state_dict(), "costs": costs}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore :meth:`state_dict` into a simulator built for the same runs."""
+        owners = [self._stacked] if self._stacked is not None else [cost for _, cost in self._costs]
+        if len(state["costs"]) != len(owners):
+            raise ValueError(f"cost memories: expected {len(owners)}, got {len(state['costs'])}")
+        self.sim.load_state_dict(state["sim"])
+        for owner, memory in zip(owners, state["costs"]):
+            owner.load_state_dict(memory)
 
     def copies_of(self, runs: np.ndarray) -> np.ndarray:
         """Boolean mask over the copies of the runs where ``runs`` (``[K]`` bool) is true."""

@@ -132,6 +132,21 @@ class BatchedAdam:
                 for i in idx:
                     g[:, slice(*self._columns[i])].mul_(coef)
 
+    def state_dict(self) -> dict[str, th.Tensor]:
+        """The moments and step counts of every run (CPU copies; the parameters are their owner's
+        to save). For a training checkpoint (:mod:`.checkpoint`)."""
+        return {"exp_avg": self.exp_avg.cpu().clone(), "exp_avg_sq": self.exp_avg_sq.cpu().clone(), "steps": self._step_counts.cpu().clone()}
+
+    @th.no_grad()
+    def load_state_dict(self, state: dict[str, th.Tensor]) -> None:
+        """Restore :meth:`state_dict` *in place*: the fused kernel walks row views of these very
+        buffers (and the per-run step views), so they must stay the same tensors."""
+        for name, buf in (("exp_avg", self.exp_avg), ("exp_avg_sq", self.exp_avg_sq), ("steps", self._step_counts)):
+            value = state[name]
+            if value.shape != buf.shape or value.dtype != buf.dtype:
+                raise ValueError(f"Adam {name}: expected {tuple(buf.shape)} {buf.dtype}, got {tuple(value.shape)} {value.dtype}")
+            buf.copy_(value)
+
     def state_of(self, k: int) -> list[dict[str, th.Tensor]]:
         """Run ``k``'s Adam state per parameter, as ``torch.optim.Adam.state`` holds it."""
         return [

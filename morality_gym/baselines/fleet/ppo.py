@@ -48,6 +48,9 @@ class FleetPPO(FleetTrainer):
         self.params = self.nets.params("pi", "vf")
         self.optimizer = BatchedAdam(self.params, self.n_runs, betas=defaults["betas"], eps=defaults["eps"])
 
+    def _optimisers(self) -> dict[str, BatchedAdam]:
+        return {"policy": self.optimizer}
+
     def _export_optimisers(self, k: int, model: Any) -> None:
         self._export_adam(self.optimizer, k, model.policy.optimizer, model.policy, ("pi", "vf"))
 

@@ -36,6 +36,21 @@ class FleetPPOLag(FleetCostTrainer):
         self.lagrange = th.stack([learner.model.lagrange.value_param.detach().clone() for learner in self._learners]).to(self.device)
         self.lagrange_optimizer = BatchedAdam([self.lagrange], self.n_runs, betas=d["betas"], eps=d["eps"])
 
+    def _optimisers(self) -> dict[str, BatchedAdam]:
+        return {**super()._optimisers(), "lagrange": self.lagrange_optimizer}
+
+    def _extra_state(self) -> dict[str, th.Tensor]:
+        """The runs' multipliers (the Lagrange optimiser's parameter)."""
+        return {"lagrange": self.lagrange.detach().cpu().clone()}
+
+    @th.no_grad()
+    def _load_extra_state(self, state: dict[str, th.Tensor]) -> None:
+        """In place: :attr:`lagrange` is a view into its optimiser's flat buffer."""
+        value = state["lagrange"]
+        if value.shape != self.lagrange.shape:
+            raise ValueError(f"multipliers: expected shape {tuple(self.lagrange.shape)}, got {tuple(value.shape)}")
+        self.lagrange.copy_(value)
+
     def _export_optimisers(self, k: int, model: object) -> None:
         super()._export_optimisers(k, model)
         lag = model.lagrange  # type: ignore[attr-defined]

@@ -1,0 +1,171 @@
+"""Checkpoints of a fleet's training: a killed fleet resumes where it was, bit for bit.
+
+Why: at the paper's budget a fleet trains for 15-65 minutes before it writes its first run, and a
+sweep resumes at run granularity, so every interruption (a shutdown, a preempted SLURM task,
+Ctrl-C) used to retrain the whole fleet. :meth:`FleetTrainer.learn
+<morality_gym.baselines.fleet.base.FleetTrainer.learn>` with a :class:`FleetCheckpoint` writes the
+training state (:meth:`~morality_gym.baselines.fleet.base.FleetTrainer.state_dict`) at update
+boundaries, at most every ``every_s`` seconds and once when training ends, and restores a matching
+file at its start. The resumed fleet ends with exactly the weights, optimiser states, diagnostics
+and learn-time evaluations of the uninterrupted one (tests/test_fleet_checkpoint.py).
+
+The file: ``torch.save`` of ``{"format", "key", "fleet", "extra"}``, where ``fleet`` is the
+trainer's state and ``extra`` what the caller asked to keep with it (e.g. the evaluation rows it
+collected and the time it had spent). Everything in it is tensors and plain Python data, read
+back with ``torch.load(weights_only=True)``, which unpickles no arbitrary object. A file is
+written to a temporary name, flushed to disk and renamed over the old one, so a kill at any
+moment leaves the previous checkpoint or the new one, never half of one.
+
+A file is used only if it matches: the caller's ``key`` (e.g. the runs' ids and the code's commit:
+a fleet half-trained by other code must not be finished by this one) and the fleet's own
+:meth:`~morality_gym.baselines.fleet.base.FleetTrainer.identity` (learner, runs, budget, device).
+A file that does not match, or cannot be read, is discarded with one warning, and training starts
+from step 0: a checkpoint never fails a sweep.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import torch as th
+
+from morality_gym.baselines.fleet.base import CheckpointMismatch, plain_data
+
+if TYPE_CHECKING:
+    from morality_gym.baselines.fleet.base import FleetTrainer
+
+#: Bumped when the layout of the file changes (an older file is then discarded, never misread).
+FORMAT = 1
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class FleetCheckpoint:
+    """Where and how often a fleet's training is checkpointed, and the caller's part in it.
+
+    :param path: the checkpoint file (its directory is created when first written).
+    :param every_s: the least wall time between two writes during training (0: after every
+        update); the last write, when training ends, is always made.
+    :param key: plain data that identifies what the file is for; a file saved under another key is
+        discarded (the fleet also checks its own identity).
+    :param extra: called at every write: plain data of the caller's to keep with the state.
+    :param on_resume: called with ``(steps, extra)`` when a file was restored, before training goes on.
+    """
+
+    path: Path
+    every_s: float = 300.0
+    key: Mapping[str, Any] = field(default_factory=dict)
+    extra: Callable[[], Any] | None = None
+    on_resume: Callable[[int, Any], None] | None = None
+    _last_write: float = field(default=0.0, init=False, repr=False)
+    _written_steps: int = field(default=-1, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self.path = Path(self.path)
+        self._last_write = time.monotonic()
+
+    # ------------------------------------------------------------------ reading
+    def restore(self, fleet: FleetTrainer) -> bool:
+        """Load the file into ``fleet`` (set up at step 0 by ``learn``) if it exists and matches;
+        True if training resumes from it. A mismatched or unreadable file is discarded (one
+        warning); ``fleet`` is then left at step 0."""
+        self._last_write = time.monotonic()
+        if not self.path.exists():
+            return False
+        try:
+            payload = th.load(self.path, map_location="cpu", weights_only=True)
+        except Exception as exc:  # noqa: BLE001 - any unreadable file (truncated, not ours) is discarded, never fatal
+            return self._discard(f"cannot be read ({type(exc).__name__}: {str(exc)[:200]})")
+        if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+            return self._discard(f"is not of format {FORMAT}")
+        if payload.get("key") != plain_data(dict(self.key)):
+            return self._discard(f"was saved for another fleet or code ({_key_difference(dict(self.key), payload.get('key'))})")
+        try:
+            fleet.load_state_dict(payload["fleet"])
+        except CheckpointMismatch as exc:
+            return self._discard(f"does not fit this fleet ({exc})")
+        except Exception as exc:  # noqa: BLE001 - a damaged state: the fleet put its step-0 state back
+            return self._discard(f"is damaged ({type(exc).__name__}: {str(exc)[:200]})")
+        self._written_steps = fleet.num_timesteps
+        log.warning("fleet of %d runs resumed at %s of %s steps from %s", fleet.n_runs, f"{fleet.num_timesteps:,}",
+                    f"{fleet.total_timesteps:,}", self.path)
+        if self.on_resume is not None:
+            self.on_resume(fleet.num_timesteps, payload.get("extra"))
+        return True
+
+    def _discard(self, why: str) -> bool:
+        """Warn once and remove the file (training starts from step 0); False."""
+        log.warning("fleet checkpoint %s %s: discarded, training from the start", self.path, why)
+        self.remove()
+        return False
+
+    # ------------------------------------------------------------------ writing
+    def due(self) -> bool:
+        """True when ``every_s`` seconds have passed since the last write (or the start)."""
+        return time.monotonic() - self._last_write >= self.every_s
+
+    def write(self, fleet: FleetTrainer) -> None:
+        """Write ``fleet``'s state at this update boundary, atomically (a temporary file, flushed
+        to disk, renamed over the old one). Nothing is written when nothing changed since the last
+        write or restore. A failure to write (a full disk) is a warning: training goes on."""
+        if fleet.num_timesteps == self._written_steps:
+            return
+        payload = {"format": FORMAT, "key": plain_data(dict(self.key)), "fleet": fleet.state_dict(),
+                   "extra": plain_data(self.extra()) if self.extra is not None else None}
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            with open(tmp, "wb") as fh:
+                th.save(payload, fh)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, self.path)
+            _fsync_dir(self.path.parent)
+        except OSError as exc:
+            log.warning("fleet checkpoint %s could not be written (%s); training goes on without it", self.path, exc)
+            tmp.unlink(missing_ok=True)
+            return
+        self._last_write = time.monotonic()
+        self._written_steps = fleet.num_timesteps
+
+    def remove(self) -> None:
+        """Delete the file (and a temporary one a kill left behind)."""
+        for path in (self.path, self.path.with_name(self.path.name + ".tmp")):
+            path.unlink(missing_ok=True)
+
+
+def _key_difference(mine: dict[str, Any], theirs: Any) -> str:
+    """Which key field differs, in words (the commit, the device...)."""
+    if not isinstance(theirs, dict):
+        return "no key saved"
+    mine = plain_data(mine)
+    for name in sorted(set(mine) | set(theirs)):
+        if mine.get(name) != theirs.get(name):
+            return f"{name}: saved {_short(theirs.get(name))}, now {_short(mine.get(name))}"
+    return "keys differ"
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _fsync_dir(directory: Path) -> None:
+    """Make a rename in ``directory`` durable (a no-op where directories cannot be opened)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
