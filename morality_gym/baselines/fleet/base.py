@@ -33,7 +33,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import numpy as np
 import torch as th
@@ -51,10 +51,26 @@ from morality_gym.norms.metric import BoundChain
 
 if TYPE_CHECKING:
     from morality_gym.baselines.callbacks import MoralityEvalCallback
-    from morality_gym.baselines.fleet.checkpoint import FleetCheckpoint
 
 #: Called with (run index, learn-time evaluation row) as a single run's ``on_eval`` is with the row.
 FleetEvalHook = Callable[[int, dict[str, Any]], None]
+
+
+class Checkpointer(Protocol):
+    """What :meth:`FleetTrainer.learn` asks of a checkpoint (:class:`~.checkpoint.FleetCheckpoint`
+    is the one we ship). Declared here, so that the learn loop does not depend on the file format."""
+
+    def restore(self, fleet: FleetTrainer) -> bool:
+        """Load a saved state into ``fleet`` (at step 0); True if training resumes from it."""
+        ...
+
+    def due(self) -> bool:
+        """True when a state should be written at this update boundary."""
+        ...
+
+    def write(self, fleet: FleetTrainer) -> None:
+        """Write ``fleet``'s state."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -257,7 +273,7 @@ class FleetTrainer:
         eval_episodes: int = LEARN_EVAL_EPISODES,
         on_eval: FleetEvalHook | None = None,
         on_progress: Callable[[int, int], None] | None = None,
-        checkpoint: FleetCheckpoint | None = None,
+        checkpoint: Checkpointer | None = None,
     ) -> int:
         """Train every run on ``budget`` environment steps (as :meth:`SB3Learner.learn` counts
         them); learn-time evaluations as the single runs make them when ``eval_every > 0``;
