@@ -230,6 +230,15 @@ def print_dry_run(plan_: Plan, console: Console) -> None:
 
 
 # ---------------------------------------------------------------------------------------- dispatch
+def fleet_label(job: Any) -> str:
+    """``30 PPO on PushOrSwitch (Utility)``: a fleet in words; the chain when all its runs share one
+    (a fleet may hold several chains of one scenario, and two fleets of one scenario are common)."""
+    config = job.runs[0].config
+    chains = {r.config["chain"]["name"] for r in job.runs}
+    chain = f" ({next(iter(chains))})" if len(chains) == 1 else f" ({len(chains)} chains)"
+    return f"{len(job.runs)} {config['algo']['label']} on {config['scenario']}{chain}"
+
+
 class FleetBars(JobProgress):
     """One progress bar per fleet while it trains (steps per run), under the sweep's bar of runs:
     at the paper's budget a fleet trains for many minutes before its first run is written.
@@ -241,8 +250,7 @@ class FleetBars(JobProgress):
 
     def update(self, job: Any, steps: int, total: int) -> None:
         if id(job) not in self.tasks:
-            config = job.runs[0].config
-            label = f"  fleet: {len(job.runs)} {config['algo']['label']} runs on {config['scenario']}"
+            label = f"  fleet: {fleet_label(job)}"
             self.tasks[id(job)] = self.progress.add_task(escape(label), total=total, note="steps per run")
         self.progress.update(self.tasks[id(job)], completed=steps, total=total)
 
@@ -274,8 +282,7 @@ class ProgressLines(JobProgress):
         self._maybe_print(final=self.done == self.total)
 
     def update(self, job: Any, steps: int, total: int) -> None:
-        config = job.runs[0].config
-        self.fleets[id(job)] = (f"{len(job.runs)} {config['algo']['label']} on {config['scenario']}", steps, total)
+        self.fleets[id(job)] = (fleet_label(job), steps, total)
         self._maybe_print()
 
     def end(self, job: Any) -> None:

@@ -12,8 +12,9 @@ from runners.sweep import ProgressLines
 from tests.test_sweep import SMALL, sweep
 
 
-def _job(n: int, label: str, scenario: str) -> SimpleNamespace:
-    return SimpleNamespace(runs=[SimpleNamespace(config={"algo": {"label": label}, "scenario": scenario})] * n)
+def _job(n: int, label: str, scenario: str, chains: tuple[str, ...] = ("Utility",)) -> SimpleNamespace:
+    return SimpleNamespace(runs=[SimpleNamespace(config={"algo": {"label": label}, "scenario": scenario, "chain": {"name": chains[i % len(chains)]}})
+                                 for i in range(n)])
 
 
 def test_lines_are_throttled_and_name_the_fleets_in_training() -> None:
@@ -26,7 +27,7 @@ def test_lines_are_throttled_and_name_the_fleets_in_training() -> None:
     now[0] = 61.0
     lines.update(fleet, 32_768, 1_000_000)
     assert out.getvalue().strip() == ("[22:14:05] 0/4 runs done, 0 failed, 1m01s elapsed; "
-                                      "training: 30 PPO on PushOrSwitch 32,768/1,000,000 steps")
+                                      "training: 30 PPO on PushOrSwitch (Utility) 32,768/1,000,000 steps")
     now[0] = 70.0
     lines.run_finished(ok=False)
     lines.end(fleet)
@@ -36,6 +37,8 @@ def test_lines_are_throttled_and_name_the_fleets_in_training() -> None:
     lines.run_finished(ok=True)  # the last run always prints
     last = out.getvalue().strip().splitlines()[-1]
     assert last.startswith("[22:14:05] 4/4 runs done, 1 failed, 1m10s elapsed") and "training" not in last
+    lines.update(_job(4, "CPO", "Switch5", ("Utility", "DualProcess")), 1, 2)
+    assert "4 CPO on Switch5 (2 chains) 1/2 steps" in lines.line()
     silent = io.StringIO()
     off = ProgressLines(Console(file=silent), total=1, every_s=0, clock=lambda: 1e9)
     off.run_finished(ok=True)
