@@ -45,6 +45,7 @@ import gc
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 THREAD_VARIABLES = _THREAD_VARIABLES
@@ -56,11 +57,16 @@ class Context:
 
     ``quick`` runs shrink the work about tenfold (for a smoke check, not for quoting numbers).
     ``progress`` is a ``rich.progress.Progress`` (or ``None`` when progress is switched off).
+    ``releases`` and ``results``: real result sets for the sections that time them (results
+    releases, empty: every release under ``releases/``; a results directory of one's own, which
+    lives outside the repository).
     """
 
     quick: bool
     repeats: int
     progress: Any = None
+    releases: tuple[Path, ...] = ()
+    results: Path | None = None
 
     def size(self, full: int, quick: int) -> int:
         """The amount of work for this run: ``full`` normally, ``quick`` with ``--quick``."""

@@ -523,6 +523,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     parser.add_argument(
+        "--release", action="append", type=Path, default=None, metavar="DIR",
+        help="a results release for the sections that time real data (default: every release under releases/)",
+    )
+    parser.add_argument(
+        "--results", type=Path, default=None, metavar="DIR",
+        help="a results directory of one's own, timed beside the releases (e.g. a quick Table 1)",
+    )
+    parser.add_argument(
         "--baseline",
         metavar="REV",
         default=None,
@@ -605,7 +613,8 @@ def _run_sections(selected: list[Benchmark], args: argparse.Namespace, repeats: 
         disable=args.no_progress,
     ) as progress:
         overall = progress.add_task("sections", total=len(selected))
-        ctx = Context(quick=args.quick, repeats=repeats, progress=None if args.no_progress else progress)
+        ctx = Context(quick=args.quick, repeats=repeats, progress=None if args.no_progress else progress,
+                      releases=tuple(args.release or ()), results=args.results)
         for bench in selected:
             progress.update(overall, description=f"sections ({bench.key})")
             section = bench.run(ctx)

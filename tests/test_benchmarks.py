@@ -83,3 +83,21 @@ def test_baseline_run_measures_another_revision_and_partial_runs_keep_other_sect
     bad = subprocess.run([*cmd[:-2], "--output", str(tmp_path / "x.md"), "--baseline", "no-such-rev"],
                          cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
     assert bad.returncode != 0 and "is not a commit" in bad.stderr
+
+
+def test_link_results_takes_what_the_build_reads_and_never_its_outputs(tmp_path: Path) -> None:
+    from benchmarks.bench_leaderboard import link_results
+
+    source = tmp_path / "source"
+    (source / "runs" / "abc").mkdir(parents=True)
+    (source / "runs" / ".quarantine").mkdir()
+    (source / "manifests").mkdir()
+    for name in ("runs/abc.parquet", "runs/abc.learn.parquet", "runs/abc/episode.gif", "runs/abc/model.zip",
+                 "runs/.quarantine/bad.parquet", "manifests/m.json", "table1.csv", "cache/stats.json", "mlflow.db"):
+        (source / name).parent.mkdir(parents=True, exist_ok=True)
+        (source / name).write_text(name)
+    target = tmp_path / "target"
+    assert link_results(source, target) == 1  # one run row (abc.parquet)
+    got = sorted(str(p.relative_to(target)) for p in target.rglob("*") if p.is_file())
+    assert got == ["manifests/m.json", "runs/abc.learn.parquet", "runs/abc.parquet", "runs/abc/episode.gif"]
+    assert (target / "runs" / "abc.parquet").stat().st_ino == (source / "runs" / "abc.parquet").stat().st_ino  # linked, not copied
