@@ -21,7 +21,6 @@ Deleting ``cache/`` only makes the next build slower.
 from __future__ import annotations
 
 import argparse
-import difflib
 import sys
 import tempfile
 import time
@@ -41,7 +40,7 @@ from leaderboard.release import Release, ReleaseError, resolve
 from leaderboard.sources import Sources, load_sources
 from leaderboard.stamp import StampError, source_date_epoch, stamp_text
 from leaderboard.tables import write_tables
-from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, did_you_mean, run_cli
 from runners.quarantine import quarantined_files
 
 REFERENCE_CACHE = Path("cache") / "reference_rows.json"
@@ -122,8 +121,7 @@ def check_primary_choice(args: argparse.Namespace, lb: Leaderboard) -> None:
     for flag, wanted, have in (("--protocol", args.protocol, {g.protocol for g in lb.groups}),
                                ("--preset", args.preset, {g.preset for g in lb.groups})):
         if wanted is not None and wanted not in have:
-            close = difflib.get_close_matches(wanted, sorted(have), n=1)
-            hint = f" (did you mean {close[0]}?)" if close else ""
+            hint = did_you_mean(wanted, sorted(have), quote=False)
             raise UserError(f"{flag} {wanted}: no sweep in the results has it{hint}; they have: {', '.join(sorted(have))}")
 
 

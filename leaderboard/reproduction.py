@@ -15,7 +15,6 @@ paper. Figure 2 is drawn from the same runs and checked against the paper's own 
 from __future__ import annotations
 
 import argparse
-import difflib
 import math
 import shutil
 import sys
@@ -46,7 +45,7 @@ from leaderboard.paper_figures import norm_label, write_figures
 from leaderboard.release import ReleaseError, resolve
 from leaderboard.sources import Sources, load_sources
 from leaderboard.stats import DEFAULT_RESAMPLES, compute_stats
-from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, did_you_mean, run_cli
 
 CLAIMS_FILE = Path(__file__).resolve().parents[1] / "morality_gym" / "data" / "paper" / "figure2_claims.yaml"
 NOTES_FILE = Path(__file__).resolve().parents[1] / "docs" / "reproduction_notes.yaml"
@@ -310,9 +309,8 @@ def check_notes(notes: dict[tuple[str, str, str], str], path: Path) -> None:
     for key in notes:
         if key not in known:
             label = " / ".join(key)
-            close = difflib.get_close_matches(label, labels, n=3)
-            hint = f"; did you mean {', '.join(repr(c) for c in close)}?" if close else ""
-            raise UserError(f"{path}: {label!r} is not a cell of Table 1 (chain / scenario / learner){hint}")
+            raise UserError(f"{path}: {label!r} is not a cell of Table 1 (chain / scenario / learner)"
+                            f"{did_you_mean(label, labels, n=3)}")
 
 
 # ---------------------------------------------------------------------------------------- figure 2

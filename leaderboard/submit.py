@@ -26,7 +26,6 @@ Files are written atomically, one per run, after the whole evaluation of the run
 from __future__ import annotations
 
 import argparse
-import difflib
 import getpass
 import json
 import math
@@ -41,7 +40,7 @@ from typing import Any
 
 from morality_gym.baselines.io import ModelError
 from morality_gym.baselines.policy_ref import PolicyError, is_stationary, load_policy, probe
-from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, did_you_mean, run_cli
 from morality_gym.constants import BETA, MAX_STEPS
 from morality_gym.envs.registry import UnknownEnvError, scenario_named, scenarios
 from morality_gym.envs.trolley import InvalidActionError
@@ -126,8 +125,7 @@ def _check_variants(pairs: list[tuple[MoralityChain, str]], variants: Sequence[s
     all_variants = {v for _, s in pairs for v in scenario_named(s).variants}
     unknown = [v for v in variants if v not in all_variants]
     if unknown:
-        close = difflib.get_close_matches(unknown[0], sorted(all_variants), n=3)
-        hint = f" (did you mean {', '.join(close)}?)" if close else ""
+        hint = did_you_mean(unknown[0], sorted(all_variants), n=3, quote=False)
         raise UserError(f"--variant {unknown[0]}: no selected scenario has it{hint}; variants: {', '.join(sorted(all_variants))}")
 
 
@@ -376,8 +374,7 @@ def run(args: argparse.Namespace) -> int:
 
     protocols = sorted(p.stem for p in (CONF_DIR / "protocol").glob("*.yaml"))
     if protocols and args.protocol not in protocols:
-        close = difflib.get_close_matches(args.protocol, protocols, n=3)
-        hint = f" (did you mean {', '.join(close)}?)" if close else ""
+        hint = did_you_mean(args.protocol, protocols, n=3, quote=False)
         raise UserError(f"--protocol {args.protocol}: unknown{hint}; protocols: {', '.join(protocols)}")
 
     env_ids = [scenario_named(c.scenario).env_id(v) for c in cells for v in c.variants]

@@ -20,10 +20,11 @@ not a traceback; a traceback is for bugs, and for whoever asks for it. So every 
 from __future__ import annotations
 
 import argparse
+import difflib
 import math
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any, NoReturn
 
 EXIT_USAGE = 2
@@ -162,3 +163,14 @@ def positive_int(text: str) -> int:
 def non_negative_int(text: str) -> int:
     """An argparse type: an integer >= 0 (seeds: numpy refuses negative ones with a traceback)."""
     return _int_at_least(text, 0, "an integer >= 0")
+
+
+def did_you_mean(word: object, choices: Iterable[object], n: int = 1, quote: bool = True) -> str:
+    """`` (did you mean 'x'?)`` naming the ``n`` closest of ``choices`` to ``word`` (``difflib``'s
+    ratio, its default cutoff), or ``""`` when none is close: the hint every error about an
+    unknown name carries, written once so that all of them read alike. ``quote``: names as
+    ``repr`` (keys, option values a user types in quotes) or bare (ids, norm and variant names)."""
+    close = difflib.get_close_matches(str(word), [str(c) for c in choices], n=n)
+    if not close:
+        return ""
+    return f" (did you mean {', '.join(repr(c) if quote else c for c in close)}?)"

@@ -15,7 +15,6 @@ whole sweep is valid.
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import inspect
 import os
 from collections.abc import Mapping
@@ -31,6 +30,7 @@ from morality_gym.baselines import typed
 from morality_gym.baselines.hparams import algorithm_class, validate_learner
 from morality_gym.baselines.specs import ALGO_FILE_EXTRAS, LearnerSpec, ProtocolSpec, SpecError, training_steps
 from morality_gym.baselines.targets import learner_trains
+from morality_gym.clitools import did_you_mean
 from morality_gym.envs.registry import scenarios as all_scenarios
 from morality_gym.norms.chain import ChainError, MoralityChain, check_name_collision, get_chain, parse_chain
 from morality_gym.norms.metric import bind_chain
@@ -45,8 +45,7 @@ class ConfigError(ValueError):
 
 
 def _hint(word: str, choices: list[str]) -> str:
-    close = difflib.get_close_matches(str(word), choices, n=1)
-    return f" (did you mean {close[0]!r}?)" if close else ""
+    return did_you_mean(word, choices)
 
 
 def _int(where: str, value: Any, minimum: int = 0) -> int:

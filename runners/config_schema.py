@@ -23,7 +23,6 @@ learner's class, chain coverage) is checked by :mod:`runners.config` after compo
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import re
 import typing
 from collections.abc import Callable, Mapping
@@ -35,6 +34,7 @@ import yaml
 
 from morality_gym.baselines import typed
 from morality_gym.baselines.specs import CONF_DIR, LearnerSpec, ProtocolSpec
+from morality_gym.clitools import did_you_mean
 from morality_gym.constants import BETA, MAX_STEPS
 from runners.results_schema import SCHEMA_VERSION
 
@@ -166,8 +166,7 @@ def load_preset(name: str) -> Preset:
     path = CONF_DIR / "preset" / f"{name}.yaml"
     if not path.is_file():
         names = preset_names()
-        close = difflib.get_close_matches(name, names, n=3)
-        hint = f" (did you mean {', '.join(close)}?)" if close else ""
+        hint = did_you_mean(name, names, n=3, quote=False)
         raise PresetError(f"no {path}{hint}; presets: {', '.join(names)}")
     try:
         values = yaml.safe_load(path.read_text()) or {}

@@ -14,7 +14,6 @@ each module reads as one concern: what the user typed, and what the sweep then d
 from __future__ import annotations
 
 import argparse
-import difflib
 import itertools
 import os
 from collections.abc import Sequence
@@ -30,7 +29,7 @@ from omegaconf import DictConfig, OmegaConf
 from morality_gym.baselines.hparams import accepted_hparams
 from morality_gym.baselines.specs import SpecError
 from morality_gym.baselines.targets import add_python_roots
-from morality_gym.clitools import DEBUG_ENV
+from morality_gym.clitools import DEBUG_ENV, did_you_mean
 from morality_gym.envs.naming import squash
 from morality_gym.envs.registry import skipped_scenario_files
 from runners.config import ConfigError, SweepConfig, validate  # also stores the schemas (runners.config_schema)
@@ -148,8 +147,7 @@ def _hparam_override(key: str, value: str, argv: list[str]) -> str | None:
         return None  # reported with its file by the validation
     if parts[3] in accepted:
         return None
-    close = difflib.get_close_matches(parts[3], list(accepted), n=1)
-    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    hint = did_you_mean(parts[3], accepted)
     return f"{key}={value}: {parts[3]!r} is not a hyper-parameter of algo {parts[1]}{hint}; valid: {', '.join(sorted(accepted))}"
 
 
@@ -163,8 +161,7 @@ def _group_selection(group: str, value: str, argv: list[str]) -> str | None:
             skipped = _skipped_scenario(option) if group == "scenario" else None
             if skipped:
                 return f"scenario={option}: {skipped}"
-            close = difflib.get_close_matches(option, valid, n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            hint = did_you_mean(option, valid)
             return f"{group}={value}: unknown {group} {option!r}{hint}; valid: {', '.join(valid)}"
     return None
 

@@ -185,3 +185,11 @@ def test_every_entry_point_answers_version(module: str) -> None:
     assert len(lines) == 1 and lines[0].startswith(f"python -m {module} (morality-gym "), out.stdout
     if module == "runners.sweep":
         assert "Hydra 1." in lines[0]
+
+
+def test_did_you_mean_names_the_closest_choices_or_nothing() -> None:
+    from morality_gym.clitools import did_you_mean
+
+    assert did_you_mean("utilty", ["utility", "dual_process"]) == " (did you mean 'utility'?)"
+    assert did_you_mean("HumanA", ["HumanAnimal", "HumanA1", "Robot"], n=3, quote=False) == " (did you mean HumanA1, HumanAnimal?)"
+    assert did_you_mean("zzz", ["utility"]) == ""

@@ -20,7 +20,6 @@ e.g. SB3's ``n_steps * n_envs > 1``. Entry point for configuration layers:
 
 from __future__ import annotations
 
-import difflib
 import inspect
 import math
 import types
@@ -32,6 +31,7 @@ from typing import Any
 
 from morality_gym.baselines.specs import LearnerSpec, SpecError
 from morality_gym.baselines.targets import TargetError, resolve
+from morality_gym.clitools import did_you_mean
 
 
 class HyperParameterError(SpecError):
@@ -213,8 +213,7 @@ def validate_hparams(algo_name: str, target: str, hparams: Mapping[str, Any]) ->
         if key not in accepted:
             if not accepted:
                 raise HyperParameterError(f"{where}: hparams.{key}: {target} takes no hyper-parameters; remove it")
-            close = difflib.get_close_matches(str(key), list(accepted), n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            hint = did_you_mean(key, accepted)
             cls = algorithm_class(target).__name__
             raise HyperParameterError(f"{where}: hparams.{key} is not a hyper-parameter of {cls}{hint}; "
                                       f"valid: {', '.join(sorted(accepted))}")

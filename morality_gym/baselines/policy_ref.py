@@ -30,14 +30,13 @@ import re
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from difflib import get_close_matches
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from morality_gym.baselines.io import check_model_env, load_model
-from morality_gym.clitools import UserError
+from morality_gym.clitools import UserError, did_you_mean
 from morality_gym.envs.registry import state_graph
 from morality_gym.envs.trolley import InvalidActionError
 from morality_gym.evaluation.policies import PolicyAdapter, PolicyFailure
@@ -103,8 +102,7 @@ def _attribute(module: Any, attr: str, where: str) -> Any:
     for part in attr.split("."):
         if not hasattr(obj, part):
             names = [n for n in dir(obj) if not n.startswith("_")]
-            close = get_close_matches(part, names, n=3)
-            hint = f" (did you mean {', '.join(close)}?)" if close else ""
+            hint = did_you_mean(part, names, n=3, quote=False)
             raise PolicyError(f"policy {where}: {attr!r} not found{hint}; it must name a callable obs -> action")
         obj = getattr(obj, part)
     return obj

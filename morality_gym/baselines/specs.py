@@ -15,7 +15,6 @@ errors that name the key, the file and the closest valid key.
 from __future__ import annotations
 
 import dataclasses
-import difflib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +24,7 @@ import yaml
 
 from morality_gym.baselines import typed
 from morality_gym.baselines.targets import learner_trains
+from morality_gym.clitools import did_you_mean
 from morality_gym.constants import LEARN_EVAL_EVERY
 from morality_gym.norms.cost import COST_MODES, RESET_POLICIES
 from morality_gym.norms.reward_cost import PAPER_RETURN_BOUNDS, RewardCostSpec
@@ -57,8 +57,7 @@ def _check_keys(where: str, given: Mapping[str, Any], allowed: list[str]) -> Non
     allowed_here = [("target" if a == "_target_" else a) for a in allowed]
     for key in given:
         if key not in allowed_here:
-            close = difflib.get_close_matches(str(key), allowed, n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            hint = did_you_mean(key, allowed)
             raise SpecError(f"{where}: unknown key {key!r}{hint}; valid keys: {', '.join(allowed)}")
 
 
@@ -182,8 +181,7 @@ def _read_file(group: str, name: str, what: str) -> tuple[Path, dict[str, Any]]:
     path = CONF_DIR / group / f"{name}.yaml"
     if not path.is_file():
         names = _file_names(group)
-        close = difflib.get_close_matches(str(name), names, n=1)
-        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        hint = did_you_mean(name, names)
         raise SpecError(f"unknown {what} {name!r}{hint}; {what}s: {', '.join(names)} (the files of {CONF_DIR / group})")
     return path, yaml.safe_load(path.read_text()) or {}
 

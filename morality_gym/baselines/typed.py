@@ -16,12 +16,13 @@ closest valid key and the valid keys; the sweep and the library's loaders both u
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import types
 import typing
 from collections.abc import Mapping
 from functools import cache
 from typing import Any
+
+from morality_gym.clitools import did_you_mean
 
 
 def _writable_type(tp: Any) -> Any:
@@ -82,8 +83,7 @@ def valid_keys(cls: type) -> list[str]:
 
 
 def hint(word: str, choices: list[str]) -> str:
-    close = difflib.get_close_matches(str(word), [str(c) for c in choices], n=1)
-    return f" (did you mean {close[0]!r}?)" if close else ""
+    return did_you_mean(word, choices)
 
 
 def explain(exc: BaseException, where: str = "", schemas: Mapping[str, type] | None = None) -> str:

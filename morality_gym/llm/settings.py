@@ -6,9 +6,9 @@ leaderboard.llm``) and the docs read these; nothing else spells a default out.
 
 from __future__ import annotations
 
-import difflib
 from dataclasses import dataclass
 
+from morality_gym.clitools import did_you_mean
 from morality_gym.constants import EVAL_EPISODES, MAX_STEPS, SEED
 from morality_gym.llm.text import check_framing
 from morality_gym.world.rules import ACTION_NAMES
@@ -53,8 +53,7 @@ class AgentSettings:
         if self.answer not in ANSWER_MODES:
             raise SettingsError(f"answer {self.answer!r} is unknown; answer modes: {', '.join(ANSWER_MODES)}")
         if self.fallback not in ACTION_NAMES:
-            close = difflib.get_close_matches(str(self.fallback).upper(), ACTION_NAMES, n=1)
-            hint = f" (did you mean {close[0]}?)" if close else ""
+            hint = did_you_mean(str(self.fallback).upper(), ACTION_NAMES, quote=False)
             raise SettingsError(f"fallback {self.fallback!r} is not an action{hint}; actions: {', '.join(ACTION_NAMES)}")
         if self.window is not None and self.window < 1:
             raise SettingsError(f"window must be at least 1 (or None for the whole episode), got {self.window}")
@@ -86,6 +85,5 @@ def preset_named(name: str) -> EpisodePreset:
     """The preset called ``name``; a one-line error with the close match otherwise."""
     if name in PRESETS:
         return PRESETS[name]
-    close = difflib.get_close_matches(str(name), PRESETS, n=1)
-    hint = f" (did you mean {close[0]}?)" if close else ""
+    hint = did_you_mean(name, PRESETS, quote=False)
     raise SettingsError(f"preset {name!r} is unknown{hint}; presets: {', '.join(PRESETS)}")

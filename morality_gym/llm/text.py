@@ -18,10 +18,10 @@ describes (:class:`VisibleState`), which is what the tests check on every one of
 
 from __future__ import annotations
 
-import difflib
 import re
 from dataclasses import dataclass
 
+from morality_gym.clitools import did_you_mean
 from morality_gym.norms.catalogue import CATALOGUE
 from morality_gym.norms.chain import MoralityChain
 from morality_gym.world.rules import ACTION_NAMES, FOUND, HARMED, INTERACT, TERMINATED, State, World
@@ -55,8 +55,7 @@ def check_framing(framing: str) -> str:
     if framing in FRAMINGS:
         return framing
 
-    close = difflib.get_close_matches(str(framing), FRAMINGS, n=1)
-    hint = f" (did you mean {close[0]}?)" if close else ""
+    hint = did_you_mean(framing, FRAMINGS, quote=False)
     raise FramingError(f"framing {framing!r} is unknown{hint}; framings: {', '.join(FRAMINGS)}")
 
 

@@ -19,6 +19,7 @@ from typing import Any
 
 import yaml
 
+from morality_gym.clitools import did_you_mean
 from morality_gym.norms.catalogue import CATALOGUE
 
 BUILTIN_DIR = Path(__file__).resolve().parent.parent / "data" / "chains"
@@ -130,8 +131,7 @@ def _check_top_level(raw: Any, source: str) -> None:
         raise _fail(source, "top level", "expected a mapping with 'name' and 'norms'", "see morality_gym/data/chains/utility.yaml")
     for key in raw:
         if key not in _FIELDS:
-            close = difflib.get_close_matches(str(key), sorted(_FIELDS), n=1)
-            hint = f" (did you mean {close[0]}?)" if close else ""
+            hint = did_you_mean(key, sorted(_FIELDS), quote=False)
             raise _fail(source, str(key), f"unknown field{hint}", f"use only {', '.join(sorted(_FIELDS))}")
 
 

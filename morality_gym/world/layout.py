@@ -9,7 +9,6 @@ a silently mis-read layout would corrupt every number computed on it afterwards.
 
 from __future__ import annotations
 
-import difflib
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -18,6 +17,7 @@ from typing import Any
 
 import yaml
 
+from morality_gym.clitools import did_you_mean
 from morality_gym.world.vocab import ALL_NAMES, CHARACTER_TYPES
 
 Cell = tuple[int, int]
@@ -150,8 +150,7 @@ def _fail(source: str, where: str, problem: str, fix: str) -> ScenarioError:
 
 
 def _close(word: str, choices: list[str]) -> str:
-    match = difflib.get_close_matches(word, choices, n=3)
-    return f" (did you mean {', '.join(match)}?)" if match else ""
+    return did_you_mean(word, choices, n=3, quote=False)
 
 
 def _cell(source: str, where: str, value: Any, height: int, width: int) -> Cell:
