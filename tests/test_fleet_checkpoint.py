@@ -320,20 +320,25 @@ def test_a_fleet_killed_while_recording_resumes_at_the_end_of_training(
 
 
 @pytest.mark.slow
-def test_a_killed_fleet_sweep_resumes_its_training_from_the_checkpoint(
-    tmp_path: Path, uninterrupted: tuple[list[Any], dict[str, Any]]
-) -> None:
+def test_a_killed_fleet_sweep_resumes_its_training_from_the_checkpoint(tmp_path: Path) -> None:
     """SIGKILL a sweep once its fleet has checkpointed; the next sweep forms the same fleet,
-    resumes it (a log line says where) and records exactly what an uninterrupted fleet records."""
+    resumes it (a log line says where) and records exactly what an uninterrupted sweep records.
+
+    The uninterrupted sweep runs in a fresh process too, not in this test process: the learn-time
+    exact evaluation's last bit can depend on what its process evaluated before (a CI run of the
+    whole suite, where other tests' scenarios came first in this process, differed in one
+    ``exact_metric`` in the 16th digit), and the claim is about the sweep, not about pytest's process."""
     import os
     import signal
     import time
 
     from tests.test_fleet_sweep import _sweep
 
-    _, expected = uninterrupted
-    results = tmp_path / "r"
     args = [*SWEEP, "launcher.workers=1", "checkpoint_every_s=0.000001"]
+    whole = _sweep(tmp_path / "whole", *args)
+    assert whole.returncode == 0, whole.stderr
+    expected = _recorded(tmp_path / "whole")
+    results = tmp_path / "r"
     first = _sweep(results, *args, background=True)
     deadline = time.monotonic() + 120
     while not list((results / "checkpoints").glob("*.pt")):
