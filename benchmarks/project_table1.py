@@ -47,6 +47,7 @@ class Rate:
     rows: tuple[str, ...]
     fleet_sizes: tuple[int, ...]
     scenarios: tuple[str, ...] = ()
+    cpu_runs: int = 0  # of ``runs``, those that recorded their CPU time (the others count their wall time)
 
     @property
     def seconds_per_step(self) -> float:
@@ -86,12 +87,17 @@ def finished_runs(results_dir: Path, protocol: str, preset: str | None, engine: 
     return frame[(kind == engine) | pd.Series(alone, index=frame.index)]
 
 
-def measured_rates(results_dir: Path, protocol: str, preset: str, engine: str) -> dict[str, Rate]:
+def measured_rates(results_dir: Path, protocol: str, preset: str, engine: str, cpu_only: bool = False) -> dict[str, Rate]:
     """Per algo name: what its finished runs under ``protocol``/``preset``/``engine`` cost.
 
     Random trains nothing, so its cost is per run, not per step: its ``steps`` are its runs.
+    ``cpu_only``: only the runs that recorded their CPU time. A run written before ``cpu_time_s``
+    existed counts its wall time, which on a shared machine (a sweep beside other work) is CPU
+    time plus waiting: a sweep that spans both kinds is priced honestly from the first kind alone.
     """
     frame = finished_runs(results_dir, protocol, preset, engine)
+    if cpu_only and not frame.empty:
+        frame = frame[frame["cpu_time_s"].notna()] if "cpu_time_s" in frame else frame.iloc[:0]
     if frame.empty:
         return {}
     rates: dict[str, Rate] = {}
@@ -105,6 +111,7 @@ def measured_rates(results_dir: Path, protocol: str, preset: str, engine: str) -
             rows=tuple(sorted({f"{c} / {s}" for c, s in zip(group["chain"], group["scenario"], strict=True)})),
             fleet_sizes=tuple(sizes),
             scenarios=tuple(sorted(set(group["scenario"]))),
+            cpu_runs=int(group["cpu_time_s"].notna().sum()) if "cpu_time_s" in group else 0,
         )
     return rates
 
@@ -189,9 +196,9 @@ def job_seconds(job: Any, rates: dict[str, Rate], factors: dict[tuple[str, str],
 
 
 def report(results_dir: Path, preset: str, protocol: str, engine: str, workers: Sequence[int],
-           extra: Sequence[str] = (), reference: Path | None = None) -> str:
+           extra: Sequence[str] = (), reference: Path | None = None, cpu_only: bool = False) -> str:
     """The measured rates and the projection (scenarios weighted by ``reference``'s sweep, if given), as Markdown."""
-    rates = measured_rates(results_dir, protocol, preset, engine)
+    rates = measured_rates(results_dir, protocol, preset, engine, cpu_only)
     factors = scenario_factors(reference, protocol, engine, rates) if reference else {}
     lines = _measured_table(results_dir, preset, protocol, engine, rates)
     lines += _projected_table(preset, protocol, engine, workers, extra, rates, factors)
@@ -207,13 +214,14 @@ def report(results_dir: Path, preset: str, protocol: str, engine: str, workers: 
 def _measured_table(results_dir: Path, preset: str, protocol: str, engine: str, rates: dict[str, Rate]) -> list[str]:
     """One row per learner measured: its runs, the rows they came from, fleet sizes and cost per step."""
     lines = [f"### Measured: `{results_dir}` ({preset} preset, {protocol} protocol, engine {engine})", "",
-             "| learner | runs | rows | fleet sizes | core time | core-s per run per 1M steps |",
-             "|---|---:|---|---|---:|---:|"]
+             "| learner | runs | rows | fleet sizes | clock | core time | core-s per run per 1M steps |",
+             "|---|---:|---|---|---|---:|---:|"]
     for algo, rate in sorted(rates.items()):
         per = f"per run: {rate.seconds_per_step:.1f} s" if rate.steps == rate.runs else f"{rate.seconds_per_step * 1e6:,.0f}"
         rows = "; ".join(rate.rows) if len(rate.rows) <= 3 else f"{len(rate.rows)} rows"
+        clock = "CPU" if rate.cpu_runs == rate.runs else "wall" if rate.cpu_runs == 0 else f"CPU {rate.cpu_runs}, wall {rate.runs - rate.cpu_runs}"
         lines.append(f"| {learner_spec(algo).label} | {rate.runs} | {rows} | "
-                     f"{', '.join(map(str, rate.fleet_sizes)) or 'single'} | {duration(rate.core_seconds)} | {per} |")
+                     f"{', '.join(map(str, rate.fleet_sizes)) or 'single'} | {clock} | {duration(rate.core_seconds)} | {per} |")
     return lines
 
 
@@ -266,6 +274,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--relative-to", dest="reference", type=Path, metavar="RESULTS_DIR",
                         help="a sweep of every Table 1 scenario (e.g. the quick Table 1) whose per-scenario costs "
                              "weight the measured rates: the rows measured may be cheaper or dearer than the rest")
+    parser.add_argument("--cpu-time-only", dest="cpu_only", action="store_true",
+                        help="price only from runs that recorded their CPU time (not the wall time of older runs)")
     parser.add_argument("--out", type=Path, help="also write the Markdown here")
     return parser
 
@@ -279,7 +289,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--workers: each count must be >= 1")
     if args.reference is not None and not (args.reference / "runs").is_dir():
         parser.error(f"--relative-to {args.reference}: no runs/ directory (not a results directory)")
-    text = report(args.results_dir, args.preset, args.protocol, args.engine, args.workers, args.extra, args.reference)
+    text = report(args.results_dir, args.preset, args.protocol, args.engine, args.workers, args.extra, args.reference,
+                  args.cpu_only)
     print(text)
     if args.out:
         args.out.write_text(text)

@@ -89,3 +89,28 @@ def test_scenario_factors_weight_the_rates_by_the_reference_sweep(measured: tupl
                    * factors.get((r.config["algo"]["name"], r.config["scenario"]), 1.0) for j in jobs for r in j.runs)
     assert weighted == pytest.approx(expected)
     assert any(abs(f - 1.0) > 1e-6 for f in factors.values())  # the weighting is not a no-op here
+
+
+def test_cpu_time_only_prices_from_the_runs_that_recorded_it(measured: tuple[Path, list[dict]],
+                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """Runs written before cpu_time_s existed count their wall time (marked 'wall'); --cpu-time-only leaves them out."""
+    import benchmarks.project_table1 as tool
+
+    results, records = measured
+    real = tool.finished_runs
+    older = sorted(r["run_id"] for r in records if r["algo"] == "ppo" and r["protocol"] == "paper")[:3]
+
+    def with_older_runs(*args: object) -> object:
+        frame = real(*args).copy()
+        frame.loc[frame["run_id"].isin(older), "cpu_time_s"] = float("nan")
+        return frame
+
+    monkeypatch.setattr(tool, "finished_runs", with_older_runs)
+    mixed = measured_rates(results, "paper", "quick", "single")
+    ppo = [r for r in records if r["algo"] == "ppo" and r["protocol"] == "paper"]
+    assert (mixed["ppo"].runs, mixed["ppo"].cpu_runs) == (len(ppo), len(ppo) - 3)
+    cpu = measured_rates(results, "paper", "quick", "single", cpu_only=True)
+    newer = [r for r in ppo if r["run_id"] not in older]
+    assert (cpu["ppo"].runs, cpu["ppo"].cpu_runs) == (len(newer), len(newer))
+    assert cpu["ppo"].seconds_per_step == pytest.approx(sum(r["cpu_time_s"] for r in newer) / sum(r["budget"] for r in newer))
+    assert f"CPU {len(ppo) - 3}, wall 3" in "\n".join(tool._measured_table(results, "quick", "paper", "single", mixed))
