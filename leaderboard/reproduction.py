@@ -51,9 +51,13 @@ CLAIMS_FILE = Path(__file__).resolve().parents[1] / "morality_gym" / "data" / "p
 NOTES_FILE = Path(__file__).resolve().parents[1] / "docs" / "reproduction_notes.yaml"
 PAPER = Group("paper", "paper")
 CORRECTED = Group("corrected", "paper")
+#: The paper prints Table 1 to three decimals: its 0.019 stands for any value in [0.0185, 0.0195].
+#: Without this a cell whose every run scores the same (an interval of width 0) never "reproduces"
+#: a rounded value, however equal: Utility / Switch2Trolley4Track / PPO scored 0.0190 in all 30 runs.
+PAPER_ROUNDING = 0.0005
 #: The rule, as printed on the page.
-RULE = ("**reproduces**: the paper's value lies inside our 95% bootstrap interval of the cell mean; "
-        "**close**: outside it, but within two seed standard deviations of our mean; "
+RULE = ("**reproduces**: the paper's value (printed to three decimals, so ±0.0005) meets our 95% bootstrap interval "
+        "of the cell mean; **close**: it does not, but lies within two seed standard deviations of our mean; "
         "**deviates**: farther; **not run**: the cell lacks runs (no verdict on a partial cell).")
 VERDICTS = ("reproduces", "close", "deviates", "not run")
 #: A learning curve still "rising" gained at least this much metric over its last quarter of training.
@@ -83,9 +87,10 @@ def verdict(mean: float, low: float, high: float, sd: float, paper: float, compl
     """The cell's verdict under :data:`RULE`."""
     if not complete or math.isnan(mean):
         return "not run"
-    if not math.isnan(low) and low - 1e-12 <= paper <= high + 1e-12:
+    slack = PAPER_ROUNDING + 1e-12
+    if not math.isnan(low) and low - slack <= paper <= high + slack:
         return "reproduces"
-    if not math.isnan(sd) and abs(mean - paper) <= 2 * sd + 1e-12:
+    if not math.isnan(sd) and abs(mean - paper) <= 2 * sd + slack:
         return "close"
     return "deviates"
 

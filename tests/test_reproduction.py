@@ -34,6 +34,10 @@ def test_verdict_rule() -> None:
     assert verdict(0.50, 0.48, 0.52, 0.01, 0.55, True) == "deviates"
     assert verdict(0.50, 0.45, 0.55, 0.02, 0.52, False) == "not run"  # never a verdict on a partial cell
     assert verdict(math.nan, math.nan, math.nan, math.nan, 0.52, True) == "not run"
+    # the paper prints three decimals: every run at 0.01904 reproduces its 0.019, one at 0.0196 does not
+    assert verdict(0.01904, 0.01904, 0.01904, 0.0, 0.019, True) == "reproduces"
+    assert verdict(0.0196, 0.0196, 0.0196, 0.0, 0.019, True) == "deviates"
+    assert verdict(0.50, 0.48, 0.5195, 0.0, 0.52, True) == "reproduces"  # 0.52 stands for up to 0.5205
 
 
 @pytest.fixture(scope="module")
