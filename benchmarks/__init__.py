@@ -42,6 +42,8 @@ for _name in _THREAD_VARIABLES:
 # The imports below come after the thread pinning on purpose (none of them loads numpy, but a
 # future one might).
 import gc
+import resource
+import subprocess
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -214,3 +216,23 @@ __all__ = [
     "ordered",
     "register",
 ]
+
+
+@dataclass(frozen=True)
+class TimedCommand:
+    """A command run as a user runs it: its wall-clock and CPU (user + system) seconds, and its output."""
+
+    wall: float
+    cpu: float  # on a loaded machine, wall says little
+    stdout: str
+
+
+def timed_command(command: list[str], cwd: Path, env: dict[str, str] | None = None) -> TimedCommand:
+    """Run ``command`` in a subprocess (failing loudly) and time it, the CPU of its children included."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    proc = subprocess.run(command, cwd=cwd, check=True, capture_output=True, text=True, env=env)
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return TimedCommand(wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), proc.stdout)
+

@@ -9,27 +9,20 @@ second build costs what the first does. Measured as a user runs it, a subprocess
 from __future__ import annotations
 
 import os
-import resource
-import subprocess
 import sys
-import time
 from pathlib import Path
 from tempfile import TemporaryDirectory
 
-from benchmarks import Context, Section, register
+from benchmarks import Context, Section, register, timed_command
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def timed_docs_build(site: Path) -> tuple[float, float]:
     """Wall and CPU seconds of ``mkdocs build --strict --site-dir site`` (as ``make docs`` runs it)."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    start = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--quiet", "--site-dir", str(site)], cwd=REPO,
-                   check=True, capture_output=True, text=True, env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
-    wall = time.perf_counter() - start
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    run = timed_command([sys.executable, "-m", "mkdocs", "build", "--strict", "--quiet", "--site-dir", str(site)], cwd=REPO,
+                        env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
+    return run.wall, run.cpu
 
 
 @register("docs", "Documentation site build (make docs): first build and rebuild", order=90)

@@ -14,11 +14,8 @@ from __future__ import annotations
 
 import json
 import os
-import resource
 import shutil
-import subprocess
 import sys
-import time
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks import Context, Section, register
+from benchmarks import Context, Section, register, timed_command
 from morality_gym.norms.chain import get_chain
 
 REPO = Path(__file__).resolve().parents[1]
@@ -95,17 +92,16 @@ class Timed:
     summary: str  # the build's "cache:" and "time:" lines
 
 
-def timed_build(results: Path) -> Timed:
-    """Wall and CPU seconds of ``python -m leaderboard.build`` (a subprocess, as a user runs it)."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    start = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "leaderboard.build", "--results", str(results)], cwd=REPO, check=True,
-                          capture_output=True, text=True)
-    wall = time.perf_counter() - start
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    lines = [line for line in proc.stdout.splitlines() if line.startswith(("cache:", "time:"))]
-    return Timed(wall, cpu, " / ".join(lines))
+def timed_build(results: Path, releases: tuple[Path, ...] = (), site: Path | None = None) -> Timed:
+    """Wall and CPU seconds of ``python -m leaderboard.build --results R [--site S] [--release ...]``
+    (a subprocess, as a user runs it; with a site and the releases, what ``make leaderboard`` runs)."""
+    command = [sys.executable, "-m", "leaderboard.build", "--results", str(results)]
+    command += ["--site", str(site)] if site is not None else []
+    for release in releases:
+        command += ["--release", str(release)]
+    run = timed_command(command, cwd=REPO)
+    lines = [line for line in run.stdout.splitlines() if line.startswith(("runs:", "cache:", "time:"))]
+    return Timed(run.wall, run.cpu, " / ".join(lines))
 
 
 #: (label, seeds, update stride): the paper's Table 1 as a release ships it (update diagnostics thinned
@@ -170,21 +166,6 @@ def link_results(source: Path, target: Path) -> int:
     return rows
 
 
-def timed_site_build(results: Path, releases: tuple[Path, ...], site: Path) -> Timed:
-    """``make leaderboard``'s command (``leaderboard.build --results R --site S --release ...``), timed."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    start = time.perf_counter()
-    command = [sys.executable, "-m", "leaderboard.build", "--results", str(results), "--site", str(site)]
-    for release in releases:
-        command += ["--release", str(release)]
-    proc = subprocess.run(command, cwd=REPO, check=True, capture_output=True, text=True)
-    wall = time.perf_counter() - start
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    lines = [line for line in proc.stdout.splitlines() if line.startswith(("runs:", "cache:", "time:"))]
-    return Timed(wall, cpu, " / ".join(lines))
-
-
 @register("leaderboard-release", "Leaderboard build on a results release, alone and beside one's own runs", order=86)
 def leaderboard_release(ctx: Context) -> Section:
     """The build users run (``make leaderboard``) on real data: a fresh clone with the shipped
@@ -207,8 +188,8 @@ def leaderboard_release(ctx: Context) -> Section:
             results = Path(tmp) / "results"
             results.mkdir()
             n_own = link_results(own, results) if own is not None else 0
-            first = timed_site_build(results, releases, Path(tmp) / "site")
-            again = timed_site_build(results, releases, Path(tmp) / "site")
+            first = timed_build(results, releases, Path(tmp) / "site")
+            again = timed_build(results, releases, Path(tmp) / "site")
         rows.append([label, f"{n_own:,}", f"{first.wall:.1f}", f"{first.cpu:.1f}", f"{again.wall:.1f}", f"{again.cpu:.1f}"])
         notes += [f"{label}, first build: {first.summary}", f"{label}, rebuild: {again.summary}"]
     return Section(

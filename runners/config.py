@@ -34,7 +34,7 @@ from morality_gym.clitools import did_you_mean
 from morality_gym.envs.registry import scenarios as all_scenarios
 from morality_gym.norms.chain import ChainError, MoralityChain, check_name_collision, get_chain, parse_chain
 from morality_gym.norms.metric import bind_chain
-from runners.config_schema import ENGINES, LAUNCHERS, AlgoFile, Planning, Preset, register
+from runners.config_schema import ENGINES, LAUNCHERS, AlgoFile, Planning, Preset, Sweep, register
 from runners.paths import CONF_DIR, config_roots, find_config, group_options  # noqa: F401 - re-exported: CONF_DIR is defined once
 
 register()  # the schemas conf/config.yaml names (sweep_schema, schema/launcher/*): Hydra needs them stored
@@ -98,8 +98,8 @@ class SweepConfig:
     engine: str  # fleet | single (runners/jobs.py; default: runners.config_schema.Sweep)
     fleet_size: int  # most runs trained together in one fleet
     device: str = "cpu"  # where fleets train (runners.config_schema.Sweep)
-    progress_every_s: float = 60.0  # plain progress lines when stderr is not a terminal (runners.config_schema.Sweep)
-    checkpoint_every_s: float = 300.0  # how often a fleet checkpoints its training; 0: never (runners.config_schema.Sweep)
+    progress_every_s: float = Sweep.progress_every_s  # plain progress lines when stderr is not a terminal
+    checkpoint_every_s: float = Sweep.checkpoint_every_s  # how often a fleet checkpoints its training; 0: never
     chain_files: Mapping[str, str] = field(default_factory=dict)  # chain name -> config option name
     warnings: tuple[str, ...] = ()  # shown with the plan: valid, but probably not what the user meant
     results_dir_setting: str = ""  # results_dir as written in the configuration, for messages about it
@@ -526,9 +526,11 @@ def _beta(value: Any) -> float:
     return float(value)
 
 
-def _progress_every(value: Any) -> float:
+def _interval_s(key: str, value: Any, zero: str) -> float:
+    """A sweep-wide interval in seconds (``progress_every_s``, ``checkpoint_every_s``): a number >= 0,
+    where 0 means ``zero`` (said in the error)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
-        raise ConfigError(f"progress_every_s: expected a number of seconds >= 0 (0: no progress lines), got {value!r}")
+        raise ConfigError(f"{key}: expected a number of seconds >= 0 (0: {zero}), got {value!r}")
     return float(value)
 
 
@@ -566,13 +568,6 @@ def _engine(cfg: DictConfig) -> tuple[str, int, str]:
         except SpecError as exc:
             raise ConfigError(str(exc)) from exc
     return str(engine), fleet_size, device
-
-
-def _checkpoint_every_s(value: Any) -> float:
-    """Seconds between two checkpoints of a fleet's training: a number >= 0 (0: none)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
-        raise ConfigError(f"checkpoint_every_s: expected a number of seconds >= 0 (0: no checkpoints), got {value!r}")
-    return float(value)
 
 
 def _sweep_name(name: Any, experiment: Mapping[str, Any], algos: tuple[AlgoChoice, ...],
@@ -619,7 +614,7 @@ def validate(cfg: DictConfig) -> SweepConfig:
     warnings = tuple(w for algo in algos if (w := _rollout_warning(algo.spec, preset, pairs)))
     launcher = _launcher(_group(cfg, "launcher"))
     engine, fleet_size, device = _engine(cfg)
-    checkpoint_every_s = _checkpoint_every_s(cfg.get("checkpoint_every_s"))
+    checkpoint_every_s = _interval_s("checkpoint_every_s", cfg.get("checkpoint_every_s"), "no checkpoints")
     return SweepConfig(
         pairs=tuple(pairs),
         variants=tuple(variants) if variants is not None else None,
@@ -636,7 +631,7 @@ def validate(cfg: DictConfig) -> SweepConfig:
         retry_failed=cfg.get("retry_failed"),
         mlflow=cfg.get("mlflow"),
         gif=cfg.get("gif"),
-        progress_every_s=_progress_every(cfg.get("progress_every_s")),
+        progress_every_s=_interval_s("progress_every_s", cfg.get("progress_every_s"), "no progress lines"),
         name=_sweep_name(cfg.get("name"), experiment, algos, chains, protocol, preset),
         chain_files={chain.name: option for option, chain in chains.items()},
         engine=engine,

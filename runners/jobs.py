@@ -366,7 +366,7 @@ def _train_fleet(
         return
     # Each run's wall and CPU time is its share of the fleet's training (before a resume too) plus
     # its own evaluation and writes, so that summing them over runs still gives what the fleet spent.
-    wall, cpu = training.spent()
+    wall, cpu = training.clock.elapsed()  # since the fleet began, before a resume too
     for k, learner in enumerate(fleet.learners()):
         run_id, config = trained[k]
         if run_id not in ours:  # recorded before a kill
@@ -388,10 +388,6 @@ class FleetTraining:
         self.clock = clock
         self.learn_rows: list[list[dict[str, Any]]] = [[] for _ in runs]
 
-    def spent(self) -> tuple[float, float]:
-        """(wall, CPU) seconds of training so far, those before a resume included."""
-        return self.clock.elapsed()
-
     def checkpoint(self, results_dir: Path, spec: Any, protocol: Any, device: str, every_s: float) -> Any:
         """The fleet's checkpoint in ``results_dir`` (:mod:`runners.fleet_checkpoints`), keyed by
         the runs, the learner, protocol and device, and the fingerprint of the training code
@@ -410,7 +406,7 @@ class FleetTraining:
         return FleetCheckpoint(path, every_s=every_s, key=key, extra=self._extra, on_resume=self._resume)
 
     def _extra(self) -> dict[str, Any]:
-        wall, cpu = self.spent()
+        wall, cpu = self.clock.elapsed()
         return {"learn_rows": self.learn_rows, "started": self.clock.started, "wall_s": wall, "cpu_s": cpu}
 
     def _resume(self, steps: int, extra: Any) -> None:

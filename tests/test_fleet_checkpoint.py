@@ -29,15 +29,9 @@ import torch as th
 import morality_gym
 from morality_gym.baselines.fleet import FleetCheckpoint, FleetRun, FleetTrainer, build_fleet
 from morality_gym.baselines.fleet import base as fleet_base
-from morality_gym.baselines.specs import LearnerSpec, learner_spec
+from morality_gym.baselines.specs import LearnerSpec
+from tests.test_fleet import ROLLOUT, small_spec  # the fleet tests' small learners
 
-SMALL = {
-    "ppo": {"n_steps": 64, "n_epochs": 2},
-    "ppo_shaped": {"n_steps": 64, "n_epochs": 2},
-    "ppo_lag": {"n_steps": 64, "n_epochs": 3},
-    "cpo": {"n_steps": 64, "n_critic_updates": 2},
-}
-ROLLOUT = 64 * 8
 UPDATES = 5
 EVAL_EVERY = 700  # evaluations at steps 0, 704, 1400, 2104: before and after the interruption
 RUNS = [("PushOrSwitch-Human-v1", "DualProcess", 3), ("PushOrSwitch-Animal-v1", "Utility", 4)]
@@ -56,10 +50,6 @@ def _one_torch_thread() -> Iterator[None]:
     th.set_num_threads(1)
     yield
     th.set_num_threads(before)
-
-
-def small_spec(name: str) -> LearnerSpec:
-    return learner_spec(name, {"hparams": SMALL[name]})
 
 
 def make_fleet(spec: LearnerSpec, protocol: str) -> FleetTrainer:
@@ -215,7 +205,7 @@ def test_a_checkpoint_of_another_commit_is_discarded(tmp_path: Path, caplog: pyt
 @pytest.mark.slow
 def test_a_checkpoint_of_another_fleet_is_discarded(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     _, path = _checkpointed(tmp_path)
-    other = learner_spec("ppo", {"hparams": {**SMALL["ppo"], "n_epochs": 3}})  # another learner under one key
+    other = small_spec("ppo", n_epochs=3)  # another learner under one key
     _starts_over(other, path, caplog, "does not fit this fleet (spec differs")
 
 
@@ -422,7 +412,7 @@ def test_a_resumed_fleet_counts_the_time_spent_before_the_kill() -> None:
     assert extra["wall_s"] >= 5000 and extra["cpu_s"] >= 3000 and extra["learn_rows"] == [[], []]
     after = FleetTraining(runs, RunClock.start())
     after._resume(8192, {**extra, "learn_rows": [[{"step": 0}], []]})
-    wall, cpu = after.spent()
+    wall, cpu = after.clock.elapsed()
     assert wall >= extra["wall_s"] and cpu >= extra["cpu_s"]
     assert after.clock.started == "2026-01-01T00:00:00+00:00" and after.learn_rows == [[{"step": 0}], []]
 
