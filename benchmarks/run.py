@@ -547,6 +547,11 @@ def main(argv: list[str] | None = None) -> int:
 
     _discover_extensions()
     selected = ordered()
+    if args.results is not None and not (args.results / "runs").is_dir():
+        parser.error(f"--results {args.results}: no runs/ directory there (not a results directory)")
+    for release in args.release or ():
+        if not (release / "release.json").is_file():
+            parser.error(f"--release {release}: no release.json there (not a results release; see releases/)")
     if args.only:
         known = {b.key for b in selected}
         unknown = sorted(set(args.only) - known)

@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from benchmarks import Section
 from benchmarks.baseline import Table, comparison, number, parse_sections
 from benchmarks.run import keep_other_sections
@@ -101,3 +103,12 @@ def test_link_results_takes_what_the_build_reads_and_never_its_outputs(tmp_path:
     got = sorted(str(p.relative_to(target)) for p in target.rglob("*") if p.is_file())
     assert got == ["manifests/m.json", "runs/abc.learn.parquet", "runs/abc.parquet", "runs/abc/episode.gif"]
     assert (target / "runs" / "abc.parquet").stat().st_ino == (source / "runs" / "abc.parquet").stat().st_ino  # linked, not copied
+
+
+@pytest.mark.parametrize("flag", ["--results", "--release"])
+def test_real_data_flags_refuse_a_directory_that_is_not_one(flag: str, tmp_path: Path) -> None:
+    out = subprocess.run([sys.executable, "-m", "benchmarks.run", "--only", "leaderboard-release", flag, str(tmp_path),
+                          "--output", str(tmp_path / "B.md")], cwd=Path(__file__).resolve().parents[1],
+                         capture_output=True, text=True, check=False)
+    assert out.returncode == 2 and flag in out.stderr and "not a" in out.stderr, out.stderr
+    assert not (tmp_path / "B.md").exists()
