@@ -178,7 +178,7 @@ def sources_context(sb: SiteBuild) -> list[dict[str, Any]]:
     for release in sb.sources.releases:
         m = release.manifest
         out.append({"kind": "release", "label": release.name, "title": str(m.get("title", "")),
-                    "runs": int(counts.get(release.name, 0)), "commit": str(m.get("commit", ""))[:7],
+                    "runs": int(counts.get(release.name, 0)), "commit": ", ".join(release.commits), "commit_word": release.commit_word,
                     "created": str(m.get("created", ""))[:10], "shadowed": len(release.runs) - int(counts.get(release.name, 0))})
     return out
 

@@ -135,16 +135,28 @@ class Release:
         return str(self.manifest["name"])
 
     @property
-    def label(self) -> str:
-        """``release <name> (commit abc1234, 2026-11-26)``: how pages name where numbers come from.
-
-        A release whose runs were made at several commits (a sweep resumed after the code moved on)
-        names them all (``commits 657de81, 9c3783b``) rather than one that made only some runs."""
+    def commits(self) -> tuple[str, ...]:
+        """The short commits the release's runs were made at: one, or several for a sweep resumed
+        after the code moved on (the manifest's ``mixed:657de81,9c3783b``). Every page names them
+        all, rather than one that made only some runs."""
         commit = str(self.manifest.get("commit") or "unknown")
-        created = str(self.manifest.get("created", ""))[:10]
         if commit.startswith(MIXED):
-            return f"release {self.name} (commits {commit[len(MIXED):].replace(',', ', ')}, {created})"
-        return f"release {self.name} (commit {commit[:7]}, {created})"
+            return tuple(commit[len(MIXED):].split(","))
+        return (commit[:7],)
+
+    @property
+    def commit_word(self) -> str:
+        return "commits" if len(self.commits) > 1 else "commit"
+
+    @property
+    def commit_text(self) -> str:
+        """``commit 657de81`` or ``commits 657de81, 9c3783b``."""
+        return f"{self.commit_word} {', '.join(self.commits)}"
+
+    @property
+    def label(self) -> str:
+        """``release <name> (commit abc1234, 2026-11-26)``: how pages name where numbers come from."""
+        return f"release {self.name} ({self.commit_text}, {str(self.manifest.get('created', ''))[:10]})"
 
 
 def load(release: Path) -> Release:

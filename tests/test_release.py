@@ -176,3 +176,22 @@ def test_label_names_every_commit_of_a_mixed_release() -> None:
     assert commit == "mixed:657de81,9c3783b"
     mixed = Release(Path("r"), {"name": "r", "commit": commit, "created": "2026-11-26T10:00:00+00:00"}, empty, empty, empty)
     assert mixed.label == "release r (commits 657de81, 9c3783b, 2026-11-26)"
+
+
+def test_the_index_names_every_commit_of_a_mixed_release(released: tuple[Path, Path], tmp_path: Path) -> None:
+    """The index's 'where these numbers come from' used to cut a mixed release's commit to 'mixed:6'."""
+    import shutil
+
+    from leaderboard.release import MANIFEST
+
+    _, release = released
+    mixed = tmp_path / "smoke-v1"
+    shutil.copytree(release, mixed)
+    manifest = json.loads((mixed / MANIFEST).read_text())
+    manifest["commit"] = "mixed:657de81,9c3783b"  # the checksums cover the files the manifest lists, not itself
+    (mixed / MANIFEST).write_text(json.dumps(manifest))
+    out = build("--results", str(tmp_path / "no-runs-here"), "--out", str(tmp_path / "rel"), "--release", str(mixed))
+    assert out.returncode == 0, out.stderr
+    assert "release smoke-v1 (commits 657de81, 9c3783b, " in out.stdout
+    html = (tmp_path / "rel" / "site" / "index.html").read_text()
+    assert "commits <code>657de81, 9c3783b</code>" in html and "mixed:6" not in html
