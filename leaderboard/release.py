@@ -225,7 +225,8 @@ def sweeps_summary(results: Path, runs: pd.DataFrame) -> list[dict[str, Any]]:
     """Per launched sweep manifest: its command, protocol, preset, planned runs, and of its runs with
     a result: first start, last finish, the wall span between them and compute per learner in
     core-seconds (:func:`runners.results_schema.compute_seconds`: CPU time where the runs recorded
-    it, else wall time), with how many runs recorded CPU time."""
+    it, else wall time), with how many runs recorded CPU time, and the CPU cost per run per 1M steps
+    of each learner (:func:`cpu_rate_per_learner`)."""
     out = []
     for manifest in read_manifests(results):
         if manifest.get("dry_run"):
@@ -246,8 +247,21 @@ def sweeps_summary(results: Path, runs: pd.DataFrame) -> list[dict[str, Any]]:
             "wall_span_s": round((finished.max() - started.min()).total_seconds(), 1) if len(started) and len(finished) else None,
             "compute_s_per_learner": compute,
             "runs_with_cpu_time": cpu_known,
+            "cpu_s_per_run_per_1m_steps": cpu_rate_per_learner(mine),
         })
     return out
+
+
+def cpu_rate_per_learner(runs: pd.DataFrame) -> dict[str, float]:
+    """Core-seconds per run per million training steps, per learner, from the runs that recorded their
+    CPU time: the cost figure that does not depend on what else shared the machine (a run's wall time
+    does, and ``compute_s_per_learner`` falls back on it for runs made before CPU time was recorded).
+    Learners that do not train (Random: no steps) are left out."""
+    if "cpu_time_s" not in runs or "total_steps" not in runs:
+        return {}
+    timed = runs.loc[runs["cpu_time_s"].notna() & (runs["total_steps"].fillna(0) > 0)]
+    by = timed.groupby("learner")
+    return {str(k): round(float(v), 2) for k, v in (by["cpu_time_s"].sum() / by["total_steps"].sum() * 1e6).items()}
 
 
 def _concat_side_files(paths: Sequence[Path]) -> pa.Table | None:

@@ -59,6 +59,8 @@ def test_release_holds_every_run_and_its_side_tables(released: tuple[Path, Path]
     assert {"runs.parquet", "learn.parquet", "updates.parquet", "table1.csv", "table1.md", "table1.tex"} <= set(body["files"])
     sweep = body["sweeps"][0]
     assert sweep["planned"] == 4 and sweep["ok"] == 4 and set(sweep["compute_s_per_learner"]) == {"Random", "PPO Lag"}
+    # the CPU cost per 1M steps: PPO-Lag's is positive, Random's (no training steps) is left out
+    assert set(sweep["cpu_s_per_run_per_1m_steps"]) == {"PPO Lag"} and sweep["cpu_s_per_run_per_1m_steps"]["PPO Lag"] > 0
     loaded = load(release)
     own = pd.concat([pq.read_table(p).to_pandas() for p in run_files(results)], ignore_index=True)
     assert set(RUN_COLUMNS) <= set(loaded.runs.columns)
