@@ -150,24 +150,32 @@ def curve_summary(learn: pd.DataFrame, run_ids: Sequence[str]) -> tuple[list[tup
 
 def updates_summary(sources: Sources, run_ids: Sequence[str]) -> str:
     """One line on what the constrained learner did at its updates (CPO's dual cases and accepted
-    line-search steps; PPO-Lag's passes and Lagrange multiplier), over the cell's runs."""
+    line-search steps; PPO-Lag's passes and Lagrange multiplier), over the cell's runs.
+
+    A release keeps only every Nth update (and each run's last): shares computed from it are
+    estimates, and the line says so, so that the page and a results directory's page may differ
+    by a point or two without either looking wrong."""
     frames = []
+    strides = set()
     for run_id in run_ids:
         side = sources.updates_of(run_id)
         if side is not None:
             frames.append(side.read())
+            release = sources.release_of(run_id)
+            strides.add(int(release.manifest.get("updates_stride", 1)) if release is not None else 1)
     if not frames:
         return ""
     u = pd.concat(frames, ignore_index=True)
+    kept = f" (over every {max(strides)}th update, as the release keeps them)" if max(strides) > 1 else ""
     if "cpo_case" in u and u["cpo_case"].notna().any():
         cases = u["cpo_case"].value_counts(normalize=True).sort_index()
         shares = ", ".join(f"case {int(c)} {s:.0%}" for c, s in cases.items())
         accepted = float((u["accept_step"] > 0).mean())
-        return f"CPO updates: {shares}; a line-search step accepted in {accepted:.0%} of updates"
+        return f"CPO updates{kept}: {shares}; a line-search step accepted in {accepted:.0%} of updates"
     if "lagrange_multiplier" in u and u["lagrange_multiplier"].notna().any():
         last = u.sort_values("update").groupby("run_id").tail(1)
         one = float((u["passes"] == 1).mean()) if "passes" in u else math.nan
-        return (f"PPO-Lag updates: {one:.0%} stopped after one pass; final Lagrange multiplier "
+        return (f"PPO-Lag updates{kept}: {one:.0%} stopped after one pass; final Lagrange multiplier "
                 f"mean {last['lagrange_multiplier'].mean():.3f} (range {last['lagrange_multiplier'].min():.3f}-"
                 f"{last['lagrange_multiplier'].max():.3f})")
     return ""

@@ -154,3 +154,24 @@ def test_learning_curve_flags_a_final_evaluation_far_from_the_last_learn_time_on
     line = _curve_lines(learn, ["a"], 0.786, mean=0.699)[1]
     assert "The final evaluation (0.699) differs from the last learn-time one (0.795 at 1000k) by -0.096" in line
     assert "final evaluation" not in _curve_lines(learn, ["a"], 0.786, mean=0.78)[1]
+
+
+#: The results release shipped in the repository that docs/reproduction.md is generated from.
+SHIPPED_RELEASE = Path(__file__).resolve().parents[1] / "releases" / "paper-table1-v1"
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_committed_reproduction_page_is_what_the_shipped_release_makes(tmp_path: Path) -> None:
+    """docs/reproduction.md says what the release's runs say, verdicts and evidence included: a change
+    to the verdict rule, the evidence or the curated readings that is not regenerated fails here
+    (regenerate: python -m leaderboard.reproduction --release releases/paper-table1-v1)."""
+    from leaderboard.reproduction import main
+
+    out = tmp_path / "docs" / "reproduction.md"
+    code = main(["--release", str(SHIPPED_RELEASE), "--out", str(out), "--cache", str(tmp_path / "reference.json")])
+    assert code == 0
+    committed = (ROOT / "docs" / "reproduction.md").read_text()
+    assert out.read_text() == committed, "docs/reproduction.md is stale: regenerate it from the release"
+    assert "as the release keeps them" in committed  # shares from thinned update diagnostics say so
+    for image in sorted((out.parent / "img" / "reproduction").iterdir()):
+        assert (ROOT / "docs" / "img" / "reproduction" / image.name).is_file(), f"{image.name} is not committed"
