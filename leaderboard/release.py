@@ -146,17 +146,14 @@ class Release:
 
     @property
     def commit_word(self) -> str:
+        """``commit`` or ``commits``, for the label and the index page."""
         return "commits" if len(self.commits) > 1 else "commit"
-
-    @property
-    def commit_text(self) -> str:
-        """``commit 657de81`` or ``commits 657de81, 9c3783b``."""
-        return f"{self.commit_word} {', '.join(self.commits)}"
 
     @property
     def label(self) -> str:
         """``release <name> (commit abc1234, 2026-11-26)``: how pages name where numbers come from."""
-        return f"release {self.name} ({self.commit_text}, {str(self.manifest.get('created', ''))[:10]})"
+        created = str(self.manifest.get("created", ""))[:10]
+        return f"release {self.name} ({self.commit_word} {', '.join(self.commits)}, {created})"
 
 
 def load(release: Path) -> Release:

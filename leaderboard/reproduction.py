@@ -166,7 +166,7 @@ def updates_summary(sources: Sources, run_ids: Sequence[str]) -> str:
     if not frames:
         return ""
     u = pd.concat(frames, ignore_index=True)
-    kept = f" (over every {max(strides)}th update, as the release keeps them)" if max(strides) > 1 else ""
+    kept = f" (over one update in {max(strides)}, as the release keeps them)" if max(strides) > 1 else ""
     if "cpo_case" in u and u["cpo_case"].notna().any():
         cases = u["cpo_case"].value_counts(normalize=True).sort_index()
         shares = ", ".join(f"case {int(c)} {s:.0%}" for c, s in cases.items())

@@ -156,9 +156,9 @@ def test_learning_curve_flags_a_final_evaluation_far_from_the_last_learn_time_on
     assert "final evaluation" not in _curve_lines(learn, ["a"], 0.786, mean=0.78)[1]
 
 
-#: The results release shipped in the repository that docs/reproduction.md is generated from.
-SHIPPED_RELEASE = Path(__file__).resolve().parents[1] / "releases" / "paper-table1-v1"
 ROOT = Path(__file__).resolve().parents[1]
+#: The results release shipped in the repository that docs/reproduction.md is generated from.
+SHIPPED_RELEASE = ROOT / "releases" / "paper-table1-v1"
 
 
 def test_the_committed_reproduction_page_is_what_the_shipped_release_makes(tmp_path: Path) -> None:

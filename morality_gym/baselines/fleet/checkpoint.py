@@ -60,7 +60,7 @@ class FleetCheckpoint:
     """
 
     path: Path
-    every_s: float = 300.0
+    every_s: float  # no default here: the sweep's one lives in runners.config_schema.Sweep.checkpoint_every_s
     key: Mapping[str, Any] = field(default_factory=dict)
     extra: Callable[[], Any] | None = None
     on_resume: Callable[[int, Any], None] | None = None
