@@ -478,7 +478,10 @@ class FleetTrainer:
         against ``torch.multinomial``), and turns K sampling calls per step into one ``argmax``.
         """
         shape = (self.n_steps, self.n_envs, 6)
-        self._action_noise = th.stack([th.empty(shape).exponential_(1, generator=g) for g in self.torch_generators]).to(self.device)
+        # drawn on the CPU, where the runs' generators live, so the draws are the single runs' bits
+        self._action_noise = th.stack(
+            [th.empty(shape, device="cpu").exponential_(1, generator=g) for g in self.torch_generators]
+        ).to(self.device)
 
     def _policy_step(self, obs: th.Tensor, t: int) -> tuple[th.Tensor, ...]:
         """Actions (sampled per run from its own noise, step ``t`` of the rollout), values,

@@ -60,7 +60,7 @@ def relu_(z: th.Tensor) -> th.Tensor:
 
 def tanh_backward_(dh: th.Tensor, h: th.Tensor) -> th.Tensor:
     """``dh * tanh'`` in place on ``dh``, from the activation ``h = tanh(z)``: ``1 - h^2``."""
-    return dh.mul_(th.addcmul(th.ones((), dtype=h.dtype), h, h, value=-1.0))
+    return dh.mul_(th.addcmul(h.new_ones(()), h, h, value=-1.0))
 
 
 def relu_backward_(dh: th.Tensor, h: th.Tensor) -> th.Tensor:
@@ -155,7 +155,7 @@ class FleetNetworks:
         whose gradient with respect to the head's output is ``dout`` (``[R', out, B]``; ``R'`` may
         exceed the trace's ``R = 1`` to back-propagate several cotangents through one run)."""
         n = len(tr.layers)
-        grads: list[th.Tensor] = [th.empty(0)] * (2 * n)
+        grads: list[th.Tensor] = [dout.new_empty(0)] * (2 * n)  # placeholders, each set below
         dz = dout
         for i in range(n - 1, -1, -1):
             w, _ = tr.layers[i]
