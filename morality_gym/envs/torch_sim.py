@@ -1,0 +1,184 @@
+"""The batched simulator on a torch device: copies of any env ids stepped as a few gathers.
+
+Every environment is a finite state graph, already enumerated (:class:`~morality_gym.world.graph.GraphTables`),
+so a step of ``n`` copies is ``next_state = next[state * 6 + action]`` and a gather of the
+observation, reward, events and utilities of that row. :class:`~morality_gym.envs.batched.BatchedTrolleyEnv`
+does it with numpy arrays on the host; :class:`TorchTrolleySim` does the same with tensors on the
+device that trains (a GPU, or the CPU), so a training loop never moves a step's data to the host and
+back. It is the engine of the device-resident fleet rollout and of the public
+:class:`~morality_gym.envs.torch_vector.TorchTrolleyVectorEnv`.
+
+Why it can mix scenarios: the graphs of all env ids are laid end to end (each graph's states shifted
+by its offset, so row ``s * 6 + a`` of a global state is the same row of the copy's own graph) and
+observations are zero-padded on the right to one width. Padding appends zeros to an observation and
+changes none of its values.
+
+Same transitions as the host simulator, bit for bit (tested on all registered envs): observations are
+the graph's float64 values rounded to float32, rewards the float64 table rounded to float32, events
+the same bit masks (as int64: torch has no unsigned 32-bit bit operations on every device), and
+utilities the integer table as float64. Only ``same_step`` auto-reset is offered: a copy that ends is
+reset in the step it ends and its last observation returned in ``final_obs`` (zeros for the other
+copies), with no data-dependent branch, so a step never waits for the device.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+import torch as th
+
+from morality_gym.constants import MAX_STEPS
+from morality_gym.envs.registry import parse_env_id, state_graph
+from morality_gym.envs.trolley import _overrides
+from morality_gym.world.graph import N_ACTIONS, GraphTables
+from morality_gym.world.vocab import EVENT_BIT
+
+#: Event bits that make the utility keys present (spec section 8; see ``batched.utility_present``).
+HARM_BIT = 1 << EVENT_BIT["harm"]
+LIVING_BITS = sum(1 << EVENT_BIT[n] for n in ("human_harm", "animal_harm", "robot_harm"))
+
+
+class TorchStep(NamedTuple):
+    """One step of every copy, as tensors on the simulator's device (length ``num_envs``)."""
+
+    obs: th.Tensor  # float32 [n, obs_dim], after auto-reset
+    reward: th.Tensor  # float32 [n]
+    terminated: th.Tensor  # bool [n]
+    truncated: th.Tensor  # bool [n]
+    events: th.Tensor  # int64 [n]: bit masks over vocab.EVENTS
+    transition: th.Tensor  # int64 [n]: the row of each copy's transition (for utility, goal_reached)
+    final_obs: th.Tensor  # float32 [n, obs_dim]: last observation of the copies that ended, zeros elsewhere
+
+
+def canonical_env_id(env_id: str) -> str:
+    """``env_id`` as the registry spells it (``PushOrSwitch-Human-v1``), or its one-line error."""
+    scenario, variant = parse_env_id(env_id)
+    return scenario.env_id(variant)
+
+
+class TorchTrolleySim:
+    """``len(env_ids)`` copies, copy ``i`` running ``env_ids[i]`` (any scenarios, any mix).
+
+    Args:
+        env_ids: one registered id per copy.
+        device: where the tables and the copies' states live (``"cpu"``, ``"cuda"``, ...).
+        max_steps: truncation on step ``max_steps + 1`` (``None``: never), as the single env.
+        obs_dim: pad observations to this width (default: the widest of the env ids').
+        normalise_obs: the observation codec's normalisation, as the single env's option.
+        overrides: variant overrides, as the single env's ``overrides``.
+    """
+
+    def __init__(
+        self,
+        env_ids: Sequence[str],
+        device: str | th.device = "cpu",
+        *,
+        max_steps: int | None = MAX_STEPS,
+        obs_dim: int | None = None,
+        normalise_obs: bool = True,
+        overrides: dict | None = None,
+    ) -> None:
+        if isinstance(env_ids, str) or not env_ids:
+            raise ValueError("TorchTrolleySim needs a non-empty list of env ids, one per copy")
+        if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 0):
+            raise ValueError(f"max_steps must be a non-negative int or None, got {max_steps!r}")
+        self.device = th.device(device)
+        self.env_ids = [canonical_env_id(e) for e in env_ids]
+        self.unique_env_ids: list[str] = list(dict.fromkeys(self.env_ids))
+        self.num_envs = len(self.env_ids)
+        self.max_steps = max_steps
+        graphs = [state_graph(e, _overrides(overrides), normalise_obs).tables() for e in self.unique_env_ids]
+        self.obs_dims = {e: int(t.obs.shape[1]) for e, t in zip(self.unique_env_ids, graphs)}
+        widest = max(self.obs_dims.values())
+        if obs_dim is not None and obs_dim < widest:
+            raise ValueError(f"obs_dim={obs_dim} is narrower than the widest observation ({widest}) of {self.unique_env_ids}")
+        self.obs_dim = widest if obs_dim is None else int(obs_dim)
+        offsets = np.cumsum([0] + [t.n_states for t in graphs])[:-1]
+        self._load_tables(graphs, offsets)
+        index = {e: i for i, e in enumerate(self.unique_env_ids)}
+        self.copy_graph = th.tensor([index[e] for e in self.env_ids], dtype=th.int64, device=self.device)
+        self._start = th.as_tensor(offsets, dtype=th.int64, device=self.device)[self.copy_graph]
+        self._limit = np.iinfo(np.int32).max if max_steps is None else max_steps
+        self.state = self._start.clone()
+        self.elapsed = th.zeros(self.num_envs, dtype=th.int64, device=self.device)
+
+    def _load_tables(self, graphs: list[GraphTables], offsets: np.ndarray) -> None:
+        """The graphs' tables laid end to end, as tensors on the device (observations padded)."""
+        dev = self.device
+        nxt = np.concatenate([t.next.astype(np.int64) + off for t, off in zip(graphs, offsets)])
+        obs = np.zeros((int(sum(t.n_states for t in graphs)), self.obs_dim), dtype=np.float32)
+        for t, off in zip(graphs, offsets):
+            obs[off : off + t.n_states, : t.obs.shape[1]] = t.obs.astype(np.float32)
+        self._next = th.as_tensor(nxt, device=dev)
+        self._reward = th.as_tensor(np.concatenate([t.reward for t in graphs]).astype(np.float32), device=dev)
+        self._events = th.as_tensor(np.concatenate([t.events for t in graphs]).astype(np.int64), device=dev)
+        self._utility = th.as_tensor(np.concatenate([t.utility for t in graphs]).astype(np.float64), device=dev)
+        self._goal = th.as_tensor(np.concatenate([t.goal for t in graphs]), device=dev)
+        self._done = th.as_tensor(np.concatenate([t.done for t in graphs]), device=dev)
+        self._obs = th.as_tensor(obs, device=dev)
+        assert len(self._next) == N_ACTIONS * len(self._done)
+
+    # ------------------------------------------------------------------ API
+    def reset(self, mask: th.Tensor | None = None) -> th.Tensor:
+        """Reset every copy (or those where the bool tensor ``mask`` is true); returns all observations."""
+        if mask is None:
+            self.state = self._start.clone()
+            self.elapsed = th.zeros_like(self.elapsed)
+        else:
+            self.state = th.where(mask, self._start, self.state)
+            self.elapsed = th.where(mask, th.zeros_like(self.elapsed), self.elapsed)
+        return self._obs[self.state]
+
+    def step(self, actions: th.Tensor) -> TorchStep:
+        """Advance every copy by one action (an integer tensor of 0..5 per copy, on the device).
+
+        Actions are not range-checked here (that would make every step wait for the device);
+        :class:`~morality_gym.envs.torch_vector.TorchTrolleyVectorEnv` checks them by default.
+        """
+        k = self.state * N_ACTIONS + actions.to(th.int64)
+        nxt = self._next[k]
+        self.elapsed = self.elapsed + 1
+        terminated = self._done[nxt]
+        truncated = self.elapsed > self._limit
+        ended = terminated | truncated
+        final_obs = th.where(ended.unsqueeze(1), self._obs[nxt], 0.0)
+        self.state = th.where(ended, self._start, nxt)
+        self.elapsed = th.where(ended, th.zeros_like(self.elapsed), self.elapsed)
+        return TorchStep(self._obs[self.state], self._reward[k], terminated, truncated, self._events[k], k, final_obs)
+
+    def utility(self, transition: th.Tensor) -> th.Tensor:
+        """Utility values ``[n, 5]`` float64 (``vocab.UTILITIES`` order, 0 when absent) of the given transitions."""
+        return self._utility[transition]
+
+    def goal_reached(self, transition: th.Tensor) -> th.Tensor:
+        """Whether each transition reached the landmark."""
+        return self._goal[transition]
+
+    def observations(self) -> th.Tensor:
+        """The current observation of every copy."""
+        return self._obs[self.state]
+
+    def state_dict(self) -> dict[str, th.Tensor]:
+        """What a step changes (each copy's state and steps taken), as CPU copies, for a checkpoint."""
+        return {"state": self.state.cpu().clone(), "elapsed": self.elapsed.cpu().clone()}
+
+    def load_state_dict(self, state: dict[str, th.Tensor]) -> None:
+        """Restore :meth:`state_dict` (shapes must match this simulator's)."""
+        for name in ("state", "elapsed"):
+            value = th.as_tensor(state[name])
+            if value.shape != getattr(self, name).shape:
+                raise ValueError(f"simulator {name}: expected shape {tuple(getattr(self, name).shape)}, got {tuple(value.shape)}")
+            setattr(self, name, value.to(device=self.device, dtype=th.int64).clone())
+
+    def __repr__(self) -> str:
+        return (
+            f"<TorchTrolleySim {len(self.unique_env_ids)} env id(s) x{self.num_envs} on {self.device} "
+            f"obs_dim={self.obs_dim} max_steps={self.max_steps}>"
+        )
+
+
+def utility_present(events: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+    """Which utility keys a step reported (``batched.utility_present`` for int64 event tensors)."""
+    return (events & HARM_BIT) != 0, (events & LIVING_BITS) != 0

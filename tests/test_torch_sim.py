@@ -1,0 +1,124 @@
+"""The simulator and the step-wise cost on a torch device take the host's transitions, bit for bit.
+
+Run with torch on the CPU (CI has no GPU): the tensors, gathers and float64 cost arithmetic are the
+device code's; only the device differs on a GPU. All 98 registered envs step in *one* simulator
+(observations padded to the widest), with random actions, truncation and auto-reset, and each copy is
+compared with the host simulator of its own env id. The cost of every built-in chain on every env it
+binds to is compared with the host's :class:`StackedCost` under both reset policies and all modes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch as th
+
+import morality_gym
+from morality_gym.envs.batched import BatchedTrolleyEnv
+from morality_gym.envs.torch_sim import TorchTrolleySim
+from morality_gym.norms.chain import ChainError
+from morality_gym.norms.cost import StackedCost, VectorCost
+from morality_gym.norms.reward_cost import RewardCostSpec
+from morality_gym.norms.torch_cost import TorchCost
+
+COPIES = 3
+STEPS = 120
+
+
+def _actions(rng: np.random.Generator, n: int) -> np.ndarray:
+    return rng.integers(0, 6, size=n).astype(np.int64)
+
+
+@pytest.mark.parametrize("max_steps", [7, 50])
+def test_all_98_envs_in_one_device_simulator_step_as_the_host_simulator(max_steps: int) -> None:
+    ids = morality_gym.env_ids()
+    assert len(ids) == 98
+    copies = [e for e in ids for _ in range(COPIES)]
+    sim = TorchTrolleySim(copies, "cpu", max_steps=max_steps)
+    hosts = [BatchedTrolleyEnv(e, COPIES, max_steps=max_steps) for e in ids]
+    rng = np.random.default_rng(0)
+    obs = sim.reset().numpy()
+    for h, e in enumerate(hosts):
+        np.testing.assert_array_equal(obs[h * COPIES : (h + 1) * COPIES, : e.obs_dim], e.reset())
+    for _ in range(STEPS):
+        act = _actions(rng, len(copies))
+        got = sim.step(th.from_numpy(act))
+        utility = sim.utility(got.transition).numpy()
+        goal = sim.goal_reached(got.transition).numpy()
+        for h, env in enumerate(hosts):
+            rows = slice(h * COPIES, (h + 1) * COPIES)
+            want = env.step(act[rows])
+            d = env.obs_dim
+            np.testing.assert_array_equal(got.obs[rows, :d].numpy(), want.obs, err_msg=env.env_id)
+            assert not got.obs[rows, d:].any(), "padding stays zero"
+            np.testing.assert_array_equal(got.reward[rows].numpy(), want.reward)
+            np.testing.assert_array_equal(got.terminated[rows].numpy(), want.terminated)
+            np.testing.assert_array_equal(got.truncated[rows].numpy(), want.truncated)
+            np.testing.assert_array_equal(got.events[rows].numpy(), want.events.astype(np.int64))
+            np.testing.assert_array_equal(utility[rows], env.utility(want.transition).astype(np.float64))
+            np.testing.assert_array_equal(goal[rows], env.goal_reached(want.transition))
+            final = np.zeros_like(want.obs) if want.final_obs is None else want.final_obs
+            np.testing.assert_array_equal(got.final_obs[rows, :d].numpy(), final)
+
+
+def test_reset_of_some_copies_and_state_round_trip() -> None:
+    sim = TorchTrolleySim(["SwitchStandard-HumanA-v1", "PushOrSwitch-Human-v1"], "cpu")
+    sim.reset()
+    for _ in range(3):
+        sim.step(th.tensor([3, 1]))
+    saved = sim.state_dict()
+    after = sim.step(th.tensor([5, 0])).obs.clone()
+    sim.load_state_dict(saved)
+    assert th.equal(sim.step(th.tensor([5, 0])).obs, after)
+    start = TorchTrolleySim(["SwitchStandard-HumanA-v1", "PushOrSwitch-Human-v1"], "cpu").reset()
+    obs = sim.reset(th.tensor([False, True]))
+    assert th.equal(obs[1], start[1]) and int(sim.elapsed[0]) > 0 and int(sim.elapsed[1]) == 0
+    with pytest.raises(ValueError, match="expected shape"):
+        sim.load_state_dict({"state": th.zeros(3, dtype=th.int64), "elapsed": th.zeros(3, dtype=th.int64)})
+
+
+def test_bad_arguments_are_refused_with_one_line() -> None:
+    with pytest.raises(ValueError, match="non-empty list"):
+        TorchTrolleySim("SwitchStandard-HumanA-v1")
+    with pytest.raises(ValueError, match="narrower than the widest"):
+        TorchTrolleySim(["SwitchStandard-HumanA-v1"], obs_dim=1)
+    with pytest.raises(morality_gym.UnknownEnvError, match="SwitchStandard"):
+        TorchTrolleySim(["SwitchStandrd-HumanA-v1"])
+
+
+def _bound_pairs() -> list[morality_gym.BoundChain]:
+    pairs = []
+    for chain in morality_gym.builtin_chains():
+        for env_id in morality_gym.env_ids():
+            try:
+                pairs.append(morality_gym.bind_chain(chain, env_id))
+            except (ChainError, ValueError):
+                continue
+    return pairs
+
+
+@pytest.mark.parametrize(("mode", "reset"), [("minimal", "never"), ("full", "per_episode"), ("partial", "per_episode")])
+def test_the_device_cost_of_every_builtin_chain_matches_the_host_cost(mode: str, reset: str) -> None:
+    bounds = _bound_pairs()
+    assert len({b.chain.name for b in bounds}) >= 4 and len(bounds) >= 98
+    spec = RewardCostSpec(cost_mode=mode, cost_reset=reset, cost_scale=2.0)  # type: ignore[arg-type]
+    sim = TorchTrolleySim([b.env_id for b in bounds], "cpu", max_steps=30)
+    device_cost = TorchCost.for_copies(bounds, spec)
+    groups = [
+        (np.array([i]), VectorCost(b, 1, mode=spec.cost_mode, scale=spec.cost_scale, reset=spec.cost_reset))
+        for i, b in enumerate(bounds)
+    ]
+    host_cost = StackedCost.of_groups(groups, len(bounds))
+    assert host_cost is not None
+    rng = np.random.default_rng(1)
+    sim.reset()
+    nonzero = 0
+    for _ in range(80):
+        step = sim.step(th.from_numpy(_actions(rng, len(bounds))))
+        ended = step.terminated | step.truncated
+        got = device_cost(step.events, sim.utility(step.transition), ended)
+        want = host_cost(step.events.numpy().astype(np.uint32), sim.utility(step.transition).numpy(), ended.numpy())
+        np.testing.assert_array_equal(got.numpy(), want)
+        nonzero += int((want != 0).sum())
+    assert nonzero > 50  # the comparison saw real costs
+    np.testing.assert_array_equal(device_cost.state_dict()["charged"].numpy(), host_cost.charged.astype(np.int64))
