@@ -28,7 +28,8 @@ import torch as th
 
 import morality_gym
 from morality_gym.baselines.fleet import FleetCheckpoint, FleetRun, FleetTrainer, build_fleet
-from morality_gym.baselines.fleet import base as fleet_base
+from morality_gym.baselines.fleet import state as fleet_state
+from morality_gym.baselines.fleet import streams as fleet_streams
 from morality_gym.baselines.specs import LearnerSpec
 from tests.test_fleet import ROLLOUT, small_spec  # the fleet tests' small learners
 
@@ -113,10 +114,10 @@ def final_state(trainer: Trainer) -> dict[str, Any]:
         exported.append({
             "params": [p.detach().clone() for p in policy.parameters()],
             "adam": [{k: v for k, v in opt.state[p].items()} for opt in optimisers for p in policy.parameters() if p in opt.state],
-            "updates": fleet_base.plain_data(learner.update_diagnostics()),
+            "updates": fleet_state.plain_data(learner.update_diagnostics()),
             "steps": learner.trained_steps,
         })
-    return {"fleet": fleet.state_dict(), "exported": exported, "rows": fleet_base.plain_data(trainer.rows)}
+    return {"fleet": fleet.state_dict(), "exported": exported, "rows": fleet_state.plain_data(trainer.rows)}
 
 
 def interrupted_and_resumed(spec: LearnerSpec, protocol: str, path: Path) -> Trainer:
@@ -150,7 +151,7 @@ def test_the_comparison_fails_when_a_part_of_the_state_is_not_restored(tmp_path:
     spec = small_spec("ppo")
     whole = Trainer(spec, "paper", global_seed=7)
     whole.learn()
-    monkeypatch.setattr(fleet_base, "_load_random_state", lambda rng, state: None)
+    monkeypatch.setattr(fleet_streams, "_load_random_state", lambda rng, state: None)
     resumed = interrupted_and_resumed(spec, "paper", tmp_path / "fleet.pt")
     with pytest.raises(AssertionError):
         assert_identical(final_state(whole), final_state(resumed))

@@ -23,6 +23,7 @@ import torch as th
 
 import morality_gym
 from morality_gym.baselines.fleet import FleetCheckpoint, FleetRun, build_fleet
+from morality_gym.baselines.fleet.env import DeviceFleetEnv, FleetEnv
 from morality_gym.baselines.specs import learner_spec
 
 SMALL = {
@@ -81,9 +82,38 @@ def test_a_fleet_learns_with_the_default_device_set_to_meta(name: str, protocol:
             np.testing.assert_array_equal(pa.detach().numpy(), pb.detach().numpy())
 
 
-@pytest.mark.parametrize(("name", "protocol"), [("ppo", "paper"), ("cpo", "corrected")])
-def test_truncated_episodes_bootstrap_with_the_default_device_set_to_meta(name: str, protocol: str) -> None:
-    """max_steps=6 truncates episodes, so the critics' bootstrap of rewards and costs runs too."""
-    fleet = build_fleet(learner_spec(name, {"hparams": SMALL[name]}), _runs(), protocol, max_steps=6)
+@pytest.mark.parametrize("simulator", ["host", "device"])
+@pytest.mark.parametrize(("name", "protocol"), [("ppo", "paper"), ("ppo_lag", "corrected"), ("cpo", "corrected")])
+def test_truncated_episodes_bootstrap_with_the_default_device_set_to_meta(name: str, protocol: str, simulator: str) -> None:
+    """max_steps=6 truncates episodes, so the critics' bootstrap of rewards and costs runs too; the
+    device simulator and the every-step bootstrap are what a GPU fleet runs."""
+    fleet = build_fleet(learner_spec(name, {"hparams": SMALL[name]}), _runs(), protocol, max_steps=6, simulator=simulator)  # type: ignore[arg-type]
+    fleet.collector.dense_bootstrap = simulator == "device"
     with th.device("meta"):
         assert fleet.learn(2 * ROLLOUT) == 2 * ROLLOUT
+
+
+@pytest.mark.parametrize(("name", "protocol"), CASES)
+def test_the_device_simulator_and_dense_bootstrap_train_the_host_simulators_bits(name: str, protocol: str) -> None:
+    """What a GPU fleet runs, run on the CPU: the simulator, cost and reward on the device
+    (:class:`DeviceFleetEnv`) and the truncation bootstrap computed in every step (no host sync).
+    Truncated episodes (max_steps=9) and three rollouts; the runs end at the host engine's bits."""
+    spec = learner_spec(name, {"hparams": SMALL[name]})
+    host = build_fleet(spec, _runs(), protocol, max_steps=9, simulator="host")
+    device = build_fleet(spec, _runs(), protocol, max_steps=9, simulator="device")
+    device.collector.dense_bootstrap = True
+    assert type(device.collector.env) is DeviceFleetEnv and type(host.collector.env) is FleetEnv
+    host.learn(3 * ROLLOUT)
+    device.learn(3 * ROLLOUT)
+    for a, b in zip(host.learners(), device.learners()):
+        for pa, pb in zip(a.model.policy.parameters(), b.model.policy.parameters()):
+            np.testing.assert_array_equal(pa.detach().numpy(), pb.detach().numpy())
+        assert str(a.update_diagnostics()) == str(b.update_diagnostics())
+    np.testing.assert_array_equal(host.mean_episode_costs(), device.mean_episode_costs())
+
+
+def test_auto_picks_the_host_simulator_on_the_cpu_and_refuses_unknown_ones() -> None:
+    fleet = build_fleet(learner_spec("ppo", {"hparams": SMALL["ppo"]}), _runs(), "paper")
+    assert fleet.collector.env.name == "host" and fleet.identity()["simulator"] == "host"
+    with pytest.raises(ValueError, match="simulator='gpu'"):
+        build_fleet(learner_spec("ppo", {"hparams": SMALL["ppo"]}), _runs(), "paper", simulator="gpu")  # type: ignore[arg-type]

@@ -80,10 +80,7 @@ class TorchTrolleySim:
         normalise_obs: bool = True,
         overrides: dict | None = None,
     ) -> None:
-        if isinstance(env_ids, str) or not env_ids:
-            raise ValueError("TorchTrolleySim needs a non-empty list of env ids, one per copy")
-        if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 0):
-            raise ValueError(f"max_steps must be a non-negative int or None, got {max_steps!r}")
+        _check_arguments(env_ids, max_steps)
         self.device = th.device(device)
         self.env_ids = [canonical_env_id(e) for e in env_ids]
         self.unique_env_ids: list[str] = list(dict.fromkeys(self.env_ids))
@@ -177,6 +174,13 @@ class TorchTrolleySim:
             f"<TorchTrolleySim {len(self.unique_env_ids)} env id(s) x{self.num_envs} on {self.device} "
             f"obs_dim={self.obs_dim} max_steps={self.max_steps}>"
         )
+
+
+def _check_arguments(env_ids: Sequence[str], max_steps: int | None) -> None:
+    if isinstance(env_ids, str) or not env_ids:
+        raise ValueError("TorchTrolleySim needs a non-empty list of env ids, one per copy")
+    if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 0):
+        raise ValueError(f"max_steps must be a non-negative int or None, got {max_steps!r}")
 
 
 def utility_present(events: th.Tensor) -> tuple[th.Tensor, th.Tensor]:

@@ -11,9 +11,10 @@ size); their variants, chains and seeds may differ. Every run reproduces its sin
 arithmetic (tested: a fleet of one and the single learner end at the same parameters to float
 tolerance; changing one run's seed changes no other run). Modules: :mod:`.env` (all runs' copies
 in one simulator, per-run cost and reward), :mod:`.nets` (parameters stacked along a run axis,
-batched matrix products), :mod:`.optim` (per-run Adam and clipping), :mod:`.base` (start, rollouts,
-learn loop), :mod:`.ppo`, :mod:`.ppo_lag`, :mod:`.cpo` (the updates), :mod:`.checkpoint` (a killed
-fleet resumes bit for bit).
+batched matrix products), :mod:`.optim` (per-run Adam and clipping), :mod:`.base` (start, learn loop,
+the state as its parts' states), :mod:`.rollout` (one rollout of every run, on the device), :mod:`.streams` (each run's
+random streams), :mod:`.ppo`, :mod:`.ppo_lag`, :mod:`.cpo` (the updates), :mod:`.state` and
+:mod:`.checkpoint` (a killed fleet resumes bit for bit).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from collections.abc import Sequence
 
 from morality_gym.baselines.fleet.base import FleetRun, FleetTrainer
 from morality_gym.baselines.fleet.checkpoint import FleetCheckpoint
+from morality_gym.baselines.fleet.env import Simulator
 from morality_gym.baselines.fleet.ppo import FleetPPO
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError
 from morality_gym.baselines.targets import resolve
@@ -61,11 +63,14 @@ def build_fleet(
     protocol: ProtocolSpec | str = "paper",
     max_steps: int | None = MAX_STEPS,
     device: str = "cpu",
+    simulator: Simulator = "auto",
 ) -> FleetTrainer:
-    """The fleet trainer for ``runs`` of the learner ``spec`` under ``protocol``, its networks and
-    updates on ``device`` (``cpu``, or ``cuda`` when torch sees a GPU; the simulator, the sampling
-    streams and the single-run learners it hands back stay on the CPU)."""
-    return fleet_class(spec.target)(spec, runs, protocol=protocol, max_steps=max_steps, device=device)
+    """The fleet trainer for ``runs`` of the learner ``spec`` under ``protocol``, its networks,
+    rollouts and updates on ``device`` (``cpu``, or ``cuda`` when torch sees a GPU). ``simulator``:
+    ``auto`` steps the envs on the device on a GPU and with numpy on the CPU (the faster there;
+    both give the same bits), ``host`` or ``device`` force one (:mod:`.env`). The sampling streams
+    and the single-run learners it hands back stay on the CPU."""
+    return fleet_class(spec.target)(spec, runs, protocol=protocol, max_steps=max_steps, device=device, simulator=simulator)
 
 
 __all__ = ["FleetCheckpoint", "FleetRun", "FleetTrainer", "build_fleet", "fleet_class"]

@@ -35,13 +35,13 @@ from typing import TYPE_CHECKING, Any
 
 import torch as th
 
-from morality_gym.baselines.fleet.base import CheckpointMismatch, plain_data
+from morality_gym.baselines.fleet.state import CheckpointMismatch, plain_data
 
 if TYPE_CHECKING:
     from morality_gym.baselines.fleet.base import FleetTrainer
 
 #: Bumped when the layout of the file changes (an older file is then discarded, never misread).
-FORMAT = 1
+FORMAT = 2
 
 log = logging.getLogger(__name__)
 

@@ -64,7 +64,7 @@ class FleetCostTrainer(FleetTrainer):
         ro, m, e = self.rollout, self.model, self.n_envs
         assert ro is not None
         for field, mode in (("advantages", m.reward_advantage_normalization), ("cost_advantages", m.cost_advantage_normalization)):
-            raw = self._rollout_raw[field]
+            raw = ro.raw[field]  # type: ignore[index]
             runs = [normalize_advantages(np.ascontiguousarray(raw[:, k * e : (k + 1) * e]), mode).T.reshape(-1) for k in range(self.n_runs)]
             setattr(ro, field, self._tensor(np.stack(runs)))
 

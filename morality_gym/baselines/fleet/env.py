@@ -1,46 +1,73 @@
 """The training environment of a fleet: every run's copies in one simulator, each run's own cost.
 
 What a single run's learner sees through ``TrolleyVecEnv -> VecMonitor -> VecMoralityWrapper``, for
-``K`` runs at once: copy ``k * n_envs + i`` is env ``i`` of run ``k``, on run ``k``'s env id (the
-variants may differ, :class:`~morality_gym.envs.mixed.MixedBatchedTrolleyEnv`). The cost of a step
-is the run's chain's (runs on the same env id and chain share one
-:class:`~morality_gym.norms.cost.VectorCost` over their copies; its memory is per copy), and the
-reward is the learner's transform of the env reward and that cost, exactly as the wrapper computes
-them. Nothing is exchanged between runs except the arrays they are stepped in.
+``K`` runs at once: copy ``k * n_envs + i`` is env ``i`` of run ``k``, on run ``k``'s env id. The cost
+of a step is the run's chain's (its memory is per copy), and the reward is the learner's transform of
+the env reward and that cost, exactly as the wrapper computes them. Nothing is exchanged between runs
+except the arrays they are stepped in.
+
+Two simulators give the same bits (tested), and both take and return tensors on the fleet's device:
+
+* :class:`FleetEnv` steps numpy arrays on the host (:class:`~morality_gym.envs.mixed.MixedBatchedTrolleyEnv`,
+  :class:`~morality_gym.norms.cost.StackedCost`). On the CPU that is the fastest: numpy's small-array
+  operations cost a third of torch's, and the tensors share the arrays' memory.
+* :class:`DeviceFleetEnv` keeps the tables and the cost memory on the device
+  (:class:`~morality_gym.envs.torch_sim.TorchTrolleySim`, :class:`~morality_gym.norms.torch_cost.TorchCost`),
+  so a GPU fleet never sends a step's data to the host and back.
+
+:func:`fleet_env` picks one (``simulator="auto"``: the device's on a GPU, the host's on the CPU).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
+import torch as th
 
 from morality_gym.constants import MAX_STEPS
 from morality_gym.envs.mixed import MixedBatchedTrolleyEnv
+from morality_gym.envs.torch_sim import TorchTrolleySim
 from morality_gym.norms.cost import StackedCost, VectorCost
 from morality_gym.norms.metric import BoundChain
-from morality_gym.norms.wrappers import RewardCostSpec
+from morality_gym.norms.reward_cost import RewardCostSpec
+from morality_gym.norms.torch_cost import TorchCost
+
+#: Which simulator a fleet steps: ``auto`` (the device's on a GPU, else the host's), ``host``, ``device``.
+Simulator = Literal["auto", "host", "device"]
+SIMULATORS: tuple[str, ...] = ("auto", "host", "device")
 
 
 class FleetStep(NamedTuple):
-    """One step of all copies (arrays of length ``K * n_envs``)."""
+    """One step of all copies (tensors of length ``K * n_envs`` on the fleet's device)."""
 
-    obs: np.ndarray  # float32 [N, obs_dim], after auto-reset
-    rewards: np.ndarray  # float32: the reward the learner trains on
-    costs: np.ndarray  # float64: the step-wise moral cost
-    dones: np.ndarray  # terminated | truncated
-    truncated: np.ndarray  # truncated and not terminated (SB3's "TimeLimit.truncated")
-    final_obs: np.ndarray | None  # last observations of the ended copies (auto-reset), else None
+    obs: th.Tensor  # float32 [N, obs_dim], after auto-reset
+    rewards: th.Tensor  # float32: the reward the learner trains on
+    costs: th.Tensor  # float64: the step-wise moral cost
+    dones: th.Tensor  # terminated | truncated
+    truncated: th.Tensor  # truncated and not terminated (SB3's "TimeLimit.truncated")
+    final_obs: th.Tensor | None  # last observations of the ended copies (zeros elsewhere); None: none ended
 
 
 class FleetEnv:
-    """``n_envs`` copies per run for every bound chain in ``bounds`` (one per run)."""
+    """``n_envs`` copies per run for every bound chain in ``bounds`` (one per run), simulated on the
+    host; steps take and return tensors on ``device``."""
 
-    def __init__(self, bounds: Sequence[BoundChain], n_envs: int, reward_cost: RewardCostSpec, max_steps: int | None = MAX_STEPS) -> None:
+    name = "host"
+
+    def __init__(
+        self,
+        bounds: Sequence[BoundChain],
+        n_envs: int,
+        reward_cost: RewardCostSpec,
+        max_steps: int | None = MAX_STEPS,
+        device: str | th.device = "cpu",
+    ) -> None:
         self.n_runs = len(bounds)
         self.n_envs = n_envs
         self.reward_cost = reward_cost
+        self.device = th.device(device)
         self.sim = MixedBatchedTrolleyEnv([b.env_id for b in bounds for _ in range(n_envs)], max_steps=max_steps)
         self.obs_dim = self.sim.obs_dim
         groups: dict[tuple[str, str, float], list[int]] = {}
@@ -55,7 +82,6 @@ class FleetEnv:
             self._costs.append((copies, cost))
         # all groups in one pass (the same bits as the loop over groups; None with a prescribed norm)
         self._stacked = StackedCost.of_groups(self._costs, self.n_runs * n_envs)
-        self._all = np.ones(self.n_runs * n_envs, dtype=bool)
 
     def state_dict(self) -> dict[str, Any]:
         """Everything stepping changes: the simulator's copies and every cost memory (the stacked
@@ -72,27 +98,27 @@ class FleetEnv:
         for owner, memory in zip(owners, state["costs"]):
             owner.load_state_dict(memory)
 
-    def copies_of(self, runs: np.ndarray) -> np.ndarray:
+    def copies_of(self, runs: th.Tensor) -> th.Tensor:
         """Boolean mask over the copies of the runs where ``runs`` (``[K]`` bool) is true."""
-        return np.repeat(np.asarray(runs, dtype=bool), self.n_envs)
+        return runs.repeat_interleave(self.n_envs)
 
-    def reset(self, runs: np.ndarray | None = None) -> np.ndarray:
+    def reset(self, runs: th.Tensor | None = None) -> th.Tensor:
         """Reset every copy (or the copies of the runs where ``runs`` is true); returns all observations.
 
         As ``VecMoralityWrapper.reset``: the cost memory of the reset copies is cleared only under
         the ``per_episode`` policy (under ``never`` it survives, as in the paper's runs).
         """
-        mask = None if runs is None else self.copies_of(runs)
+        mask = None if runs is None else self.copies_of(runs).cpu().numpy()
         if self.reward_cost.cost_reset == "per_episode":
             if self._stacked is not None:
                 self._stacked.reset(mask)
             else:
                 for copies, cost in self._costs:
                     cost.reset(None if mask is None else mask[copies])
-        return self.sim.reset(mask)
+        return self._tensor(self.sim.reset(mask))
 
-    def step(self, actions: np.ndarray) -> FleetStep:
-        res = self.sim.step(actions)
+    def step(self, actions: th.Tensor) -> FleetStep:
+        res = self.sim.step(actions.cpu().numpy())
         dones = res.terminated | res.truncated
         utility = self.sim.utility(res.transition)
         if self._stacked is not None:
@@ -102,4 +128,85 @@ class FleetEnv:
             for copies, cost in self._costs:
                 costs[copies] = cost(res.events[copies], utility[copies], dones[copies])
         rewards = np.asarray(self.reward_cost.transform(res.reward.astype(np.float64), costs), dtype=np.float32)
+        final_obs = None if res.final_obs is None else self._tensor(res.final_obs)
+        truncated = res.truncated & ~res.terminated
+        return FleetStep(*(self._tensor(a) for a in (res.obs, rewards, costs, dones, truncated)), final_obs)
+
+    def _tensor(self, arr: np.ndarray) -> th.Tensor:
+        """An array as a tensor on the fleet's device (the same memory on the CPU)."""
+        return th.from_numpy(arr).to(self.device)
+
+
+class DeviceFleetEnv:
+    """:class:`FleetEnv` with the simulator, the cost and the reward on the fleet's device."""
+
+    name = "device"
+
+    def __init__(
+        self,
+        bounds: Sequence[BoundChain],
+        n_envs: int,
+        reward_cost: RewardCostSpec,
+        max_steps: int | None = MAX_STEPS,
+        device: str | th.device = "cpu",
+    ) -> None:
+        copies = [b for b in bounds for _ in range(n_envs)]
+        self.n_runs = len(bounds)
+        self.n_envs = n_envs
+        self.reward_cost = reward_cost
+        self.device = th.device(device)
+        self.cost = TorchCost.for_copies(copies, reward_cost, self.device)  # first: refuses prescribed norms
+        self.sim = TorchTrolleySim([b.env_id for b in copies], self.device, max_steps=max_steps)
+        dims = set(self.sim.obs_dims.values())
+        if len(dims) > 1:
+            raise ValueError(
+                f"the copies of one fleet must share an observation size, got {self.sim.obs_dims}; "
+                "fleet only variants of one scenario together"
+            )
+        self.obs_dim = self.sim.obs_dim
+
+    def state_dict(self) -> dict[str, Any]:
+        """The simulator's copies and the cost memory (see :meth:`FleetEnv.state_dict`)."""
+        return {"sim": self.sim.state_dict(), "costs": [self.cost.state_dict()]}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if len(state["costs"]) != 1:
+            raise ValueError(f"cost memories: expected 1, got {len(state['costs'])}")
+        self.sim.load_state_dict(state["sim"])
+        self.cost.load_state_dict(state["costs"][0])
+
+    def copies_of(self, runs: th.Tensor) -> th.Tensor:
+        return runs.repeat_interleave(self.n_envs)
+
+    def reset(self, runs: th.Tensor | None = None) -> th.Tensor:
+        """As :meth:`FleetEnv.reset`."""
+        mask = None if runs is None else self.copies_of(runs)
+        if self.reward_cost.cost_reset == "per_episode":
+            self.cost.reset(mask)
+        return self.sim.reset(mask)
+
+    def step(self, actions: th.Tensor) -> FleetStep:
+        res = self.sim.step(actions)
+        dones = res.terminated | res.truncated
+        costs = self.cost(res.events, self.sim.utility(res.transition), dones)
+        rewards = self.reward_cost.transform(res.reward.double(), costs).float()
         return FleetStep(res.obs, rewards, costs, dones, res.truncated & ~res.terminated, res.final_obs)
+
+
+def fleet_env(
+    simulator: Simulator,
+    bounds: Sequence[BoundChain],
+    n_envs: int,
+    reward_cost: RewardCostSpec,
+    max_steps: int | None,
+    device: th.device,
+) -> FleetEnv | DeviceFleetEnv:
+    """The fleet's simulator: ``host`` (:class:`FleetEnv`), ``device`` (:class:`DeviceFleetEnv`) or
+    ``auto``: the device's on a GPU unless a chain has a prescribed norm (which only the host's
+    cost handles), the host's on the CPU (faster there, and the same bits)."""
+    if simulator not in SIMULATORS:
+        raise ValueError(f"simulator={simulator!r}: expected one of {', '.join(SIMULATORS)}")
+    prescribed = any(not n.prohibited for b in bounds for n in b.chain.norms)
+    if simulator == "device" or (simulator == "auto" and device.type != "cpu" and not prescribed):
+        return DeviceFleetEnv(bounds, n_envs, reward_cost, max_steps, device)
+    return FleetEnv(bounds, n_envs, reward_cost, max_steps, device)

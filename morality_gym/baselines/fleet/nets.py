@@ -190,6 +190,22 @@ class FleetNetworks:
             return lambda x: [self(head, x) for head in heads]
         return FusedHeads(self, heads)
 
+    def state_dict(self) -> dict[str, list[th.Tensor]]:
+        """Every head's tensors (``W0, b0, W1, b1, ...``), as CPU copies, for a checkpoint."""
+        return {head: [t.detach().cpu().clone() for layer in layers for t in layer] for head, layers in self.heads.items()}
+
+    @th.no_grad()
+    def load_state_dict(self, state: dict[str, list[th.Tensor]]) -> None:
+        """Copy :meth:`state_dict`'s tensors *in place* (the parameters are views into their
+        optimisers' flat buffers), refusing layers of another shape."""
+        for head, layers in self.heads.items():
+            saved = state[head]
+            tensors = [t for layer in layers for t in layer]
+            if len(saved) != len(tensors) or any(a.shape != b.shape for a, b in zip(saved, tensors)):
+                raise ValueError(f"head {head!r}: the saved layers do not fit the network")
+            for t, value in zip(tensors, saved):
+                t.copy_(value)
+
     @th.no_grad()
     def load_run(self, k: int, policy: nn.Module) -> None:
         """Copy an SB3 policy's weights into run ``k``'s slices."""
