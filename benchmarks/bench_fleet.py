@@ -147,15 +147,15 @@ def fleet_cost(ctx: Context) -> Section:
             def build(held: dict[str, Any] = held, stacked: bool = stacked, algo: str | None = algo) -> None:
                 held["f"] = build_fleet(learner_spec(algo or "ppo_lag"), runs, "paper")
                 if not stacked:
-                    held["f"].env._stacked = None  # the per-group loop, as before StackedCost
-                held["f"].env.reset()
+                    held["f"].collector.env._stacked = None  # the per-group loop, as before StackedCost
+                held["f"].collector.env.reset()
 
             def work(held: dict[str, Any] = held, algo: str | None = algo, budget: int = budget) -> None:
                 fleet = held["f"]
                 if algo is None:
                     rng = np.random.default_rng(0)
                     for _ in range(budget):
-                        fleet.env.step(rng.integers(0, 6, size=fleet.n_runs * fleet.n_envs))
+                        fleet.collector.env.step(torch.from_numpy(rng.integers(0, 6, size=fleet.n_runs * fleet.n_envs)))
                 else:
                     fleet.learn(budget)
 

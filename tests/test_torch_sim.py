@@ -15,7 +15,7 @@ import torch as th
 
 import morality_gym
 from morality_gym.envs.batched import BatchedTrolleyEnv
-from morality_gym.envs.torch_sim import TorchTrolleySim
+from morality_gym.envs.torch_sim import TorchStep, TorchTrolleySim
 from morality_gym.norms.chain import ChainError
 from morality_gym.norms.cost import StackedCost, VectorCost
 from morality_gym.norms.reward_cost import RewardCostSpec
@@ -23,28 +23,31 @@ from morality_gym.norms.torch_cost import TorchCost
 
 COPIES = 3
 STEPS = 120
+#: The device code on the CPU everywhere; on a GPU too wherever torch sees one (benchmarks/gpu_check.sh).
+DEVICES = ["cpu", *(["cuda"] if th.cuda.is_available() else [])]
 
 
 def _actions(rng: np.random.Generator, n: int) -> np.ndarray:
     return rng.integers(0, 6, size=n).astype(np.int64)
 
 
+@pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize("max_steps", [7, 50])
-def test_all_98_envs_in_one_device_simulator_step_as_the_host_simulator(max_steps: int) -> None:
+def test_all_98_envs_in_one_device_simulator_step_as_the_host_simulator(max_steps: int, device: str) -> None:
     ids = morality_gym.env_ids()
     assert len(ids) == 98
     copies = [e for e in ids for _ in range(COPIES)]
-    sim = TorchTrolleySim(copies, "cpu", max_steps=max_steps)
+    sim = TorchTrolleySim(copies, device, max_steps=max_steps)
     hosts = [BatchedTrolleyEnv(e, COPIES, max_steps=max_steps) for e in ids]
     rng = np.random.default_rng(0)
-    obs = sim.reset().numpy()
+    obs = sim.reset().cpu().numpy()
     for h, e in enumerate(hosts):
         np.testing.assert_array_equal(obs[h * COPIES : (h + 1) * COPIES, : e.obs_dim], e.reset())
     for _ in range(STEPS):
         act = _actions(rng, len(copies))
-        got = sim.step(th.from_numpy(act))
-        utility = sim.utility(got.transition).numpy()
-        goal = sim.goal_reached(got.transition).numpy()
+        got = TorchStep(*(t.cpu() for t in sim.step(th.from_numpy(act).to(device))))
+        utility = sim.utility(got.transition.to(device)).cpu().numpy()
+        goal = sim.goal_reached(got.transition.to(device)).cpu().numpy()
         for h, env in enumerate(hosts):
             rows = slice(h * COPIES, (h + 1) * COPIES)
             want = env.step(act[rows])
@@ -97,13 +100,14 @@ def _bound_pairs() -> list[morality_gym.BoundChain]:
     return pairs
 
 
+@pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize(("mode", "reset"), [("minimal", "never"), ("full", "per_episode"), ("partial", "per_episode")])
-def test_the_device_cost_of_every_builtin_chain_matches_the_host_cost(mode: str, reset: str) -> None:
+def test_the_device_cost_of_every_builtin_chain_matches_the_host_cost(mode: str, reset: str, device: str) -> None:
     bounds = _bound_pairs()
     assert len({b.chain.name for b in bounds}) >= 4 and len(bounds) >= 98
     spec = RewardCostSpec(cost_mode=mode, cost_reset=reset, cost_scale=2.0)  # type: ignore[arg-type]
-    sim = TorchTrolleySim([b.env_id for b in bounds], "cpu", max_steps=30)
-    device_cost = TorchCost.for_copies(bounds, spec)
+    sim = TorchTrolleySim([b.env_id for b in bounds], device, max_steps=30)
+    device_cost = TorchCost.for_copies(bounds, spec, device)
     groups = [
         (np.array([i]), VectorCost(b, 1, mode=spec.cost_mode, scale=spec.cost_scale, reset=spec.cost_reset))
         for i, b in enumerate(bounds)
@@ -114,11 +118,12 @@ def test_the_device_cost_of_every_builtin_chain_matches_the_host_cost(mode: str,
     sim.reset()
     nonzero = 0
     for _ in range(80):
-        step = sim.step(th.from_numpy(_actions(rng, len(bounds))))
+        step = sim.step(th.from_numpy(_actions(rng, len(bounds))).to(device))
         ended = step.terminated | step.truncated
-        got = device_cost(step.events, sim.utility(step.transition), ended)
-        want = host_cost(step.events.numpy().astype(np.uint32), sim.utility(step.transition).numpy(), ended.numpy())
-        np.testing.assert_array_equal(got.numpy(), want)
+        utility = sim.utility(step.transition)
+        got = device_cost(step.events, utility, ended)
+        want = host_cost(step.events.cpu().numpy().astype(np.uint32), utility.cpu().numpy(), ended.cpu().numpy())
+        np.testing.assert_array_equal(got.cpu().numpy(), want)
         nonzero += int((want != 0).sum())
     assert nonzero > 50  # the comparison saw real costs
     np.testing.assert_array_equal(device_cost.state_dict()["charged"].numpy(), host_cost.charged.astype(np.int64))
