@@ -11,6 +11,10 @@ PRESET ?= quick
 LAUNCHER ?= local
 RESULTS ?= results
 PROTOCOLS ?= paper
+# Where the fleets train: cpu, or cuda (DEVICE=cuda WORKERS=8: eight fleet processes share the GPU).
+DEVICE ?= cpu
+WORKERS ?=
+WORKERS_ARG := $(if $(WORKERS),launcher.workers=$(WORKERS),)
 comma := ,
 empty :=
 space := $(empty) $(empty)
@@ -21,14 +25,16 @@ RELEASE_ARGS := $(foreach r,$(RELEASES),--release $(r))
 # Debian packages the tests use: a real single-node SLURM (with accounting) and headless Chromium.
 DEBIAN_PACKAGES := slurm-wlm munge slurmdbd mariadb-server chromium
 
-.PHONY: help venv system-deps test test-fast bench reproduce-table1 leaderboard release reproduction mlflow-ui docs \
+.PHONY: help venv system-deps test test-fast bench gpu-wheels reproduce-table1 leaderboard release reproduction mlflow-ui docs \
         slurm-up slurm-down clean
 
 help:
 	@echo "make reproduce-table1 [PRESET=smoke|quick|paper] [LAUNCHER=local|slurm] [PROTOCOLS=\"paper corrected\"]"
+	@echo "                     [DEVICE=cpu|cuda] [WORKERS=n]"
 	@echo "                     run the Table 1 sweeps (resumable), then build table1.* and the leaderboard"
 	@echo "make test            install everything and run the whole test suite (it builds and checks the docs site too)"
 	@echo "make bench           measure speed; writes BENCHMARKS.md"
+	@echo "make gpu-wheels      download the wheels a GPU machine without a package index lacks (benchmarks/gpu_check.sh)"
 	@echo "make leaderboard     rebuild results/table1.* and leaderboard/site from existing results"
 	@echo "make release NAME=x  freeze the runs under $(RESULTS)/ into releases/x/ (checksummed, for git)"
 	@echo "make reproduction    docs/reproduction.md: Table 1 vs the paper, cell by cell, from releases + $(RESULTS)/"
@@ -68,9 +74,19 @@ test-fast: venv
 bench: venv
 	$(PY) -m benchmarks.run --output BENCHMARKS.md
 
+# The GPU check (benchmarks/gpu_check.sh) runs where torch has CUDA but no package index reaches:
+# these are the packages such a machine lacked (shared/recipes/gpu-offline.md), for Python 3.12.
+GPU_WHEELS := gymnasium==1.4.0 farama-notifications stable-baselines3==2.9.2 sb3-contrib==2.9.2 \
+              hydra-core==1.3.8 omegaconf==2.3.1 submitit==1.5.4 hydra-submitit-launcher==1.2.0
+gpu-wheels: venv
+	@mkdir -p wheels
+	for p in $(GPU_WHEELS); do $(PIP) download -q --no-deps --only-binary=:all: --python-version 3.12 \
+	  --implementation cp --platform manylinux_2_17_x86_64 --platform any -d wheels "$$p" || exit 1; done
+	$(PIP) wheel -q --no-deps -w wheels antlr4-python3-runtime==4.9.3
+
 reproduce-table1: venv
 	@# Runs that fail are recorded and reported; the leaderboard is still built, then make fails.
-	@code=0; $(PY) -m runners.table1 preset=$(PRESET) launcher=$(LAUNCHER) results_dir=$(RESULTS) \
+	@code=0; $(PY) -m runners.table1 preset=$(PRESET) launcher=$(LAUNCHER) results_dir=$(RESULTS) device=$(DEVICE) $(WORKERS_ARG) \
 	  protocols=[$(subst $(space),$(comma),$(strip $(PROTOCOLS)))] || code=$$?; \
 	if [ $$code = 2 ]; then exit 2; fi; \
 	$(PY) -m leaderboard.build --results $(RESULTS) --site leaderboard/site $(RELEASE_ARGS) || exit $$?; \
