@@ -6,6 +6,11 @@
     for learner in fleet.learners():   # single-run learners holding the trained weights
         learner.final_evaluation()
 
+Read first: the single-run learners are the plain-autograd version of every update a fleet makes,
+and the reference its tests hold it to (SB3's ``PPO.train``; :mod:`morality_gym.baselines.safe.ppo_lag`
+and :mod:`morality_gym.baselines.safe.cpo`); tests/test_fleet.py checks each fleet learner against
+them, and tests/test_fleet_math.py each hand-written gradient here against autograd.
+
 A fleet's runs share a learner spec, a protocol, a budget and the scenario (hence the observation
 size); their variants, chains and seeds may differ. Every run reproduces its single run's
 arithmetic (tested: a fleet of one and the single learner end at the same parameters to float
