@@ -66,6 +66,7 @@ class Args:
     lagrange_init: float = 0.001
     lagrange_lr: float = 0.035
     reward_scale: float = 300.0  # rewards are divided by it (the paper's r / 300)
+    cost_adv_std: bool = True  # standardise the cost advantages too (the paper's PPO-Lag only centres them: see README)
     hidden: int = 64
     gif: bool = False  # record one evaluation episode per run for its leaderboard page
     log_every: int = 10  # updates between progress lines
@@ -167,7 +168,7 @@ def train(args: Args, runs: list[tuple[Cell, str, int]]) -> tuple[StackedMLP, in
 
     obs = env.reset(seed=runs[0][2])[0].view(K, n, D)
     num_updates = max(1, args.total_steps // (n * T))
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     for update in range(1, num_updates + 1):
         if args.anneal_lr:
             optimizer.param_groups[0]["lr"] = args.learning_rate * (1.0 - (update - 1) / num_updates)
@@ -218,7 +219,7 @@ def train(args: Args, runs: list[tuple[Cell, str, int]]) -> tuple[StackedMLP, in
             lagrange.clamp_(min=0.0)
         lam = lagrange.detach().view(K, 1)
 
-        # Per run over the rollout: rewards' advantages standardised, costs' centred, then combined.
+        # Per run over the rollout: advantages standardised (costs' only centred with --no-cost-adv-std), then combined.
         def b(x: th.Tensor) -> th.Tensor:  # [T, K, n, ...] -> [K, T * n, ...]: a run's rollout in one row
             return x.transpose(0, 1).reshape(K, T * n, *x.shape[3:])
 
@@ -226,6 +227,7 @@ def train(args: Args, runs: list[tuple[Cell, str, int]]) -> tuple[StackedMLP, in
         b_adv, b_cadv = b(adv), b(cadv)
         b_adv = (b_adv - b_adv.mean(1, keepdim=True)) / (b_adv.std(1, keepdim=True) + 1e-8)
         b_cadv = b_cadv - b_cadv.mean(1, keepdim=True)
+        b_cadv = b_cadv / (b_cadv.std(1, keepdim=True) + 1e-8) if args.cost_adv_std else b_cadv
         b_adv = (b_adv - lam * b_cadv) / (1.0 + lam)
 
         mb = T * n // args.num_minibatches
@@ -253,9 +255,10 @@ def train(args: Args, runs: list[tuple[Cell, str, int]]) -> tuple[StackedMLP, in
             sps = K * steps / (time.perf_counter() - start)
             print(f"update {update}/{num_updates}: {steps:,} steps per run, {sps:,.0f} env steps/s ({sps / K:,.0f} per run), "
                   f"episode return {last['return']:.1f}, cost {last['cost']:.3f}, lambda {float(lagrange.detach().mean()):.3f}", flush=True)
-    seconds = time.perf_counter() - start
+    seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
     steps = num_updates * n * T
-    return actor, D, {"runs": K, "steps_per_run": steps, "seconds": seconds, "env_steps_per_s": K * steps / seconds}
+    return actor, D, {"runs": K, "steps_per_run": steps, "seconds": seconds, "env_steps_per_s": K * steps / seconds,
+                      "env_steps_per_cpu_s": K * steps / cpu_seconds}
 
 
 # ------------------------------------------------------------------------------------ evaluation
@@ -289,7 +292,7 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
           f"{args.total_steps:,} steps each", flush=True)
     actor, obs_dim, speed = train(args, runs)
     print(f"trained in {speed['seconds']:.1f} s: {speed['env_steps_per_s']:,.0f} env steps/s, "
-          f"{speed['env_steps_per_s'] / len(runs):,.0f} per run", flush=True)
+          f"{speed['env_steps_per_s'] / len(runs):,.0f} per run ({speed['env_steps_per_cpu_s']:,.0f} per CPU-second)", flush=True)
     evaluate_and_submit(args, runs, actor, obs_dim)
     return speed
 
