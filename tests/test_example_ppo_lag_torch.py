@@ -3,16 +3,19 @@
 A short run (two variants of a Table 1 cell, 4,096 steps each, the smoke preset's one seed) of the
 script as its README runs it, from outside the repository: it must train, evaluate each run's
 policy with the project's Monte Carlo and exact evaluation and write one submitted run per
-(variant, seed), which a second identical submission does not duplicate.
+(variant, seed), all of one configuration, which a second identical training and an evaluation of
+the saved weights (``--load``) do not duplicate.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
 from pathlib import Path
 
+from runners.identity import configuration_key
 from runners.results_schema import read_runs
 
 REPO = Path(__file__).resolve().parents[1]
@@ -20,10 +23,10 @@ SCRIPT = REPO / "examples" / "ppo_lag_torch" / "ppo_lag.py"
 NAME = "PPO-Lag torch smoke"
 
 
-def _run(results: Path, cwd: Path) -> subprocess.CompletedProcess[str]:
+def _run(results: Path, cwd: Path, *extra: str) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     args = ["--cells", "Utility/SwitchStandard", "--variants", "HumanA", "AnimalB", "--preset", "smoke",
-            "--total-steps", "4096", "--num-envs", "8", "--num-steps", "64", "--name", NAME, "--results", str(results)]
+            "--total-steps", "4096", "--num-envs", "8", "--num-steps", "64", "--name", NAME, "--results", str(results), *extra]
     return subprocess.run([sys.executable, str(SCRIPT), *args], cwd=cwd, env=env, capture_output=True, text=True, check=False)
 
 
@@ -40,3 +43,8 @@ def test_the_example_trains_and_writes_submitted_runs(tmp_path: Path) -> None:
     again = _run(tmp_path / "results", tmp_path)  # same script, same weights (seeded): the same runs, not new ones
     assert again.returncode == 0, again.stdout + again.stderr
     assert len(read_runs(tmp_path / "results")) == 2
+    keys = {configuration_key(json.loads(c)) for c in runs["config"]}
+    assert len(keys) == 1  # one entry's runs are one configuration of the cell (else the leaderboard counts one)
+    loaded = _run(tmp_path / "results", tmp_path, "--load", str(tmp_path / "results" / "ppo_lag_torch_actor.pt"))
+    assert loaded.returncode == 0, loaded.stdout + loaded.stderr
+    assert "training" not in loaded.stdout and len(read_runs(tmp_path / "results")) == 2  # the saved weights: the same runs

@@ -71,6 +71,7 @@ class Args:
     gif: bool = False  # record one evaluation episode per run for its leaderboard page
     log_every: int = 10  # updates between progress lines
     threads: int = 1  # torch CPU threads: the matrices are small, more threads cost more than they gain
+    load: str = ""  # evaluate and submit the weights saved by an earlier run of the same runs instead of training
 
 
 def parse_args(argv: list[str] | None = None) -> Args:
@@ -262,16 +263,23 @@ def train(args: Args, runs: list[tuple[Cell, str, int]]) -> tuple[StackedMLP, in
 
 
 # ------------------------------------------------------------------------------------ evaluation
-def evaluate_and_submit(args: Args, runs: list[tuple[Cell, str, int]], actor: StackedMLP, obs_dim: int) -> None:
-    """Each run's policy, evaluated as every trained run of a sweep is, written as run files."""
+def save_actor(args: Args, runs: list[tuple[Cell, str, int]], actor: StackedMLP) -> Path:
+    """The trained weights, beside the run files (their bytes are part of each run's identity)."""
     out = Path(args.results)
     out.mkdir(parents=True, exist_ok=True)
     weights = out / "ppo_lag_torch_actor.pt"
     th.save({"runs": [(c.chain.name, e, s) for c, e, s in runs], "actor": actor.state_dict(), "args": dataclasses.asdict(args)}, weights)
+    return weights
+
+
+def evaluate_and_submit(args: Args, runs: list[tuple[Cell, str, int]], actor: StackedMLP, obs_dim: int, weights: Path) -> None:
+    """Each run's policy, evaluated as every trained run of a sweep is, written as run files."""
+    out = Path(args.results)
+    out.mkdir(parents=True, exist_ok=True)
     _, episodes = preset_facts(args.preset)
     for k, (cell, env_id, seed) in enumerate(runs):
         # The run files' identity hashes these files: retrained weights make new runs (the old ones superseded).
-        loaded = LoadedPolicy(ref=f"{Path(__file__).name}:{env_id}@seed{seed}", kind="callable",
+        loaded = LoadedPolicy(ref=f"{Path(__file__).name}:Policy", kind="callable",  # one ref: one configuration
                               policy=Policy(actor, k, obs_dim), files=(Path(__file__).resolve(), weights.resolve()))
         sub = Submission(name=check_name(args.name), loaded=loaded, sha256=loaded.sha256(), submitter=os.environ.get("USER") or "unknown",
                          protocol=args.protocol, preset=args.preset, seeds=(seed,), eval_episodes=episodes,
@@ -281,6 +289,17 @@ def evaluate_and_submit(args: Args, runs: list[tuple[Cell, str, int]], actor: St
     print(f"wrote the runs to {out / 'runs'}; now: python -m leaderboard.build --results {out}")
 
 
+def load_actor(path: str, runs: list[tuple[Cell, str, int]]) -> tuple[StackedMLP, int]:
+    """The actor saved by :func:`evaluate_and_submit` for exactly these runs (e.g. trained on a GPU machine)."""
+    saved = th.load(path, map_location="cpu")
+    if [tuple(r) for r in saved["runs"]] != [(c.chain.name, e, s) for c, e, s in runs]:
+        raise SystemExit(f"{path} holds the weights of other runs; give the same --cells, --variants and --preset")
+    shapes = [w.shape for name, w in saved["actor"].items() if name.startswith("weights.")]
+    actor = StackedMLP([shapes[0][1], *(s[2] for s in shapes)], 1.0, [th.Generator() for _ in runs])
+    actor.load_state_dict(saved["actor"])
+    return actor, shapes[0][1]
+
+
 def main(argv: list[str] | None = None) -> dict[str, float]:
     args = parse_args(argv)
     th.set_num_threads(args.threads)
@@ -288,12 +307,15 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     cells = [cell for chain, scenario in pairs for cell in select_cells([chain], [scenario], args.variants)]
     seeds, _ = preset_facts(args.preset)
     runs = [(cell, scenario_named(cell.scenario).env_id(v), seed) for cell in cells for v in cell.variants for seed in seeds]
+    if args.load:
+        evaluate_and_submit(args, runs, *load_actor(args.load, runs), Path(args.load))
+        return {}
     print(f"training {len(runs)} runs ({len(cells)} cell(s) x variants x {len(seeds)} seed(s)) on {args.device}, "
           f"{args.total_steps:,} steps each", flush=True)
     actor, obs_dim, speed = train(args, runs)
     print(f"trained in {speed['seconds']:.1f} s: {speed['env_steps_per_s']:,.0f} env steps/s, "
           f"{speed['env_steps_per_s'] / len(runs):,.0f} per run ({speed['env_steps_per_cpu_s']:,.0f} per CPU-second)", flush=True)
-    evaluate_and_submit(args, runs, actor, obs_dim)
+    evaluate_and_submit(args, runs, actor, obs_dim, save_actor(args, runs, actor))
     return speed
 
 
