@@ -25,8 +25,10 @@ __version__ = "0.1.0"
 
 register_all()
 
-# These import Stable-Baselines3 (and so torch, ~1.5 s); load them only when first used.
+# These import Stable-Baselines3 or torch (~1.5 s); load them only when first used.
 _LAZY = {
+    "TorchCostWrapper": "morality_gym.norms.torch_vector_cost",
+    "TorchTrolleyVectorEnv": "morality_gym.envs.torch_vector",
     "TrolleyVecEnv": "morality_gym.envs.vector",
     "TrolleyVectorEnv": "morality_gym.envs.vector",
     "MoralityWrapper": "morality_gym.norms.wrappers",
@@ -49,6 +51,8 @@ __all__ = [
     "MoralityChain",
     "MoralityWrapper",
     "RewardCostSpec",
+    "TorchCostWrapper",
+    "TorchTrolleyVectorEnv",
     "TrolleyEnv",
     "TrolleyVecEnv",
     "TrolleyVectorEnv",

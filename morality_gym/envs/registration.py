@@ -11,10 +11,12 @@ and ids) and :mod:`~morality_gym.envs.trolley` (the env), neither of which impor
 
 from __future__ import annotations
 
+import importlib
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+from gymnasium.vector import VectorEnv
 
 from morality_gym.envs.describe import describe_scenario
 from morality_gym.envs.registry import BUILTIN_DIR, NAMESPACE, load_scenario_dir, scenarios
@@ -69,6 +71,20 @@ def _make(env_id: str, **kwargs: object) -> TrolleyEnv:
     return env_class(scenario_name)(env_id, **kwargs)  # type: ignore[arg-type]
 
 
+def make_vector(env_id: str, num_envs: int = 1, *, device: Any = None, **kwargs: Any) -> VectorEnv:
+    """``gym.make_vec``'s entry point: the numpy :class:`~morality_gym.envs.vector.TrolleyVectorEnv`,
+    or with ``device=`` (``"cuda"``, ``"cpu"``, ...) the torch
+    :class:`~morality_gym.envs.torch_vector.TorchTrolleyVectorEnv` with ``num_envs`` copies of ``env_id``.
+
+    The modules are imported here, when asked for: the numpy one loads Stable-Baselines3, the torch
+    one torch, and ``import morality_gym`` (which registers the ids) must load neither.
+    """
+    if device is None:
+        return importlib.import_module("morality_gym.envs.vector").TrolleyVectorEnv(env_id, num_envs, **kwargs)
+    torch_vector = importlib.import_module("morality_gym.envs.torch_vector")
+    return torch_vector.TorchTrolleyVectorEnv([env_id], copies_per_env=num_envs, device=device, **kwargs)
+
+
 def register_all() -> None:
     """Register ``MoralityGym/{Scenario}-{Variant}-v1`` for every known variant (idempotent)."""
     for scenario in scenarios().values():
@@ -81,7 +97,7 @@ def register_all() -> None:
                 id=full,
                 entry_point=f"{__name__}:_make",
                 kwargs={"env_id": env_id},
-                vector_entry_point="morality_gym.envs.vector:TrolleyVectorEnv",
+                vector_entry_point=f"{__name__}:make_vector",
                 # Truncation follows the reference (step max_steps + 1), inside the env.
                 max_episode_steps=None,
             )
