@@ -4,7 +4,7 @@ Both wrap :class:`~morality_gym.envs.batched.BatchedTrolleyEnv`, so N copies ste
 operations instead of N Python calls. They report a step's norm events compactly: ``events`` is a
 bit mask over :data:`morality_gym.world.vocab.EVENTS` (decode with
 :func:`morality_gym.world.vocab.mask_to_names`) and ``transition`` indexes the graph tables for
-utilities. :class:`morality_gym.norms.wrappers.VecCostWrapper` turns these into ``info["cost"]``.
+utilities. :class:`morality_gym.norms.wrappers.VecMoralityWrapper` turns these into ``info["cost"]``.
 """
 
 from __future__ import annotations

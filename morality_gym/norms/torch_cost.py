@@ -69,7 +69,7 @@ class TorchCost:
             named = sorted({n.name for _, c in costs for n in c.bound.chain.norms if not n.prohibited})
             raise ValueError(
                 f"prescribed norm(s) {', '.join(named)}: the device cost handles prohibited norms only; "
-                "use the host simulator (morality_gym.norms.wrappers.VecCostWrapper) for such a chain"
+                "use the host simulator and its cost (morality_gym.norms.wrappers.VecMoralityWrapper) for such a chain"
             )
         return cls(stacked, device)
 
