@@ -24,6 +24,8 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from morality_gym.clitools import writing
+
 SCHEMA_VERSION = 1
 CHANGES = {
     1: "first version; compatible additions: the `engine` column (2026-11-23; files written before it lack it, "
@@ -178,19 +180,23 @@ def updates_path(results_dir: str | Path, run_id: str) -> Path:
 
 
 def atomic_write_table(table: pa.Table, path: Path) -> None:
-    """Write a Parquet file under a temporary name in the same directory, fsync, then rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        pq.write_table(table, tmp)
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Write a Parquet file under a temporary name in the same directory, fsync, then rename.
+
+    A full disk is a :class:`~morality_gym.clitools.DiskFullError` naming ``path`` (the temporary
+    file is removed, the file under ``path`` is the previous one or none)."""
+    with writing(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        os.close(fd)
+        try:
+            pq.write_table(table, tmp)
+            with open(tmp, "rb") as fh:
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
 
 
 def write_run(results_dir: str | Path, row: Mapping[str, Any], norms: Iterable[str]) -> Path:
