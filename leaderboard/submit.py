@@ -30,6 +30,7 @@ import getpass
 import json
 import math
 import os
+import shutil
 import socket
 import sys
 from collections.abc import Sequence
@@ -40,7 +41,7 @@ from typing import Any
 
 from morality_gym.baselines.io import ModelError
 from morality_gym.baselines.policy_ref import PolicyError, is_stationary, load_policy, probe
-from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, did_you_mean, run_cli
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, did_you_mean, run_cli, writing
 from morality_gym.constants import BETA, MAX_STEPS
 from morality_gym.envs.registry import UnknownEnvError, scenario_named, scenarios
 from morality_gym.envs.trolley import InvalidActionError
@@ -238,8 +239,9 @@ def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: st
         from morality_gym.render.gif import record_episode
 
         gif = runs_dir(results) / run_id / "episode.gif"
-        record_episode(env_id, sub.loaded.policy, gif, max_steps=GIF_STEPS, seed=config["seed"] + 7919,
-                       env_kwargs={"max_steps": sub.max_steps})
+        with writing(gif):
+            record_episode(env_id, sub.loaded.policy, gif, max_steps=GIF_STEPS, seed=config["seed"] + 7919,
+                           env_kwargs={"max_steps": sub.max_steps})
         gif_rel = str(gif.relative_to(results))
     wall, cpu = clock.elapsed()
     return {
@@ -264,7 +266,6 @@ def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = pri
     """Evaluate and write every run of ``cells`` that is not in ``results`` yet; returns counts."""
     # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
     from runners.execute import RunLock, finished_status
-    from runners.results_schema import write_run
 
     counts = {"written": 0, "present": 0}
     for cell in cells:
@@ -290,17 +291,7 @@ def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = pri
                         metrics.append(metric)
                         exacts += [] if exact is None else [exact]
                         continue
-                    try:
-                        row = evaluate_run(sub, cell, config, run_id, results)
-                    except PolicyFailure as exc:  # the policy raised at some step: say where, keep what is written
-                        raise PolicyError(f"policy {sub.loaded.ref} failed while evaluating {env_id}, seed {seed}: {exc}; "
-                                          "runs written so far are kept") from exc.__cause__
-                    except (UserError, ValueError):
-                        raise  # already a named user error (InvalidActionError is a ValueError)
-                    except Exception as exc:  # the user's code failed mid-evaluation: say where, keep what is written
-                        raise PolicyError(f"policy {sub.loaded.ref} failed while evaluating {env_id}, seed {seed} "
-                                          f"({type(exc).__name__}: {exc}); runs written so far are kept") from exc
-                    write_run(results, row, cell.chain.norm_names)
+                    row = evaluate_and_write(sub, cell, config, run_id, results)
                     counts["written"] += 1
                     metrics.append(float(row["metric"]))
                     exacts += [] if row["exact_metric"] is None else [float(row["exact_metric"])]
@@ -313,6 +304,39 @@ def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = pri
         say(f"{cell.chain.name} / {cell.scenario}: mean metric {sum(cell_metrics) / len(cell_metrics):.4f} over "
             f"{len(cell.variants)} variant(s) x {len(sub.seeds)} seed(s) (these runs' mean)")
     return counts
+
+
+def evaluate_and_write(sub: Submission, cell: Cell, config: dict[str, Any], run_id: str, results: Path) -> dict[str, Any]:
+    """Evaluate one run and write its row; any failure (of the policy, of the disk) is one named
+    line, and leaves nothing of this run behind (its GIF is removed with it): runs written before stay."""
+    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
+    from runners.results_schema import write_run
+
+    where = f"{config['env_id']}, seed {config['seed']}"
+    try:
+        try:
+            row = evaluate_run(sub, cell, config, run_id, results)
+        except PolicyFailure as exc:  # the policy raised at some step: say where, keep what is written
+            raise PolicyError(f"policy {sub.loaded.ref} failed while evaluating {where}: {exc}; "
+                              "runs written so far are kept") from exc.__cause__
+        except (UserError, ValueError):
+            raise  # already a named user error (InvalidActionError is a ValueError)
+        except Exception as exc:  # the user's code failed mid-evaluation: say where, keep what is written
+            raise PolicyError(f"policy {sub.loaded.ref} failed while evaluating {where} "
+                              f"({type(exc).__name__}: {exc}); runs written so far are kept") from exc
+        write_run(results, row, cell.chain.norm_names)
+    except BaseException:
+        remove_artifacts(results, run_id)
+        raise
+    return row
+
+
+def remove_artifacts(results: Path, run_id: str) -> None:
+    """Remove ``runs/<run_id>/`` (what a run writes besides its row) of a run whose row was not written."""
+    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
+    from runners.results_schema import runs_dir
+
+    shutil.rmtree(runs_dir(results) / run_id, ignore_errors=True)
 
 
 def stored_scores(results: Path, run_id: str) -> tuple[float, float | None]:

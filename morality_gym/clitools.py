@@ -94,7 +94,8 @@ def disk_full_error(path: str | os.PathLike[str] | None, exc: BaseException | No
     file the OS names in ``exc`` wins; with neither, the current directory's free space is told)."""
     if isinstance(exc, DiskFullError):
         return exc
-    filename = getattr(exc, "filename", None)
+    # the destination: shutil's copies name the source as filename and the destination as filename2
+    filename = getattr(exc, "filename2", None) or getattr(exc, "filename", None)
     where = Path(filename) if isinstance(filename, (str, os.PathLike)) and filename else None
     where = where or (Path(path) if path is not None else None)
     what = f"cannot write {where} ({free_space(where)})" if where is not None else \

@@ -64,6 +64,7 @@ from runners.config_schema import SweepOverheads
 from runners.execute import finished_status, record_failure
 from runners.fleet_checkpoints import fleets_to_form, remove_stale
 from runners.jobs import Job, dispatch_order, jobs_estimate, make_jobs
+from runners.leftovers import remove_leftovers
 from runners.manifest import manifest_name, write_manifest
 from runners.plan import PlannedRun, describe, plan
 from runners.pool import JobProgress, PoolStopped, WorkerPool
@@ -417,6 +418,7 @@ def run_sweep(sweep: SweepConfig, console: Console | None = None, command: str |
         return 0
     started = time.perf_counter()
     remove_stale(sweep.results_dir)  # checkpoints of fleets whose runs all finished: nothing to resume
+    remove_leftovers(sweep.results_dir)  # temporary files of writers killed before they renamed them
     try:
         interrupted = dispatch(plan_, sweep, tracker, console)
     except PoolStopped as stop:

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
 
+from morality_gym.clitools import disk_full_error, is_disk_full
 from runners.quarantine import read_table_or_quarantine
 from runners.results_schema import MF_PREFIX, UPDATE_COLUMNS, learn_path, run_path, updates_path
 
@@ -145,6 +146,8 @@ class Tracker:
                 else:
                     self.experiment_id = exp.experiment_id
         except Exception as exc:  # SQLAlchemy, HTTP and MLflow errors alike
+            if is_disk_full(exc):  # SQLite: "database or disk is full"
+                raise disk_full_error(self.results_dir / "mlflow.db", exc) from exc
             first = str(exc).strip().splitlines()[0][:300] if str(exc).strip() else ""
             raise TrackingError(f"cannot open the MLflow store {uri} ({type(exc).__name__}: {first}); {_FIX}") from exc
 
