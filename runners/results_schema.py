@@ -10,6 +10,12 @@ run leaves no result behind.
 
 Readers must select columns by name (never by position) and check ``schema_version``.
 Bump :data:`SCHEMA_VERSION` on any incompatible change and document it in ``CHANGES`` below.
+
+One rule for a file of another schema version (e.g. written by a newer morality-gym), whoever
+reads it (:func:`version_problem`): it is no result. The leaderboard build leaves it out and lists
+it under "Unreadable files"; a sweep moves it to ``runs/.quarantine/`` (kept, never deleted, with
+the reason in ``runs/.quarantine/index.jsonl``) and runs the run again, as it does with a damaged
+file. To use such files, read them with the version of the code that wrote them.
 """
 
 from __future__ import annotations
@@ -267,6 +273,17 @@ def read_jsonl(path: str | Path) -> list[dict[str, Any]]:
     return out
 
 
+def version_problem(table: pa.Table) -> str | None:
+    """Why a table read from a results file is not of this code's schema (None when it is)."""
+    if "schema_version" not in table.column_names:
+        return "no schema_version column"
+    versions = set(table.column("schema_version").to_pylist())
+    if versions and versions != {SCHEMA_VERSION}:
+        found = ", ".join(str(v) for v in sorted(versions, key=str))
+        return f"schema version {found}, this code reads version {SCHEMA_VERSION}"
+    return None
+
+
 def run_files(results_dir: str | Path) -> list[Path]:
     """The main run files ``runs/<run_id>.parquet`` (not ``<run_id>.<kind>.parquet`` side files)."""
     return [p for p in sorted(runs_dir(results_dir).glob("*.parquet")) if "." not in p.stem]
@@ -285,9 +302,9 @@ def read_runs(results_dir: str | Path, skipped: list[dict[str, str]] | None = No
     for path in run_files(results_dir):
         try:
             table = read_small_table(path)
-            version = table.column("schema_version")[0].as_py()
-            if version != SCHEMA_VERSION:
-                raise ValueError(f"schema version {version}, this code reads version {SCHEMA_VERSION}")
+            problem = version_problem(table)
+            if problem is not None:
+                raise ValueError(problem)
         except (pa.ArrowException, OSError, ValueError, KeyError, IndexError) as exc:
             if skipped is None:
                 raise ValueError(f"{path}: {exc}") from exc

@@ -108,7 +108,7 @@ def test_an_interrupted_mirror_is_marked_killed_when_it_is_set_aside(tmp_path: P
     results = tmp_path / "r"
     first = sweep(results)
     assert first.returncode == 0, first.stderr
-    victim = sorted(run_files(results))[0]
+    victim = min(run_files(results))
     (results / "tracking" / f"{victim}.json").unlink()  # as if the kill came before the marker
     client = MlflowClient(f"sqlite:///{results / 'mlflow.db'}")
     exp = client.get_experiment_by_name("morality-gym")
