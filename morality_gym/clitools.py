@@ -273,6 +273,17 @@ def positive_int(text: str) -> int:
     return _int_at_least(text, 1, "a positive integer (1 or more)")
 
 
+def positive_float(text: str) -> float:
+    """An argparse type: a finite number > 0 (a time limit in seconds)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds > 0, got {text!r}") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text}")
+    return value
+
+
 def non_negative_int(text: str) -> int:
     """An argparse type: an integer >= 0 (seeds: numpy refuses negative ones with a traceback)."""
     return _int_at_least(text, 0, "an integer >= 0")
