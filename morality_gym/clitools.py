@@ -14,6 +14,9 @@ not a traceback; a traceback is for bugs, and for whoever asks for it. So every 
 * a full disk (``ENOSPC``, a quota, or torch's ``RuntimeError`` for a short write) is one line
   naming the path and the free space left there (:class:`DiskFullError`), exit 2, wherever it was
   raised: the writes it interrupted were atomic, so what was written before stays valid;
+* a read-only directory (``PermissionError``) is one line naming the file, exit 2;
+* SIGTERM ends the command after its clean-ups ran (temporary files removed), with one line and
+  exit status 143;
 * a closed output pipe (``... | head``) ends the program quietly with exit code 141 (128 +
   SIGPIPE, what a shell reports for a program killed by SIGPIPE) instead of a ``BrokenPipeError``
   traceback. SIGPIPE itself is left ignored (Python's default), because the sweep talks to MLflow
@@ -29,7 +32,9 @@ import errno
 import math
 import os
 import shutil
+import signal
 import sys
+import threading
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
@@ -169,6 +174,7 @@ def run_cli(body: Callable[[], int | None], user_errors: tuple[type[BaseExceptio
             argv: Sequence[str] | None = None) -> int:
     """Run ``body`` as an entry point and map what it raises to an exit status (module docstring)."""
     debug = debug_enabled(argv)
+    _stop_on_sigterm()
     try:
         return int(body() or 0)
     except BrokenPipeError:
@@ -178,6 +184,12 @@ def run_cli(body: Callable[[], int | None], user_errors: tuple[type[BaseExceptio
         if debug:
             raise
         return _report(exc)
+    except PermissionError as exc:  # a read-only directory: the environment's to fix, not a bug
+        if debug:
+            raise
+        where = getattr(exc, "filename2", None) or exc.filename or "a file"
+        return _report(UserError(f"cannot write {where} ({exc.strerror or 'permission denied'}): the directory is "
+                                 "read-only for this user; choose a writable one"))
     except (OSError, RuntimeError) as exc:
         if debug or not is_disk_full(exc):
             raise
@@ -185,6 +197,31 @@ def run_cli(body: Callable[[], int | None], user_errors: tuple[type[BaseExceptio
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except Terminated:
+        print("stopped by SIGTERM: every file is written under a temporary name and renamed, so nothing half-written "
+              "is left; run the same command again", file=sys.stderr, flush=True)
+        return EXIT_TERMINATED
+
+
+class Terminated(BaseException):
+    """SIGTERM reached a command: raised where it runs, so that ``finally`` blocks and the
+    clean-ups of temporary files (``except BaseException``) run before it ends (Python's default
+    for SIGTERM ends the process at once and leaves them behind)."""
+
+
+#: A command stopped by SIGTERM exits as a program killed by it would (128 + 15).
+EXIT_TERMINATED = 143
+
+
+def _terminate(signum: int, _frame: Any) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # one is enough: the clean-up must not be cut short
+    raise Terminated(signum)
+
+
+def _stop_on_sigterm() -> None:
+    """SIGTERM raises :class:`Terminated` (main thread only; a handler the program set is kept)."""
+    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, _terminate)
 
 
 def _report(exc: BaseException) -> int:

@@ -126,3 +126,53 @@ def test_a_sweep_removes_temporary_files_of_runs_no_one_writes(results: Path) ->
         lock.release()
     assert [p for p in leftovers if p.exists()] == []
     assert kept.read_bytes() == b"cut short"
+
+
+@pytest.mark.slow
+def test_sigterm_to_a_build_cleans_up_and_keeps_the_previous_site(results: Path, tmp_path: Path) -> None:
+    """SIGTERM (``timeout``, a stopping machine) used to end a build as kill -9 does; now its
+    clean-up runs: the temporary directory is removed, the previous site stays, one line, exit 143."""
+    site = tmp_path / "out" / "site"
+    build = ["-m", "leaderboard.build", "--results", str(results), "--site", str(site), "--out", str(tmp_path / "tables"),
+             "--no-reference"]
+    assert command(*build).returncode == 0
+    before = {p.relative_to(site): p.read_bytes() for p in site.rglob("*") if p.is_file()}
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen([sys.executable, *build], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=env, start_new_session=True)
+    deadline = time.monotonic() + 300
+    while not hidden(site.parent, ".build-"):
+        assert proc.poll() is None, "the build ended before the signal"
+        assert time.monotonic() < deadline
+        time.sleep(0.005)
+    os.kill(proc.pid, signal.SIGTERM)
+    _out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err
+    assert err.strip().splitlines()[-1].startswith("stopped by SIGTERM: ") and "Traceback" not in err, err
+    assert hidden(site.parent, ".build-") == [] and hidden(site.parent, ".old-") == []
+    assert {p.relative_to(site): p.read_bytes() for p in site.rglob("*") if p.is_file()} == before
+
+
+def test_a_release_into_a_read_only_directory_is_one_line(results: Path, tmp_path: Path) -> None:
+    """Root ignores permission bits, so as root the command runs without the capabilities that let
+    it (``setpriv``, as tests/test_faults.py's read-only build does)."""
+    import shutil
+
+    wrapper: list[str] = []
+    if os.geteuid() == 0:
+        if shutil.which("setpriv") is None:
+            pytest.skip("running as root without setpriv: a read-only directory cannot be made")
+        wrapper = ["setpriv", "--bounding-set=-dac_override,-dac_read_search,-fowner", "--"]
+    root = tmp_path / "readonly"
+    root.mkdir()
+    root.chmod(0o555)
+    try:
+        out = subprocess.run([*wrapper, sys.executable, "-m", "leaderboard.release", "create", "--results", str(results),
+                              "--name", "ro-v1", "--root", str(root / "releases")], cwd=REPO, check=False,
+                             capture_output=True, text=True, timeout=300)
+    finally:
+        root.chmod(0o755)
+    assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr
+    assert out.stderr.strip() == (f"error: cannot write {root / 'releases'} (Permission denied): the directory is "
+                                  "read-only for this user; choose a writable one"), out.stderr
+    assert list(root.iterdir()) == []
