@@ -176,3 +176,30 @@ def test_a_release_into_a_read_only_directory_is_one_line(results: Path, tmp_pat
     assert out.stderr.strip() == (f"error: cannot write {root / 'releases'} (Permission denied): the directory is "
                                   "read-only for this user; choose a writable one"), out.stderr
     assert list(root.iterdir()) == []
+
+
+@pytest.mark.parametrize("what", ["sweep", "submit"])
+def test_a_read_only_results_directory_is_one_line(tmp_path: Path, what: str) -> None:
+    """The sweep's preflight and the submission's check name the directory before anything runs."""
+    import shutil
+
+    wrapper: list[str] = []
+    if os.geteuid() == 0:
+        if shutil.which("setpriv") is None:
+            pytest.skip("running as root without setpriv: a read-only directory cannot be made")
+        wrapper = ["setpriv", "--bounding-set=-dac_override,-dac_read_search,-fowner", "--"]
+    results = tmp_path / "readonly"
+    results.mkdir()
+    results.chmod(0o555)
+    args = (["-m", "runners.sweep", f"results_dir={results}", *SMOKE] if what == "sweep" else
+            ["-m", "leaderboard.submit", "random", "--name", "Coin", "--results", str(results), "--chain", "utility",
+             "--scenario", "switch_standard", "--variant", "HumanA", "--preset", "smoke"])
+    try:
+        out = subprocess.run([*wrapper, sys.executable, *args], cwd=REPO, check=False, capture_output=True, text=True,
+                             timeout=300)
+    finally:
+        results.chmod(0o755)
+    assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr
+    lines = [line for line in out.stderr.splitlines() if "error" in line]
+    assert len(lines) == 1 and str(results) in lines[0] and "writable" in lines[0], out.stderr
+    assert list(results.iterdir()) == []
