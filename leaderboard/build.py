@@ -40,7 +40,7 @@ from leaderboard.release import Release, ReleaseError, resolve
 from leaderboard.sources import Sources, load_sources
 from leaderboard.stamp import StampError, source_date_epoch, stamp_text
 from leaderboard.tables import write_tables
-from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, did_you_mean, run_cli
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, did_you_mean, run_cli, writing
 from runners.quarantine import quarantined_files
 
 REFERENCE_CACHE = Path("cache") / "reference_rows.json"
@@ -290,7 +290,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"{results} holds no runs ({results / 'runs'}/*.parquet) and no sweep manifests "
                         f"({results / 'manifests'}/*.json): nothing to build")
     try:
-        lb, out = build(args, sources, quarantined_files(results) if results.is_dir() else [])
+        with writing(args.out):  # a full disk: one line naming the file (or the output directory) and the free space
+            lb, out = build(args, sources, quarantined_files(results) if results.is_dir() else [])
     except (SiteError, StampError) as exc:
         raise UserError(str(exc)) from exc
     except PermissionError as exc:

@@ -34,7 +34,7 @@ from typing import Any
 
 from leaderboard.aggregate import LLM_POLICY_KIND
 from leaderboard.submit import _submitter, check_name, code_version
-from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, positive_float, run_cli
 from morality_gym.constants import BETA
 from morality_gym.envs.registry import UnknownEnvError, parse_env_id
 from morality_gym.llm.settings import DEFAULT_PRESET, PRESETS, AgentSettings, SettingsError
@@ -51,6 +51,9 @@ from runners.results_schema import MF_PREFIX, SCHEMA_VERSION, write_run
 # --help and the one-line errors work without the extra installed.
 
 DEFAULT_LOG_DIR = Path("logs") / "llm"
+#: How long one model call may take, retries included (``run --timeout``): hosted models answer in
+#: seconds; ten minutes without an answer is a provider that hangs.
+DEFAULT_TIMEOUT_S = 600.0
 
 
 @dataclass(frozen=True)
@@ -247,8 +250,12 @@ def run_inspect(args: argparse.Namespace) -> list[Path]:
             window=args.window, max_retries=args.max_retries, fallback=args.fallback, temperature=args.temperature,
             seed=args.seed, max_tokens=args.max_tokens, cache=args.cache,
         )
+        # Inspect bounds no model call by default (its timeout and attempt_timeout are None, its
+        # retries unlimited): a provider that stops answering would hang the run. --timeout bounds
+        # each call, retries included; past it the sample fails and the run ends with one line.
         result = inspect_eval(task, model=model, log_dir=str(args.log_dir), display=args.display,
-                              max_connections=args.max_connections)
+                              max_connections=args.max_connections, timeout=math.ceil(args.timeout),
+                              attempt_timeout=math.ceil(args.timeout))
         logs += [_finished_log(chain, log) for log in result]
     return logs
 
@@ -260,7 +267,35 @@ def _model_of(args: argparse.Namespace) -> Any:
     if args.script is None and str(args.model).startswith("mockllm/"):
         raise UserError("--model mockllm/model needs --script FILE (the answers, one per step); "
                         "the mock's default answer is not an action and its token count needs a download")
-    return scripted_model(args.script) if args.script is not None else args.model
+    return scripted_model(args.script) if args.script is not None else provider_model(args.model)
+
+
+def provider_model(name: str) -> Any:
+    """Inspect's model ``name``, resolved before anything runs: a provider whose package is not
+    installed (the ``llm`` extra installs Inspect, not the providers' SDKs: ``openai/...`` needs
+    ``openai``, ``anthropic/...`` ``anthropic``, ...) or whose API key is missing is one line
+    naming what to install or set, instead of Inspect's multi-line message and exit 1."""
+    # the llm extra: loaded by this command only
+    from inspect_ai._util.error import PrerequisiteError
+    from inspect_ai.model import get_model
+
+    try:
+        return get_model(name)
+    except PrerequisiteError as exc:
+        raise UserError(f"--model {name}: {prerequisite_text(exc)}") from exc
+    except ValueError as exc:  # e.g. "Model API nosuch of model 'nosuch/model' not recognized."
+        raise UserError(f"--model {name}: {exc}; a model is provider/name, e.g. openai/gpt-4o-mini") from exc
+
+
+def prerequisite_text(exc: BaseException) -> str:
+    """Inspect's prerequisite message (rich markup, several lines) as one plain line."""
+    text = re.sub(r"\[/?[a-z ]+\]", "", str(getattr(exc, "message", exc)))
+    text = " ".join(part.strip() for part in text.splitlines() if part.strip())
+    text = text.removeprefix("ERROR:").strip()
+    install = re.search(r"pip install ([\w\-\[\]=<>.,' ]+)", text)
+    if install and "requires optional dependencies" in text:
+        return f"the provider needs a package that is not installed: pip install {install.group(1).strip()}"
+    return text
 
 
 def _finished_log(chain: str, log: Any) -> Path:
@@ -311,6 +346,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--max-tokens", type=int, default=d.max_tokens, help=f"longest answer (default {d.max_tokens})")
     run.add_argument("--max-connections", type=int, default=None, help="Inspect: concurrent model calls")
     run.add_argument("--cache", action="store_true", help="Inspect: cache model answers")
+    run.add_argument("--timeout", type=positive_float, default=DEFAULT_TIMEOUT_S, metavar="SECONDS",
+                     help=f"the longest one model call may take, retries included (default {DEFAULT_TIMEOUT_S:g}; "
+                          "Inspect's own default is no bound); past it the run ends with one line and nothing is imported")
     run.add_argument("--log-dir", type=Path, default=DEFAULT_LOG_DIR, help=f"Inspect log directory (default {DEFAULT_LOG_DIR})")
     run.add_argument("--display", default="plain", help="Inspect's display (plain, full, rich, none; default plain)")
     _add_entry_args(run)

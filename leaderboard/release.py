@@ -46,7 +46,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from leaderboard.aggregate import safe_name
-from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
+from leaderboard.leftovers import building_in
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli, writing
 from runners.identity import config_key
 from runners.manifest import manifests_dir, read_manifests
 from runners.results_schema import SCHEMA_VERSION, compute_seconds, learn_path, read_runs, run_files, updates_path
@@ -321,7 +322,13 @@ def create(results: Path, name: str, root: Path = RELEASES_DIR, title: str = "",
     if not run_files(results):
         raise ReleaseError(f"{results} holds no runs ({results / 'runs'}/*.parquet): nothing to release")
     runs = read_runs(results)
-    root.mkdir(parents=True, exist_ok=True)
+    with building_in(root, lambda entry: ".create-" in entry), writing(target):
+        return _create(results, runs, name, root, title, stride, tables)
+
+
+def _create(results: Path, runs: pd.DataFrame, name: str, root: Path, title: str, stride: int, tables: bool) -> Path:
+    """:func:`create` once the release's root is held (a kill's leftovers removed: :mod:`leaderboard.leftovers`)."""
+    target = root / name
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.create-", dir=root))
     try:
         _write_contents(tmp, results, runs, stride, tables)

@@ -37,11 +37,13 @@ from typing import Any
 
 from leaderboard.aggregate import Group, Leaderboard, safe_name
 from leaderboard.downloads import write_downloads
+from leaderboard.leftovers import building_in
 from leaderboard.page_cache import PageCache, link_or_copy
 from leaderboard.paper_figures import FigureSet
 from leaderboard.render import STATIC, STATIC_FILES, render
 from leaderboard.site_state import SiteBuild
 from leaderboard.sources import Sources
+from morality_gym.clitools import writing
 from morality_gym.envs.registry import scenario_named
 
 SITE_MARKER = ".leaderboard-site"
@@ -204,6 +206,17 @@ def build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: Figur
     :class:`leaderboard.stats_figure_files.StatFigures`; ``stamp``: the build date shown in the footer;
     ``cache_dir``: where run pages are kept between builds (:mod:`leaderboard.page_cache`; None: render all).
     """
+    check_target(site_dir)
+    leftover = (f".{site_dir.name}.build-", f".{site_dir.name}.old-")
+    with building_in(site_dir.parent, lambda name: name.startswith(leftover)), writing(site_dir):
+        return _build_site(lb, sources, site_dir, figures, results_name, progress, stats=stats, stat_figures=stat_figures,
+                           stamp=stamp, resamples=resamples, cache_dir=cache_dir)
+
+
+def _build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: FigureSet, results_name: str | None,
+                progress: Progress | None, *, stats: Any, stat_figures: Any, stamp: str, resamples: int,
+                cache_dir: Path | None) -> SiteBuild:
+    """:func:`build_site` while this build holds the site's parent (:mod:`leaderboard.leftovers`)."""
     # SciPy waits: importing leaderboard.site must not load it
     from leaderboard.pages import index_context, run_context, runs_context, scenario_context
     from leaderboard.ranking_page import ranking_context

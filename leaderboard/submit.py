@@ -30,20 +30,30 @@ import getpass
 import json
 import math
 import os
+import shutil
 import socket
 import sys
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
 from morality_gym.baselines.io import ModelError
-from morality_gym.baselines.policy_ref import PolicyError, is_stationary, load_policy, probe
-from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, did_you_mean, run_cli
+from morality_gym.baselines.policy_ref import LoadedPolicy, PolicyError, is_stationary, load_policy, probe
+from morality_gym.clitools import (
+    OneLineParser,
+    UserError,
+    add_debug_flag,
+    did_you_mean,
+    positive_float,
+    run_cli,
+    writing,
+)
 from morality_gym.constants import BETA, MAX_STEPS
 from morality_gym.envs.registry import UnknownEnvError, scenario_named, scenarios
 from morality_gym.envs.trolley import InvalidActionError
+from morality_gym.evaluation.deadline import Deadline, PolicyTimeout
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.montecarlo import evaluate
 from morality_gym.evaluation.policies import PolicyFailure
@@ -57,6 +67,10 @@ from runners.paths import CONF_DIR
 
 DEFAULT_PROTOCOL = "paper"
 DEFAULT_PRESET = "paper"
+#: How long a callable policy may take to answer one observation (``--timeout``): a rule or a
+#: network answers in microseconds to milliseconds; one that calls a remote service may take
+#: seconds; a minute without an answer is a hang.
+DEFAULT_TIMEOUT_S = 60.0
 #: A GIF shows one evaluation episode of up to this many steps (as a trained run's render episode).
 GIF_STEPS = 50
 
@@ -220,6 +234,21 @@ def run_config(sub: Submission, cell: Cell, variant: str, seed: int, stationary:
     }
 
 
+def at(sub: Submission, where: str) -> None:
+    """Tell a time-bounded policy (:class:`~morality_gym.evaluation.deadline.Deadline`) what it is asked about now."""
+    if isinstance(sub.loaded.policy, Deadline):
+        sub.loaded.policy.where = where
+
+
+def bounded(loaded: LoadedPolicy, seconds: float) -> LoadedPolicy:
+    """``loaded`` with each answer of a callable policy bounded to ``seconds`` (the user's code may
+    hang; random and saved models are ours and are left as they are)."""
+    policy = loaded.policy
+    if loaded.kind != "callable" or not callable(policy) or hasattr(policy, "predict"):
+        return loaded
+    return replace(loaded, policy=Deadline(policy, seconds, loaded.ref))
+
+
 def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: str, results: Path) -> dict[str, Any]:
     """Evaluate one (cell, variant, seed) and return its schema row (nothing written yet)."""
     # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
@@ -229,17 +258,22 @@ def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: st
     clock = RunClock.start()
     env_id = config["env_id"]
     bound = bind_chain(cell.chain, env_id, sub.beta)
+    where = f"{env_id}, seed {config['seed']}"
+    at(sub, f"{where}, Monte-Carlo evaluation")
     final = evaluate(sub.loaded.policy, env_id, bound, n_episodes=sub.eval_episodes, seed=config["seed"],
                      max_steps=sub.max_steps, keep_episodes=False)
+    at(sub, f"{where}, exact evaluation")
     exact = exact_evaluate(sub.loaded.policy, env_id, bound, max_steps=sub.max_steps) if config["policy"]["stationary"] else None
     gif_rel = None
     if sub.gif:
+        at(sub, f"{where}, GIF episode")
         # PIL waits: importing leaderboard.submit (its --help too) must not load it
         from morality_gym.render.gif import record_episode
 
         gif = runs_dir(results) / run_id / "episode.gif"
-        record_episode(env_id, sub.loaded.policy, gif, max_steps=GIF_STEPS, seed=config["seed"] + 7919,
-                       env_kwargs={"max_steps": sub.max_steps})
+        with writing(gif):
+            record_episode(env_id, sub.loaded.policy, gif, max_steps=GIF_STEPS, seed=config["seed"] + 7919,
+                           env_kwargs={"max_steps": sub.max_steps})
         gif_rel = str(gif.relative_to(results))
     wall, cpu = clock.elapsed()
     return {
@@ -264,7 +298,6 @@ def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = pri
     """Evaluate and write every run of ``cells`` that is not in ``results`` yet; returns counts."""
     # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
     from runners.execute import RunLock, finished_status
-    from runners.results_schema import write_run
 
     counts = {"written": 0, "present": 0}
     for cell in cells:
@@ -274,7 +307,9 @@ def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = pri
             metrics: list[float] = []
             exacts: list[float] = []
             env_id = scenario.env_id(variant)
+            at(sub, f"{env_id}, first observation")
             probe(sub.loaded, env_id)  # a policy that cannot answer fails before anything is written
+            at(sub, f"{env_id}, stationarity check (every reachable state, twice)")
             stationary = is_stationary(sub.loaded, env_id)
             for seed in sub.seeds:
                 config = run_config(sub, cell, variant, seed, stationary)
@@ -290,17 +325,7 @@ def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = pri
                         metrics.append(metric)
                         exacts += [] if exact is None else [exact]
                         continue
-                    try:
-                        row = evaluate_run(sub, cell, config, run_id, results)
-                    except PolicyFailure as exc:  # the policy raised at some step: say where, keep what is written
-                        raise PolicyError(f"policy {sub.loaded.ref} failed while evaluating {env_id}, seed {seed}: {exc}; "
-                                          "runs written so far are kept") from exc.__cause__
-                    except (UserError, ValueError):
-                        raise  # already a named user error (InvalidActionError is a ValueError)
-                    except Exception as exc:  # the user's code failed mid-evaluation: say where, keep what is written
-                        raise PolicyError(f"policy {sub.loaded.ref} failed while evaluating {env_id}, seed {seed} "
-                                          f"({type(exc).__name__}: {exc}); runs written so far are kept") from exc
-                    write_run(results, row, cell.chain.norm_names)
+                    row = evaluate_and_write(sub, cell, config, run_id, results)
                     counts["written"] += 1
                     metrics.append(float(row["metric"]))
                     exacts += [] if row["exact_metric"] is None else [float(row["exact_metric"])]
@@ -313,6 +338,39 @@ def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = pri
         say(f"{cell.chain.name} / {cell.scenario}: mean metric {sum(cell_metrics) / len(cell_metrics):.4f} over "
             f"{len(cell.variants)} variant(s) x {len(sub.seeds)} seed(s) (these runs' mean)")
     return counts
+
+
+def evaluate_and_write(sub: Submission, cell: Cell, config: dict[str, Any], run_id: str, results: Path) -> dict[str, Any]:
+    """Evaluate one run and write its row; any failure (of the policy, of the disk) is one named
+    line, and leaves nothing of this run behind (its GIF is removed with it): runs written before stay."""
+    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
+    from runners.results_schema import write_run
+
+    where = f"{config['env_id']}, seed {config['seed']}"
+    try:
+        try:
+            row = evaluate_run(sub, cell, config, run_id, results)
+        except PolicyFailure as exc:  # the policy raised at some step: say where, keep what is written
+            raise PolicyError(f"policy {sub.loaded.ref} failed while evaluating {where}: {exc}; "
+                              "runs written so far are kept") from exc.__cause__
+        except (UserError, ValueError):
+            raise  # already a named user error (InvalidActionError is a ValueError)
+        except Exception as exc:  # the user's code failed mid-evaluation: say where, keep what is written
+            raise PolicyError(f"policy {sub.loaded.ref} failed while evaluating {where} "
+                              f"({type(exc).__name__}: {exc}); runs written so far are kept") from exc
+        write_run(results, row, cell.chain.norm_names)
+    except BaseException:
+        remove_artifacts(results, run_id)
+        raise
+    return row
+
+
+def remove_artifacts(results: Path, run_id: str) -> None:
+    """Remove ``runs/<run_id>/`` (what a run writes besides its row) of a run whose row was not written."""
+    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
+    from runners.results_schema import runs_dir
+
+    shutil.rmtree(runs_dir(results) / run_id, ignore_errors=True)
 
 
 def stored_scores(results: Path, run_id: str) -> tuple[float, float | None]:
@@ -350,6 +408,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--allow-other-env", action="store_true",
                         help="a saved model: evaluate it on other variants than the one it was trained on")
     parser.add_argument("--no-gif", action="store_true", help="do not record a GIF of one episode per run")
+    parser.add_argument("--timeout", type=positive_float, default=DEFAULT_TIMEOUT_S, metavar="SECONDS",
+                        help=f"the longest a callable policy may take to answer one observation (default {DEFAULT_TIMEOUT_S:g}); "
+                             "a policy that takes longer stops the submission with one line, and nothing of the run is written")
     add_debug_flag(parser)
     return parser
 
@@ -378,7 +439,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--protocol {args.protocol}: unknown{hint}; protocols: {', '.join(protocols)}")
 
     env_ids = [scenario_named(c.scenario).env_id(v) for c in cells for v in c.variants]
-    loaded = load_policy(args.policy, env_ids, args.allow_other_env)
+    loaded = bounded(load_policy(args.policy, env_ids, args.allow_other_env), args.timeout)
     results: Path = args.results
     try:
         results.mkdir(parents=True, exist_ok=True)
@@ -392,7 +453,10 @@ def run(args: argparse.Namespace) -> int:
     n_runs = sum(len(c.variants) for c in cells) * len(seeds)
     print(f"submitting {loaded.ref} as {name!r} (sha256 {sub.sha256[:12]}): {len(cells)} cell(s), {n_runs} run(s), "
           f"{episodes} episodes per run, protocol {args.protocol}, preset {args.preset}", flush=True)
-    counts = submit(sub, cells, results, say=lambda line: print(line, flush=True))
+    try:
+        counts = submit(sub, cells, results, say=lambda line: print(line, flush=True))
+    except PolicyTimeout as exc:  # a BaseException, past the evaluators' handlers: one line here
+        raise PolicyError(str(exc)) from None
     print(f"wrote {counts['written']} run(s), {counts['present']} already present, in {results / 'runs'}; "
           f"now: python -m leaderboard.build --results {results}")
     return 0

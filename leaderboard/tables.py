@@ -34,6 +34,7 @@ from leaderboard.aggregate import (
     csv_rows,
 )
 from leaderboard.stamp import stamp_text
+from morality_gym.clitools import write_atomically
 
 #: The paper's abbreviations in Table 1 (its caption); other names are written in full.
 SCENARIO_ABBREVIATIONS = {
@@ -402,30 +403,28 @@ def _latex_foot(lb: Leaderboard, group: Group, incomplete: list[str]) -> list[st
 
 
 # ---------------------------------------------------------------------------------------- files
+def _write_text(path: Path, text: str) -> Path:
+    return write_atomically(path, lambda fh: fh.write(text.encode("utf-8")))
+
+
 def write_tables(lb: Leaderboard, out_dir: Path, results_name: str | None = None, stamp: str = "") -> list[Path]:
-    """Write every table file into ``out_dir`` (the results directory); returns the paths written."""
+    """Write every table file into ``out_dir`` (the results directory); returns the paths written.
+
+    Each file atomically (:func:`~morality_gym.clitools.write_atomically`): a build killed or out
+    of disk space leaves each table whole, the previous one or the new one."""
     out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     if lb.primary is not None:
-        path = out_dir / "table1.csv"
-        csv_rows(lb.table, lb.primary).to_csv(path, index=False, columns=CSV_COLUMNS, float_format="%.6f",
-                                              lineterminator="\n")
-        written.append(path)
-    path = out_dir / "table1_all.csv"
-    lb.table.to_csv(path, index=False, float_format="%.6f", lineterminator="\n")
-    written.append(path)
-    path = out_dir / "table1.md"
-    path.write_text(table1_markdown(lb, results_name or out_dir.name, stamp), encoding="utf-8")
-    written.append(path)
+        written.append(_write_text(out_dir / "table1.csv", csv_rows(lb.table, lb.primary).to_csv(
+            index=False, columns=CSV_COLUMNS, float_format="%.6f", lineterminator="\n")))
+    written.append(_write_text(out_dir / "table1_all.csv", lb.table.to_csv(index=False, float_format="%.6f", lineterminator="\n")))
+    written.append(_write_text(out_dir / "table1.md", table1_markdown(lb, results_name or out_dir.name, stamp)))
     if lb.primary is not None:
-        path = out_dir / "table1.tex"
-        path.write_text(table1_latex(lb, lb.primary), encoding="utf-8")
-        written.append(path)
+        written.append(_write_text(out_dir / "table1.tex", table1_latex(lb, lb.primary)))
     comparison = protocols_markdown(lb)
     path = out_dir / "table1_protocols.md"
     if comparison is not None:
-        path.write_text(comparison, encoding="utf-8")
-        written.append(path)
+        written.append(_write_text(path, comparison))
     else:
         path.unlink(missing_ok=True)  # a stale comparison from an earlier build would mislead
     return written

@@ -11,6 +11,12 @@ not a traceback; a traceback is for bugs, and for whoever asks for it. So every 
 * any other exception is a bug: it is re-raised (traceback, exit 1);
 * ``--debug`` (argparse entry points) or ``MORALITY_GYM_DEBUG=1`` (all, including the Hydra ones)
   re-raises user errors too, so their traceback can be seen;
+* a full disk (``ENOSPC``, a quota, or torch's ``RuntimeError`` for a short write) is one line
+  naming the path and the free space left there (:class:`DiskFullError`), exit 2, wherever it was
+  raised: the writes it interrupted were atomic, so what was written before stays valid;
+* a read-only directory (``PermissionError``) is one line naming the file, exit 2;
+* SIGTERM ends the command after its clean-ups ran (temporary files removed), with one line and
+  exit status 143;
 * a closed output pipe (``... | head``) ends the program quietly with exit code 141 (128 +
   SIGPIPE, what a shell reports for a program killed by SIGPIPE) instead of a ``BrokenPipeError``
   traceback. SIGPIPE itself is left ignored (Python's default), because the sweep talks to MLflow
@@ -20,11 +26,17 @@ not a traceback; a traceback is for bugs, and for whoever asks for it. So every 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import difflib
+import errno
 import math
 import os
+import shutil
+import signal
 import sys
-from collections.abc import Callable, Iterable, Sequence
+import threading
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from pathlib import Path
 from typing import Any, NoReturn
 
 EXIT_USAGE = 2
@@ -34,6 +46,103 @@ DEBUG_ENV = "MORALITY_GYM_DEBUG"
 
 class UserError(Exception):
     """A mistake of the user (a bad path, value or file): reported on one line, exit code 2."""
+
+
+class DiskFullError(UserError):
+    """A write failed because the file system is full: the message names the path and the free space.
+
+    A user error, not a bug: the fix is to free space (or write elsewhere) and run the same command
+    again. Every writer of the project writes to a temporary name and renames it into place, so
+    the interrupted write left nothing half-written and the results written before are intact."""
+
+
+#: ``errno`` values that mean "no room": a full file system, or a user's quota.
+_FULL_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
+#: What libraries that do not raise ``OSError`` say on a full disk: torch's zip writer
+#: (``RuntimeError: ... unexpected pos``, a short write), SQLite (through SQLAlchemy/MLflow).
+_FULL_WORDS = ("no space left on device", "unexpected pos", "database or disk is full", "disk quota exceeded")
+
+
+def is_disk_full(exc: BaseException | None) -> bool:
+    """True when ``exc`` (or an exception it was raised from) says the file system is full."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, DiskFullError):
+            return True
+        if isinstance(exc, OSError) and exc.errno in _FULL_ERRNOS:
+            return True
+        if isinstance(exc, (OSError, RuntimeError)) and any(word in str(exc).lower() for word in _FULL_WORDS):
+            return True
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def free_space(path: str | os.PathLike[str]) -> str:
+    """The free space of the file system that holds ``path`` (its nearest existing ancestor), in words."""
+    probe = Path(path).absolute()
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    try:
+        free = shutil.disk_usage(probe).free
+    except OSError:
+        return "free space unknown"
+    for unit in ("bytes", "KiB", "MiB", "GiB"):
+        if free < 1024 or unit == "GiB":
+            return f"{free} bytes free" if unit == "bytes" else f"{free:.1f} {unit} free"
+        free /= 1024
+    return "free space unknown"  # pragma: no cover - the loop always returns
+
+
+def disk_full_error(path: str | os.PathLike[str] | None, exc: BaseException | None = None) -> DiskFullError:
+    """The one-line :class:`DiskFullError` for a write of ``path`` that ``exc`` interrupted (the
+    file the OS names in ``exc`` wins; with neither, the current directory's free space is told)."""
+    if isinstance(exc, DiskFullError):
+        return exc
+    # the destination: shutil's copies name the source as filename and the destination as filename2
+    filename = getattr(exc, "filename2", None) or getattr(exc, "filename", None)
+    where = Path(filename) if isinstance(filename, (str, os.PathLike)) and filename else None
+    where = where or (Path(path) if path is not None else None)
+    what = f"cannot write {where} ({free_space(where)})" if where is not None else \
+        f"a write failed (no path reported; {free_space(os.getcwd())} in {os.getcwd()})"
+    return DiskFullError(f"disk full: {what}; free some space there (or write elsewhere) and run the same command "
+                         "again: what was written before is intact")
+
+
+@contextlib.contextmanager
+def writing(path: str | os.PathLike[str]) -> Iterator[None]:
+    """Turn a full disk met inside the block into :func:`disk_full_error` for ``path``."""
+    try:
+        yield
+    except DiskFullError:
+        raise
+    except (OSError, RuntimeError) as exc:
+        if is_disk_full(exc):
+            raise disk_full_error(path, exc) from exc
+        raise
+
+
+def write_atomically(path: str | os.PathLike[str], write: Callable[[Any], None]) -> Path:
+    """Call ``write(binary file)`` on a temporary file beside ``path``, flush it to disk and rename
+    it over ``path``: a kill or a full disk at any moment leaves the previous file or the new one,
+    never half of one, and no temporary file (a full disk raises :class:`DiskFullError`).
+
+    The temporary name (``.<name>.<pid>.tmp``, hidden) is in the same directory, so the rename is
+    atomic; it is opened with ``"xb"`` so the file gets the usual permissions, not mkstemp's 0600."""
+    target = Path(path)
+    with writing(target):
+        target.parent.mkdir(parents=True, exist_ok=True)
+        tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+        try:
+            with open(tmp, "xb") as fh:
+                write(fh)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, target)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+    return target
 
 
 def debug_enabled(argv: Sequence[str] | None = None) -> bool:
@@ -65,6 +174,7 @@ def run_cli(body: Callable[[], int | None], user_errors: tuple[type[BaseExceptio
             argv: Sequence[str] | None = None) -> int:
     """Run ``body`` as an entry point and map what it raises to an exit status (module docstring)."""
     debug = debug_enabled(argv)
+    _stop_on_sigterm()
     try:
         return int(body() or 0)
     except BrokenPipeError:
@@ -73,15 +183,55 @@ def run_cli(body: Callable[[], int | None], user_errors: tuple[type[BaseExceptio
     except (UserError, *user_errors) as exc:
         if debug:
             raise
-        try:
-            print(f"error: {one_line(exc)}", file=sys.stderr, flush=True)
-        except BrokenPipeError:
-            silence_broken_pipe()
-            return EXIT_BROKEN_PIPE
-        return EXIT_USAGE
+        return _report(exc)
+    except PermissionError as exc:  # a read-only directory: the environment's to fix, not a bug
+        if debug:
+            raise
+        where = getattr(exc, "filename2", None) or exc.filename or "a file"
+        return _report(UserError(f"cannot write {where} ({exc.strerror or 'permission denied'}): the directory is "
+                                 "read-only for this user; choose a writable one"))
+    except (OSError, RuntimeError) as exc:
+        if debug or not is_disk_full(exc):
+            raise
+        return _report(disk_full_error(None, exc))
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except Terminated:
+        print("stopped by SIGTERM: every file is written under a temporary name and renamed, so nothing half-written "
+              "is left; run the same command again", file=sys.stderr, flush=True)
+        return EXIT_TERMINATED
+
+
+class Terminated(BaseException):
+    """SIGTERM reached a command: raised where it runs, so that ``finally`` blocks and the
+    clean-ups of temporary files (``except BaseException``) run before it ends (Python's default
+    for SIGTERM ends the process at once and leaves them behind)."""
+
+
+#: A command stopped by SIGTERM exits as a program killed by it would (128 + 15).
+EXIT_TERMINATED = 143
+
+
+def _terminate(signum: int, _frame: Any) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # one is enough: the clean-up must not be cut short
+    raise Terminated(signum)
+
+
+def _stop_on_sigterm() -> None:
+    """SIGTERM raises :class:`Terminated` (main thread only; a handler the program set is kept)."""
+    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, _terminate)
+
+
+def _report(exc: BaseException) -> int:
+    """Print ``error: <one line>`` on stderr; :data:`EXIT_USAGE` (or the broken-pipe status)."""
+    try:
+        print(f"error: {one_line(exc)}", file=sys.stderr, flush=True)
+    except BrokenPipeError:
+        silence_broken_pipe()
+        return EXIT_BROKEN_PIPE
+    return EXIT_USAGE
 
 
 def console(**kwargs: Any) -> Any:
@@ -158,6 +308,17 @@ def _int_at_least(text: str, minimum: int, words: str) -> int:
 def positive_int(text: str) -> int:
     """An argparse type: an integer >= 1."""
     return _int_at_least(text, 1, "a positive integer (1 or more)")
+
+
+def positive_float(text: str) -> float:
+    """An argparse type: a finite number > 0 (a time limit in seconds)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds > 0, got {text!r}") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text}")
+    return value
 
 
 def non_negative_int(text: str) -> int:

@@ -4,7 +4,9 @@ The run's Parquet file is written last and atomically, so its existence means "f
 other artifact (model, GIF, learn-time evaluations) is written before it. A per-run lock
 (``flock``, released by the kernel even on ``kill -9``) keeps two processes from executing the
 same run at once when a sweep is resumed while an orphan is still busy. Any exception becomes a
-``failed`` row with the error and traceback, so one bad run never stops the others.
+``failed`` row with the error and traceback, so one bad run never stops the others, except a full
+disk: that is no failure of the run, no row is written (it would not fit), and
+:class:`~morality_gym.clitools.DiskFullError` stops the sweep with one line.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec
+from morality_gym.clitools import disk_full_error, is_disk_full
 from morality_gym.norms.chain import parse_chain
 from morality_gym.norms.metric import bind_chain
 from runners.quarantine import read_table_or_quarantine
@@ -312,7 +315,9 @@ def record_outcome(
             gif_path=gif_rel,
             **{f"{MF_PREFIX}{n}": final.functions[n] for n in norms},
         )
-    except Exception as exc:  # noqa: BLE001 - every failure must be recorded, whatever it is
+    except Exception as exc:  # every failure must be recorded, whatever it is (a full disk aside)
+        if is_disk_full(exc):  # not the run's failure: no row (it would not fit either); the sweep stops
+            raise disk_full_error(runs_dir(results_dir) / run_id, exc) from exc
         row.update(
             status="failed",
             error=f"{type(exc).__name__}: {exc}",

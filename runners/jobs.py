@@ -35,6 +35,8 @@ from pathlib import Path
 from typing import Any
 
 from morality_gym.baselines.specs import SpecError
+from morality_gym.baselines.stopped import TrainingStopped
+from runners import stopping
 from runners.config_schema import ENGINES
 from runners.execute import (
     RunClock,
@@ -299,8 +301,26 @@ def execute_job_all(
     items: Sequence[tuple[str, dict[str, Any]]], results_dir: str, gif: bool = True, engine: str = "single", device: str = "cpu",
     checkpoint_every_s: float = 0.0,
 ) -> list[Summary]:
-    """:func:`execute_job` as one list (what a SLURM array task returns to the parent)."""
-    return list(execute_job(items, results_dir, gif, engine, device, checkpoint_every_s=checkpoint_every_s))
+    """:func:`execute_job` as one list (what a SLURM array task returns to the parent).
+
+    A SLURM task stops on SIGTERM or submitit's SIGUSR2 (time limit, preemption) as
+    :mod:`runners.stopping` says: a fleet writes its checkpoint; the runs not recorded are returned
+    as ``interrupted`` (not failed), so the next sweep does them and the fleet resumes."""
+    stopping.install()  # after submitit's own handlers (which ignore SIGTERM): ours win
+    summaries: list[Summary] = []
+    try:
+        for summary in execute_job(items, results_dir, gif, engine, device, checkpoint_every_s=checkpoint_every_s):
+            with stopping.signals_held():
+                summaries.append(summary)
+    except TrainingStopped as exc:
+        done = {s["run_id"] for s in summaries}
+        summaries += [interrupted(run_id, str(exc)) for run_id, _ in items if run_id not in done]
+    return summaries
+
+
+def interrupted(run_id: str, why: str) -> Summary:
+    """The summary of a run that a stop signal kept from being recorded (done again by the next sweep)."""
+    return {"run_id": run_id, "status": "interrupted", "error": why}
 
 
 def _train_fleet(
@@ -352,15 +372,16 @@ def _train_fleet(
     training = FleetTraining(trained, clock)
     checkpoint = training.checkpoint(results_dir, spec, protocol, device, checkpoint_every_s) if checkpoint_every_s > 0 else None
     try:
-        fleet.learn(
-            int(first["budget"]),
-            eval_every=int(first["learn_eval_every"]),
-            eval_episodes=int(first["learn_eval_episodes"]),
-            on_eval=lambda k, row: training.learn_rows[k].append(row),
-            on_progress=progress,
-            checkpoint=checkpoint,
-        )
-    except Exception as exc:  # noqa: BLE001
+        with stopping.stop_at_update(checkpoint):  # a SIGTERM checkpoints at the next update, then stops
+            fleet.learn(
+                int(first["budget"]),
+                eval_every=int(first["learn_eval_every"]),
+                eval_episodes=int(first["learn_eval_episodes"]),
+                on_eval=lambda k, row: training.learn_rows[k].append(row),
+                on_progress=progress,
+                checkpoint=checkpoint,
+            )
+    except Exception as exc:  # noqa: BLE001 - TrainingStopped is no Exception: it passes, the runs are not failed
         for run_id, config in mine:
             yield record_outcome(config, run_id, results_dir, gif, None, [], training.clock, engine=engine, error=exc)
         return

@@ -26,12 +26,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
+
+from morality_gym.clitools import write_atomically
 
 MANIFEST_KEYS = ("run_id", "env_id", "scenario", "variant", "chain", "algo", "learner", "protocol", "preset", "seed")
 #: Written by current sweeps; manifests of earlier versions lack them.
@@ -82,11 +82,8 @@ def write_manifest(results_dir: str | Path, name: str, runs: Sequence[Mapping[st
         **meta,
         "runs": [{k: r[k] for k in MANIFEST_KEYS} | {k: r[k] for k in OPTIONAL_KEYS if k in r} for r in runs],
     }
-    fd, tmp = tempfile.mkstemp(prefix=f".{name}.", suffix=".tmp", dir=directory)
-    with os.fdopen(fd, "w") as fh:
-        json.dump(body, fh, indent=1)
-    os.replace(tmp, path)
-    return path
+    text = json.dumps(body, indent=1)
+    return write_atomically(path, lambda fh: fh.write(text.encode()))  # a kill or a full disk leaves no half manifest
 
 
 def read_manifests(results_dir: str | Path, skipped: list[dict[str, str]] | None = None) -> list[dict[str, Any]]:

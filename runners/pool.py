@@ -8,6 +8,13 @@ soon as its result is written (so a worker killed late in a fleet's recording lo
 not yet written), and
 asks the kernel to kill it when the parent dies (``PR_SET_PDEATHSIG``), so ``kill -9`` of the
 sweep leaves no orphan that could race a resumed sweep.
+
+SIGTERM (to the sweep, or to its whole process group: ``timeout``, a SLURM time limit of a job
+that runs the sweep) stops the pool cleanly: no new job starts, every worker ends as
+:mod:`runners.stopping` says (a fleet in training writes its checkpoint first), and :meth:`WorkerPool.run`
+raises :class:`PoolStopped` with the runs it interrupted, none of them recorded as failed. A worker
+that meets a full disk ends the same way and the pool raises its
+:class:`~morality_gym.clitools.DiskFullError`: every other run would fail to be written too.
 """
 
 from __future__ import annotations
@@ -16,6 +23,7 @@ import ctypes
 import multiprocessing as mp
 import os
 import signal
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -24,6 +32,9 @@ from multiprocessing.connection import Connection, wait
 from pathlib import Path
 from typing import Any
 
+from morality_gym.baselines.stopped import TrainingStopped
+from morality_gym.clitools import DiskFullError
+from runners import stopping
 from runners.execute import git_commit, limit_threads, training_code
 from runners.jobs import Job, execute_job
 from runners.plan import PlannedRun
@@ -65,7 +76,18 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int,
 
     import morality_gym  # noqa: F401 - warm imports before the first run
 
-    conn.send(("ready", os.getpid()))
+    stopping.install()  # SIGTERM: a fleet checkpoints and the worker ends (runners.stopping)
+    _send(conn, ("ready", os.getpid()))
+    try:
+        _serve(conn, results_dir, gif, device, checkpoint_every_s)
+    except TrainingStopped as exc:
+        _send(conn, ("stopped", str(exc)))
+    except DiskFullError as exc:  # the sweep stops: writing more runs (or failed rows) would fail too
+        _send(conn, ("fatal", str(exc)))
+
+
+def _serve(conn: Connection, results_dir: str, gif: bool, device: str, checkpoint_every_s: float) -> None:
+    """Execute the jobs the parent sends until it sends None or goes away."""
     while True:
         try:
             message = conn.recv()
@@ -75,8 +97,18 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int,
             return
         items, engine = message
         for summary in execute_job(items, results_dir, gif, engine, device, _throttled_progress(conn), checkpoint_every_s):
-            conn.send(("done", summary))
-        conn.send(("free", None))
+            _send(conn, ("done", summary))
+        _send(conn, ("free", None))
+
+
+def _send(conn: Connection, message: Any) -> None:
+    """Send ``message`` whole: a stop signal waits until it is sent (a torn message would break the
+    parent's pipe), and a parent already gone is no error of the worker's."""
+    with stopping.signals_held():
+        try:
+            conn.send(message)
+        except (BrokenPipeError, OSError):
+            pass
 
 
 def _throttled_progress(conn: Connection, every_s: float = 1.0) -> Callable[[int, int], None]:
@@ -87,7 +119,7 @@ def _throttled_progress(conn: Connection, every_s: float = 1.0) -> Callable[[int
         now = time.monotonic()
         if steps >= total or now - last[0] >= every_s:
             last[0] = now
-            conn.send(("progress", (steps, total)))
+            _send(conn, ("progress", (steps, total)))
 
     return send
 
@@ -98,6 +130,22 @@ class _Worker:
     conn: Connection
     job: Job | None = None
     pending: dict[str, PlannedRun] = field(default_factory=dict)  # the job's runs not reported yet
+    stopped: bool = False  # it said it ends (a stop signal, a full disk)
+
+
+#: Signals that stop a sweep cleanly (:class:`PoolStopped`); SIGINT stays Ctrl-C's KeyboardInterrupt.
+_PARENT_STOP_SIGNALS = (signal.SIGTERM,)
+
+
+class PoolStopped(Exception):
+    """The pool stopped early on a signal: ``runs`` were interrupted (not failed, not recorded);
+    fleets in training wrote their checkpoints, so the same sweep run again resumes them."""
+
+    def __init__(self, reason: str, runs: list[PlannedRun], details: list[str] | None = None) -> None:
+        super().__init__(reason)
+        self.reason = reason
+        self.runs = runs
+        self.details = list(details or [])
 
 
 class WorkerPool:
@@ -142,14 +190,42 @@ class WorkerPool:
         self._deferred_until = 0.0
         self._on_result, self._on_failure = on_result, on_failure
         self._progress = progress or JobProgress()
+        self._stop: str | None = None  # why the pool stops early (a signal, a full disk)
+        self._fatal: str | None = None
+        self.interrupted: list[PlannedRun] = []
+        self.details: list[str] = []  # each stopped worker's word (a fleet: where it stopped, its checkpoint)
         self._workers = [self._start() for _ in range(min(self.n_workers, max(1, len(jobs))))]
+        main = threading.current_thread() is threading.main_thread()  # only the main thread may set handlers
+        previous = {signum: signal.signal(signum, self._on_signal) for signum in _PARENT_STOP_SIGNALS} if main else {}
         try:
-            while self._queue or self._busy():
+            while (self._workers if self._stop else (self._queue or self._busy())):
                 self._dispatch()
                 for obj in wait(self._waitables(), timeout=1.0):
                     self._handle(obj)
         finally:
+            for signum, handler in previous.items():
+                signal.signal(signum, handler)
             self.close()
+        if self._fatal is not None:
+            raise DiskFullError(self._fatal)
+        if self._stop is not None:
+            raise PoolStopped(self._stop, self.interrupted, self.details)
+
+    def _on_signal(self, signum: int, _frame: Any) -> None:
+        """SIGTERM to the sweep: no new job; each worker is told (if the signal did not reach its
+        process group already), its fleet checkpoints and it ends; their runs are interrupted."""
+        self._begin_stop(f"stopped by {signal.Signals(signum).name}")
+
+    def _begin_stop(self, reason: str) -> None:
+        if self._stop is not None:
+            return
+        self._stop = reason
+        for w in self._workers:
+            if w.process.pid is not None and w.process.is_alive():
+                try:
+                    os.kill(w.process.pid, signal.SIGTERM)
+                except ProcessLookupError:
+                    pass
 
     def _busy(self) -> bool:
         return any(w.job is not None for w in self._workers)
@@ -158,6 +234,8 @@ class WorkerPool:
         """Give the next queued job to each idle worker that has finished its imports, unless a
         busy run was just requeued (``_deferred_until``: retry it a second later, not at once)."""
         for w in self._workers:
+            if self._stop is not None:
+                return
             if w.job is None and self._queue and id(w) in self._ready and time.monotonic() >= self._deferred_until:
                 w.job = self._queue.popleft()
                 w.pending = {r.run_id: r for r in w.job.runs}
@@ -187,8 +265,21 @@ class WorkerPool:
                 self._progress.update(worker.job, *message[1])
         elif message[0] == "done":
             self._run_done(worker, message[1])
+        elif message[0] in ("stopped", "fatal"):
+            self._worker_stopped(worker, message)
         else:
             self._bury(worker)
+
+    def _worker_stopped(self, worker: _Worker, message: tuple[str, str]) -> None:
+        """The worker ends on a stop signal or a full disk: its unreported runs are interrupted,
+        not failed (a full disk stops every worker: writing more would fail too)."""
+        if message[0] == "fatal" and self._fatal is None:
+            self._fatal = message[1]
+        self._begin_stop(message[1])
+        self.details.append(message[1])
+        self.interrupted += list(worker.pending.values())
+        worker.pending = {}
+        worker.stopped = True
 
     @staticmethod
     def _receive(worker: _Worker) -> Any:
@@ -216,6 +307,12 @@ class WorkerPool:
         """The worker died (killed, crashed, out of memory): fail its unreported runs, and start a
         replacement if there is work left."""
         worker.process.join(timeout=5)
+        if worker.stopped or self._stop is not None:  # it ended as told: nothing failed, none replaces it
+            self.interrupted += list(worker.pending.values())
+            self._job_over(worker)
+            self._workers.remove(worker)
+            self._ready.discard(id(worker))
+            return
         code = worker.process.exitcode
         reason = f"signal {-code}" if code is not None and code < 0 else f"exit code {code}"
         what = "this configuration" if worker.job is None or len(worker.job.runs) == 1 else \

@@ -8,7 +8,10 @@ rescued) with a line in ``runs/.quarantine/index.jsonl`` saying what, when and w
 file the run counts as not done, so the sweep runs it again; its MLflow marker is moved aside
 with it, so that the new result replaces the old mirror instead of being skipped as mirrored.
 
-Only the main run file decides whether a run is done. An unreadable side file
+A file of another schema version (written by a newer morality-gym, say) is treated the same way:
+moved aside with the reason ``schema version N, this code reads version M`` and its run planned
+again (the one rule of :mod:`runners.results_schema`; the leaderboard lists such a file as
+unreadable). Only the main run file decides whether a run is done. An unreadable side file
 (``<run_id>.learn.parquet``, ``<run_id>.updates.parquet``, any ``<run_id>.<kind>.parquet``) is moved
 aside too, and the run stays done. Readers that must not write (the leaderboard) skip unreadable
 files and list them instead (:func:`runners.results_schema.read_runs` with ``skipped=``).
@@ -26,7 +29,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from runners.results_schema import read_jsonl, run_path, runs_dir
+from runners.results_schema import read_jsonl, run_path, runs_dir, version_problem
 
 QUARANTINE = ".quarantine"
 INDEX = "index.jsonl"
@@ -101,14 +104,19 @@ def quarantine(results_dir: str | Path, path: Path, reason: str, announce: bool 
 
 
 def read_table_or_quarantine(results_dir: str | Path, path: Path, columns: list[str] | None = None) -> pa.Table | None:
-    """The Parquet table at ``path``; None if it does not exist or was unreadable (then moved aside)."""
+    """The Parquet table at ``path``; None if it does not exist or was unreadable or of another
+    schema version (then moved aside: :func:`runners.results_schema.version_problem`)."""
     if not path.is_file():
         return None
     try:
-        table = pq.read_table(path, columns=columns)
+        wanted = None if columns is None else list(dict.fromkeys([*columns, "schema_version"]))
+        table = pq.read_table(path, columns=wanted)
         if is_main_run_file(path) and table.num_rows != 1:
             raise ValueError(f"a run file holds one row, this one {table.num_rows}")
-        return table
+        problem = version_problem(table)
+        if problem is not None:
+            raise ValueError(problem)
+        return table if columns is None else table.select(columns)
     except READ_ERRORS as exc:
         quarantine(results_dir, path, _first_line(exc))
         return None
@@ -130,6 +138,9 @@ def check_run_files(results_dir: str | Path, run_ids: list[str]) -> list[Quarant
             if is_main_run_file(path) and (table.num_rows != 1 or "status" not in table.column_names):
                 raise ValueError(f"a run file holds one row with a status, this one {table.num_rows} row(s) "
                                  f"and columns {table.column_names[:3]}...")
+            problem = version_problem(table)
+            if problem is not None:
+                raise ValueError(problem)
         except READ_ERRORS as exc:
             record = quarantine(results_dir, path, _first_line(exc), announce=False)
             if record is not None:

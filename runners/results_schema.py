@@ -10,6 +10,12 @@ run leaves no result behind.
 
 Readers must select columns by name (never by position) and check ``schema_version``.
 Bump :data:`SCHEMA_VERSION` on any incompatible change and document it in ``CHANGES`` below.
+
+One rule for a file of another schema version (e.g. written by a newer morality-gym), whoever
+reads it (:func:`version_problem`): it is no result. The leaderboard build leaves it out and lists
+it under "Unreadable files"; a sweep moves it to ``runs/.quarantine/`` (kept, never deleted, with
+the reason in ``runs/.quarantine/index.jsonl``) and runs the run again, as it does with a damaged
+file. To use such files, read them with the version of the code that wrote them.
 """
 
 from __future__ import annotations
@@ -23,6 +29,8 @@ from typing import Any
 
 import pyarrow as pa
 import pyarrow.parquet as pq
+
+from morality_gym.clitools import writing
 
 SCHEMA_VERSION = 1
 CHANGES = {
@@ -178,19 +186,23 @@ def updates_path(results_dir: str | Path, run_id: str) -> Path:
 
 
 def atomic_write_table(table: pa.Table, path: Path) -> None:
-    """Write a Parquet file under a temporary name in the same directory, fsync, then rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        pq.write_table(table, tmp)
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Write a Parquet file under a temporary name in the same directory, fsync, then rename.
+
+    A full disk is a :class:`~morality_gym.clitools.DiskFullError` naming ``path`` (the temporary
+    file is removed, the file under ``path`` is the previous one or none)."""
+    with writing(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        os.close(fd)
+        try:
+            pq.write_table(table, tmp)
+            with open(tmp, "rb") as fh:
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
 
 
 def write_run(results_dir: str | Path, row: Mapping[str, Any], norms: Iterable[str]) -> Path:
@@ -261,6 +273,17 @@ def read_jsonl(path: str | Path) -> list[dict[str, Any]]:
     return out
 
 
+def version_problem(table: pa.Table) -> str | None:
+    """Why a table read from a results file is not of this code's schema (None when it is)."""
+    if "schema_version" not in table.column_names:
+        return "no schema_version column"
+    versions = set(table.column("schema_version").to_pylist())
+    if versions and versions != {SCHEMA_VERSION}:
+        found = ", ".join(str(v) for v in sorted(versions, key=str))
+        return f"schema version {found}, this code reads version {SCHEMA_VERSION}"
+    return None
+
+
 def run_files(results_dir: str | Path) -> list[Path]:
     """The main run files ``runs/<run_id>.parquet`` (not ``<run_id>.<kind>.parquet`` side files)."""
     return [p for p in sorted(runs_dir(results_dir).glob("*.parquet")) if "." not in p.stem]
@@ -279,9 +302,9 @@ def read_runs(results_dir: str | Path, skipped: list[dict[str, str]] | None = No
     for path in run_files(results_dir):
         try:
             table = read_small_table(path)
-            version = table.column("schema_version")[0].as_py()
-            if version != SCHEMA_VERSION:
-                raise ValueError(f"schema version {version}, this code reads version {SCHEMA_VERSION}")
+            problem = version_problem(table)
+            if problem is not None:
+                raise ValueError(problem)
         except (pa.ArrowException, OSError, ValueError, KeyError, IndexError) as exc:
             if skipped is None:
                 raise ValueError(f"{path}: {exc}") from exc

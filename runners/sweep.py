@@ -64,9 +64,10 @@ from runners.config_schema import SweepOverheads
 from runners.execute import finished_status, record_failure
 from runners.fleet_checkpoints import fleets_to_form, remove_stale
 from runners.jobs import Job, dispatch_order, jobs_estimate, make_jobs
+from runners.leftovers import remove_leftovers
 from runners.manifest import manifest_name, write_manifest
 from runners.plan import PlannedRun, describe, plan
-from runners.pool import JobProgress, WorkerPool
+from runners.pool import JobProgress, PoolStopped, WorkerPool
 from runners.preflight import preflight
 from runners.quarantine import Quarantined, check_run_files, read_table_or_quarantine
 from runners.results_schema import run_path
@@ -327,9 +328,14 @@ class _Outcomes:
                  lines: ProgressLines | None = None) -> None:
         self.sweep, self.tracker, self.progress, self.console, self.lines = sweep, tracker, progress, console, lines
         self.failures: dict[str, str] = {}
+        self.interrupted: list[PlannedRun] = []
         self.task = progress.add_task(sweep.name, total=total, note="0 failed")
 
     def finish(self, run: PlannedRun, summary: dict[str, Any]) -> None:
+        if summary["status"] == "interrupted":  # a SLURM task stopped by SIGTERM: not recorded, not failed
+            self.interrupted.append(run)
+            self.progress.update(self.task, advance=1)
+            return
         if summary["status"] != "ok":
             self.failures[run.run_id] = str(summary.get("error"))
         else:
@@ -348,8 +354,9 @@ class _Outcomes:
         self.finish(run, {"status": "failed", "error": error})
 
 
-def dispatch(plan_: Plan, sweep: SweepConfig, tracker: Tracker | None, console: Console) -> None:
-    """Train the plan's jobs on the sweep's launcher (the local pool, or SLURM), under a bar of runs."""
+def dispatch(plan_: Plan, sweep: SweepConfig, tracker: Tracker | None, console: Console) -> list[PlannedRun]:
+    """Train the plan's jobs on the sweep's launcher (the local pool, or SLURM), under a bar of runs;
+    returns the runs a SLURM task's stop signal interrupted (a local stop raises :class:`PoolStopped`)."""
     columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[note]}"),
                TimeElapsedColumn(), TimeRemainingColumn())
     # Without a terminal the bars draw nothing until the end: plain lines tell a log how it goes.
@@ -357,13 +364,14 @@ def dispatch(plan_: Plan, sweep: SweepConfig, tracker: Tracker | None, console: 
     with Progress(*columns, console=console, transient=False) as progress:
         outcomes = _Outcomes(sweep, tracker, progress, console, len(plan_.todo), lines)
         if not plan_.todo:
-            return
+            return []
         if sweep.launcher["name"] == "slurm":
             run_on_slurm(list(plan_.jobs), sweep.launcher, sweep.results_dir, sweep.gif, sweep.name, outcomes.finish,
                          outcomes.fail, sweep.device, sweep.checkpoint_every_s)
         else:
             WorkerPool(plan_.workers, sweep.results_dir, sweep.gif, sweep.device, sweep.checkpoint_every_s).run(
                 list(plan_.jobs), outcomes.finish, outcomes.fail, FleetBars(progress) if lines is None else _Both(FleetBars(progress), lines))
+    return outcomes.interrupted
 
 
 def mirror_finished(plan_: Plan, sweep: SweepConfig, tracker: Tracker, console: Console) -> None:
@@ -410,10 +418,34 @@ def run_sweep(sweep: SweepConfig, console: Console | None = None, command: str |
         return 0
     started = time.perf_counter()
     remove_stale(sweep.results_dir)  # checkpoints of fleets whose runs all finished: nothing to resume
-    dispatch(plan_, sweep, tracker, console)
+    remove_leftovers(sweep.results_dir)  # temporary files of writers killed before they renamed them
+    try:
+        interrupted = dispatch(plan_, sweep, tracker, console)
+    except PoolStopped as stop:
+        if tracker is not None:
+            mirror_finished(plan_, sweep, tracker, console)
+        for detail in stop.details:  # e.g. "stopped by SIGTERM: fleet of 3 runs stopped at 3,072 of 8,192 steps, ..."
+            if "fleet of" in detail:
+                console.print(escape(detail), soft_wrap=True, highlight=False)
+        console.print(escape(_stopped_line(stop.reason, len(stop.runs))), soft_wrap=True, highlight=False)
+        return EXIT_STOPPED
     if tracker is not None:
         mirror_finished(plan_, sweep, tracker, console)
-    return report(plan_, sweep, console, time.perf_counter() - started)
+    status = report(plan_, sweep, console, time.perf_counter() - started)
+    if interrupted:
+        console.print(_stopped_line("SLURM task(s) stopped by a signal (time limit or preemption)", len(interrupted)),
+                      soft_wrap=True, highlight=False)
+    return status
+
+
+#: A sweep stopped by SIGTERM exits as a program killed by it would (128 + 15), after a clean stop.
+EXIT_STOPPED = 143
+
+
+def _stopped_line(reason: str, n: int) -> str:
+    """One line: why the sweep stopped, how many runs it interrupted, and how to resume them."""
+    return (f"{reason}: {n} run(s) interrupted, none recorded as failed; fleets in training wrote their checkpoints; "
+            "run the same command again to resume")
 
 
 # ---------------------------------------------------------------------------------------- entry point

@@ -4,7 +4,9 @@ The Parquet files are the source of truth; MLflow is a browsable mirror. Only a 
 process logs, after each run finishes and again at the end of every sweep for anything not yet
 mirrored (runs finished while the parent was killed, runs that came back from SLURM). A marker
 file ``<results>/tracking/<run_id>.json`` records the MLflow run id; MLflow runs carry the run id
-as a tag, so a mirror interrupted half-way is found and replaced rather than duplicated.
+as a tag, so a mirror interrupted half-way is found and replaced rather than duplicated: the
+interrupted MLflow run is marked ``KILLED`` and deleted, so the store keeps exactly one active run
+per result file and no run left ``RUNNING``.
 
 Two sweeps may share a results directory (started at the same time by accident, or one per
 protocol). Their parents then both write to MLflow, so every write (opening the store, which
@@ -28,6 +30,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
 
+from morality_gym.clitools import disk_full_error, is_disk_full
 from runners.quarantine import read_table_or_quarantine
 from runners.results_schema import MF_PREFIX, UPDATE_COLUMNS, learn_path, run_path, updates_path
 
@@ -145,6 +148,8 @@ class Tracker:
                 else:
                     self.experiment_id = exp.experiment_id
         except Exception as exc:  # SQLAlchemy, HTTP and MLflow errors alike
+            if is_disk_full(exc):  # SQLite: "database or disk is full"
+                raise disk_full_error(self.results_dir / "mlflow.db", exc) from exc
             first = str(exc).strip().splitlines()[0][:300] if str(exc).strip() else ""
             raise TrackingError(f"cannot open the MLflow store {uri} ({type(exc).__name__}: {first}); {_FIX}") from exc
 
@@ -166,7 +171,11 @@ class Tracker:
             return None
         row = table.to_pylist()[0]
         for old in self.client.search_runs([self.experiment_id], filter_string=f"tags.run_id = '{run_id}'"):
-            self.client.delete_run(old.info.run_id)  # an interrupted earlier mirror
+            # an interrupted earlier mirror: ended as KILLED (else it stays RUNNING for good, and a
+            # search of every run, deleted ones too, shows it as a run in progress), then set aside
+            if old.info.status == "RUNNING":
+                self.client.set_terminated(old.info.run_id, "KILLED")
+            self.client.delete_run(old.info.run_id)
         mid = self._create_run(row)
         params: dict[str, str] = {}
         _flatten("", json.loads(row["config"]), params)

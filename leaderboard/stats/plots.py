@@ -58,6 +58,18 @@ def new_figure(width: float, height: float, constrained: bool = True) -> Figure:
     return fig
 
 
+def label_inches(labels: Sequence[str], fontsize: float) -> float:
+    """About how wide the longest of ``labels`` is, in inches, at ``fontsize`` points.
+
+    Why: a figure of fixed width leaves its axes no room when the tick labels are long (a
+    submitted policy's name may have 80 characters); constrained layout then gives up with
+    "constrained_layout not applied because axes sizes collapsed to zero", a warning every
+    build printed, and a figure whose panels overlap. The figure grows with its labels instead
+    (DejaVu Sans averages about 0.55 em per character)."""
+    longest = max((len(str(label)) for label in labels), default=0)
+    return 0.8 + longest * fontsize * 0.55 / 72
+
+
 def save_figure(fig: Figure, path: Path, tight: bool = True) -> Path:
     """Save with no time stamp or version in the file; PNG, PDF or SVG by the suffix."""
     suffix = path.suffix.lower()
@@ -180,7 +192,7 @@ def aggregate_figure(aggregates: pd.DataFrame, path: Path, title: str = "",
     palette = _colours(learners, colours)
     measure = str(aggregates["measure"].iloc[0])
     statistics = [s for s in STAT_LABELS if s in set(aggregates["statistic"])]
-    fig = new_figure(2.6 * len(statistics) + 1.2, 0.42 * len(learners) + 1.3)
+    fig = new_figure(2.6 * len(statistics) + 0.4 + label_inches(learners, 8), 0.42 * len(learners) + 1.3)
     axes = fig.subplots(1, len(statistics), sharey=True, squeeze=False)[0]
     y = np.arange(len(learners))[::-1]
     for ax, statistic in zip(axes, statistics):
@@ -213,7 +225,8 @@ def improvement_figure(improvement: pd.DataFrame, path: Path, title: str = "",
     rank = {name: i for i, name in enumerate(learners)}
     pairs = improvement.loc[[rank[x] < rank[y] for x, y in zip(improvement["learner_x"], improvement["learner_y"])]]
     pairs = pairs.assign(_x=pairs["learner_x"].map(rank), _y=pairs["learner_y"].map(rank)).sort_values(["_x", "_y"])
-    fig = new_figure(5.6, 0.36 * len(pairs) + 1.2)
+    labels = [f"P({x} > {yy})" for x, yy in zip(pairs["learner_x"], pairs["learner_y"])]
+    fig = new_figure(4.4 + label_inches(labels, 7.5), 0.36 * len(pairs) + 1.2)
     ax = fig.add_subplot()
     y = np.arange(len(pairs))[::-1]
     for yi, row in zip(y, pairs.itertuples()):
@@ -221,7 +234,7 @@ def improvement_figure(improvement: pd.DataFrame, path: Path, title: str = "",
         ax.plot([row.ci_low, row.ci_high], [yi, yi], color=colour, linewidth=5, alpha=0.45, solid_capstyle="butt")
         ax.plot([row.probability], [yi], marker="|", markersize=11, color=colour, markeredgewidth=2)
     ax.axvline(0.5, color="#555555", linewidth=0.8, linestyle=":")
-    ax.set_yticks(y, [f"P({x} > {yy})" for x, yy in zip(pairs["learner_x"], pairs["learner_y"])], fontsize=7.5)
+    ax.set_yticks(y, labels, fontsize=7.5)
     ax.set_xlim(0, 1)
     ax.set_ylim(-0.7, len(pairs) - 0.3)
     ax.set_xlabel("probability of improvement (95 % stratified bootstrap interval)", fontsize=8)

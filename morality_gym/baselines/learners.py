@@ -21,6 +21,7 @@ from morality_gym.baselines.hparams import algorithm_class, validate_learner
 from morality_gym.baselines.learn_evals import EvalHook, learn_eval_row
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, protocol_spec, training_steps
 from morality_gym.baselines.targets import import_root, resolve
+from morality_gym.clitools import write_atomically
 from morality_gym.constants import EVAL_EPISODES, LEARN_EVAL_EPISODES, LEARN_EVAL_EVERY, MAX_STEPS, SEED
 from morality_gym.envs.registry import parse_env_id
 from morality_gym.envs.trolley import TrolleyEnv
@@ -197,9 +198,8 @@ class RandomLearner(Learner):
 
     def save(self, path: str | Path) -> Path:
         path = Path(path).with_suffix(".json")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps({**self.metadata(), "policy": "uniform random"}, indent=1))
-        return path
+        text = json.dumps({**self.metadata(), "policy": "uniform random"}, indent=1)
+        return write_atomically(path, lambda fh: fh.write(text.encode()))
 
 
 class SB3Learner(Learner):
@@ -275,14 +275,16 @@ class SB3Learner(Learner):
         return self.trained_steps
 
     def save(self, path: str | Path) -> Path:
+        # Each file under a temporary name, renamed into place (a kill or a full disk never leaves
+        # a truncated model.zip); the sidecar last, so a model.json always has its model.zip.
         path = Path(path).with_suffix(".zip")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self.model.save(path)
+        write_atomically(path, self.model.save)
         meta = {**self.metadata(), "spec": _spec_dict(self.spec)}
         root = import_root(type(self.model))
         if root is not None:  # a user's class from a plain file: where to import it from again
             meta["import_root"] = root
-        path.with_suffix(".json").write_text(json.dumps(meta, indent=1))
+        text = json.dumps(meta, indent=1)
+        write_atomically(path.with_suffix(".json"), lambda fh: fh.write(text.encode()))
         return path
 
 

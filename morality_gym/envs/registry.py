@@ -121,7 +121,8 @@ def _one_line_warning(message: Warning | str, category: type[Warning], filename:
     line says nothing, so its warning is the one line ``<file>: ScenarioFileWarning: <why, fix>``.
     Every other warning is formatted as before."""
     if isinstance(category, type) and issubclass(category, ScenarioFileWarning):
-        return f"{filename}: {category.__name__}: {message}\n"
+        text = " | ".join(part.strip() for part in str(message).splitlines() if part.strip())
+        return f"{filename}: {category.__name__}: {text}\n"
     return _format_warning(message, category, filename, lineno, line)
 
 

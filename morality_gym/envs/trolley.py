@@ -17,6 +17,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from gymnasium.envs.registration import EnvSpec
+from gymnasium.error import ResetNeeded
 
 from morality_gym.constants import MAX_STEPS
 from morality_gym.envs.registry import DEFAULT_MAX_STEPS, parse_env_id, state_graph  # DEFAULT_MAX_STEPS: re-exported
@@ -138,7 +139,7 @@ class TrolleyEnv(gym.Env[Any, int]):
         self._limit = math.inf if max_steps is None else max_steps
         self._sid = 0
         self._t = 0
-        self._done = False
+        self._done: bool | None = None  # None until the first reset(): step() refuses to run before it
         self._terminated = False
         self._truncated = False
         self._goal = 0
@@ -215,6 +216,8 @@ class TrolleyEnv(gym.Env[Any, int]):
                 "termination_statuses": dict(self.graph.statuses[self._sid]),
                 "goal_reached": self._goal,
             }
+        if self._done is None:  # gym.make's OrderEnforcing says so too; a raw env must not step silently
+            raise ResetNeeded(f"{self.env_id}: call reset() before step(): an episode starts with reset()")
         edge = self._edges[self._sid][action] or self.graph.edge(self._sid, action)
         self._sid = edge.next
         self._t += 1

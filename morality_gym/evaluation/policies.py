@@ -171,13 +171,16 @@ def sample_actions(probs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 def _as_action(value: Any) -> int:
     """A policy's action as an int in ``0..5``; anything else is the policy's bug, named clearly.
 
+    An integer only (``2``, ``np.int64(2)``, ``np.array([2])``), as :meth:`TrolleyEnv.step
+    <morality_gym.envs.trolley.TrolleyEnv.step>` takes: ``2.0`` and ``True`` are refused by both.
     Without this check an action of 9 surfaces as an ``IndexError`` deep in the evaluators (or,
     worse, a negative one silently indexes from the end of a table).
     """
     arr = np.asarray(value)
     scalar = arr.reshape(()) if arr.size == 1 else None
-    ok = scalar is not None and np.issubdtype(arr.dtype, np.number) and not np.issubdtype(arr.dtype, np.complexfloating)
-    if ok and float(scalar) == int(scalar) and 0 <= int(scalar) < N_ACTIONS:
+    # integers only, as TrolleyEnv.step takes them: a float 2.0 was accepted here and refused by
+    # env.step(2.0), so one policy scored by the evaluator failed when stepped by hand
+    if scalar is not None and np.issubdtype(arr.dtype, np.integer) and 0 <= int(scalar) < N_ACTIONS:
         return int(scalar)
 
     valid = ", ".join(f"{i} {name}" for i, name in enumerate(ACTION_NAMES))

@@ -21,6 +21,7 @@ import yaml
 
 from morality_gym.clitools import did_you_mean
 from morality_gym.norms.catalogue import CATALOGUE
+from morality_gym.world.layout import yaml_problem
 
 BUILTIN_DIR = Path(__file__).resolve().parent.parent / "data" / "chains"
 MODALITIES = ("prohibited", "prescribed")
@@ -193,7 +194,7 @@ def load_chain_file(path: str | Path) -> MoralityChain:
     except OSError as exc:
         raise ChainError(f"{path}: cannot read the chain file: {exc}") from exc
     except yaml.YAMLError as exc:
-        raise ChainError(f"{path}: not valid YAML: {exc}") from exc
+        raise ChainError(f"{path}: not valid YAML: {yaml_problem(exc)}") from exc
     return parse_chain(raw, str(path))
 
 

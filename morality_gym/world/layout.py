@@ -181,6 +181,19 @@ def _bounds(source: str, where: str, value: Any) -> tuple[float, float]:
     return lo, hi
 
 
+
+def yaml_problem(exc: yaml.YAMLError) -> str:
+    """A YAML parser's error on one line: what it expected, and where (line, column).
+
+    PyYAML's own text spans five lines (the context, a copy of the line, a caret): as a warning
+    about a user's scenario file, which the docs promise on one line, it printed as four or more."""
+    problem = getattr(exc, "problem", None)
+    mark = getattr(exc, "problem_mark", None)
+    if problem and mark is not None:
+        context = getattr(exc, "context", None)
+        return f"{context + ': ' if context else ''}{problem} at line {mark.line + 1}, column {mark.column + 1}"
+    return " ".join(str(exc).split())
+
 def load_scenario(path: str | Path) -> Scenario:
     """Load and validate one scenario file.
 
@@ -191,7 +204,7 @@ def load_scenario(path: str | Path) -> Scenario:
     try:
         raw = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
-        raise ScenarioError(f"{source}: not valid YAML: {exc}") from exc
+        raise ScenarioError(f"{source}: not valid YAML: {yaml_problem(exc)}") from exc
     except OSError as exc:
         raise ScenarioError(f"{source}: cannot read the file: {exc}") from exc
     return parse_scenario(raw, source)

@@ -20,7 +20,14 @@ A file is used only if it matches: the caller's ``key`` (e.g. the runs' ids and 
 a fleet half-trained by other code must not be finished by this one) and the fleet's own
 :meth:`~morality_gym.baselines.fleet.base.FleetTrainer.identity` (learner, runs, budget, device).
 A file that does not match, or cannot be read, is discarded with one warning, and training starts
-from step 0: a checkpoint never fails a sweep.
+from step 0: a checkpoint never fails a sweep. A file that cannot be written (a full disk: torch
+raises ``RuntimeError`` for a short write, not ``OSError``) is one warning naming the path and
+the free space; its temporary file is removed and training goes on.
+
+A stop can be requested (:meth:`FleetCheckpoint.request_stop`, from a SIGTERM handler:
+:mod:`runners.stopping`): the next update boundary writes the state and raises
+:class:`TrainingStopped`, so a fleet killed by SLURM's time limit or by preemption resumes from
+where it was stopped, not from its last periodic write.
 """
 
 from __future__ import annotations
@@ -36,6 +43,8 @@ from typing import TYPE_CHECKING, Any
 import torch as th
 
 from morality_gym.baselines.fleet.state import CheckpointMismatch, plain_data
+from morality_gym.baselines.stopped import TrainingStopped
+from morality_gym.clitools import disk_full_error, is_disk_full, one_line
 
 if TYPE_CHECKING:
     from morality_gym.baselines.fleet.base import FleetTrainer
@@ -66,6 +75,7 @@ class FleetCheckpoint:
     on_resume: Callable[[int, Any], None] | None = None
     _last_write: float = field(default=0.0, init=False, repr=False)
     _written_steps: int = field(default=-1, init=False, repr=False)
+    _stop_reason: str | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
@@ -108,13 +118,30 @@ class FleetCheckpoint:
 
     # ------------------------------------------------------------------ writing
     def due(self) -> bool:
-        """True when ``every_s`` seconds have passed since the last write (or the start)."""
-        return time.monotonic() - self._last_write >= self.every_s
+        """True when ``every_s`` seconds have passed since the last write (or the start), or a stop
+        was requested (:meth:`request_stop`)."""
+        return self._stop_reason is not None or time.monotonic() - self._last_write >= self.every_s
 
     def write(self, fleet: FleetTrainer) -> None:
         """Write ``fleet``'s state at this update boundary, atomically (a temporary file, flushed
         to disk, renamed over the old one). Nothing is written when nothing changed since the last
-        write or restore. A failure to write (a full disk) is a warning: training goes on."""
+        write or restore. A failure to write (a full disk) is a warning: training goes on.
+
+        After :meth:`request_stop`, the write is followed by :class:`TrainingStopped` (the state
+        is on disk, or the warning said why not), which ends ``learn`` at this update boundary."""
+        self._write(fleet)
+        if self._stop_reason is not None:
+            raise TrainingStopped(f"{self._stop_reason}: fleet of {fleet.n_runs} runs stopped at {fleet.num_timesteps:,} "
+                                  f"of {fleet.total_timesteps:,} steps, checkpoint {self.path}")
+
+    def request_stop(self, reason: str) -> None:
+        """Stop training at the next update boundary, after writing the state (a SIGTERM handler
+        calls this: SLURM's time limit and preemption send SIGTERM, then SIGKILL after a grace
+        period, so the fleet checkpoints and ends instead of losing what it trained since the
+        last periodic write). Safe to call from a signal handler: it only sets a flag."""
+        self._stop_reason = reason
+
+    def _write(self, fleet: FleetTrainer) -> None:
         if fleet.num_timesteps == self._written_steps:
             return
         payload = {"format": FORMAT, "key": plain_data(dict(self.key)), "fleet": fleet.state_dict(),
@@ -128,8 +155,12 @@ class FleetCheckpoint:
                 os.fsync(fh.fileno())
             os.replace(tmp, self.path)
             _fsync_dir(self.path.parent)
-        except OSError as exc:
-            log.warning("fleet checkpoint %s could not be written (%s); training goes on without it", self.path, exc)
+        except (OSError, RuntimeError) as exc:
+            # torch.save raises RuntimeError ("unexpected pos ...") for a short write on a full disk
+            if not isinstance(exc, OSError) and not is_disk_full(exc):
+                raise
+            log.warning("fleet checkpoint %s could not be written (%s); training goes on without it", self.path,
+                        one_line(disk_full_error(self.path, exc)) if is_disk_full(exc) else exc)
             tmp.unlink(missing_ok=True)
             return
         self._last_write = time.monotonic()
