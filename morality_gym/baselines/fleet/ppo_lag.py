@@ -13,6 +13,8 @@ The loop ends when every run has stopped or ``n_epochs`` passes are done.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import torch as th
 
@@ -78,74 +80,88 @@ class FleetPPOLag(FleetCostTrainer):
         self._normalize_advantages()
         self._draw_full_batch_order()
         old_policies = self._policies()
-        lam32 = th.as_tensor(lam, dtype=th.float32, device=self.device).unsqueeze(1)
-        one_plus = th.as_tensor(1.0 + lam, dtype=th.float32, device=self.device).unsqueeze(1)
-        size, batch = ro.actions.shape[1], int(m.batch_size)
-        clip_range, max_norm, ent_coef = float(m.clip_range), float(m.max_grad_norm), float(m.ent_coef)
-
-        active = np.ones(k_runs, dtype=bool)
-        passes = np.zeros(k_runs, dtype=np.int64)
-        early = np.zeros(k_runs, dtype=bool)
-        kl_tested = np.zeros(k_runs)
-        kl_mean = np.zeros(k_runs)
-        stats: list[tuple[np.ndarray, th.Tensor]] = []  # (runs computed, [5, R] policy/value/cost_value/entropy/clip_fraction)
+        step = _PassSettings(
+            lam32=th.as_tensor(lam, dtype=th.float32, device=self.device).unsqueeze(1),
+            one_plus=th.as_tensor(1.0 + lam, dtype=th.float32, device=self.device).unsqueeze(1),
+            actor_lr=actor_lr, critic_lr=critic_lr, size=int(ro.actions.shape[1]), batch=int(m.batch_size),
+            clip_range=float(m.clip_range), max_norm=float(m.max_grad_norm), ent_coef=float(m.ent_coef),
+        )
+        passes = _Passes.start(k_runs)
         for _ in range(int(m.n_epochs)):
-            if not active.any():
+            if not passes.active.any():
                 break
-            # The stopped runs are masked out of the optimiser steps. While at least half the runs
-            # go on, every run is computed (a stopped run on its rollout in order, its results
-            # dropped): cheaper than gathering the others' weights for every minibatch. Past that,
-            # only the runs still passing are (``runs``: their indices). A stopped run draws no
-            # further permutation either way.
-            idx = np.flatnonzero(active)
-            every = 2 * len(idx) >= k_runs
-            mask = None if active.all() else active.copy()
-            runs = None if every else self._tensor(idx)
-            sub = slice(None) if runs is None else runs
-            keep = self._tensor(idx) if every and mask is not None else None  # the computed runs' columns to record
-            perms = {k: self.permutation(k, size) for k in idx}
-            computed = range(k_runs) if every else idx
-            order = self._tensor(np.stack([perms[k] if k in perms else np.arange(size) for k in computed]))
-            for obs, actions, old_log_prob, adv, cadv, returns, cost_returns in ro.minibatches(
-                order, batch, "obs", "actions", "log_probs", "advantages", "cost_advantages", "returns", "cost_returns", runs=runs
-            ):
-                actor = self.nets.trace("pi", obs, runs)
-                policy = Policy.of(actor.out)
-                ent = policy.entropy()
-                advantages = (adv - lam32[sub] * cadv) / one_plus[sub]
-                ratio = th.exp(policy.log_prob(actions) - old_log_prob)
-                policy_loss, dratio = clipped_surrogate(ratio, advantages, clip_range)
-                # total = policy_loss - ent_coef * mean(entropy) + critic losses
-                dentropy = th.full_like(ratio, -ent_coef / ratio.shape[1]) if ent_coef else None
-                actor_grads = self.nets.backward(actor, policy.dlogits(actions, dratio * ratio, dentropy))
-                critic_grads, value_loss, cost_value_loss = self._critic_grads(obs, returns, cost_returns, runs)
-                self._step_critics(critic_grads, critic_lr, mask)
-                self.actor_optimizer.step(actor_grads, actor_lr, mask, max_norm=max_norm)  # type: ignore[arg-type]
-                clip_fraction = ((ratio - 1.0).abs() > clip_range).float().mean(dim=1)
-                values = th.stack([policy_loss, value_loss, cost_value_loss, ent.mean(dim=1), clip_fraction])
-                stats.append((idx, values if keep is None else values[:, keep]))
-            passes += active
-            kl_sums = self._kl_sums(old_policies, idx.tolist())
-            for k, total in kl_sums.items():
-                kl_mean[k] = total / size
-                kl_tested[k] = total if m.kl_early_stop_reduction == "sum" else total / size
-            if m.target_kl is not None:
-                stop = active & (kl_tested > m.target_kl)
-                early |= stop
-                active &= ~stop
+            passes.stats += self._one_pass(passes.active, step)
+            passes.count += passes.active
+            self._test_kl(passes, old_policies, step.size)
+        self._record_rows(passes, mean_ep_costs, lam, actor_lr, critic_lr)
 
-        sums, counts = np.zeros((5, k_runs)), np.zeros(k_runs)
-        for idx, values in stats:
+    def _one_pass(self, active: np.ndarray, step: _PassSettings) -> list[tuple[np.ndarray, th.Tensor]]:
+        """One pass over the rollout in minibatches for the runs still ``active``; per minibatch,
+        the computed runs and their ``[5, R]`` policy/value/cost_value/entropy/clip_fraction.
+
+        The stopped runs are masked out of the optimiser steps. While at least half the runs go on,
+        every run is computed (a stopped run on its rollout in order, its results dropped): cheaper
+        than gathering the others' weights for every minibatch. Past that, only the runs still
+        passing are (``runs``: their indices). A stopped run draws no further permutation either way.
+        """
+        ro, k_runs = self.rollout, self.n_runs
+        assert ro is not None
+        idx = np.flatnonzero(active)
+        every = 2 * len(idx) >= k_runs
+        mask = None if active.all() else active.copy()
+        runs = None if every else self._tensor(idx)
+        sub = slice(None) if runs is None else runs
+        keep = self._tensor(idx) if every and mask is not None else None  # the computed runs' columns to record
+        perms = {k: self.permutation(k, step.size) for k in idx}
+        computed = range(k_runs) if every else idx
+        order = self._tensor(np.stack([perms[k] if k in perms else np.arange(step.size) for k in computed]))
+        stats = []
+        for obs, actions, old_log_prob, adv, cadv, returns, cost_returns in ro.minibatches(
+            order, step.batch, "obs", "actions", "log_probs", "advantages", "cost_advantages", "returns", "cost_returns", runs=runs
+        ):
+            actor = self.nets.trace("pi", obs, runs)
+            policy = Policy.of(actor.out)
+            ent = policy.entropy()
+            advantages = (adv - step.lam32[sub] * cadv) / step.one_plus[sub]
+            ratio = th.exp(policy.log_prob(actions) - old_log_prob)
+            policy_loss, dratio = clipped_surrogate(ratio, advantages, step.clip_range)
+            # total = policy_loss - ent_coef * mean(entropy) + critic losses
+            dentropy = th.full_like(ratio, -step.ent_coef / ratio.shape[1]) if step.ent_coef else None
+            actor_grads = self.nets.backward(actor, policy.dlogits(actions, dratio * ratio, dentropy))
+            critic_grads, value_loss, cost_value_loss = self._critic_grads(obs, returns, cost_returns, runs)
+            self._step_critics(critic_grads, step.critic_lr, mask)
+            self.actor_optimizer.step(actor_grads, step.actor_lr, mask, max_norm=step.max_norm)  # type: ignore[arg-type]
+            clip_fraction = ((ratio - 1.0).abs() > step.clip_range).float().mean(dim=1)
+            values = th.stack([policy_loss, value_loss, cost_value_loss, ent.mean(dim=1), clip_fraction])
+            stats.append((idx, values if keep is None else values[:, keep]))
+        return stats
+
+    def _test_kl(self, passes: _Passes, old_policies: dict[int, Policy], size: int) -> None:
+        """After a pass: each active run's KL from its rollout policy, and the early stop of those above ``target_kl``."""
+        m = self.model
+        for k, total in self._kl_sums(old_policies, np.flatnonzero(passes.active).tolist()).items():
+            passes.kl_mean[k] = total / size
+            passes.kl_tested[k] = total if m.kl_early_stop_reduction == "sum" else total / size
+        if m.target_kl is not None:
+            stop = passes.active & (passes.kl_tested > m.target_kl)
+            passes.early |= stop
+            passes.active &= ~stop
+
+    def _record_rows(self, passes: _Passes, mean_ep_costs: np.ndarray, lam: np.ndarray, actor_lr: float | None,
+                     critic_lr: float) -> None:
+        """Each run's diagnostics row: the update's passes, KL, multiplier and mean losses."""
+        sums, counts = np.zeros((5, self.n_runs)), np.zeros(self.n_runs)
+        for idx, values in passes.stats:
             sums[:, idx] += values.double().cpu().numpy()
             counts[idx] += 1
         means = dict(zip(("policy", "value", "cost_value", "entropy", "clip_fraction"), sums / counts))
-        for k in range(k_runs):
+        for k in range(self.n_runs):
             self._row(
                 k, mean_ep_costs[k], actor_lr, critic_lr,
-                passes=int(passes[k]),
-                kl=float(kl_tested[k]),
-                kl_mean=float(kl_mean[k]),
-                early_stopped=bool(early[k]),
+                passes=int(passes.count[k]),
+                kl=float(passes.kl_tested[k]),
+                kl_mean=float(passes.kl_mean[k]),
+                early_stopped=bool(passes.early[k]),
                 lagrange_multiplier=float(lam[k]),
                 policy_loss=float(means["policy"][k]),
                 value_loss=float(means["value"][k]),
@@ -153,3 +169,37 @@ class FleetPPOLag(FleetCostTrainer):
                 entropy=float(means["entropy"][k]),
                 clip_fraction=float(means["clip_fraction"][k]),
             )
+
+
+@dataclass(frozen=True)
+class _PassSettings:
+    """What every minibatch of an update reads: the multipliers (float32 columns), the learning
+    rates and the model's constants for this update."""
+
+    lam32: th.Tensor
+    one_plus: th.Tensor
+    actor_lr: float | None
+    critic_lr: float
+    size: int
+    batch: int
+    clip_range: float
+    max_norm: float
+    ent_coef: float
+
+
+@dataclass
+class _Passes:
+    """Per run, over an update's passes: still passing, passes made, stopped early, the last KL
+    tested and its mean, and every minibatch's statistics."""
+
+    active: np.ndarray
+    count: np.ndarray
+    early: np.ndarray
+    kl_tested: np.ndarray
+    kl_mean: np.ndarray
+    stats: list[tuple[np.ndarray, th.Tensor]]
+
+    @classmethod
+    def start(cls, n_runs: int) -> _Passes:
+        return cls(np.ones(n_runs, dtype=bool), np.zeros(n_runs, dtype=np.int64), np.zeros(n_runs, dtype=bool),
+                   np.zeros(n_runs), np.zeros(n_runs), [])
