@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -68,6 +69,33 @@ def split_names() -> list[str]:
 def manifest_record(name: str, index: dict[str, Any]) -> dict[str, Any]:
     """The manifest of split ``name`` from the ``index.json`` of generating its seeds."""
     return {"split": name, **{k: v for k, v in index.items() if k not in ("tried",)}}
+
+
+def manifest_text(record: dict[str, Any]) -> str:
+    """A manifest as committed: one file a line, each reason's rejected seeds on one line."""
+    lines = ["{"]
+    for key, value in record.items():
+        if key == "files":
+            body = ",\n".join(f"  {json.dumps(name)}: {json.dumps(digest)}" for name, digest in value.items())
+            lines.append(f' "files": {{\n{body}\n }},')
+        elif key == "rejected":
+            body = ",\n".join(f"  {json.dumps(reason)}: {json.dumps(seeds)}" for reason, seeds in value.items())
+            lines.append(f' "rejected": {{\n{body}\n }},')
+        else:
+            lines.append(f" {json.dumps(key)}: {json.dumps(value)},")
+    lines[-1] = lines[-1].removesuffix(",")
+    return "\n".join(lines) + "\n}\n"
+
+
+def publish_split(name: str, directory: Path = SPLITS_DIR) -> Path:
+    """Generate split ``name``'s seeds and write its manifest (after a change of the grammar, which
+    makes every split a new one: bump ``GRAMMAR_VERSION`` first). Takes minutes for ``train``."""
+    first, last = SPLIT_SEEDS[name]
+    with tempfile.TemporaryDirectory(prefix=f"morality-gym-split-{name}-") as tmp:
+        report = generate(range(first, last + 1), tmp, pictures=False, with_values=False)
+    path = directory / f"{name}.json"
+    path.write_text(manifest_text(manifest_record(name, report.index)))
+    return path
 
 
 def _read_manifest(path: Path) -> SplitManifest:
