@@ -14,7 +14,14 @@ import morality_gym
 from morality_gym.envs.batched import BatchedTrolleyEnv
 from morality_gym.envs.mixed import MixedBatchedTrolleyEnv
 from morality_gym.envs.registry import parse_env_id
-from morality_gym.world.grid_observe import CHANNEL, GRID_CHANNELS, GRID_HEIGHT, GRID_WIDTH, GridCodec, GridTooSmallError
+from morality_gym.world.grid_observe import (
+    CHANNEL,
+    GRID_CHANNELS,
+    GRID_HEIGHT,
+    GRID_WIDTH,
+    GridCodec,
+    GridTooSmallError,
+)
 from morality_gym.world.layout import parse_scenario
 from morality_gym.world.rules import World
 from tests.helpers import INTERACT, STAY

@@ -25,7 +25,6 @@ from typing import Any, Final
 
 from morality_gym.envs.registration import add_scenario_dir
 from morality_gym.generator.grammar import GRAMMAR_VERSION, NAME_PREFIX
-from morality_gym.generator.measure import MAX_STATES
 from morality_gym.generator.pipeline import RunReport, files_digest, generate, sha256_bytes
 
 SPLITS_DIR: Final[Path] = Path(__file__).resolve().parent.parent / "data" / "splits"
@@ -163,8 +162,9 @@ def load_split(split: str | Path, cache_dir: str | Path | None = None) -> list[s
     in seed order.
 
     The first call generates the split into ``cache_dir`` (default ``$MORALITY_GYM_CACHE`` or
-    ``~/.cache/morality-gym``, under ``splits/<name>-<digest>``), which takes about a second per
-    seed; later calls check the cached files against the manifest and load them. Files that do not
+    ``~/.cache/morality-gym``, under ``splits/<name>-<digest>``): minutes for ``test``, more for
+    ``train``; later calls check the cached files against the manifest and load them (as every
+    user file, bounds checked by enumeration: about 30 s for ``test``). Files that do not
     match the manifest raise :class:`SplitError`: a result on them would not be a result on the split.
     """
     manifest = split_manifest(split)
