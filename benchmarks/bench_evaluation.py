@@ -19,7 +19,7 @@ from morality_gym.paper import table1, table1_pairs
 
 
 def _clear_graph_caches() -> None:
-    registry._cached_graph.cache_clear()
+    registry.clear_graph_cache()
 
 
 @register("exact", "Exact evaluation, Monte Carlo and the oracle on the 126 Table 1 pairs", order=50)

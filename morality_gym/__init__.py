@@ -34,6 +34,8 @@ _LAZY = {
     "MoralityWrapper": "morality_gym.norms.wrappers",
     "RewardCostSpec": "morality_gym.norms.wrappers",
     "VecMoralityWrapper": "morality_gym.norms.wrappers",
+    # Generated splits (Pillow, for their pictures): loaded when first asked for, like the above.
+    "load_split": "morality_gym.generator.splits",
 }
 
 
@@ -67,6 +69,7 @@ __all__ = [
     "exact_evaluate",
     "get_chain",
     "list_envs",
+    "load_split",
     "make",
     "oracle",
     "parse_env_id",

@@ -1,4 +1,4 @@
-"""Command line: ``python -m morality_gym {play,eval,oracle,list,docs}``.
+"""Command line: ``python -m morality_gym {play,eval,oracle,list,docs,generate}``.
 
 ``eval`` and ``oracle`` are stable interfaces (other tools call them with ``--json``); their JSON
 shapes are documented in docs/getting-started.md ("A first evaluation") and covered by tests. User errors (unknown names, bad numbers,
@@ -26,6 +26,8 @@ from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.montecarlo import evaluate
 from morality_gym.evaluation.oracle import oracle
 from morality_gym.evaluation.policies import PolicyFailure
+from morality_gym.generator.pipeline import REJECTION_REASONS, RunReport, generate
+from morality_gym.generator.splits import SplitError, split_names, write_split
 from morality_gym.norms.chain import ChainError, MoralityChain, builtin_chains, chain_file_stem, get_chain
 from morality_gym.world.layout import ScenarioError
 from morality_gym.world.rules import ACTION_NAMES
@@ -260,6 +262,52 @@ def cmd_docs(args: argparse.Namespace) -> int:
     return 0
 
 
+#: ``generate --count N`` gives up after this many seeds per dilemma asked for (about 1 in 3 seeds
+#: is rejected; this many in a row would mean the grammar is broken, not unlucky).
+GENERATE_SEEDS_PER_DILEMMA = 20
+
+
+def _writable(out: Path, flag: str) -> None:
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".write-probe"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        raise CliError(f"{flag} {out}: not a writable directory ({exc.strerror or exc}); choose another {flag}") from exc
+
+
+def cmd_generate(args: argparse.Namespace) -> int:
+    """``generate``: new dilemmas from seeds (or a published split's seeds), with pictures and exact values."""
+    out = Path(args.out)
+    _writable(out, "--out")
+    if args.split:
+        try:
+            report = write_split(args.split, out, pictures=not args.no_pictures, with_values=True)
+        except SplitError as exc:
+            raise CliError(str(exc)) from exc
+    else:
+        seeds = range(args.seed, args.seed + GENERATE_SEEDS_PER_DILEMMA * args.count)
+        report = generate(seeds, out, count=args.count, pictures=not args.no_pictures)
+    _print_generate(report, out, args.split)
+    if not args.split and len(report.kept) < args.count:
+        raise CliError(f"only {len(report.kept)} of {args.count} dilemmas among seeds {seeds.start}-{seeds.stop - 1}: "
+                       "the grammar rejects nearly everything (a bug); see index.json")
+    return 0
+
+
+def _print_generate(report: RunReport, out: Path, split: str | None) -> None:
+    index = report.index
+    rejected = index["rejected"]
+    assert isinstance(rejected, dict)
+    reasons = ", ".join(f"{reason} {len(rejected[reason])}" for reason in REJECTION_REASONS)
+    seeds = index["seeds"]
+    print(f"kept {index['kept']} of {index['tried']} seeds ({seeds[0]}-{seeds[-1]}) into {out}; rejected: {reasons}")
+    per_seed = report.seconds / max(1, len(report.attempts))
+    print(f"{report.seconds:.1f} s, {per_seed:.2f} s per seed; digest of the scenario files: {index['digest']}"
+          + (f" (matches split {split}'s manifest)" if split else ""))
+
+
 DEFAULT_EPISODES = EVAL_EPISODES  # Monte-Carlo episodes per env, as the paper's final evaluation
 
 
@@ -309,6 +357,15 @@ def build_parser() -> argparse.ArgumentParser:
     p_docs = sub.add_parser("docs", help="write Markdown docs of every scenario")
     p_docs.add_argument("--output", default="docs/envs")
     p_docs.set_defaults(func=cmd_docs)
+
+    p_gen = sub.add_parser("generate", help="write new trolley dilemmas from seeds, with pictures and exact values")
+    p_gen.add_argument("--seed", type=non_negative_int, default=0, help="first seed (default 0); seeds are tried in order")
+    p_gen.add_argument("--count", type=positive_int, default=10, help="dilemmas to keep (default 10); rejected seeds are skipped")
+    p_gen.add_argument("--split", choices=split_names(), default=None,
+                       help="instead of --seed/--count: every seed of a published split, checked against its digest")
+    p_gen.add_argument("--out", required=True, help="directory for <name>.yaml, .json, .png and index.json")
+    p_gen.add_argument("--no-pictures", action="store_true", help="skip the PNG pictures (faster)")
+    p_gen.set_defaults(func=cmd_generate)
     return parser
 
 

@@ -30,7 +30,7 @@ from tests.helpers import INTERACT, LEFT, STAY, UP
 
 REPO = Path(__file__).resolve().parents[1]
 ENV = "MoralityGym/SwitchStandard-HumanA-v1"
-OBS_TYPES = ("flat", "dict", "dict_flat")
+OBS_TYPES = ("flat", "dict", "dict_flat", "grid")
 
 
 def _flat(obs: object) -> np.ndarray:

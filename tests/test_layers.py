@@ -32,11 +32,12 @@ PACKAGES = ("morality_gym", "runners", "leaderboard", "benchmarks")
 #: a new top-level module must be placed here on purpose.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("support", ("morality_gym.clitools", "morality_gym.constants")),
-    ("world", ("morality_gym.world",)),
+    ("world", ("morality_gym.world", "morality_gym.generator.draws", "morality_gym.generator.tracks",
+               "morality_gym.generator.grammar", "morality_gym.generator.writer", "morality_gym.generator.measure")),
     ("render", ("morality_gym.render",)),
     ("envs", ("morality_gym.envs",)),
     ("norms", ("morality_gym.norms",)),
-    ("evaluation", ("morality_gym.evaluation", "morality_gym.render.gif")),
+    ("evaluation", ("morality_gym.evaluation", "morality_gym.render.gif", "morality_gym.generator")),
     ("api", ("morality_gym", "morality_gym.api", "morality_gym.paper")),
     ("llm", ("morality_gym.llm",)),
     ("baselines", ("morality_gym.baselines",)),

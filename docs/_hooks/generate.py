@@ -193,7 +193,7 @@ def catalogue() -> dict[str, str | bytes]:
 
 #: (module, what it does): each module's parser is captured as its own code builds it.
 COMMANDS: list[tuple[str, str]] = [
-    ("morality_gym", "environments: play, evaluate, oracle, list, docs"),
+    ("morality_gym", "environments: play, evaluate, oracle, list, docs, generate"),
     ("leaderboard.build", "Table 1, figures and the static leaderboard from results directories and releases"),
     ("leaderboard.submit", "score a policy of your own into a results directory"),
     ("leaderboard.release", "freeze results into a checksummed release; verify one"),

@@ -17,10 +17,14 @@ import numpy as np
 from morality_gym.constants import MAX_STEPS
 from morality_gym.envs.registry import parse_env_id, state_graph
 from morality_gym.envs.trolley import _overrides
-from morality_gym.world.graph import N_ACTIONS, GraphTables
+from morality_gym.world.graph import N_ACTIONS, GraphTables, StateGraph
+from morality_gym.world.grid_observe import grid_table
 from morality_gym.world.vocab import EVENT_BIT
 
 AutoReset = Literal["same_step", "disabled"]
+#: What the simulators' observation rows hold: the scenario's flat vector, or the fixed-shape grid
+#: (:mod:`morality_gym.world.grid_observe`) flattened in C order, the same length for every scenario.
+BATCHED_OBS_TYPES = ("flat", "grid")
 
 _HARM_BIT = np.uint32(1 << EVENT_BIT["harm"])
 _LIVING_BITS = np.uint32(sum(1 << EVENT_BIT[n] for n in ("human_harm", "animal_harm", "robot_harm")))
@@ -46,6 +50,22 @@ class BatchStep(NamedTuple):
     final_obs: np.ndarray | None
 
 
+def observation_table(graph: StateGraph, obs_type: str, dtype: type) -> np.ndarray:
+    """One observation row per state of the (enumerated) ``graph``, as the simulators gather them.
+
+    ``grid`` rows are the grid observation flattened (reshape a row to ``(GRID_CHANNELS,
+    GRID_HEIGHT, GRID_WIDTH)``): every env id gives rows of one length, so copies of different
+    scenarios can share one simulator (:class:`~morality_gym.envs.mixed.MixedBatchedTrolleyEnv`).
+    """
+    if obs_type not in BATCHED_OBS_TYPES:
+        raise ValueError(f"obs_type must be one of {BATCHED_OBS_TYPES}, got {obs_type!r}")
+    tables = graph.tables()
+    if obs_type == "flat":
+        return np.ascontiguousarray(tables.obs.astype(dtype))
+    grids = grid_table(graph.world, graph.states[: tables.n_states])
+    return np.ascontiguousarray(grids.reshape(tables.n_states, -1).astype(dtype))
+
+
 def utility_present(events: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Which utility keys a step reported, from its event masks (spec section 8).
 
@@ -69,6 +89,8 @@ class BatchedTrolleyEnv:
         autoreset: ``"same_step"`` resets a copy in the step it ends (its last observation goes to
             ``final_obs``), as SB3 expects; ``"disabled"`` leaves ended copies inert (reward 0, no
             events) until :meth:`reset` is called for them.
+        obs_type: ``"flat"`` (default) the scenario's flat vector; ``"grid"`` the fixed-shape grid
+            observation, flattened (:func:`observation_table`).
     """
 
     #: The batched simulator does not render (SB3 and Gymnasium probe this attribute).
@@ -84,6 +106,7 @@ class BatchedTrolleyEnv:
         autoreset: AutoReset = "same_step",
         normalise_obs: bool = True,
         overrides: dict | None = None,
+        obs_type: str = "flat",
     ) -> None:
         if not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
@@ -103,7 +126,8 @@ class BatchedTrolleyEnv:
         self._reward = t.reward.astype(np.float32)
         self._events = t.events
         self._done = t.done
-        self._obs = np.ascontiguousarray(t.obs.astype(obs_dtype))
+        self.obs_type = obs_type
+        self._obs = observation_table(self.graph, obs_type, obs_dtype)
         # One extra, empty row after the graph's transitions: what an ended copy "did" in a step.
         self.no_transition = len(t.next)
         self._utility = np.vstack([t.utility, np.zeros((1, t.utility.shape[1]), dtype=t.utility.dtype)])

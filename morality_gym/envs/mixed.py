@@ -8,8 +8,10 @@ their env ids: transition row ``s * 6 + a`` of global state ``s`` is the row of 
 the same state of the copy's own graph, because each graph's transition block starts at six times
 its state offset. Each copy starts (and auto-resets) at its own graph's start state.
 
-All env ids must have the same observation size (variants of one scenario do), since the copies
-share one observation array.
+All env ids must have the same observation size, since the copies share one observation array:
+variants of one scenario do with the flat vector; every env id does with ``obs_type="grid"``
+(the fixed-shape grid), which is how copies of different scenarios (a generated split) share one
+simulator.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from morality_gym.constants import MAX_STEPS
-from morality_gym.envs.batched import AutoReset, BatchedTrolleyEnv
+from morality_gym.envs.batched import AutoReset, BatchedTrolleyEnv, observation_table
 from morality_gym.envs.registry import parse_env_id, state_graph
 from morality_gym.envs.trolley import _overrides
 from morality_gym.world.graph import N_ACTIONS
@@ -41,6 +43,7 @@ class MixedBatchedTrolleyEnv(BatchedTrolleyEnv):
         autoreset: AutoReset = "same_step",
         normalise_obs: bool = True,
         overrides: dict | None = None,
+        obs_type: str = "flat",
     ) -> None:
         env_ids = [parse_env_id(e)[0].env_id(parse_env_id(e)[1]) for e in env_ids]
         if not env_ids:
@@ -49,23 +52,25 @@ class MixedBatchedTrolleyEnv(BatchedTrolleyEnv):
         # tables are then replaced by the concatenation over all ids.
         super().__init__(
             env_ids[0], len(env_ids), max_steps=max_steps, obs_dtype=obs_dtype, autoreset=autoreset,
-            normalise_obs=normalise_obs, overrides=overrides,
+            normalise_obs=normalise_obs, overrides=overrides, obs_type=obs_type,
         )
         self.unique_env_ids: list[str] = list(dict.fromkeys(env_ids))
         self.env_ids = env_ids
-        tables = [state_graph(e, _overrides(overrides), normalise_obs).tables() for e in self.unique_env_ids]
-        dims = {e: t.obs.shape[1] for e, t in zip(self.unique_env_ids, tables)}
+        graphs = [state_graph(e, _overrides(overrides), normalise_obs) for e in self.unique_env_ids]
+        tables = [g.tables() for g in graphs]
+        observations = [observation_table(g, obs_type, obs_dtype) for g in graphs]
+        dims = {e: o.shape[1] for e, o in zip(self.unique_env_ids, observations)}
         if len(set(dims.values())) > 1:
             raise ValueError(
                 f"the copies of one simulator must share an observation size, got {dims}; "
-                "fleet only variants of one scenario together"
+                "fleet only variants of one scenario together, or use obs_type='grid'"
             )
         offsets = np.cumsum([0] + [t.n_states for t in tables])[:-1].astype(np.int32)
         self._next = np.concatenate([t.next.astype(np.int32) + off for t, off in zip(tables, offsets)])
         self._reward = np.concatenate([t.reward for t in tables]).astype(np.float32)
         self._events = np.concatenate([t.events for t in tables])
         self._done = np.concatenate([t.done for t in tables])
-        self._obs = np.ascontiguousarray(np.concatenate([t.obs for t in tables]).astype(obs_dtype))
+        self._obs = np.ascontiguousarray(np.concatenate(observations))
         self.no_transition = len(self._next)
         utility = np.concatenate([t.utility for t in tables])
         self._utility = np.vstack([utility, np.zeros((1, utility.shape[1]), dtype=utility.dtype)])

@@ -24,8 +24,9 @@ import difflib
 import os
 import threading
 import warnings
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass
-from functools import cache
 from pathlib import Path
 
 import yaml
@@ -86,17 +87,23 @@ def _horizon() -> int:
     return MAX_STEPS + 1
 
 
-def _load_user_file(path: Path) -> Scenario:
+def load_user_file(path: str | Path, graphs: Mapping[str, StateGraph] | None = None) -> Scenario:
+    """Load and check one scenario file as every user file is checked (the layout and fields, then
+    its bounds by exact enumeration); raises :class:`ScenarioError`. Registers nothing.
+
+    ``graphs``: already enumerated state graphs of the file's variants (see
+    :func:`~morality_gym.world.bounds.check_bounds`)."""
     scenario = load_scenario(path)
-    check_bounds(scenario, _horizon())
+    check_bounds(scenario, _horizon(), graphs)
     return scenario
+
 
 
 def _load_dir(directory: Path, user: bool = False) -> dict[str, Scenario]:
     """Every scenario file of ``directory``; raises on the first bad one (built-ins, explicit requests)."""
     found: dict[str, Scenario] = {}
     for path in sorted(directory.glob("*.yaml")):
-        scenario = _load_user_file(path) if user else load_scenario(path)
+        scenario = load_user_file(path) if user else load_scenario(path)
         if scenario.name in found:
             raise ScenarioError(f"{path}: name: scenario name {scenario.name!r} is already defined by "
                                 f"{found[scenario.name].source}. Fix: rename one of them")
@@ -139,7 +146,7 @@ def _load_env_dirs(known: dict[str, Scenario]) -> None:
             continue
         for path in sorted(directory.glob("*.yaml")):
             try:
-                scenario = _load_user_file(path)
+                scenario = load_user_file(path)
             except ScenarioError as exc:
                 _skip(path, str(exc))
                 continue
@@ -200,6 +207,36 @@ def load_scenario_dir(directory: str | Path) -> list[str]:
         known.update(new)
     _inherit(directory)
     return [eid for s in new.values() for eid in s.env_ids]
+
+
+@contextmanager
+def scenario_on_trial(scenario: Scenario, graphs: Mapping[str, StateGraph] | None = None) -> Iterator[list[str]]:
+    """Make an already checked scenario known to this process inside the block only; yields its ids.
+
+    The generator scores each dilemma it draws with the oracle and the exact evaluator, which find
+    envs by id in this registry; most draws are thrown away, so they must not stay registered (nor
+    be listed in ``MORALITY_GYM_SCENARIOS`` for child processes, as :func:`load_scenario_dir` does).
+    ``graphs`` (by variant) are state graphs the caller has already enumerated for these very worlds
+    (same layout and variants; enumeration is most of a draw's cost), used instead of new ones.
+    Leaving the block forgets the scenario and its graphs.
+    """
+    known = scenarios()
+    with _lock:
+        if scenario.name in known:
+            raise ScenarioError(f"{scenario.source}: name: scenario {scenario.name!r} is already defined by "
+                                f"{known[scenario.name].source}. Fix: give this scenario another name")
+        known[scenario.name] = scenario
+    with _graphs_lock:
+        for variant, graph in (graphs or {}).items():
+            _graphs[(scenario.name, variant, None, True)] = graph
+    try:
+        yield scenario.env_ids
+    finally:
+        with _lock:
+            known.pop(scenario.name, None)
+        with _graphs_lock:
+            for key in [k for k in _graphs if k[0] == scenario.name]:
+                del _graphs[key]
 
 
 def _same_file(a: str, b: str) -> bool:
@@ -282,11 +319,29 @@ def _unknown_id_message(env_id: str, parts: list[str], known: dict[str, Scenario
     return f"Unknown MoralityGym env id {env_id!r}. {hint}."
 
 
-@cache
+GraphKey = tuple[str, str, Overrides | None, bool]
+#: The per-process state graphs, by (scenario, variant, overrides, normalise): one per world, shared
+#: by every env, simulator and evaluation of it.
+_graphs: dict[GraphKey, StateGraph] = {}
+_graphs_lock = threading.Lock()
+
+
 def _cached_graph(scenario_name: str, variant: str, overrides: Overrides | None, normalise: bool) -> StateGraph:
-    scenario = scenarios()[scenario_name]
-    world = World(scenario, variant, overrides)
-    return StateGraph(world, ObservationCodec(world, normalise=normalise))
+    key = (scenario_name, variant, overrides, normalise)
+    graph = _graphs.get(key)
+    if graph is None:
+        with _graphs_lock:
+            graph = _graphs.get(key)
+            if graph is None:
+                world = World(scenarios()[scenario_name], variant, overrides)
+                graph = _graphs[key] = StateGraph(world, ObservationCodec(world, normalise=normalise))
+    return graph
+
+
+def clear_graph_cache() -> None:
+    """Forget every state graph of this process (benchmarks time enumeration from scratch)."""
+    with _graphs_lock:
+        _graphs.clear()
 
 
 def state_graph(env_id: str, overrides: Overrides | None = None, normalise: bool = True) -> StateGraph:

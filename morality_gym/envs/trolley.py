@@ -24,13 +24,14 @@ from morality_gym.envs.registry import DEFAULT_MAX_STEPS, parse_env_id, state_gr
 from morality_gym.render.ansi import render_ansi
 from morality_gym.render.window import show_frame
 from morality_gym.world.graph import EMPTY_NORM_EVENTS, StateGraph, norm_events_dict
+from morality_gym.world.grid_observe import GridCodec
 from morality_gym.world.rules import ACTION_NAMES, Overrides
 
-OBS_TYPES = ("flat", "dict", "dict_flat")
-_OBS_ALIASES = {"flat": "flat", "np.ndarray": "flat", "dict": "dict", "dict_flat": "dict_flat"}
+OBS_TYPES = ("flat", "dict", "dict_flat", "grid")
+_OBS_ALIASES = {"flat": "flat", "np.ndarray": "flat", "dict": "dict", "dict_flat": "dict_flat", "grid": "grid"}
 #: What a pickled or copied env leaves out and rebuilds: the memoised graph is shared by every env
 #: of the same world (and holds a lock), the renderer may hold a window.
-_REBUILT = ("graph", "world", "codec", "_edges", "_renderer", "_sid")
+_REBUILT = ("graph", "world", "codec", "_edges", "_renderer", "_sid", "_grid_codec", "_grids")
 
 
 class InvalidActionError(ValueError):
@@ -77,6 +78,10 @@ class TrolleyEnv(gym.Env[Any, int]):
     numbers as one level ``{"entity/component": array}`` (``player/pos``, ``lever_1/curr_state``,
     ...), the form Stable-Baselines3's ``MultiInputPolicy`` accepts (it refuses nested Dict spaces;
     ``/`` because it keeps a torch module per key and torch forbids ``.`` in their names). ``normalise_obs=False`` gives raw integer positions.
+    ``obs_type="grid"``: one fixed shape for every scenario, built-in, user or generated, so that one
+    policy can act in all of them: a ``uint8`` array ``(channels, 16, 16)``, the scenario's grid
+    padded with zeros, one channel per kind of thing (walls, rails by direction, levers, agent,
+    trolleys, groups by type and size, ...; :mod:`morality_gym.world.grid_observe` lists them).
 
     ## Rewards
     ``step`` per step (-1), ``landmark`` when the landmark is first entered (+100, wins over harm in
@@ -135,7 +140,7 @@ class TrolleyEnv(gym.Env[Any, int]):
 
         self.action_space = spaces.Discrete(6)
         self.observation_space = {"flat": self.codec.flat_space, "dict": self.codec.dict_space,
-                                  "dict_flat": self.codec.flat_dict_space}[self.obs_type]()
+                                  "dict_flat": self.codec.flat_dict_space, "grid": GridCodec.space}[self.obs_type]()
         self._limit = math.inf if max_steps is None else max_steps
         self._sid = 0
         self._t = 0
@@ -151,6 +156,9 @@ class TrolleyEnv(gym.Env[Any, int]):
         self.world = self.graph.world
         self.codec = self.graph.codec
         self._edges = self.graph.edges
+        #: The grid observation's encoder (``obs_type="grid"`` only) and the grids met so far, by state id.
+        self._grid_codec = GridCodec(self.world) if self.obs_type == "grid" else None
+        self._grids: dict[int, np.ndarray] = {}
 
     # ------------------------------------------------------------------ spec, pickling, copying
     @property  # type: ignore[override]
@@ -284,6 +292,11 @@ class TrolleyEnv(gym.Env[Any, int]):
             return self.graph.obs[sid].copy()
         if self.obs_type == "dict_flat":
             return self.codec.as_flat_dict(self.graph.obs[sid])
+        if self._grid_codec is not None:
+            grid = self._grids.get(sid)
+            if grid is None:
+                grid = self._grids[sid] = self._grid_codec.encode(self.graph.states[sid])
+            return grid.copy()
         return self.codec.as_dict(self.graph.states[sid])
 
     # ------------------------------------------------------------------ introspection

@@ -20,6 +20,8 @@ which episodes end; it stops early once a layer repeats (the next ones would be 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
 from morality_gym.world.graph import N_ACTIONS, GraphTables, StateGraph
@@ -73,12 +75,20 @@ def _fmt(bounds: tuple[float, float]) -> str:
     return f"[{bounds[0]:g}, {bounds[1]:g}]"
 
 
-def check_bounds(scenario: Scenario, horizon: int) -> None:
-    """Raise :class:`ScenarioError` (file, field, fix) if a bound disagrees with the reachable totals."""
+def check_bounds(scenario: Scenario, horizon: int, graphs: Mapping[str, StateGraph] | None = None) -> None:
+    """Raise :class:`ScenarioError` (file, field, fix) if a bound disagrees with the reachable totals.
+
+    ``graphs`` (by variant name) are state graphs already enumerated for the same layout and
+    variants, used instead of enumerating again: the generator measures a draw's graphs before it
+    writes the file, and the check compares what the written file declares with them.
+    """
     overall: dict[str, tuple[int, int]] = {}
     for name, variant in scenario.variants.items():
-        world = World(scenario, name)
-        totals = reachable_totals(StateGraph(world, ObservationCodec(world)).tables(), horizon)
+        graph = (graphs or {}).get(name)
+        if graph is None:
+            world = World(scenario, name)
+            graph = StateGraph(world, ObservationCodec(world))
+        totals = reachable_totals(graph.tables(), horizon)
         for i, utility in enumerate(UTILITIES):
             low, high = _span(totals[:, i])
             prev = overall.get(utility)
