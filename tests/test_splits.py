@@ -59,8 +59,9 @@ def test_a_sample_of_the_split_regenerates_to_its_published_bytes(name: str, tmp
 
 @pytest.fixture()
 def tiny_manifest(tmp_path: Path) -> Path:
-    """A split of four seeds, published the way the real ones are."""
-    report = generate(range(100, 104), tmp_path / "made", pictures=False, with_values=False)
+    """A split of four seeds, published the way the real ones are. Seeds no other test registers:
+    the registry is the process's, and another file declaring a loaded scenario is refused."""
+    report = generate(range(300, 304), tmp_path / "made", pictures=False, with_values=False)
     path = tmp_path / "tiny.json"
     path.write_text(json.dumps(manifest_record("tiny", report.index)))
     return path
