@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -34,3 +35,28 @@ def one_torch_thread():
 
 
 from tests.slurm_cluster import slurm_cluster  # noqa: F401 - session fixture for the SLURM tests
+
+
+@pytest.fixture()
+def isolated_scenarios() -> Iterator[None]:
+    """Scenarios a test registers in this process (``add_scenario_dir``, ``load_split``) are forgotten
+    after it: the registry is the process's, and the tests that count the 98 built-in envs run
+    later in the same process. Restores the scenario table, the user directories, the cached state
+    graphs and Gymnasium's MoralityGym ids as they were."""
+    import gymnasium as gym
+
+    from morality_gym.envs import registry
+
+    registry.scenarios()  # loaded before the snapshot, so the snapshot is the whole table
+    scenarios, dirs, graphs = dict(registry._scenarios), list(registry._extra_dirs), dict(registry._graphs)
+    gym_ids = {k for k in gym.envs.registry if k.startswith("MoralityGym/")}
+    yield
+    with registry._lock:
+        registry._scenarios.clear()
+        registry._scenarios.update(scenarios)
+        registry._extra_dirs[:] = dirs
+    with registry._graphs_lock:
+        registry._graphs.clear()
+        registry._graphs.update(graphs)
+    for key in [k for k in gym.envs.registry if k.startswith("MoralityGym/") and k not in gym_ids]:
+        del gym.envs.registry[key]

@@ -74,6 +74,7 @@ def test_same_seed_same_bytes(generated: Path, tmp_path: Path) -> None:
         assert (tmp_path / name).read_bytes() == (generated / name).read_bytes(), name
 
 
+@pytest.mark.usefixtures("isolated_scenarios")
 def test_kept_files_load_as_user_files_and_are_dilemmas(generated: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv(SCENARIOS_ENV, "")  # add_scenario_dir lists the directory there; undone after the test
     index = json.loads((generated / "index.json").read_text())

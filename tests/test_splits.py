@@ -59,14 +59,14 @@ def test_a_sample_of_the_split_regenerates_to_its_published_bytes(name: str, tmp
 
 @pytest.fixture()
 def tiny_manifest(tmp_path: Path) -> Path:
-    """A split of four seeds, published the way the real ones are. Seeds no other test registers:
-    the registry is the process's, and another file declaring a loaded scenario is refused."""
-    report = generate(range(300, 304), tmp_path / "made", pictures=False, with_values=False)
+    """A split of four seeds, published the way the real ones are."""
+    report = generate(range(100, 104), tmp_path / "made", pictures=False, with_values=False)
     path = tmp_path / "tiny.json"
     path.write_text(json.dumps(manifest_record("tiny", report.index)))
     return path
 
 
+@pytest.mark.usefixtures("isolated_scenarios")
 def test_load_split_generates_checks_caches_and_registers(tiny_manifest: Path, tmp_path: Path,
                                                           monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv(SCENARIOS_ENV, "")
@@ -79,6 +79,7 @@ def test_load_split_generates_checks_caches_and_registers(tiny_manifest: Path, t
     assert load_split(tiny_manifest, cache_dir=tmp_path / "cache") == ids
 
 
+@pytest.mark.usefixtures("isolated_scenarios")
 def test_files_that_are_not_the_split_are_refused(tiny_manifest: Path, tmp_path: Path) -> None:
     record = json.loads(tiny_manifest.read_text())
     first = next(iter(record["files"]))
