@@ -1,0 +1,146 @@
+"""Table 1 as the paper lays it out, and which sweep the index opens on.
+
+Why a grid: readers of the paper think of Table 1 as rows (chain / scenario) by a column per
+learner; the long table (one row per cell, 70 of them, 148 with one's own runs) is for sorting and
+filtering, one click away. Each grid cell carries what a reader checks: the mean (bold, shaded and
+⚠ as everywhere, :data:`leaderboard.marks.MARKS`), its 95% interval, and the paper's value with
+the difference where the budget is the paper's. Where it is not, the grid says so once, above
+the table, and shows no difference.
+
+Why the index opens on the user's newest sweep: after ``make reproduce-table1 PRESET=smoke`` the
+user wants their 630 runs, not the release that ships with the code. The release's sweep of the
+same protocol is shown beside it, each labelled with where its runs come from.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pandas as pd
+
+from leaderboard.aggregate import (
+    ORACLE_BEST,
+    ORACLE_WORST,
+    RANDOM_EXACT,
+    Group,
+    Leaderboard,
+    choose_primary,
+    comparable_preset,
+    not_comparable_text,
+)
+from leaderboard.ranking_page import SCORE_COLOURS, group_frame, matrix_cell
+from leaderboard.render import clean_records, is_missing, scenario_href, section_id
+from leaderboard.site_state import SiteBuild
+from leaderboard.sources import RESULTS_SOURCE, Sources
+from leaderboard.tables import fmt
+
+#: The reference columns of the grid (the oracle's worst stays in the long table and the files).
+GRID_REFERENCES = (RANDOM_EXACT, ORACLE_BEST)
+
+
+# ---------------------------------------------------------------------------------------- which sweeps
+def _own_runs(lb: Leaderboard) -> pd.DataFrame:
+    if "source" not in lb.runs.columns:
+        return lb.runs
+    return lb.runs.loc[lb.runs["source"] == RESULTS_SOURCE]
+
+
+def newest_own_group(lb: Leaderboard) -> Group | None:
+    """The sweep the user ran last: among the groups of the preset of their newest run, the one
+    :func:`choose_primary` prefers (most rows, then protocol paper). None without runs of their own."""
+    own = _own_runs(lb)
+    if own.empty:
+        return None
+    when = pd.to_datetime(own["finished_at"].fillna(own["started_at"]), utc=True, errors="coerce")
+    newest = own.loc[when.fillna(pd.Timestamp(0, tz="UTC")).idxmax()]
+    presets = {(str(p), str(s)) for p, s in zip(own["protocol"], own["preset"]) if str(s) == str(newest["preset"])}
+    candidates = [g for g in lb.groups if (g.protocol, g.preset) in presets]
+    return choose_primary(lb.table, candidates) if candidates else None
+
+
+def release_match(lb: Leaderboard, mine: Group) -> Group | None:
+    """The release's sweep to compare ``mine`` with: same protocol, a group holding released runs,
+    the paper's budget preferred (:func:`choose_primary`). None when no release has that protocol."""
+    if "source" not in lb.runs.columns:
+        return None
+    released = lb.runs.loc[lb.runs["source"] != RESULTS_SOURCE]
+    have = {(str(p), str(s)) for p, s in zip(released["protocol"], released["preset"])}
+    candidates = [g for g in lb.groups if g != mine and g.protocol == mine.protocol and (g.protocol, g.preset) in have]
+    return choose_primary(lb.table, candidates) if candidates else None
+
+
+def opening_groups(lb: Leaderboard) -> tuple[Group | None, Group | None]:
+    """(the sweep the index opens on, the sweep shown beside it or None)."""
+    mine = newest_own_group(lb)
+    if mine is None:
+        return lb.primary, None
+    return mine, release_match(lb, mine)
+
+
+def group_origin(lb: Leaderboard, sources: Sources, group: Group) -> str:
+    """Where a sweep's counted runs come from, in words: ``your runs in results`` / ``release X`` / both."""
+    part = lb.runs.loc[(lb.runs["protocol"] == group.protocol) & (lb.runs["preset"] == group.preset)]
+    counts = part["source"].value_counts().to_dict() if "source" in part.columns else {RESULTS_SOURCE: len(part)}
+    words = []
+    for source, n in sorted(counts.items(), key=lambda item: (item[0] != RESULTS_SOURCE, item[0])):
+        where = f"your runs in {sources.results}" if source == RESULTS_SOURCE else f"release {source}"
+        words.append(f"{n:,} {where}")
+    return " + ".join(words) or "no runs"
+
+
+# ---------------------------------------------------------------------------------------- the grid
+def grid_cell(record: dict[str, Any] | None, ref: dict[str, Any] | None, learner: str, chain: str,
+              scenario: str) -> dict[str, Any]:
+    """One grid cell: the matrix cell's colour and tooltip, plus its interval and the paper's value."""
+    cell = matrix_cell(record, ref, learner, chain, scenario)
+    if record is None or record.get("mean") is None:
+        return cell | {"best": False, "ci": "", "paper": "", "delta": "", "delta_off": False}
+    low, high = record.get("ci_low"), record.get("ci_high")
+    delta = record.get("delta")
+    return cell | {
+        "best": bool(record.get("best")),
+        "ci": "" if is_missing(low) or is_missing(high) else f"[{fmt(low)}, {fmt(high)}]",
+        "paper": "" if is_missing(record.get("paper")) else fmt(record["paper"]),
+        "delta": "" if is_missing(delta) else fmt(delta, signed=True),
+        "delta_off": not is_missing(delta) and abs(float(delta)) >= 0.05,
+    }
+
+
+def _references(table: pd.DataFrame) -> dict[tuple[str, str, str], Any]:
+    refs = table.loc[table["kind"] == "reference"]
+    return {(r["chain"], r["scenario"], r["learner"]): r["mean"] for r in clean_records(refs)}
+
+
+def group_grid(sb: SiteBuild, group: Group, root: str) -> dict[str, Any]:
+    """One sweep's grid: rows (chain shown once per block), a column per learner, the references."""
+    lb = sb.lb
+    table = lb.group_table(group)
+    cells = {(r["chain"], r["scenario"], r["learner"]): r for r in clean_records(table.loc[table["kind"] == "learner"])}
+    normalisers = {(r["chain"], r["scenario"]): r
+                   for r in clean_records(group_frame(sb.stats.rows if sb.stats is not None else None, group))}
+    references = _references(table)
+    learners = [n for n in lb.learners if n in set(table["learner"])]
+    rows, previous = [], None
+    pairs = lb.pairs(group)
+    for chain, scenario in pairs:
+        ref = normalisers.get((chain, scenario))
+        rows.append({"chain": chain if chain != previous else "", "span": sum(c == chain for c, _ in pairs),
+                     "scenario": scenario, "href": scenario_href(scenario, root, section_id(group, chain)),
+                     "cells": [grid_cell(cells.get((chain, scenario, n)), ref, n, chain, scenario) for n in learners],
+                     "refs": [references.get((chain, scenario, name)) for name in GRID_REFERENCES]})
+        previous = chain
+    return {"slug": group.slug, "label": f"{group.protocol} · {group.preset}", "origin": group_origin(lb, sb.sources, group),
+            "comparable": comparable_preset(group.preset), "not_comparable": not_comparable_text(group.preset),
+            "learners": [(n, sb.colour(n), lb.submitted.get(n)) for n in learners], "rows": rows,
+            "n_cells": len(cells)}
+
+
+def grid_context(sb: SiteBuild, root: str) -> dict[str, Any]:
+    """Every sweep's grid, which one the index opens on and which one it shows beside it."""
+    opening, beside = opening_groups(sb.lb)
+    grids = [group_grid(sb, group, root) for group in sb.lb.groups]
+    return {"grids": grids, "opening": opening.slug if opening else "", "beside": beside.slug if beside else "",
+            "own": newest_own_group(sb.lb) is not None,
+            "sweeps": [(g["slug"], f"{g['label']} ({g['origin']})") for g in grids],
+            "references": GRID_REFERENCES, "oracle_worst": ORACLE_WORST,
+            "legend": SCORE_COLOURS, "random_exact": RANDOM_EXACT, "oracle_best": ORACLE_BEST}
