@@ -64,6 +64,7 @@ from runners.config_schema import SweepOverheads
 from runners.execute import finished_status, record_failure
 from runners.fleet_checkpoints import fleets_to_form, remove_stale
 from runners.jobs import Job, dispatch_order, jobs_estimate, make_jobs
+from runners.machine_load import Estimate, MachineLoad, estimate
 from runners.manifest import manifest_name, write_manifest
 from runners.plan import PlannedRun, describe, plan
 from runners.pool import JobProgress, WorkerPool
@@ -107,7 +108,8 @@ class Plan:
     ``status``: each run's result before the sweep (``ok``, ``failed`` or None); ``todo``: the runs
     to train, cut into ``jobs`` for ``workers`` parallel workers (:mod:`runners.jobs`); ``counts``:
     :func:`runners.plan.describe`'s totals per learner; ``estimate_s``: the wall time of what
-    remains; ``moved``: unreadable result files moved aside while the plan was made.
+    remains on an idle machine, and ``estimate`` the same at the machine's load when the plan was
+    made (:mod:`runners.machine_load`); ``moved``: unreadable result files moved aside while the plan was made.
     """
 
     runs: tuple[PlannedRun, ...]
@@ -119,6 +121,7 @@ class Plan:
     estimate_s: float
     moved: tuple[Quarantined, ...] = ()
     checkpointed: tuple[tuple[str, ...], ...] = ()  # run ids of fleets formed again to resume from a checkpoint
+    estimate: Estimate | None = None
 
     @property
     def resuming(self) -> tuple[Job, ...]:
@@ -146,9 +149,11 @@ def make_plan(sweep: SweepConfig) -> Plan:
     checkpointed = fleets_to_form(sweep.results_dir, [r.run_id for r in todo]) if sweep.checkpoint_every_s > 0 else []
     jobs = dispatch_order(make_jobs(todo, sweep.engine, sweep.fleet_size, workers,
                                     {a.spec.name: a.fleet_speedup for a in sweep.algos}, checkpointed), workers)
-    estimate = jobs_estimate(jobs, done, workers) + sweep_overheads(sweep, len(todo))
+    idle = jobs_estimate(jobs, done, workers) + sweep_overheads(sweep, len(todo))
+    machine = None if sweep.launcher["name"] == "slurm" else MachineLoad.now()  # SLURM: other nodes' load
     return Plan(runs=tuple(runs), status=status, todo=tuple(todo), jobs=tuple(jobs), workers=workers,
-                counts=describe(runs, done, workers), estimate_s=estimate, moved=tuple(moved), checkpointed=tuple(checkpointed))
+                counts=describe(runs, done, workers), estimate_s=idle, moved=tuple(moved), checkpointed=tuple(checkpointed),
+                estimate=estimate(idle, workers, machine))
 
 
 def _warn(console: Console, text: str) -> None:
@@ -171,6 +176,11 @@ def _engine_line(plan_: Plan, sweep: SweepConfig) -> str | None:
     return None
 
 
+def _estimate_text(plan_: Plan) -> str:
+    """The estimate as printed: idle, and at the machine's load when that is noticeably longer."""
+    return plan_.estimate.text() if plan_.estimate is not None else duration(plan_.estimate_s)
+
+
 def print_plan(plan_: Plan, sweep: SweepConfig, console: Console) -> None:
     """The files moved aside, the counts per learner, the warnings, the settings and the estimate,
     and how the runs train."""
@@ -189,7 +199,7 @@ def print_plan(plan_: Plan, sweep: SweepConfig, console: Console) -> None:
     console.print(
         f"protocol [bold]{sweep.protocol.name}[/bold], preset [bold]{sweep.preset.name}[/bold], seeds {list(sweep.seeds)}, "
         f"launcher [bold]{sweep.launcher['name']}[/bold] ({plan_.workers} parallel), results in {sweep.results_dir}; "
-        f"estimated time for what remains: [bold]{duration(plan_.estimate_s)}[/bold]"
+        f"estimated time for what remains: [bold]{escape(_estimate_text(plan_))}[/bold]"
     )
     engine = _engine_line(plan_, sweep)
     if engine:
