@@ -34,9 +34,6 @@ from leaderboard.site_state import SiteBuild
 from leaderboard.sources import RESULTS_SOURCE, Sources
 from leaderboard.tables import fmt
 
-#: The reference columns of the grid (the oracle's worst stays in the long table and the files).
-GRID_REFERENCES = (RANDOM_EXACT, ORACLE_BEST)
-
 
 # ---------------------------------------------------------------------------------------- which sweeps
 def _own_runs(lb: Leaderboard) -> pd.DataFrame:
@@ -78,13 +75,14 @@ def opening_groups(lb: Leaderboard) -> tuple[Group | None, Group | None]:
 
 
 def group_origin(lb: Leaderboard, sources: Sources, group: Group) -> str:
-    """Where a sweep's counted runs come from, in words: ``your runs in results`` / ``release X`` / both."""
+    """Where a sweep's counted runs come from, in words: ``630 of your runs in results`` /
+    ``1,890 runs of release X`` / both, joined by "+"."""
     part = lb.runs.loc[(lb.runs["protocol"] == group.protocol) & (lb.runs["preset"] == group.preset)]
     counts = part["source"].value_counts().to_dict() if "source" in part.columns else {RESULTS_SOURCE: len(part)}
     words = []
     for source, n in sorted(counts.items(), key=lambda item: (item[0] != RESULTS_SOURCE, item[0])):
-        where = f"your runs in {sources.results}" if source == RESULTS_SOURCE else f"release {source}"
-        words.append(f"{n:,} {where}")
+        words.append(f"{n:,} of your runs in {sources.results}" if source == RESULTS_SOURCE
+                     else f"{n:,} runs of release {source}")
     return " + ".join(words) or "no runs"
 
 
@@ -106,28 +104,21 @@ def grid_cell(record: dict[str, Any] | None, ref: dict[str, Any] | None, learner
     }
 
 
-def _references(table: pd.DataFrame) -> dict[tuple[str, str, str], Any]:
-    refs = table.loc[table["kind"] == "reference"]
-    return {(r["chain"], r["scenario"], r["learner"]): r["mean"] for r in clean_records(refs)}
-
-
 def group_grid(sb: SiteBuild, group: Group, root: str) -> dict[str, Any]:
-    """One sweep's grid: rows (chain shown once per block), a column per learner, the references."""
+    """One sweep's grid: a header row per chain, a row per scenario, a column per learner (the
+    reference values colour the cells; their numbers are in the long table)."""
     lb = sb.lb
     table = lb.group_table(group)
     cells = {(r["chain"], r["scenario"], r["learner"]): r for r in clean_records(table.loc[table["kind"] == "learner"])}
     normalisers = {(r["chain"], r["scenario"]): r
                    for r in clean_records(group_frame(sb.stats.rows if sb.stats is not None else None, group))}
-    references = _references(table)
     learners = [n for n in lb.learners if n in set(table["learner"])]
     rows, previous = [], None
-    pairs = lb.pairs(group)
-    for chain, scenario in pairs:
+    for chain, scenario in lb.pairs(group):
         ref = normalisers.get((chain, scenario))
-        rows.append({"chain": chain if chain != previous else "", "span": sum(c == chain for c, _ in pairs),
+        rows.append({"chain": chain if chain != previous else "",
                      "scenario": scenario, "href": scenario_href(scenario, root, section_id(group, chain)),
-                     "cells": [grid_cell(cells.get((chain, scenario, n)), ref, n, chain, scenario) for n in learners],
-                     "refs": [references.get((chain, scenario, name)) for name in GRID_REFERENCES]})
+                     "cells": [grid_cell(cells.get((chain, scenario, n)), ref, n, chain, scenario) for n in learners]})
         previous = chain
     return {"slug": group.slug, "label": f"{group.protocol} · {group.preset}", "origin": group_origin(lb, sb.sources, group),
             "comparable": comparable_preset(group.preset), "not_comparable": not_comparable_text(group.preset),
@@ -142,5 +133,5 @@ def grid_context(sb: SiteBuild, root: str) -> dict[str, Any]:
     return {"grids": grids, "opening": opening.slug if opening else "", "beside": beside.slug if beside else "",
             "own": newest_own_group(sb.lb) is not None,
             "sweeps": [(g["slug"], f"{g['label']} ({g['origin']})") for g in grids],
-            "references": GRID_REFERENCES, "oracle_worst": ORACLE_WORST,
+            "oracle_worst": ORACLE_WORST,
             "legend": SCORE_COLOURS, "random_exact": RANDOM_EXACT, "oracle_best": ORACLE_BEST}

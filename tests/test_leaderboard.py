@@ -437,7 +437,7 @@ def test_index_opens_on_the_grid_of_the_users_sweep_marked_not_comparable(built:
     assert index.index('id="matrix"') < index.index('id="table1-section"')
     assert 'href="#table1-section"' in index  # the long table, one click away
     grid = index.split('id="matrix-paper-quick"')[1].split("</table>")[0]
-    assert grid.count('<td class="chain" rowspan="1">') == len(ROWS)  # one chain per row in this data
+    assert grid.count('<tr class="chain"><th colspan="6">') == len(ROWS)  # one chain per row in this data
     cells = re.findall(r'<td class="num mcell[^"]*"[^>]*>(.*?)</td>', grid)
     assert len(cells) == len(ROWS) * len(LEARNERS)
     assert all('<span class="ci">[' in c and '<span class="paper">paper ' in c and "Δ" not in c for c in cells)
