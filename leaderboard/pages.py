@@ -312,7 +312,8 @@ def run_context(sb: SiteBuild, record: dict[str, Any]) -> dict[str, Any]:
         "protocol": record["protocol"], "preset": record["preset"], "seed": record["seed"],
         "error": clean(record.get("error")), "traceback": clean(record.get("traceback")),
         "metrics": [(label, value_text(record, key, digits)) for key, label, digits in METRICS],
-        "info": [(label, value_text(record, key)) for key, label in INFO],
+        "info": [(label, source_label(sb, str(record["source"])) if key == "source" and not is_missing(record.get(key))
+                  else value_text(record, key)) for key, label in INFO],
         "mlflow_id": mlflow_id, "experiment": experiment,
         "norms": [{"name": n, "label": norm_label(n), "abbreviation": norm_abbreviation(n), "relevant": n in relevant,
                    "value": clean(record.get(f"{MF_PREFIX}{n}"))} for n in norms],
