@@ -447,6 +447,29 @@ def test_index_opens_on_the_grid_of_the_users_sweep_marked_not_comparable(built:
     assert '<option value="paper-quick" selected>' in index.split('data-pane="sweep"')[1].split("</select>")[0]
 
 
+def test_the_index_opens_on_the_newest_own_sweep_beside_the_releases() -> None:
+    """Issue 36: the sweep of the user's newest run first (not the release's, not an older sweep of
+    theirs), the release's sweep of the same protocol beside it; without own runs, the primary."""
+    from types import SimpleNamespace
+
+    from leaderboard.aggregate import Group
+    from leaderboard.table1_grid import opening_groups
+
+    sweeps = {("paper", "paper"): ("paper-table1-v1", "2026-11-20T10:00:00+00:00"),
+              ("corrected", "paper"): ("paper-table1-v1", "2026-11-20T11:00:00+00:00"),
+              ("paper", "quick"): ("results", "2026-11-25T09:00:00+00:00"),
+              ("paper", "smoke"): ("results", "2026-11-26T21:03:00+00:00")}
+    runs = pd.DataFrame([{"protocol": p, "preset": s, "source": src, "finished_at": at, "started_at": at}
+                         for (p, s), (src, at) in sweeps.items()])
+    table = pd.DataFrame([{"kind": "learner", "n_runs": 1, "protocol": p, "preset": s, "chain": "Utility",
+                           "scenario": "Switch5"} for p, s in sweeps])
+    groups = [Group(p, s) for p, s in sweeps]
+    lb = SimpleNamespace(runs=runs, table=table, groups=groups, primary=Group("paper", "paper"))
+    assert opening_groups(lb) == (Group("paper", "smoke"), Group("paper", "paper"))
+    lb.runs = runs.loc[runs["source"] != "results"]
+    assert opening_groups(lb) == (Group("paper", "paper"), None)  # a fresh clone: the release, nothing beside
+
+
 def test_one_meaning_of_bold_on_every_page(built: BuiltSite) -> None:
     """Issue 36: the ranking page bolds a best value only when its interval overlaps no other
     learner's (as Table 1), shades it otherwise, and every page states the marks once."""
