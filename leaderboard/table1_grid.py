@@ -7,16 +7,13 @@ filtering, one click away. Each grid cell carries what a reader checks: the mean
 the difference where the budget is the paper's. Where it is not, the grid says so once, above
 the table, and shows no difference.
 
-Why the index opens on the user's newest sweep: after ``make reproduce-table1 PRESET=smoke`` the
-user wants their 630 runs, not the release that ships with the code. The release's sweep of the
-same protocol is shown beside it, each labelled with where its runs come from.
+Which sweep the grid opens on, and which one it shows beside it, is :mod:`leaderboard.opening`'s
+choice; each is labelled with where its runs come from.
 """
 
 from __future__ import annotations
 
 from typing import Any
-
-import pandas as pd
 
 from leaderboard.aggregate import (
     ORACLE_BEST,
@@ -24,54 +21,15 @@ from leaderboard.aggregate import (
     RANDOM_EXACT,
     Group,
     Leaderboard,
-    choose_primary,
     comparable_preset,
     not_comparable_text,
 )
+from leaderboard.opening import newest_own_group, opening_groups
 from leaderboard.ranking_page import SCORE_COLOURS, group_frame, matrix_cell
 from leaderboard.render import clean_records, is_missing, scenario_href, section_id
 from leaderboard.site_state import SiteBuild
 from leaderboard.sources import RESULTS_SOURCE, Sources
 from leaderboard.tables import fmt
-
-
-# ---------------------------------------------------------------------------------------- which sweeps
-def _own_runs(lb: Leaderboard) -> pd.DataFrame:
-    if "source" not in lb.runs.columns:
-        return lb.runs
-    return lb.runs.loc[lb.runs["source"] == RESULTS_SOURCE]
-
-
-def newest_own_group(lb: Leaderboard) -> Group | None:
-    """The sweep the user ran last: among the groups of the preset of their newest run, the one
-    :func:`choose_primary` prefers (most rows, then protocol paper). None without runs of their own."""
-    own = _own_runs(lb)
-    if own.empty:
-        return None
-    when = pd.to_datetime(own["finished_at"].fillna(own["started_at"]), utc=True, errors="coerce")
-    newest = own.loc[when.fillna(pd.Timestamp(0, tz="UTC")).idxmax()]
-    presets = {(str(p), str(s)) for p, s in zip(own["protocol"], own["preset"]) if str(s) == str(newest["preset"])}
-    candidates = [g for g in lb.groups if (g.protocol, g.preset) in presets]
-    return choose_primary(lb.table, candidates) if candidates else None
-
-
-def release_match(lb: Leaderboard, mine: Group) -> Group | None:
-    """The release's sweep to compare ``mine`` with: same protocol, a group holding released runs,
-    the paper's budget preferred (:func:`choose_primary`). None when no release has that protocol."""
-    if "source" not in lb.runs.columns:
-        return None
-    released = lb.runs.loc[lb.runs["source"] != RESULTS_SOURCE]
-    have = {(str(p), str(s)) for p, s in zip(released["protocol"], released["preset"])}
-    candidates = [g for g in lb.groups if g != mine and g.protocol == mine.protocol and (g.protocol, g.preset) in have]
-    return choose_primary(lb.table, candidates) if candidates else None
-
-
-def opening_groups(lb: Leaderboard) -> tuple[Group | None, Group | None]:
-    """(the sweep the index opens on, the sweep shown beside it or None)."""
-    mine = newest_own_group(lb)
-    if mine is None:
-        return lb.primary, None
-    return mine, release_match(lb, mine)
 
 
 def group_origin(lb: Leaderboard, sources: Sources, group: Group) -> str:

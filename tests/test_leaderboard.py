@@ -453,7 +453,7 @@ def test_the_index_opens_on_the_newest_own_sweep_beside_the_releases() -> None:
     from types import SimpleNamespace
 
     from leaderboard.aggregate import Group
-    from leaderboard.table1_grid import opening_groups
+    from leaderboard.opening import opening_groups, primary_choice
 
     sweeps = {("paper", "paper"): ("paper-table1-v1", "2026-11-20T10:00:00+00:00"),
               ("corrected", "paper"): ("paper-table1-v1", "2026-11-20T11:00:00+00:00"),
@@ -466,8 +466,11 @@ def test_the_index_opens_on_the_newest_own_sweep_beside_the_releases() -> None:
     groups = [Group(p, s) for p, s in sweeps]
     lb = SimpleNamespace(runs=runs, table=table, groups=groups, primary=Group("paper", "paper"))
     assert opening_groups(lb) == (Group("paper", "smoke"), Group("paper", "paper"))
+    assert primary_choice(lb, None, None) == ("paper", "smoke")  # table1.csv / .tex: the user's sweep too
+    assert primary_choice(lb, "corrected", None) == ("corrected", None)  # --protocol wins
     lb.runs = runs.loc[runs["source"] != "results"]
     assert opening_groups(lb) == (Group("paper", "paper"), None)  # a fresh clone: the release, nothing beside
+    assert primary_choice(lb, None, None) == (None, None)  # choose_primary's rule, as before
 
 
 def test_one_meaning_of_bold_on_every_page(built: BuiltSite) -> None:
