@@ -215,6 +215,8 @@ def runs_context(sb: SiteBuild) -> dict[str, Any]:
     return sb.common("All runs", "../", "runs/index.html") | {
         "runs": records,
         "sources": [(s, source_label(sb, s)) for s in sources],
+        # opens on the user's own runs when there are runs of a release too (issue 36); "all" one click away
+        "source_default": RESULTS_SOURCE if RESULTS_SOURCE in sources and len(sources) > 1 else "",
         "sweeps": [(g.slug, f"{g.protocol} · {g.preset}") for g in sb.lb.groups],
         "chains": [(c, c) for c in dict.fromkeys(c for c, _ in sb.lb.pairs())],
         "learners": [(n, n) for n in sb.lb.learners],
