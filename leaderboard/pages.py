@@ -197,7 +197,7 @@ def own_sweeps(sb: SiteBuild) -> dict[str, str]:
     return {"sweeps": sweeps, "newest": newest}
 
 
-def source_label(sb: SiteBuild, source: str) -> str:
+def source_label(source: str) -> str:
     """How the All runs page names a run's source: ``your runs`` or ``release <name>``."""
     return "your runs" if source == RESULTS_SOURCE else f"release {source}"
 
@@ -208,13 +208,13 @@ def runs_context(sb: SiteBuild) -> dict[str, Any]:
     if "source" not in runs.columns:
         runs = runs.assign(source=RESULTS_SOURCE)
     records = [r | {"state": "ok" if r["ok"] else "failed", "colour": sb.colour(str(r["learner"])),
-                    "sweep": Group(r["protocol"], r["preset"]).slug, "source_label": source_label(sb, str(r["source"]))}
+                    "sweep": Group(r["protocol"], r["preset"]).slug, "source_label": source_label(str(r["source"]))}
                for r in clean_records(runs[["run_id", "ok", "status", "protocol", "preset", "chain", "scenario", "variant",
                                             "learner", "seed", "metric", "source"]])]
     sources = dict.fromkeys(str(s) for s in runs["source"])
     return sb.common("All runs", "../", "runs/index.html") | {
         "runs": records,
-        "sources": [(s, source_label(sb, s)) for s in sources],
+        "sources": [(s, source_label(s)) for s in sources],
         # opens on the user's own runs when there are runs of a release too (issue 36); "all" one click away
         "source_default": RESULTS_SOURCE if RESULTS_SOURCE in sources and len(sources) > 1 else "",
         "sweeps": [(g.slug, f"{g.protocol} · {g.preset}") for g in sb.lb.groups],
@@ -314,7 +314,7 @@ def run_context(sb: SiteBuild, record: dict[str, Any]) -> dict[str, Any]:
         "protocol": record["protocol"], "preset": record["preset"], "seed": record["seed"],
         "error": clean(record.get("error")), "traceback": clean(record.get("traceback")),
         "metrics": [(label, value_text(record, key, digits)) for key, label, digits in METRICS],
-        "info": [(label, source_label(sb, str(record["source"])) if key == "source" and not is_missing(record.get(key))
+        "info": [(label, source_label(str(record["source"])) if key == "source" and not is_missing(record.get(key))
                   else value_text(record, key)) for key, label in INFO],
         "mlflow_id": mlflow_id, "experiment": experiment,
         "norms": [{"name": n, "label": norm_label(n), "abbreviation": norm_abbreviation(n), "relevant": n in relevant,
