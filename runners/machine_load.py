@@ -11,8 +11,10 @@ processes on ``cores`` cores each get ``cores / (load + workers)`` of a core whe
 one. The load is the larger of the 1- and 5-minute load averages (a sweep that starts in a quiet
 minute of a busy hour is still slowed). The planning process itself is runnable while it reads
 the load, which roughly stands for the sweep's own main process (it mirrors runs into MLflow
-while the workers train). Measured on 2026-11-26 on this 2-core machine (see README): a smoke
-Table 1 estimated at 3m26s idle took 4m03s idle and 8m48s at load 3, where the factor gives 8m35s.
+while the workers train). Measured on 2026-11-26 on a 2-core machine shared with two other
+engineers' test runs, the smoke Table 1 (630 runs, 3m26s idle): at load 4.6 the plan said 11m16s
+and the sweep took 10m44s; at load 1.2 it said 5m27s and took 7m56s, because the load rose to 5
+during the sweep (the estimate is of the load when the plan is made, and says so).
 """
 
 from __future__ import annotations
