@@ -22,6 +22,8 @@ PYTEST_ARGS ?=
 # The shipped results releases (releases/<name>/) are shown beside your own runs; RELEASES= shows none.
 RELEASES ?= all
 RELEASE_ARGS := $(foreach r,$(RELEASES),--release $(r))
+# pip's output cut to one line per package it collects and the final summary (its progress, without the noise).
+PIP_PROGRESS := { grep --line-buffered -E '^(Collecting|Successfully installed)' || true; } | sed -u -e 's/^Successfully installed .*/done/' -e 's/^/  pip: /'
 # Debian packages the tests use: a real single-node SLURM (with accounting) and headless Chromium.
 DEBIAN_PACKAGES := slurm-wlm munge slurmdbd mariadb-server chromium
 
@@ -45,23 +47,30 @@ help:
 venv: $(STAMP)/venv
 $(STAMP)/venv: pyproject.toml
 	@mkdir -p $(STAMP)
-	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	# torch first and pinned: a CPU wheel of 2.13.0 is on disk; anything else pulls GBs of CUDA.
-	$(PIP) install -q torch==2.13.0
-	# the llm extra (Inspect AI) too: its tests run offline with Inspect's mock model; docs: the site (make docs).
-	$(PIP) install -q -e '.[dev,llm,docs]'
+	@test -x $(PY) || { echo "venv: creating $(VENV) with $(PYTHON)"; $(PYTHON) -m venv $(VENV); }
+	@# torch first and pinned: a CPU wheel of 2.13.0 is on disk; anything else pulls GBs of CUDA.
+	@echo "venv: [1/2] installing torch==2.13.0 (CPU) into $(VENV)"
+	@set -o pipefail; $(PIP) install --progress-bar off torch==2.13.0 | $(PIP_PROGRESS)
+	@# the llm extra (Inspect AI) too: its tests run offline with Inspect's mock model; docs: the site (make docs).
+	@echo "venv: [2/2] installing MoralityGym and its dependencies ('.[dev,llm,docs]', about 180 packages, 1-3 min)"
+	@set -o pipefail; $(PIP) install --progress-bar off -e '.[dev,llm,docs]' | $(PIP_PROGRESS)
+	@echo "venv: ready; run commands with $(PY) or after 'source $(VENV)/bin/activate'"
 	@touch $@
 
 system-deps: $(STAMP)/system-deps
 $(STAMP)/system-deps:
 	@mkdir -p $(STAMP)
-	@missing=$$(for p in $(DEBIAN_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || echo $$p; done); \
+	@missing=$$(for p in $(DEBIAN_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || printf '%s ' $$p; done); \
+	missing=$${missing% }; \
 	if [ -n "$$missing" ]; then \
-	  if [ "$$(id -u)" != 0 ]; then echo "need root to apt-get install:$$missing" >&2; exit 1; fi; \
-	  echo "apt-get install$$missing"; \
-	  export DEBIAN_FRONTEND=noninteractive; \
-	  apt-get update -qq && apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
-	fi
+	  if [ "$$(id -u)" != 0 ]; then echo "need root to apt-get install $$missing" >&2; exit 1; fi; \
+	  echo "system-deps: the tests need a single-node SLURM and headless Chromium; installing: $$missing"; \
+	  echo "system-deps: apt-get update, then apt-get install (1-3 min; one line per package unpacked and set up)"; \
+	  export DEBIAN_FRONTEND=noninteractive; set -o pipefail; \
+	  apt-get update -qq && apt-get install -y -q --no-install-recommends $$missing \
+	    | { grep --line-buffered -E '^(Unpacking|Setting up) ' || true; } | sed -u 's/^/  apt: /' || exit $$?; \
+	  echo "system-deps: done"; \
+	else echo "system-deps: already installed: $(DEBIAN_PACKAGES)"; fi
 	@touch $@
 
 test: venv system-deps

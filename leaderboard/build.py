@@ -25,6 +25,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -32,10 +33,12 @@ from leaderboard.aggregate import (
     Leaderboard,
     aggregate,
     chain_definitions,
+    choose_primary,
     compute_reference,
     reference_requests,
     with_reference,
 )
+from leaderboard.opening import primary_choice
 from leaderboard.release import Release, ReleaseError, resolve
 from leaderboard.sources import Sources, load_sources
 from leaderboard.stamp import StampError, source_date_epoch, stamp_text
@@ -70,8 +73,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--site", type=Path, default=None, help="site output directory (default: site/ in --out)")
     parser.add_argument("--no-reference", action="store_true",
                         help="skip the exact Random and oracle reference rows (they are cached once computed)")
-    parser.add_argument("--protocol", help="protocol of the primary table (table1.csv/.tex); default: automatic")
-    parser.add_argument("--preset", help="preset of the primary table; default: automatic")
+    parser.add_argument("--protocol", help="protocol of the primary table (table1.csv/.tex); default: that of the sweep "
+                                           "of your newest run, else automatic")
+    parser.add_argument("--preset", help="preset of the primary table; default: that of the sweep of your newest run, "
+                                         "else automatic")
     parser.add_argument("--release", action="append", metavar="DIR|all",
                         help="also show a results release (releases/<name>; 'all': every release in releases/); "
                              "repeatable. Runs of the results directory win over a release's copy of the same run")
@@ -142,11 +147,13 @@ def build(args: argparse.Namespace, sources: Sources, quarantined: list[dict[str
     start = time.perf_counter()
     lb = aggregate(runs, planned, primary_protocol=args.protocol, primary_preset=args.preset)
     check_primary_choice(args, lb)
+    protocol, preset = primary_choice(lb, args.protocol, args.preset)  # the user's newest sweep, issue 36
+    lb = replace(lb, primary=choose_primary(lb.table, lb.groups, protocol, preset))
     reference = None
     if not args.no_reference:
         reference = compute_reference(reference_requests(lb.table), out_dir / REFERENCE_CACHE, progress,
                                       chain_definitions(lb.runs))
-        lb = with_reference(lb, reference.entries, reference.errors, args.protocol, args.preset)
+        lb = with_reference(lb, reference.entries, reference.errors, protocol, preset)
     lb.skipped, lb.quarantined = list(skipped or []), list(quarantined or [])
     stamp = stamp_text(lb.runs)
     timings["aggregate"] = time.perf_counter() - start

@@ -4,7 +4,7 @@ Why a separate step: :mod:`leaderboard.aggregate` makes the table and :mod:`lead
 imports it, so the intervals are joined onto ``Leaderboard.table`` here, after both, and every
 writer (CSV, Markdown, LaTeX, site) reads the same columns.
 
-The bold rule (one definition, :data:`BOLD_RULE`, quoted by every output): a learner cell is bold
+The bold rule (one definition, :data:`leaderboard.marks.BOLD_RULE`, quoted by every output): a learner cell is bold
 when it has the highest mean of its row among the *complete* learner cells and its 95% interval
 overlaps the interval of no other complete learner of the row. Incomplete cells are left out of
 the comparison, as before (issue 11: they are never bold and not compared with the paper). No
@@ -18,13 +18,9 @@ from dataclasses import replace
 import pandas as pd
 
 from leaderboard.aggregate import Leaderboard
+from leaderboard.marks import BOLD_RULE, BOLD_RULE_TEX  # noqa: F401 - re-exported: tables and pages quote them
 from leaderboard.stats import bold_cells
 
-#: What bold means, stated next to every table that uses it.
-BOLD_RULE = ("highest mean of the row whose 95% interval overlaps no other learner's (complete cells only); "
-             "no bold = not separated from another learner, or an interval is missing (one seed).")
-BOLD_RULE_TEX = ("bold: highest mean of the row whose 95\\% bootstrap interval overlaps no other learner's; "
-                 "no bold: not separated, or no interval (one seed).")
 KEYS = ["protocol", "preset", "chain", "scenario", "learner"]
 #: The columns this step adds to ``Leaderboard.table`` (NaN / "" / False on reference rows).
 COLUMNS = ["ci_low", "ci_high", "ci_note", "bold", "bold_note"]

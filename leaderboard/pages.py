@@ -16,17 +16,16 @@ import pandas as pd
 from leaderboard.aggregate import ORACLE_BEST, ORACLE_WORST, RANDOM_EXACT, STD_DDOF, Group, chain_norm_order, safe_name
 from leaderboard.intervals import BOLD_RULE
 from leaderboard.llm_entries import llm_entries
+from leaderboard.marks import NOTABLE_DELTA
 from leaderboard.paper_figures import chain_title, norm_abbreviation, norm_label
-from leaderboard.ranking_page import matrix_context
 from leaderboard.render import clean, clean_records, is_missing, run_href, scenario_href, section_id
 from leaderboard.site_state import SiteBuild
 from leaderboard.sources import RESULTS_SOURCE
+from leaderboard.table1_grid import grid_context, opening_groups
 from leaderboard.tables import fmt
+from morality_gym.clitools import duration
 from morality_gym.envs.registry import scenario_named
 from runners.results_schema import MF_PREFIX
-
-#: |ours - paper| from which the difference is highlighted on the site.
-NOTABLE_DELTA = 0.05
 
 
 def expected_count(record: dict[str, Any]) -> int:
@@ -115,7 +114,7 @@ def table1_context(sb: SiteBuild, root: str) -> dict[str, Any]:
         group = Group(r["protocol"], r["preset"])
         delta = r["delta"]
         rows.append(cell_fields(sb, r) | {
-            "slug": group.slug,
+            "slug": group.slug, "delta_note": str(r.get("delta_note") or ""),
             "href": scenario_href(r["scenario"], root, section_id(group, r["chain"])),
             "delta_class": "off" if delta is not None and abs(delta) >= NOTABLE_DELTA else "",
             "refs": [clean(reference.get((r["protocol"], r["preset"], r["chain"], r["scenario"], name)))
@@ -128,7 +127,7 @@ def table1_context(sb: SiteBuild, root: str) -> dict[str, Any]:
         "bold_rule": BOLD_RULE,
         "notable": NOTABLE_DELTA,
         "random_exact": RANDOM_EXACT, "oracle_best": ORACLE_BEST, "oracle_worst": ORACLE_WORST,
-        "default": lb.primary.slug if lb.primary else "",
+        "default": opening.slug if (opening := opening_groups(lb)[0]) else "",
         "sweeps": [(g.slug, f"{g.protocol} · {g.preset}") for g in lb.groups],
         "chains": [(c, c) for c in dict.fromkeys(c for c, _ in lb.pairs())],
         "scenarios": [(s, s) for s in sorted({s for _, s in lb.pairs()})],
@@ -155,11 +154,12 @@ def scenarios_context(sb: SiteBuild, root: str) -> list[tuple[str, str, str]]:
 
 
 def index_context(sb: SiteBuild) -> dict[str, Any]:
+    opening = opening_groups(sb.lb)[0]
     return sb.common("MoralityGym leaderboard", "", "index.html") | {
-        "primary": sb.lb.primary.label if sb.lb.primary else "",
+        "opening": f"{opening.protocol} · {opening.preset}" if opening else "",
         "status": status_context(sb),
         "t1": table1_context(sb, ""),
-        "mx": matrix_context(sb, ""),
+        "grid": grid_context(sb, ""),
         "figure2": figure2_context(sb, ""),
         "scenarios": scenarios_context(sb, ""),
         "sources": sources_context(sb),
@@ -174,7 +174,8 @@ def sources_context(sb: SiteBuild) -> list[dict[str, Any]]:
     out = []
     if sb.sources.has_results_runs:
         out.append({"kind": "results", "label": str(sb.sources.results), "title": "your runs",
-                    "runs": int(counts.get(RESULTS_SOURCE, 0)), "commit": "", "created": "", "shadowed": 0})
+                    "runs": int(counts.get(RESULTS_SOURCE, 0)), "commit": "", "created": "", "shadowed": 0}
+                   | own_sweeps(sb))
     for release in sb.sources.releases:
         m = release.manifest
         out.append({"kind": "release", "label": release.name, "title": str(m.get("title", "")),
@@ -183,14 +184,40 @@ def sources_context(sb: SiteBuild) -> list[dict[str, Any]]:
     return out
 
 
+def own_sweeps(sb: SiteBuild) -> dict[str, str]:
+    """The sweeps the user's runs are in (``paper · smoke (630)``) and when the newest finished."""
+    runs = sb.lb.runs
+    own = runs.loc[runs["source"] == RESULTS_SOURCE] if "source" in runs.columns else runs
+    if own.empty:
+        return {"sweeps": "", "newest": ""}
+    counts = own.groupby(["protocol", "preset"], sort=False).size()
+    sweeps = ", ".join(f"{protocol} · {preset} ({n:,})" for (protocol, preset), n in counts.items())
+    finished = own["finished_at"].dropna().astype(str)
+    newest = max(finished).replace("T", " ")[:16] + " UTC" if len(finished) else ""
+    return {"sweeps": sweeps, "newest": newest}
+
+
+def source_label(source: str) -> str:
+    """How the All runs page names a run's source: ``your runs`` or ``release <name>``."""
+    return "your runs" if source == RESULTS_SOURCE else f"release {source}"
+
+
 # ---------------------------------------------------------------------------------------- runs index
 def runs_context(sb: SiteBuild) -> dict[str, Any]:
     runs = sb.lb.runs.sort_values(["protocol", "preset", "chain", "scenario", "variant", "learner", "seed"])
-    records = [r | {"state": "ok" if r["ok"] else "failed", "colour": sb.colour(str(r["learner"]))}
+    if "source" not in runs.columns:
+        runs = runs.assign(source=RESULTS_SOURCE)
+    records = [r | {"state": "ok" if r["ok"] else "failed", "colour": sb.colour(str(r["learner"])),
+                    "sweep": Group(r["protocol"], r["preset"]).slug, "source_label": source_label(str(r["source"]))}
                for r in clean_records(runs[["run_id", "ok", "status", "protocol", "preset", "chain", "scenario", "variant",
-                                            "learner", "seed", "metric"]])]
+                                            "learner", "seed", "metric", "source"]])]
+    sources = dict.fromkeys(str(s) for s in runs["source"])
     return sb.common("All runs", "../", "runs/index.html") | {
         "runs": records,
+        "sources": [(s, source_label(s)) for s in sources],
+        # opens on the user's own runs when there are runs of a release too (issue 36); "all" one click away
+        "source_default": RESULTS_SOURCE if RESULTS_SOURCE in sources and len(sources) > 1 else "",
+        "sweeps": [(g.slug, f"{g.protocol} · {g.preset}") for g in sb.lb.groups],
         "chains": [(c, c) for c in dict.fromkeys(c for c, _ in sb.lb.pairs())],
         "learners": [(n, n) for n in sb.lb.learners],
         "downloads_list": sb.downloads_of("runs"),
@@ -209,8 +236,8 @@ METRICS = [
     ("goal_rate", "Landmark reached rate", 3),
 ]
 INFO = [("budget", "Training budget (steps)"), ("total_steps", "Steps trained"), ("eval_episodes", "Evaluation episodes"),
-        ("beta", "beta"), ("max_steps", "max_steps"), ("wall_time_s", "Wall time (s)"),
-        ("cpu_time_s", "CPU time (s)"), ("started_at", "Started"),
+        ("beta", "beta"), ("max_steps", "max_steps"), ("wall_time_s", "Wall time"),
+        ("cpu_time_s", "CPU time"), ("started_at", "Started"),
         ("finished_at", "Finished"), ("hostname", "Host"), ("git_commit", "Git commit"), ("model_path", "Model"),
         ("gif_path", "GIF"), ("source", "Source (results directory or release)")]
 
@@ -239,12 +266,31 @@ def tracking_info(tracking_dir: Path | None, run_id: str) -> tuple[str, str | No
         return f"tracking file unreadable ({type(exc).__name__}: {exc})", None
 
 
+def seconds_text(value: float) -> str:
+    """A duration for people: ``3.2 s`` under a minute, else ``2m03s (123 s)``; full precision stays in
+    the downloads (``data/runs.csv``, ``data/runs.parquet``)."""
+    if value < 60:
+        return f"{value:.1f} s"
+    return f"{duration(value)} ({value:,.0f} s)"
+
+
+#: Run-page fields shown rounded for people, and how.
+PEOPLE_FORMATS = {
+    "wall_time_s": seconds_text,
+    "cpu_time_s": seconds_text,
+    "budget": lambda v: f"{int(v):,}",
+    "total_steps": lambda v: f"{int(v):,}",
+}
+
+
 def value_text(record: dict[str, Any], key: str, digits: int | None = None) -> str:
     value = record.get(key)
     if is_missing(value) and not isinstance(value, str):
         return "—"
     if digits is not None:
         return fmt(value, digits)
+    if key in PEOPLE_FORMATS and isinstance(value, (int, float)):
+        return PEOPLE_FORMATS[key](float(value))
     if isinstance(value, float) and value.is_integer():
         return str(int(value))
     return str(value)
@@ -268,7 +314,8 @@ def run_context(sb: SiteBuild, record: dict[str, Any]) -> dict[str, Any]:
         "protocol": record["protocol"], "preset": record["preset"], "seed": record["seed"],
         "error": clean(record.get("error")), "traceback": clean(record.get("traceback")),
         "metrics": [(label, value_text(record, key, digits)) for key, label, digits in METRICS],
-        "info": [(label, value_text(record, key)) for key, label in INFO],
+        "info": [(label, source_label(str(record["source"])) if key == "source" and not is_missing(record.get(key))
+                  else value_text(record, key)) for key, label in INFO],
         "mlflow_id": mlflow_id, "experiment": experiment,
         "norms": [{"name": n, "label": norm_label(n), "abbreviation": norm_abbreviation(n), "relevant": n in relevant,
                    "value": clean(record.get(f"{MF_PREFIX}{n}"))} for n in norms],

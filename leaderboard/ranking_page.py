@@ -1,5 +1,5 @@
-"""The data of the ranking page (aggregates, probability of improvement, figures, rows used) and of
-the matrix view of Table 1 on the index page, both from :mod:`leaderboard.stats`.
+"""The data of the ranking page (aggregates, probability of improvement, figures, rows used) and the
+colours of Table 1's grid on the index page (:mod:`leaderboard.table1_grid`), both from :mod:`leaderboard.stats`.
 
 Colours are computed here (a cell's background is data: its normalised score or its probability),
 so the templates stay free of arithmetic.
@@ -7,7 +7,6 @@ so the templates stay free of arithmetic.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import pandas as pd
@@ -15,6 +14,7 @@ import pandas as pd
 from leaderboard.aggregate import ORACLE_BEST, RANDOM_EXACT, Group
 from leaderboard.render import clean, clean_records, is_missing, scenario_href, section_id
 from leaderboard.site_state import SiteBuild
+from leaderboard.stats.cells import intervals_overlap
 from leaderboard.stats_figure_files import RANKING_FIGURES
 from leaderboard.tables import fmt
 
@@ -50,39 +50,16 @@ def interval(low: Any, high: Any, digits: int = 3) -> str:
     return f"[{fmt(low, digits)}, {fmt(high, digits)}]"
 
 
-def _group_frame(frame: pd.DataFrame | None, group: Group) -> pd.DataFrame:
+def group_frame(frame: pd.DataFrame | None, group: Group) -> pd.DataFrame:
     if frame is None or frame.empty:
         return pd.DataFrame() if frame is None else frame
     return frame.loc[(frame["protocol"] == group.protocol) & (frame["preset"] == group.preset)]
 
 
-# ---------------------------------------------------------------------------------------- matrix
-def matrix_context(sb: SiteBuild, root: str) -> dict[str, Any]:
-    """Per sweep: rows (chain, scenario) x learners, mean metric coloured by normalised score."""
-    lb = sb.lb
-    rows_frame = sb.stats.rows if sb.stats is not None else pd.DataFrame()
-    groups = []
-    for group in lb.groups:
-        table = lb.group_table(group)
-        cells = {(r["chain"], r["scenario"], r["learner"]): r for r in clean_records(table.loc[table["kind"] == "learner"])}
-        refs = {(r["chain"], r["scenario"]): r for r in clean_records(_group_frame(rows_frame, group))}
-        learners = [n for n in lb.learners if n in set(table["learner"])]
-        rows = []
-        for chain, scenario in lb.pairs(group):
-            ref = refs.get((chain, scenario))
-            line = [_matrix_cell(cells.get((chain, scenario, learner)), ref, learner, chain, scenario)
-                    for learner in learners]
-            rows.append({"chain": chain, "scenario": scenario, "cells": line,
-                         "href": scenario_href(scenario, root, section_id(group, chain))})
-        groups.append({"slug": group.slug, "label": group.label, "learners": [(n, sb.colour(n)) for n in learners],
-                       "rows": rows})
-    return {"groups": groups, "random_exact": RANDOM_EXACT, "oracle_best": ORACLE_BEST,
-            "legend": (SCORE_COLOURS[0], SCORE_COLOURS[1], SCORE_COLOURS[2])}
-
-
-def _matrix_cell(c: dict[str, Any] | None, ref: dict[str, Any] | None, learner: str, chain: str,
-                 scenario: str) -> dict[str, Any]:
-    """One matrix cell: the mean, coloured by its normalised score (when the row has one), with a tooltip."""
+# ---------------------------------------------------------------------------------------- Table 1 cells
+def matrix_cell(c: dict[str, Any] | None, ref: dict[str, Any] | None, learner: str, chain: str,
+                scenario: str) -> dict[str, Any]:
+    """One Table 1 grid cell (:mod:`leaderboard.table1_grid`): the mean, coloured by its normalised score (when the row has one), with a tooltip."""
     if c is None or c["mean"] is None:
         return {"text": "—", "colour": NOT_NORMALISED, "title": f"{learner}: no result", "score": None,
                 "bold": False, "incomplete": False}
@@ -111,26 +88,45 @@ def _matrix_tip(c: dict[str, Any], ref: dict[str, Any] | None, score: float | No
 
 # ---------------------------------------------------------------------------------------- ranking
 def _measure_rows(sb: SiteBuild, aggregates: pd.DataFrame, measure: str) -> list[dict[str, Any]]:
+    """Per learner, each statistic with its interval, shaded when best and bold when also separated
+    from every other learner's interval: the one meaning of the marks (:mod:`leaderboard.marks`)."""
     part = aggregates.loc[aggregates["measure"] == measure] if not aggregates.empty else aggregates
     if part.empty:
         return []
-    best = {}
-    for statistic, _, pick in STATISTICS:
-        values = part.loc[part["statistic"] == statistic, "value"].dropna()
-        best[statistic] = pick(values) if len(values) else math.nan
+    learners = [n for n in sb.lb.learners if n in set(part["learner"])]
+    marks = {statistic: _column_marks(part.loc[part["statistic"] == statistic], pick)
+             for statistic, _, pick in STATISTICS}
     rows = []
-    for learner in [n for n in sb.lb.learners if n in set(part["learner"])]:
+    for learner in learners:
         mine = {r["statistic"]: r for r in clean_records(part.loc[part["learner"] == learner])}
         stats = []
         for statistic, _, _ in STATISTICS:
             r = mine.get(statistic)
-            value = None if r is None else r["value"]
-            stats.append({"value": value, "ci": interval(r["ci_low"], r["ci_high"]) if r else "—",
-                          "top": value is not None and abs(value - best[statistic]) < 1e-12})
+            best, bold = marks[statistic].get(learner, (False, False))
+            stats.append({"value": None if r is None else r["value"],
+                          "ci": interval(r["ci_low"], r["ci_high"]) if r else "—", "top": best, "bold": bold})
         first = next(iter(mine.values()))
         rows.append({"learner": learner, "colour": sb.colour(learner), "stats": stats,
                      "n_rows": first["n_rows"], "n_runs": first["n_runs"]})
     return rows
+
+
+def _column_marks(column: pd.DataFrame, pick: Any) -> dict[str, tuple[bool, bool]]:
+    """learner -> (best, bold) of one statistic: best = the best value (ties all best); bold = the
+    only best, with an interval that overlaps no other learner's (as Table 1's bold)."""
+    good = column.loc[column["value"].notna()]
+    if good.empty:
+        return {}
+    top = pick(good["value"])
+    best = good.loc[(good["value"] - top).abs() < 1e-12]
+    out = {str(r["learner"]): (True, False) for r in best.to_dict("records")}
+    if len(best) == 1 and len(good) > 1:
+        cell = best.iloc[0]
+        others = good.drop(index=best.index)
+        overlaps = [intervals_overlap(cell["ci_low"], cell["ci_high"], o["ci_low"], o["ci_high"])
+                    for o in others.to_dict("records")]
+        out[str(cell["learner"])] = (True, all(o is False for o in overlaps))
+    return out
 
 
 def _improvement(sb: SiteBuild, frame: pd.DataFrame) -> tuple[list[tuple[str, str]], list[dict[str, Any]]]:
@@ -175,16 +171,16 @@ def ranking_context(sb: SiteBuild) -> dict[str, Any]:
     for group in sb.lb.groups:
         if stats is None:
             break
-        aggregates = _group_frame(stats.aggregates, group)
+        aggregates = group_frame(stats.aggregates, group)
         rows = [r | {"href": scenario_href(r["scenario"], "", section_id(group, r["chain"]))}
-                for r in clean_records(_group_frame(stats.rows, group))]
+                for r in clean_records(group_frame(stats.rows, group))]
         measures = []
         for measure in ("score", "metric"):
             empty = ("No row can be normalised (no reference values, or too little headroom): see the rows below."
                      if measure == "score" else "No row where every learner has a usable run.")
             measures.append({"measure": measure, "title": MEASURE_TITLES[measure],
                              "rows": _measure_rows(sb, aggregates, measure), "empty": empty})
-        learners, improvement = _improvement(sb, _group_frame(stats.improvement, group))
+        learners, improvement = _improvement(sb, group_frame(stats.improvement, group))
         captions = dict(RANKING_FIGURES)
         figures = [{"src": path, "alt": f"{kind} of {group.label}", "caption": captions.get(kind, "")}
                    for kind, path in sb.ranking_figures.get(group, [])]
@@ -199,4 +195,4 @@ def ranking_context(sb: SiteBuild) -> dict[str, Any]:
     }
 
 
-__all__ = ["clean", "diverging", "footnote", "matrix_context", "ranking_context"]
+__all__ = ["clean", "diverging", "footnote", "group_frame", "matrix_cell", "ranking_context"]

@@ -13,12 +13,13 @@ This module assembles the site: it copies files and writes pages. What a page sh
 
 Layout of ``<site>``::
 
-    index.html                   status, Table 1 (sortable, filterable) and its matrix view, Figure 2
+    index.html                   Table 1 as the paper's grid (the user's newest sweep, a release's beside it),
+                                 status, the long Table 1 (sortable, filterable), Figure 2
     ranking.html                 aggregate scores with intervals, probability of improvement, profiles
     runs/index.html              every run with its status
     runs/<run_id>.html           one run: metrics, per-norm functions, config, curve, MLflow, error
     scenarios/<Scenario>.html    layout, variants, curves, return vs cost, violations, breakdown, GIFs
-    assets/ figures/ gifs/ scenarios/img/ runs/img/ data/ (CSV and Parquet downloads)
+    assets/ figures/ gifs/ (every run's episode, hard-linked) scenarios/img/ runs/img/ data/ (CSV and Parquet downloads)
 
 The directory is rebuilt from scratch into a temporary sibling and swapped in at the end, so a
 failed build leaves the previous site intact; a directory that was not made by this module is
@@ -125,11 +126,22 @@ def gif_choices(lb: Leaderboard, sources: Sources) -> dict[tuple[Group, str, str
 
 
 def copy_gifs(sb: SiteBuild, choices: dict[tuple[Group, str, str, str], dict[str, Any]]) -> None:
+    """Every run's evaluation-episode GIF into ``gifs/`` (its run page shows it), hard-linked where
+    the file system allows (a GIF is written once and never changed, so a link is safe and costs
+    no bytes); ``choices`` are the ones the scenario pages show (:func:`gif_choices`)."""
     sb.gif_choices = choices
     for record in choices.values():
-        target = f"gifs/{safe_name(str(record['run_id']))}.gif"
-        _copy(record["_path"], sb.out / target)
-        sb.gifs[str(record["run_id"])] = target
+        _place_gif(sb, str(record["run_id"]), record["_path"])
+    runs = sb.lb.runs.loc[sb.lb.runs["ok"] & sb.lb.runs["gif_path"].notna(), ["run_id", "gif_path"]]
+    for run_id, gif_path in zip(runs["run_id"].astype(str), runs["gif_path"]):
+        if run_id not in sb.gifs and (path := sb.sources.gif_of(run_id, gif_path)) is not None:
+            _place_gif(sb, run_id, path)
+
+
+def _place_gif(sb: SiteBuild, run_id: str, path: Path) -> None:
+    target = f"gifs/{safe_name(run_id)}.gif"
+    link_or_copy(path, sb.out / target)
+    sb.gifs[run_id] = target
 
 
 def render_layouts(sb: SiteBuild, scenarios: list[str]) -> None:

@@ -7,11 +7,13 @@ from pathlib import Path
 from typing import Any
 
 from leaderboard.aggregate import Group, Leaderboard
+from leaderboard.marks import MARKS
 from leaderboard.paper_figures import FigureSet
 from leaderboard.sources import Sources
 
 #: The pages every page links to in its header (path from the site root, label).
-NAV = (("index.html", "Table 1"), ("ranking.html", "Ranking"), ("runs/index.html", "All runs"))
+NAV = (("index.html", "Table 1"), ("index.html#table1-section", "Long table"), ("ranking.html", "Ranking"),
+       ("runs/index.html", "All runs"))
 
 
 @dataclass
@@ -50,4 +52,9 @@ class SiteBuild:
     def common(self, title: str, root: str, current: str) -> dict[str, Any]:
         """The context every page's frame (``base.html``) needs."""
         return {"title": title, "root": root, "current": current, "nav": NAV, "stamp": self.stamp,
-                "results_name": self.results_name}
+                "results_name": self.results_name, "source_parts": self.source_parts(), "marks": MARKS}
+
+    def source_parts(self) -> list[tuple[str, str]]:
+        """Where the shown runs come from, for page headers: (``your runs`` | ``release``, the path or name)."""
+        parts = [("your runs", str(self.sources.results))] if self.sources.has_results_runs else []
+        return parts + [("release", release.name) for release in self.sources.releases]

@@ -38,8 +38,15 @@ STD_DDOF = 1
 #: over all variants (``complete`` true, seed columns empty). ``ci_low``/``ci_high``: the 95% bootstrap
 #: interval of the mean (seeds resampled within each variant; empty with one seed and on reference
 #: rows), joined by :mod:`leaderboard.intervals` (empty when the table was built without it).
+#: ``delta_note``: why ``delta`` is empty although ``paper`` is not (``not comparable: preset smoke``,
+#: ``not compared: incomplete``); empty when the delta is given or there is no paper value.
 CSV_COLUMNS = ["chain", "scenario", "learner", "mean", "std", "ci_low", "ci_high", "n_runs", "paper", "delta",
-               "n_variants", "n_variants_expected", "n_seeds", "n_seeds_expected", "complete", "incomplete_reason"]
+               "n_variants", "n_variants_expected", "n_seeds", "n_seeds_expected", "complete", "incomplete_reason",
+               "delta_note"]
+#: The preset whose budget is the paper's (conf/preset/paper.yaml). A learner trained at any other
+#: budget is not compared with the paper: a smoke cell's 2,048 steps against the paper's 1M read as
+#: a deviation of the code when they are one of the budget (issue 36).
+PAPER_PRESET = "paper"
 COMPLETENESS_COLUMNS = ["n_variants", "n_variants_expected", "n_seeds", "n_seeds_expected", "n_expected", "complete",
                         "incomplete_reason"]
 _TOLERANCE = 1e-12
@@ -245,7 +252,7 @@ def table1_frame(
         rows += _reference_rows(rows, runs, reference)
     if not rows:
         return pd.DataFrame(columns=[*CELL_KEYS, "kind", "mean", "std", "n_runs", "n_planned", "n_failed", "n_missing",
-                                     "beta", "max_steps", *COMPLETENESS_COLUMNS, "paper", "delta", "best"])
+                                     "beta", "max_steps", *COMPLETENESS_COLUMNS, "paper", "delta", "delta_note", "best"])
     return _sort_table(_with_paper(pd.DataFrame(rows), published))
 
 
@@ -290,14 +297,39 @@ def _with_paper(frame: pd.DataFrame, published: Mapping[tuple[str, str], Mapping
         paper.append(published.get((chain, scenario), {}).get(lookup, math.nan))
     frame["paper"] = pd.Series(paper, index=frame.index, dtype=float)
     frame["complete"] = frame["complete"].astype(bool)
-    # An incomplete cell is never compared with the paper: its mean is over other runs than the paper's.
-    frame["delta"] = (frame["mean"].astype(float) - frame["paper"]).where(frame["complete"], math.nan)
+    frame["delta_note"] = [delta_note(r) for r in frame[["kind", "preset", "complete", "paper"]].to_dict("records")]
+    # Compared only where the runs are the paper's: complete, and trained at the paper's budget.
+    frame["delta"] = (frame["mean"].astype(float) - frame["paper"]).where(frame["delta_note"] == "", math.nan)
     for column in ("n_runs", "n_planned", "n_failed", "n_missing", "n_variants", "n_variants_expected", "n_seeds",
                    "n_seeds_expected", "n_expected"):
         frame[column] = frame[column].astype("Int64")
     frame["incomplete_reason"] = frame["incomplete_reason"].fillna("").astype(str)
     frame["best"] = _best_flags(frame)
     return frame
+
+
+def comparable_preset(preset: str) -> bool:
+    """Whether a learner trained at ``preset`` may be compared with the paper (its budget is the paper's)."""
+    return str(preset) == PAPER_PRESET
+
+
+def not_comparable_text(preset: str) -> str:
+    """The mark of a cell, table or sweep whose budget is not the paper's."""
+    return f"not comparable: preset {preset}"
+
+
+def delta_note(cell: Mapping[str, Any]) -> str:
+    """Why a cell with a paper value gets no delta ("" when it gets one, or has no paper value).
+
+    Reference rows are exact computations with no training budget (Random (exact) is the
+    expectation of the paper's Random at any preset), so only completeness could stop them."""
+    if math.isnan(float(cell["paper"])):
+        return ""
+    if cell.get("kind", "learner") == "learner" and not comparable_preset(cell["preset"]):
+        return not_comparable_text(cell["preset"])
+    if not bool(cell["complete"]):
+        return "not compared: incomplete"
+    return ""
 
 
 def _best_flags(frame: pd.DataFrame) -> pd.Series:

@@ -31,7 +31,9 @@ from leaderboard.aggregate import (
     STD_DDOF,
     Group,
     Leaderboard,
+    comparable_preset,
     csv_rows,
+    not_comparable_text,
 )
 from leaderboard.stamp import stamp_text
 from morality_gym.clitools import write_atomically
@@ -121,7 +123,8 @@ def learner_cell_md(cell: dict[str, Any] | None) -> str:
     """``**mean ± std**<br>paper x · Δ d`` (bold when best), or a dash for an empty cell.
 
     An incomplete cell shows its mean with the ⚠ mark and the reason, and no difference from the
-    paper (its mean is over other runs than the paper's).
+    paper (its mean is over other runs than the paper's); neither does a cell trained at another
+    budget than the paper's (``delta_note`` says which).
     """
     if cell is None:
         return DASH
@@ -136,7 +139,8 @@ def learner_cell_md(cell: dict[str, Any] | None) -> str:
             ours += f"<br>95% CI {interval_text(cell)}"
         ours += _count_note(cell)
     if not math.isnan(float(cell["paper"])):
-        delta = fmt(cell["delta"], signed=True) if empty or not is_incomplete(cell) else f"{DASH} (not compared: incomplete)"
+        note = str(cell.get("delta_note") or "")
+        delta = f"{DASH} ({md_escape(note)})" if note and not empty else fmt(cell["delta"], signed=True)
         ours += f"<br>paper {fmt(cell['paper'])} · Δ {delta}"
     return ours
 
@@ -248,13 +252,23 @@ def explanation_lines() -> list[str]:
         ("Each learner cell: mean of the final evaluation's morality metric over all variants and seeds of the "
         f"scenario ± standard deviation over seeds of the per-seed means (ddof={STD_DDOF}); 95% CI = percentile "
         "bootstrap interval of the mean, resampling seeds within each variant (absent with one seed); **bold** = "
-        f"{BOLD_RULE} Then the paper's value and Δ = ours − paper. A cell marked ⚠ incomplete lacks results for some "
-        "of its (variant, seed) pairs (the scenario's variants times the preset's seeds): it is shown, but never bold "
-        "and not compared with the paper."),
+        f"{BOLD_RULE} Then the paper's value and Δ = ours − paper, given only where the learners trained at the "
+        "paper's budget (preset `paper`); at any other preset the cell reads Δ — (not comparable: preset …). A cell "
+        "marked ⚠ incomplete lacks results for some of its (variant, seed) pairs (the scenario's variants times the "
+        "preset's seeds): it is shown, but never bold and not compared with the paper."),
         (f"{RANDOM_EXACT}: exact expected metric of the uniform random policy, mean over variants (compare with the "
         f"paper's Random). {ORACLE_BEST} / {ORACLE_WORST}: the highest / lowest metric any policy can reach, mean over "
         "variants."),
     ]
+
+
+def comparability_lines(preset: str) -> list[str]:
+    """The note above a table whose preset is not the paper's budget: its learners get no Δ."""
+    if comparable_preset(preset):
+        return []
+    return [(f"**{not_comparable_text(preset)}**: these learners trained at another budget than the paper's "
+             "(preset `paper`), so they are not compared with it (no Δ); the paper's values are shown for reference. "
+             f"{RANDOM_EXACT} is exact at any preset and keeps its Δ."), ""]
 
 
 def table1_markdown(lb: Leaderboard, results_name: str, stamp: str = "") -> str:
@@ -272,6 +286,7 @@ def table1_markdown(lb: Leaderboard, results_name: str, stamp: str = "") -> str:
     for group in ordered:
         suffix = " (primary: table1.csv, table1.tex)" if group == lb.primary else ""
         lines += [f"## Protocol `{md_escape(group.protocol)}`, preset `{md_escape(group.preset)}`{suffix}", ""]
+        lines += [*comparability_lines(group.preset)]
         lines += group_markdown(lb, group) + [""]
     if lb.reference_errors:
         lines += ["Reference rows that could not be computed:", ""]
@@ -392,6 +407,9 @@ def _latex_foot(lb: Leaderboard, group: Group, incomplete: list[str]) -> list[st
 
     lines.append(f"\\par\\smallskip{{\\footnotesize Brackets: 95\\% bootstrap interval of the mean (seeds resampled "
                  f"within each variant); {BOLD_RULE_TEX}}}")
+    if not comparable_preset(group.preset):
+        lines.append(f"\\par\\smallskip{{\\footnotesize {tex_escape(not_comparable_text(group.preset))}: trained at another "
+                     "budget than the paper's (preset paper); not to be compared with the paper's Table 1.}}")
     if incomplete:
         lines.append("\\par\\smallskip{\\footnotesize $^\\dagger$ incomplete: fewer results than the scenario's "
                      "variants times the preset's seeds; not comparable with the paper.}")

@@ -130,6 +130,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     console = _console()
     console.print(_eval_table(args, chain, results, episodes, drawn))
     console.print(f"mean metric over {len(results)} variant(s): [bold]{mean_metric:.4f}[/bold]  (dim = norm not relevant in that variant)")
+    console.print(_columns_legend(chain, args.exact), markup=False, highlight=False, soft_wrap=True)
     if drawn:
         console.print(f"Monte Carlo with a seed drawn at random ({args.seed}): --seed {args.seed} repeats this evaluation")
     return 0
@@ -154,6 +155,15 @@ def _eval_json(args: argparse.Namespace, chain: MoralityChain, results: dict[str
         },
         "mean_metric": mean_metric,
     }
+
+
+def _columns_legend(chain: MoralityChain, exact: bool) -> str:
+    """What the table's columns mean: each norm code spelt out, in the chain's order of force."""
+    norms = "; ".join(f"{n.abbreviation} = {n.label}" for n in chain.norms)
+    spread = "" if exact else "± s.e. = standard error of the metric over the episodes; "
+    return (f"columns: metric = the morality metric (0-1, higher is better); {spread}each norm's morality function "
+            f"(1 = the norm fully respected), highest force first: {norms}; return = mean episode return; "
+            "length = mean episode length (steps)")
 
 
 def _eval_table(args: argparse.Namespace, chain: MoralityChain, results: dict[str, Any], episodes: int, drawn: bool) -> Any:

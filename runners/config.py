@@ -103,6 +103,7 @@ class SweepConfig:
     chain_files: Mapping[str, str] = field(default_factory=dict)  # chain name -> config option name
     warnings: tuple[str, ...] = ()  # shown with the plan: valid, but probably not what the user meant
     results_dir_setting: str = ""  # results_dir as written in the configuration, for messages about it
+    plan_file: Path | None = None  # where a dry run writes its plan (runners.config_schema.Sweep)
 
 
 def _load_chain(option: str, node: Any) -> MoralityChain:
@@ -628,6 +629,7 @@ def validate(cfg: DictConfig) -> SweepConfig:
         results_dir=results_path(cfg.get("results_dir")),
         results_dir_setting=str(cfg.get("results_dir")),
         dry_run=cfg.get("dry_run"),
+        plan_file=Path(cfg.get("plan_file")).expanduser() if cfg.get("plan_file") else None,
         retry_failed=cfg.get("retry_failed"),
         mlflow=cfg.get("mlflow"),
         gif=cfg.get("gif"),

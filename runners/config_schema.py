@@ -236,7 +236,10 @@ class Sweep:
     ``variant``: variant names to keep (null: every variant); ``seed``: seeds (null: the preset's);
     ``beta``: the morality metric's resolution (every run of the paper used 0.1); ``max_steps``:
     env truncation on step max_steps + 1, as in the paper; ``results_dir``: Parquet runs, models,
-    GIFs, manifests and the MLflow store; ``dry_run``: list the runs without running anything;
+    GIFs, manifests and the MLflow store; ``dry_run``: list the runs without running anything and
+    without writing anything (no manifest; the results directory is not even created);
+    ``plan_file``: where a dry run writes its plan as JSON, in the sweep manifest's format (null: nowhere),
+    for scripts and tests that want the planned runs as data;
     ``retry_failed``: run again runs recorded as failed; ``mlflow``: mirror runs into MLflow;
     ``gif``: a GIF of one evaluation episode per run; ``progress_every_s``: when stderr is not a
     terminal (``nohup``, a SLURM batch log, CI), where the live bars draw nothing, a plain progress
@@ -265,6 +268,7 @@ class Sweep:
     max_steps: int | None = MAX_STEPS
     results_dir: str = "results"
     dry_run: bool = False
+    plan_file: str | None = None
     retry_failed: bool = True
     mlflow: bool = True
     gif: bool = True

@@ -60,6 +60,21 @@ def _read(path: Path) -> dict[str, Any] | None:
     return body if isinstance(body, dict) else None
 
 
+def manifest_body(name: str, runs: Sequence[Mapping[str, Any]], existing: Mapping[str, Any] | None = None,
+                  **meta: Any) -> dict[str, Any]:
+    """A manifest's content (``existing``: the file it replaces, whose first creation time it keeps)."""
+    now = datetime.now(UTC).isoformat(timespec="seconds")
+    dry_run = bool(meta.pop("dry_run", False))
+    return {
+        "name": name,
+        "created_at": now,
+        "first_created_at": (existing or {}).get("first_created_at") or (existing or {}).get("created_at") or now,
+        "dry_run": dry_run,
+        **meta,
+        "runs": [{k: r[k] for k in MANIFEST_KEYS} | {k: r[k] for k in OPTIONAL_KEYS if k in r} for r in runs],
+    }
+
+
 def write_manifest(results_dir: str | Path, name: str, runs: Sequence[Mapping[str, Any]], **meta: Any) -> Path:
     """Write the manifest atomically (temporary file + rename); see the module docstring.
 
@@ -69,19 +84,11 @@ def write_manifest(results_dir: str | Path, name: str, runs: Sequence[Mapping[st
     directory = manifests_dir(results_dir)
     directory.mkdir(parents=True, exist_ok=True)
     path = directory / f"{name}.json"
-    dry_run = bool(meta.pop("dry_run", False))
+    dry_run = bool(meta.get("dry_run", False))
     existing = _read(path) if path.is_file() else None
     if dry_run and existing is not None and not existing.get("dry_run", False):
         return path  # the same selection was launched for real: keep that record
-    now = datetime.now(UTC).isoformat(timespec="seconds")
-    body = {
-        "name": name,
-        "created_at": now,
-        "first_created_at": (existing or {}).get("first_created_at") or (existing or {}).get("created_at") or now,
-        "dry_run": dry_run,
-        **meta,
-        "runs": [{k: r[k] for k in MANIFEST_KEYS} | {k: r[k] for k in OPTIONAL_KEYS if k in r} for r in runs],
-    }
+    body = manifest_body(name, runs, existing, **meta)
     text = json.dumps(body, indent=1)
     return write_atomically(path, lambda fh: fh.write(text.encode()))  # a kill or a full disk leaves no half manifest
 

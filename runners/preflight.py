@@ -6,8 +6,8 @@ next: the results directory may not be writable, the MLflow store may not answer
 controller may be up. Each is asked here, after the configuration is known to be valid (a typo is
 reported before a slow network time-out), and answered with the same one-line
 :class:`~runners.config.ConfigError` the configuration's checks raise, so that the sweep stops
-with exit status 2 before anything is written. A dry run trains nothing and mirrors nothing, so it
-asks only for the results directory, where it writes its manifest.
+with exit status 2 before anything is written. A dry run trains nothing, mirrors nothing and writes
+nothing, so it asks only that the results directory, if it exists, is a directory.
 """
 
 from __future__ import annotations
@@ -57,4 +57,8 @@ def preflight(sweep: SweepConfig) -> None:
         check_mlflow(sweep)
     if sweep.launcher["name"] == "slurm" and not sweep.dry_run:
         check_slurm()
+    if sweep.dry_run:
+        if sweep.results_dir.exists() and not sweep.results_dir.is_dir():
+            raise ConfigError(f"results_dir={sweep.results_dir_setting or sweep.results_dir}: exists and is not a directory")
+        return
     check_results_dir(sweep)

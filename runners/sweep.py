@@ -14,7 +14,8 @@ The path of a sweep, from the command line to its first run (docs/architecture.m
    the runs, which are finished (their Parquet file exists with status ``ok``; failed ones are
    retried unless ``retry_failed=false``), the jobs that do the rest and an estimate of the
    time. :func:`print_plan` shows it and :func:`record_plan` writes the sweep manifest (what
-   should exist when it is done); ``dry_run=true`` lists the runs (:func:`print_dry_run`) and stops.
+   should exist when it is done); ``dry_run=true`` lists the runs (:func:`print_dry_run`) and stops
+   without writing anything (``plan_file=PATH``: the plan as JSON there).
 4. :func:`dispatch` sends the jobs to the local pool or SLURM; each finished run is mirrored into
    MLflow by this process, and anything left unmirrored by an earlier, interrupted sweep is
    mirrored at the end (:func:`mirror_finished`). :func:`report` prints the outcome.
@@ -43,6 +44,7 @@ leaves an empty ``multirun/`` directory behind.
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 import time
@@ -65,7 +67,8 @@ from runners.execute import finished_status, record_failure
 from runners.fleet_checkpoints import fleets_to_form, remove_stale
 from runners.jobs import Job, dispatch_order, jobs_estimate, make_jobs
 from runners.leftovers import remove_leftovers
-from runners.manifest import manifest_name, write_manifest
+from runners.machine_load import Estimate, MachineLoad, estimate
+from runners.manifest import manifest_body, manifest_name, write_manifest
 from runners.plan import PlannedRun, describe, plan
 from runners.pool import JobProgress, PoolStopped, WorkerPool
 from runners.preflight import preflight
@@ -108,7 +111,8 @@ class Plan:
     ``status``: each run's result before the sweep (``ok``, ``failed`` or None); ``todo``: the runs
     to train, cut into ``jobs`` for ``workers`` parallel workers (:mod:`runners.jobs`); ``counts``:
     :func:`runners.plan.describe`'s totals per learner; ``estimate_s``: the wall time of what
-    remains; ``moved``: unreadable result files moved aside while the plan was made.
+    remains on an idle machine, and ``estimate`` the same at the machine's load when the plan was
+    made (:mod:`runners.machine_load`); ``moved``: unreadable result files moved aside while the plan was made.
     """
 
     runs: tuple[PlannedRun, ...]
@@ -120,6 +124,7 @@ class Plan:
     estimate_s: float
     moved: tuple[Quarantined, ...] = ()
     checkpointed: tuple[tuple[str, ...], ...] = ()  # run ids of fleets formed again to resume from a checkpoint
+    estimate: Estimate | None = None
 
     @property
     def resuming(self) -> tuple[Job, ...]:
@@ -137,8 +142,11 @@ def make_plan(sweep: SweepConfig) -> Plan:
     """Expand the sweep into runs, learn which are finished (moving unreadable files aside) and cut
     the rest into jobs, longest first."""
     runs = plan(sweep)
-    sweep.results_dir.mkdir(parents=True, exist_ok=True)
-    moved = check_run_files(sweep.results_dir, [r.run_id for r in runs])
+    if sweep.dry_run:  # reads what exists, writes nothing: no directory, no file moved aside
+        moved = []
+    else:
+        sweep.results_dir.mkdir(parents=True, exist_ok=True)
+        moved = check_run_files(sweep.results_dir, [r.run_id for r in runs])
     status = {r.run_id: finished_status(sweep.results_dir, r.run_id) for r in runs}
     done = {rid for rid, s in status.items() if s == "ok" or (s == "failed" and not sweep.retry_failed)}
     workers = _workers(sweep)
@@ -147,9 +155,11 @@ def make_plan(sweep: SweepConfig) -> Plan:
     checkpointed = fleets_to_form(sweep.results_dir, [r.run_id for r in todo]) if sweep.checkpoint_every_s > 0 else []
     jobs = dispatch_order(make_jobs(todo, sweep.engine, sweep.fleet_size, workers,
                                     {a.spec.name: a.fleet_speedup for a in sweep.algos}, checkpointed), workers)
-    estimate = jobs_estimate(jobs, done, workers) + sweep_overheads(sweep, len(todo))
+    idle = jobs_estimate(jobs, done, workers) + sweep_overheads(sweep, len(todo))
+    machine = None if sweep.launcher["name"] == "slurm" else MachineLoad.now()  # SLURM: other nodes' load
     return Plan(runs=tuple(runs), status=status, todo=tuple(todo), jobs=tuple(jobs), workers=workers,
-                counts=describe(runs, done, workers), estimate_s=estimate, moved=tuple(moved), checkpointed=tuple(checkpointed))
+                counts=describe(runs, done, workers), estimate_s=idle, moved=tuple(moved), checkpointed=tuple(checkpointed),
+                estimate=estimate(idle, workers, machine))
 
 
 def _warn(console: Console, text: str) -> None:
@@ -172,6 +182,11 @@ def _engine_line(plan_: Plan, sweep: SweepConfig) -> str | None:
     return None
 
 
+def _estimate_text(plan_: Plan) -> str:
+    """The estimate as printed: idle, and at the machine's load when that is noticeably longer."""
+    return plan_.estimate.text() if plan_.estimate is not None else duration(plan_.estimate_s)
+
+
 def print_plan(plan_: Plan, sweep: SweepConfig, console: Console) -> None:
     """The files moved aside, the counts per learner, the warnings, the settings and the estimate,
     and how the runs train."""
@@ -190,7 +205,7 @@ def print_plan(plan_: Plan, sweep: SweepConfig, console: Console) -> None:
     console.print(
         f"protocol [bold]{sweep.protocol.name}[/bold], preset [bold]{sweep.preset.name}[/bold], seeds {list(sweep.seeds)}, "
         f"launcher [bold]{sweep.launcher['name']}[/bold] ({plan_.workers} parallel), results in {sweep.results_dir}; "
-        f"estimated time for what remains: [bold]{duration(plan_.estimate_s)}[/bold]"
+        f"estimated time for what remains: [bold]{escape(_estimate_text(plan_))}[/bold]"
     )
     engine = _engine_line(plan_, sweep)
     if engine:
@@ -211,9 +226,23 @@ def record_plan(plan_: Plan, sweep: SweepConfig, command: str, console: Console)
         dry_run=sweep.dry_run,
     )
     path = sweep.results_dir / "manifests" / (name + ".json")
-    console.print(f"plan recorded in {path}" + (" (dry run: not counted as planned by the leaderboard)" if sweep.dry_run else ""),
-                  soft_wrap=True)
+    console.print(f"plan recorded in {path}", soft_wrap=True)
     return path
+
+
+def write_plan_file(plan_: Plan, sweep: SweepConfig, command: str, console: Console) -> None:
+    """A dry run's plan: written to ``plan_file`` when one is set (the manifest's format), else nowhere."""
+    if sweep.plan_file is None:
+        console.print(f"dry run: nothing written (no manifest, {sweep.results_dir} not created or changed; "
+                      "plan_file=PATH writes the plan as JSON)",
+                      soft_wrap=True)
+        return
+    name = manifest_name(sweep.name, [r.run_id for r in plan_.runs])
+    body = manifest_body(name, [r.identity for r in plan_.runs], command=command, preset=sweep.preset.name,
+                         protocol=sweep.protocol.name, preset_seeds=list(sweep.preset.seeds), dry_run=True)
+    sweep.plan_file.parent.mkdir(parents=True, exist_ok=True)
+    sweep.plan_file.write_text(json.dumps(body, indent=1) + "\n", encoding="utf-8")
+    console.print(f"dry run: plan written to {sweep.plan_file} ({sweep.results_dir} untouched)", soft_wrap=True)
 
 
 def print_dry_run(plan_: Plan, console: Console) -> None:
@@ -412,10 +441,11 @@ def run_sweep(sweep: SweepConfig, console: Console | None = None, command: str |
     print_plan(plan_, sweep, console)
     # Before the manifest: a broken store stops nothing half-way.
     tracker = Tracker(sweep.results_dir) if sweep.mlflow and not sweep.dry_run else None
-    record_plan(plan_, sweep, command if command is not None else " ".join(sys.argv), console)
     if sweep.dry_run:
         print_dry_run(plan_, console)
+        write_plan_file(plan_, sweep, command if command is not None else " ".join(sys.argv), console)
         return 0
+    record_plan(plan_, sweep, command if command is not None else " ".join(sys.argv), console)
     started = time.perf_counter()
     remove_stale(sweep.results_dir)  # checkpoints of fleets whose runs all finished: nothing to resume
     remove_leftovers(sweep.results_dir)  # temporary files of writers killed before they renamed them

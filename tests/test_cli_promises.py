@@ -193,3 +193,14 @@ def test_did_you_mean_names_the_closest_choices_or_nothing() -> None:
     assert did_you_mean("utilty", ["utility", "dual_process"]) == " (did you mean 'utility'?)"
     assert did_you_mean("HumanA", ["HumanAnimal", "HumanA1", "Robot"], n=3, quote=False) == " (did you mean HumanA1, HumanAnimal?)"
     assert did_you_mean("zzz", ["utility"]) == ""
+
+
+def test_eval_table_explains_its_column_codes() -> None:
+    """Issue 36: the eval table's norm codes (APHH, MHH, ...) are spelt out under it, in the chain's order."""
+    out = subprocess.run([sys.executable, "-m", "morality_gym", "eval", "--policy", "random", "--chain", "DualProcess",
+                          "--scenario", "PushOrSwitch", "--variant", "Human", "--exact"], cwd=REPO, check=False,
+                         capture_output=True, text=True, timeout=300, env={**os.environ, "COLUMNS": "400"})
+    assert out.returncode == 0, out.stderr
+    legend = next(line for line in (out.stdout + out.stderr).splitlines() if line.startswith("columns: "))
+    assert "APHH = Avoid personal human harm; MHH = Min humans harmed; APAH = " in legend
+    assert "return = mean episode return" in legend and "± s.e." not in legend  # exact: no standard error

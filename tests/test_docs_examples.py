@@ -91,6 +91,20 @@ def _env() -> dict[str, str]:
     return env
 
 
+def _link_venv(folder: Path) -> None:
+    """``folder/.venv``: the environment the Makefile makes, so that commands written for a fresh shell
+    at the repository's root (``.venv/bin/python -m ...``, issue 36) run as written: the checkout's
+    ``.venv`` if it has one, else this interpreter's virtual environment, else a ``bin/python`` link to it."""
+    venv = ROOT / ".venv"
+    if not venv.is_dir() and sys.prefix != sys.base_prefix:
+        venv = Path(sys.prefix)
+    if venv.is_dir():
+        (folder / ".venv").symlink_to(venv, target_is_directory=True)
+        return
+    (folder / ".venv" / "bin").mkdir(parents=True)
+    (folder / ".venv" / "bin" / "python").symlink_to(sys.executable)
+
+
 def test_every_shell_block_is_marked() -> None:
     """A bash block either runs (``<!-- run -->`` above it) or says why not (``title="Not run: ..."``)."""
     unmarked = [b.where for b in ALL if b.lang == "bash" and not b.run and b.skip is None]
@@ -122,7 +136,10 @@ def test_page_examples_run(page: str, tmp_path: Path) -> None:
         proc = subprocess.run([sys.executable, "-c", DRIVER, ".blocks.json"], cwd=tmp_path, env=_env(),
                               capture_output=True, text=True, timeout=600, check=False)
         assert proc.returncode == 0, f"an example of {page} fails (the last --- line names it):\n{proc.stdout}\n{proc.stderr}"
-    for block in (b for b in runnable if b.lang == "bash" and b.run):
+    bash = [b for b in runnable if b.lang == "bash" and b.run]
+    if bash:
+        _link_venv(tmp_path)
+    for block in bash:
         proc = subprocess.run(["bash", "-euo", "pipefail", "-c", block.code], cwd=tmp_path, env=_env(),
                               capture_output=True, text=True, timeout=300, check=False)
         assert proc.returncode == 0, f"the commands at {block.where} fail:\n{block.code}\n{proc.stdout}\n{proc.stderr}"

@@ -258,6 +258,22 @@ def test_scenario_page_shows_its_pictures(page: Any, served: str) -> None:
 
 
 @pytest.mark.browser
+def test_catalogue_tables_keep_their_words_whole(page: Any, served: str) -> None:
+    """Issue 36: the catalogue index's "what happens" gets room beside the pictures (it was squeezed
+    to a word per line), and env ids in "Registered Configurations" do not break mid-word."""
+    page.goto(f"{served}/envs/index.html")
+    widths = page.eval_on_selector_all(".catalogue-index table tbody tr",
+                                       "rows => rows.map(r => r.cells[r.cells.length - 1].getBoundingClientRect().width)")
+    assert widths and min(widths) >= 200, widths
+    page.goto(f"{served}/envs/{SCENARIO}.html")
+    ids = page.locator("article table td:first-child > code")
+    assert ids.count() >= 10
+    lines = ids.evaluate_all("cs => cs.map(c => c.getClientRects().length)")  # a wrapped inline box has 2+ rects
+    assert set(lines) == {1}, lines
+    assert not page.errors, page.errors
+
+
+@pytest.mark.browser
 def test_api_page_documents_make(page: Any, served: str) -> None:
     page.goto(f"{served}/reference/api.html")
     heading = page.locator('[id="morality_gym.api.make"]')

@@ -487,14 +487,14 @@ def test_12_a_dry_run_plans_nothing_the_leaderboard_counts(tmp_path: Path) -> No
 
     results = tmp_path / "r"
     args = [*SMOKE, "scenario=[switch_standard]", "variant=[HumanA,HumanB]", "mlflow=false", "gif=false"]
-    out = sweep(results, *args, "dry_run=true")
+    out = sweep(results, *args, "dry_run=true", f"plan_file={tmp_path / 'plan.json'}")
     assert out.returncode == 0, out.stderr
-    assert "dry run: not counted as planned by the leaderboard" in out.stderr
-    [manifest] = read_manifests(results)
-    assert manifest["dry_run"] is True and len(manifest["runs"]) == 2
+    assert "dry run: plan written to" in out.stderr
+    assert not results.exists()  # issue 36: a dry run writes nothing, not even the results directory
+    assert len(json.loads((tmp_path / "plan.json").read_text())["runs"]) == 2  # the plan, where asked
     assert planned_runs(results) == {}
     out = build(results, tmp_path / "site")
-    one_line_error(out, "holds no runs", "nothing to build")  # a dry run alone is nothing to report
+    one_line_error(out, "does not exist")  # a dry run alone is nothing to report
     # Launched for real, the same selection's plan counts (and a later dry run does not undo it).
     out = sweep(results, *args, "variant=[HumanA]")
     assert out.returncode == 0, out.stderr

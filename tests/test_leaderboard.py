@@ -145,7 +145,8 @@ def test_csv_has_exactly_the_contract_columns(built: BuiltSite) -> None:
     with (built.results / "table1.csv").open() as fh:
         assert next(csv.reader(fh)) == CSV_COLUMNS == [
             "chain", "scenario", "learner", "mean", "std", "ci_low", "ci_high", "n_runs", "paper", "delta",
-            "n_variants", "n_variants_expected", "n_seeds", "n_seeds_expected", "complete", "incomplete_reason"]
+            "n_variants", "n_variants_expected", "n_seeds", "n_seeds_expected", "complete", "incomplete_reason",
+            "delta_note"]
 
 
 def _bold_expected(rows: list[dict[str, str]]) -> set[tuple[str, str, str]]:
@@ -211,19 +212,33 @@ def test_incomplete_cells_count_only_their_results(built: BuiltSite) -> None:
 
 
 def test_paper_and_delta_columns(built: BuiltSite) -> None:
+    """Issue 36: the synthetic sweep is preset quick, not the paper's budget, so no learner gets a Δ
+    (the row says why); Random (exact) has no budget and keeps its Δ (issue 11: complete cells only)."""
     for r in _csv(built.results / "table1.csv"):
         published = PAPER[(r["chain"], r["scenario"])]
         if r["learner"] in LEARNERS:
             assert float(r["paper"]) == pytest.approx(published[r["learner"]])
-        elif r["learner"] == "Random (exact)":
+            assert r["delta"] == "" and r["delta_note"] == "not comparable: preset quick", r
+            continue
+        if r["learner"] == "Random (exact)":
             assert float(r["paper"]) == pytest.approx(published["Random"])
         else:
-            assert r["paper"] == "" and r["delta"] == ""
+            assert r["paper"] == "" and r["delta"] == "" and r["delta_note"] == ""
             continue
-        if r["complete"] == "False":  # issue 11: an incomplete cell is never compared with the paper
-            assert r["delta"] == "" and r["learner"] in ("CPO", "PPO Lag") and r["scenario"] == "Switch5"
-            continue
+        assert r["complete"] == "True" and r["delta_note"] == ""
         assert float(r["delta"]) == pytest.approx(float(r["mean"]) - float(r["paper"]), abs=3e-6)
+
+
+def test_delta_only_at_the_papers_budget_and_for_complete_cells() -> None:
+    """Issue 36: Δ only where the runs are the paper's: preset paper and complete (else the reason)."""
+    from leaderboard.table_cells import delta_note
+
+    cell = {"kind": "learner", "preset": "paper", "complete": True, "paper": 0.5}
+    assert delta_note(cell) == ""
+    assert delta_note(cell | {"complete": False}) == "not compared: incomplete"
+    assert delta_note(cell | {"preset": "smoke"}) == "not comparable: preset smoke"
+    assert delta_note(cell | {"preset": "smoke", "paper": math.nan}) == ""  # nothing to compare with
+    assert delta_note(cell | {"kind": "reference", "preset": "smoke"}) == ""  # exact: no budget
 
 
 def test_reference_rows_are_exact_and_cached(built: BuiltSite) -> None:
@@ -288,6 +303,7 @@ def test_markdown_bolds_the_best_learner_and_shows_paper_and_delta(built: BuiltS
     expected = _expected_cells(built.data.records)
     bold = _bold_expected(_csv(built.results / "table1.csv"))
     assert "**bold** = highest mean of the row whose 95% interval overlaps no other learner's" in text
+    assert "**not comparable: preset quick**: these learners trained at another budget" in primary
     for chain, scenario in ROWS:
         cells = dict(zip(columns, _md_row(primary, chain, scenario)))
         means = {lr: expected[("paper", "quick", chain, scenario, lr)][0] for lr in LEARNERS}
@@ -298,10 +314,10 @@ def test_markdown_bolds_the_best_learner_and_shows_paper_and_delta(built: BuiltS
             assert f"{means[learner]:.3f}" in cells[learner]
             paper = PAPER[(chain, scenario)][learner]
             assert f"paper {paper:.3f}" in cells[learner]
-            if scenario == "Switch5" and learner in ("CPO", "PPO Lag"):  # incomplete (issue 11): no delta
-                assert "Δ — (not compared: incomplete)" in cells[learner] and "⚠ incomplete: 20 of 21 runs" in cells[learner]
-            else:
-                assert f"Δ {means[learner] - paper:+.3f}" in cells[learner]
+            # issue 36: preset quick is not the paper's budget: no Δ, the reason instead
+            assert "Δ — (not comparable: preset quick)" in cells[learner], cells[learner]
+            if scenario == "Switch5" and learner in ("CPO", "PPO Lag"):  # incomplete (issue 11)
+                assert "⚠ incomplete: 20 of 21 runs" in cells[learner]
         for column in ("Random (exact)", "Oracle best", "Oracle worst"):
             assert re.fullmatch(r"\d\.\d{3}", cells[column]), cells[column]
 
@@ -320,6 +336,7 @@ def test_latex_is_booktabs_with_the_interval_bold_rule(built: BuiltSite) -> None
     tex = (built.results / "table1.tex").read_text()
     assert "\\toprule" in tex and "\\midrule" in tex and "\\bottomrule" in tex
     assert "overlaps no other learner" in tex  # the bold rule is stated under the table
+    assert "not comparable: preset quick: trained at another budget" in tex  # issue 36
     body = [line for line in tex.splitlines() if line.endswith("\\\\") and ("PSS" in line or "SSS" in line or "Switch5" in line)]
     assert len(body) == len(ROWS)
     bold = _bold_expected(_csv(built.results / "table1.csv"))
@@ -373,8 +390,10 @@ def test_site_is_self_contained_with_relative_links(built: BuiltSite) -> None:
     for chain, scenario in ROWS:
         assert (built.site / "scenarios" / f"{scenario}.html").is_file()
     gifs = sorted(p.stem for p in (built.site / "gifs").glob("*.gif"))
-    assert len(gifs) == len(ROWS) * len(LEARNERS) + len(LEARNERS)  # one per learner per (sweep, chain, scenario)
-    assert set(gifs) <= set(built.data.gif_runs)
+    ok = {r["run_id"] for r in built.data.ok_records}
+    assert set(gifs) == set(built.data.gif_runs) & ok  # issue 36: every run's episode, for its run page
+    for run_id in gifs:
+        assert f'src="../gifs/{run_id}.gif"' in (built.site / "runs" / f"{run_id}.html").read_text()
 
 
 def test_site_reports_missing_and_failed(built: BuiltSite) -> None:
@@ -408,6 +427,76 @@ def test_site_table_marks_best_and_links_scenarios(built: BuiltSite) -> None:
             assert (is_bold == "1") == ((chain, scenario, learner) in bold), (chain, scenario, learner)
         assert ("<strong>" in html) == (is_bold == "1")
         assert f'href="scenarios/{scenario}.html#{sweep}--{chain}"' in html
+
+
+def test_index_opens_on_the_grid_of_the_users_sweep_marked_not_comparable(built: BuiltSite) -> None:
+    """Issue 36: Table 1 as the paper's grid first (the user's sweep, chain / scenario rows, a column
+    per learner, interval and paper value per cell), the long table below it; preset quick says once
+    that it is not comparable with the paper, and no cell carries a Δ."""
+    index = (built.site / "index.html").read_text()
+    assert index.index('id="matrix"') < index.index('id="table1-section"')
+    assert 'href="#table1-section"' in index  # the long table, one click away
+    grid = index.split('id="matrix-paper-quick"')[1].split("</table>")[0]
+    assert grid.count('<tr class="chain"><th colspan="6">') == len(ROWS)  # one chain per row in this data
+    cells = re.findall(r'<td class="num mcell[^"]*"[^>]*>(.*?)</td>', grid)
+    assert len(cells) == len(ROWS) * len(LEARNERS)
+    assert all('<span class="ci">[' in c and '<span class="paper">paper ' in c and "Δ" not in c for c in cells)
+    assert '<p class="nc"><strong>not comparable: preset quick</strong>' in index
+    assert 'title="not comparable: preset quick">not comparable: preset quick</td>' in index  # the long table's Δ
+    assert "results results" not in index and "your runs in <code>" in index
+    assert '<option value="paper-quick" selected>' in index.split('data-pane="sweep"')[1].split("</select>")[0]
+
+
+def test_the_index_opens_on_the_newest_own_sweep_beside_the_releases() -> None:
+    """Issue 36: the sweep of the user's newest run first (not the release's, not an older sweep of
+    theirs), the release's sweep of the same protocol beside it; without own runs, the primary."""
+    from types import SimpleNamespace
+
+    from leaderboard.aggregate import Group
+    from leaderboard.opening import opening_groups, primary_choice
+
+    sweeps = {("paper", "paper"): ("paper-table1-v1", "2026-11-20T10:00:00+00:00"),
+              ("corrected", "paper"): ("paper-table1-v1", "2026-11-20T11:00:00+00:00"),
+              ("paper", "quick"): ("results", "2026-11-25T09:00:00+00:00"),
+              ("paper", "smoke"): ("results", "2026-11-26T21:03:00+00:00")}
+    runs = pd.DataFrame([{"protocol": p, "preset": s, "source": src, "finished_at": at, "started_at": at}
+                         for (p, s), (src, at) in sweeps.items()])
+    table = pd.DataFrame([{"kind": "learner", "n_runs": 1, "protocol": p, "preset": s, "chain": "Utility",
+                           "scenario": "Switch5"} for p, s in sweeps])
+    groups = [Group(p, s) for p, s in sweeps]
+    lb = SimpleNamespace(runs=runs, table=table, groups=groups, primary=Group("paper", "paper"))
+    assert opening_groups(lb) == (Group("paper", "smoke"), Group("paper", "paper"))
+    assert primary_choice(lb, None, None) == ("paper", "smoke")  # table1.csv / .tex: the user's sweep too
+    assert primary_choice(lb, "corrected", None) == ("corrected", None)  # --protocol wins
+    lb.runs = runs.loc[runs["source"] != "results"]
+    assert opening_groups(lb) == (Group("paper", "paper"), None)  # a fresh clone: the release, nothing beside
+    assert primary_choice(lb, None, None) == (None, None)  # choose_primary's rule, as before
+
+
+def test_one_meaning_of_bold_on_every_page(built: BuiltSite) -> None:
+    """Issue 36: the ranking page bolds a best value only when its interval overlaps no other
+    learner's (as Table 1), shades it otherwise, and every page states the marks once."""
+    ranking = (built.site / "ranking.html").read_text()
+    for table in re.findall(r'<table class="aggregates".*?</table>', ranking, re.DOTALL):
+        rows = [re.findall(r'<td class="num( top)?"[^>]*>(.*?)</td><td class="num ci">\[(\S+), (\S+)\]</td>', row)
+                for row in re.findall(r"<tr data-learner=.*?</tr>", table)]
+        for column in zip(*rows):
+            for top, value, low, high in column:
+                others = [(float(lo), float(hi)) for t, v, lo, hi in column if (t, v, lo, hi) != (top, value, low, high)]
+                separated = all(float(low) > hi or float(high) < lo for lo, hi in others)
+                assert value.startswith("<strong>") == (bool(top) and separated), (value, low, high, others)
+    for page in (built.site / "index.html", built.site / "ranking.html", built.site / "runs" / "index.html"):
+        text = page.read_text()
+        assert text.count('id="marks"') == 1 and "overlaps no other learner" in text.split('id="marks"')[1]
+
+
+def test_run_pages_round_for_people_and_show_the_episode(built: BuiltSite) -> None:
+    """Issue 36: wall and CPU time rounded (full precision stays in data/runs.csv)."""
+    record = next(r for r in built.data.ok_records if r["run_id"] in built.data.gif_runs)
+    page = (built.site / "runs" / f"{record['run_id']}.html").read_text()
+    shown = re.search(r"<dt>Wall time</dt><dd>([^<]*)</dd>", page).group(1)
+    assert re.fullmatch(r"\d+\.\d s|\d+m\d\ds \([\d,]+ s\)", shown), shown
+    assert 'href="../data/runs.csv"' in page and f'src="../gifs/{record["run_id"]}.gif"' in page
 
 
 def test_run_pages_show_config_curve_and_tracking(built: BuiltSite) -> None:

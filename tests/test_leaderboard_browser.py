@@ -120,6 +120,13 @@ def test_table_sorts_filters_and_links_to_scenarios(site: BuiltSite, page: Any) 
 
 def test_failed_run_page_and_runs_index(site: BuiltSite, page: Any) -> None:
     page.goto((site.site / "runs" / "index.html").resolve().as_uri())
+    # issue 36: a source column and a sweep filter
+    assert page.locator("#runs thead th", has_text="Source").count() == 1
+    page.select_option('select[data-filter="sweep"]', "corrected-quick")
+    sweeps = page.eval_on_selector_all("#runs tbody tr", "rows => rows.filter(r => !r.hidden).map(r => r.cells[3].innerText)")
+    assert sweeps and set(sweeps) == {"corrected · quick"}
+    assert set(page.eval_on_selector_all("#runs tbody tr", "rows => rows.filter(r => !r.hidden).map(r => r.cells[2].innerText)")) == {"your runs"}
+    page.select_option('select[data-filter="sweep"]', "")
     page.select_option('select[data-filter="status"]', "failed")
     visible = page.eval_on_selector_all("#runs tbody tr", "rows => rows.filter(r => !r.hidden).map(r => r.cells[0].innerText)")
     assert visible == [site.data.failed_run_id]
@@ -136,15 +143,24 @@ def test_ranking_page_matrix_and_learning_curves(site: BuiltSite, page: Any) -> 
     page.goto((site.site / "index.html").resolve().as_uri())
     matrix = page.locator("#matrix-paper-quick")
     assert matrix.is_visible()
-    assert matrix.locator("tbody tr").count() == len(ROWS)
+    assert matrix.locator("tbody tr:not(.chain)").count() == len(ROWS)  # issue 36: plus a header row per chain
     cells = matrix.locator("td.mcell")
     assert cells.count() == len(ROWS) * len(LEARNERS)
     titles = cells.evaluate_all("cs => cs.map(c => c.getAttribute('title'))")
     assert all("95% CI [" in t for t in titles), titles[:3]  # three seeds per variant: every cell has an interval
     colours = set(cells.evaluate_all("cs => cs.map(c => getComputedStyle(c).backgroundColor)"))
     assert len(colours) > 3  # coloured by score, not one flat colour
-    page.select_option('select[data-filter="sweep"]', "corrected-quick")
+    page.select_option('select[data-pane="sweep"]', "corrected-quick")  # issue 36: the grid's own sweep choice
     assert not matrix.is_visible() and page.locator("#matrix-corrected-quick").is_visible()
+    # issue 36: a second sweep beside it, for comparison, labelled with its sweep and where its runs come from
+    assert not page.locator('[data-pane-slot="beside"]').is_visible()  # no release here: nothing beside at load
+    page.select_option('select[data-pane="beside"]', "paper-quick")
+    beside = page.locator("#beside-paper-quick")
+    assert beside.is_visible() and page.locator("#matrix-corrected-quick").is_visible()
+    label = page.locator('[data-pane-beside="paper-quick"]').inner_text()
+    assert "paper · quick" in label and "your runs in" in label and "not comparable: preset quick" in label
+    page.select_option('select[data-pane="beside"]', "")
+    assert not beside.is_visible()
 
     page.locator("nav.pages a", has_text="Ranking").click()
     page.wait_for_load_state("load")

@@ -62,7 +62,15 @@ def user_dir(tmp_path: Path) -> Path:
 
 
 def planned(results: Path) -> list[dict]:
-    return [r for m in read_manifests(results) for r in m["runs"]]
+    """The runs planned in ``results`` and by a dry run's ``plan_file`` beside it (see :func:`plan_of`)."""
+    plan = results.parent / f"{results.name}.plan.json"
+    plans = [json.loads(plan.read_text())] if plan.is_file() else []
+    return [r for m in [*read_manifests(results), *plans] for r in m["runs"]]
+
+
+def plan_of(results: Path) -> str:
+    """A dry run writes nothing into its results directory (issue 36): its plan goes to this file."""
+    return f"plan_file={results.parent / f'{results.name}.plan.json'}"
 
 
 SMALL = ["chain=utility", "scenario=switch_standard", "variant=[HumanA]", "preset=smoke", "mlflow=false", "gif=false"]
@@ -73,8 +81,8 @@ def test_user_algorithm_found_in_every_search_path_form(tmp_path: Path, form: st
     conf = user_dir(tmp_path)
     where = {"space": ["--config-dir", str(conf)], "equals": [f"--config-dir={conf}"],
              "searchpath": [f"hydra.searchpath=[file://{conf}]"]}[form]
-    out = run(["-m", "runners.sweep", *where, "algo=[patient,random]", *SMALL, "dry_run=true", f"results_dir={tmp_path / 'r'}"],
-              cwd=tmp_path)
+    out = run(["-m", "runners.sweep", *where, "algo=[patient,random]", *SMALL, "dry_run=true", f"results_dir={tmp_path / 'r'}",
+               plan_of(tmp_path / "r")], cwd=tmp_path)
     assert out.returncode == 0, out.stderr
     labels = {r["learner"] for r in planned(tmp_path / "r")}
     assert labels == {"Patient A2C", "Random"}
@@ -110,7 +118,8 @@ def test_installed_plugin_entry_point(tmp_path: Path) -> None:
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: moral-plugin\nVersion: 0.1\n")
     (info / "entry_points.txt").write_text("[morality_gym.algos]\nmoral_plugin = moral_plugin.conf\n")
-    out = run(["-m", "runners.sweep", "algo=plugged", *SMALL, "dry_run=true", f"results_dir={tmp_path / 'r'}"], cwd=tmp_path,
+    out = run(["-m", "runners.sweep", "algo=plugged", *SMALL, "dry_run=true", f"results_dir={tmp_path / 'r'}", plan_of(tmp_path / "r")],
+              cwd=tmp_path,
               env={"PYTHONPATH": os.pathsep.join([str(site), os.environ.get("PYTHONPATH", "")])})
     assert out.returncode == 0, out.stderr
     assert {r["learner"] for r in planned(tmp_path / "r")} == {"Plugged A2C"}
@@ -127,15 +136,15 @@ def test_user_scenario_and_chain_file_need_no_config_file(tmp_path: Path) -> Non
     # The variant filter comes before the coverage check: Animals scores only the animal variants.
     for spelling in ("MySwitch", "my_switch", "[MySwitch]"):
         results = tmp_path / f"r-{spelling.strip('[]')}"
-        out = run([*base, f"scenario={spelling}", "chain=animals.yaml", "variant=[AnimalA,AnimalB]", f"results_dir={results}"],
-                  cwd=tmp_path, env=env)
+        out = run([*base, f"scenario={spelling}", "chain=animals.yaml", "variant=[AnimalA,AnimalB]", f"results_dir={results}",
+                   plan_of(results)], cwd=tmp_path, env=env)
         assert out.returncode == 0, out.stderr
         assert {(r["env_id"], r["chain"]) for r in planned(results)} == {("MySwitch-AnimalA-v1", "Animals"), ("MySwitch-AnimalB-v1", "Animals")}
     out = run([*base, "scenario=MySwitch", "chain=animals.yaml", f"results_dir={tmp_path / 'all'}"], cwd=tmp_path, env=env)
     assert out.returncode == 2 and "cannot score MySwitch-HumanA-v1" in out.stderr and "variant=[" in out.stderr
     # Built-in scenarios and chains in either spelling, chains by name and abbreviation too.
     out = run([*base, "scenario=[SwitchStandard,push_or_switch]", "chain=DP", "variant=[HumanA,Human]",
-               f"results_dir={tmp_path / 'b'}"], cwd=tmp_path)
+               f"results_dir={tmp_path / 'b'}", plan_of(tmp_path / "b")], cwd=tmp_path)
     assert out.returncode == 0, out.stderr
     assert {(r["scenario"], r["chain"]) for r in planned(tmp_path / "b")} == {("SwitchStandard", "DualProcess"), ("PushOrSwitch", "DualProcess")}
     out = run([*base, "scenario=SwitchStandrd", f"results_dir={tmp_path / 'c'}"], cwd=tmp_path)

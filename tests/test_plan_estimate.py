@@ -31,3 +31,19 @@ def test_the_estimate_counts_what_a_sweep_pays_besides_its_runs(tmp_path: Path) 
     shown = " ".join(out.stderr.split()).split("estimated time for what remains: ")[1].split()[0]  # the plan is on stderr
     minutes, seconds = shown.rstrip("s").split("m")
     assert int(minutes) * 60 + int(seconds) >= round(overheads.worker_start_s + overheads.new_store_s)
+
+
+def test_the_estimate_says_what_a_busy_machine_costs() -> None:
+    """Issue 36: on a shared machine the plan states the idle estimate and the one at the machine's load:
+    workers share the cores with the other runnable processes (the kernel's fair share)."""
+    from runners.machine_load import MachineLoad, estimate, load_factor
+
+    assert load_factor(2, MachineLoad(cores=2, load=0.0)) == 1.0  # a core each: as fitted
+    assert load_factor(2, MachineLoad(cores=2, load=3.0)) == pytest.approx(2.5)  # 5 runnable on 2 cores
+    assert load_factor(2, MachineLoad(cores=8, load=3.0)) == 1.0  # room to spare
+    busy = estimate(206.0, 2, MachineLoad(cores=2, load=3.0))
+    assert busy.loaded_s == pytest.approx(515.0)
+    assert busy.text() == "3m26s on an idle machine, 8m35s at this machine's load (load average 3.0 on 2 core(s))"
+    assert estimate(206.0, 2, MachineLoad(cores=2, load=0.0)).text() == "3m26s"  # idle: one figure
+    assert estimate(206.0, 2, None).text() == "3m26s"  # SLURM: this machine's load does not matter
+    assert MachineLoad.now(lambda: (1.0, 2.5, 0.5)).load == 2.5  # a quiet minute of a busy hour counts as busy

@@ -113,6 +113,8 @@ def test_a_submitted_policy_lands_beside_the_release_baselines(released: tuple[P
     html = (mine / "site" / "index.html").read_text()
     assert re.search(r"<strong>your results</strong> <code>[^<]*mine</code> · 2 run\(s\)", html)
     assert "<strong>release smoke-v1</strong>" in html and 'data-learner="Lever rule"' in html
+    runs = (mine / "site" / "runs" / "index.html").read_text()  # issue 36: All runs opens on the user's own
+    assert '<option value="results" selected>your runs</option>' in runs and "release smoke-v1</td>" in runs
 
 
 def test_own_copy_of_a_released_run_wins(released: tuple[Path, Path], tmp_path: Path) -> None:

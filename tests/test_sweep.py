@@ -32,7 +32,15 @@ def sweep(results: Path, *args: str, timeout: float = 600, background: bool = Fa
 
 
 def planned_ids(results: Path) -> set[str]:
-    return {r["run_id"] for m in read_manifests(results) for r in m["runs"]}
+    """The runs a results directory's manifests plan, and those of the dry runs' plan files beside it
+    (``<results>.plan*.json``: a dry run writes nothing into the results directory, issue 36)."""
+    plans = [json.loads(p.read_text()) for p in sorted(results.parent.glob(f"{results.name}.plan*.json"))]
+    return {r["run_id"] for m in [*read_manifests(results), *plans] for r in m["runs"]}
+
+
+def plan_file(results: Path, tag: str = "") -> str:
+    """The ``plan_file=`` of a dry run whose plan :func:`planned_ids` should count."""
+    return f"plan_file={results.parent / f'{results.name}.plan{tag}.json'}"
 
 
 def mlflow_run_ids(results: Path) -> list[str]:
@@ -82,16 +90,18 @@ def test_unwritable_results_dir_and_malformed_user_chain(tmp_path: Path) -> None
 
 
 def test_plan_narrowing_and_stable_ids(tmp_path: Path) -> None:
+    results = tmp_path / "r"
     base = [*SMALL, "variant=[HumanA,HumanB]", "seed=[41,42]", "dry_run=true"]
-    first = sweep(tmp_path, *base)
+    first = sweep(results, *base, plan_file(results))
     assert first.returncode == 0, first.stderr
-    ids = planned_ids(tmp_path)
+    ids = planned_ids(results)
     assert len(ids) == 4 and "4 runs" in first.stderr
-    assert sweep(tmp_path, *base).returncode == 0 and planned_ids(tmp_path) == ids  # content hashes are stable
-    sweep(tmp_path, *base, "beta=0.2", "name=b02")
-    assert len(planned_ids(tmp_path)) == 8  # a different beta is a different run
-    default = sweep(tmp_path / "d", "algo=random", "chain=utility", "dry_run=true", "preset=smoke")
-    scenarios = {r["scenario"] for m in read_manifests(tmp_path / "d") for r in m["runs"]}
+    assert sweep(results, *base, plan_file(results)).returncode == 0 and planned_ids(results) == ids  # stable hashes
+    sweep(results, *base, "beta=0.2", "name=b02", plan_file(results, "-b02"))
+    assert len(planned_ids(results)) == 8  # a different beta is a different run
+    assert not results.exists()  # issue 36: dry runs write nothing there
+    default = sweep(tmp_path / "d", "algo=random", "chain=utility", "dry_run=true", "preset=smoke", plan_file(tmp_path / "d"))
+    scenarios = {r["scenario"] for r in json.loads((tmp_path / "d.plan.json").read_text())["runs"]}
     assert scenarios == {"Push2OrSwitch", "PushOrSwitch", "Switch2Trolley4Track", "Switch5", "Switch7", "SwitchStandard"}
     assert default.returncode == 0 and not (tmp_path / "d" / "runs").exists() or not run_files(tmp_path / "d")
 

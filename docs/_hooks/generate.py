@@ -175,6 +175,8 @@ def catalogue() -> dict[str, str | bytes]:
         "scenario's file (`morality_gym/data/scenarios/`) and its env class's docstring when the site "
         "is built; `python -m morality_gym docs --output DIR` writes the docstrings alone as Markdown."),
         "",
+        '<div class="catalogue-index" markdown>',  # docs/stylesheets/tables.css gives "what happens" room
+        "",
         "| scenario | | variants | Table 1 chains | what happens |",
         "|---|---|---|---|---|",
     ]
@@ -183,6 +185,7 @@ def catalogue() -> dict[str, str | bytes]:
         first = scenario.env_id(next(iter(scenario.variants)))
         index.append(f"| [{name}]({name}.md) | ![{name}](img/{first}.png){{ width=160 loading=lazy }} "
                      f"| {len(scenario.variants)} | {', '.join(chains.get(name, [])) or '-'} | {scenario.summary} |")
+    index += ["", "</div>"]
     files["index.md"] = "\n".join(index) + "\n"
     return files
 

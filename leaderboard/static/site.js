@@ -84,3 +84,19 @@
     setupFilters(table);
   });
 })();
+(function () {
+  /* Table 1's grid panes: a select[data-pane=NAME] shows the [data-pane-NAME] block of its value;
+     an empty value hides the pane (the "beside it" pane can be turned off). */
+  Array.prototype.forEach.call(document.querySelectorAll("select[data-pane]"), function (sel) {
+    var name = sel.getAttribute("data-pane");
+    function apply() {
+      document.querySelectorAll("[data-pane-" + name + "]").forEach(function (block) {
+        block.hidden = block.getAttribute("data-pane-" + name) !== sel.value;
+      });
+      var slot = document.querySelector('[data-pane-slot="' + name + '"]');
+      if (slot) slot.hidden = !sel.value;
+    }
+    sel.addEventListener("change", apply);
+    apply();
+  });
+})();
