@@ -187,6 +187,16 @@ def _estimate_text(plan_: Plan) -> str:
     return plan_.estimate.text() if plan_.estimate is not None else duration(plan_.estimate_s)
 
 
+def device_estimate_note(device: str) -> str | None:
+    """What the estimate is worth on ``device``: the learners' planning rates are this machine's CPU
+    rates (``planning`` in conf/algo), and no GPU rates are fitted yet, so on a GPU the figure is
+    marked rather than shown as if it were the GPU's (benchmarks/gpu_check.sh measures them)."""
+    if device == "cpu":
+        return None
+    return (f"the estimate prices the runs at CPU rates: no {device} rates are fitted yet "
+            "(benchmarks/gpu_check.sh measures them), so it is not a GPU estimate")
+
+
 def print_plan(plan_: Plan, sweep: SweepConfig, console: Console) -> None:
     """The files moved aside, the counts per learner, the warnings, the settings and the estimate,
     and how the runs train."""
@@ -207,6 +217,9 @@ def print_plan(plan_: Plan, sweep: SweepConfig, console: Console) -> None:
         f"launcher [bold]{sweep.launcher['name']}[/bold] ({plan_.workers} parallel), results in {sweep.results_dir}; "
         f"estimated time for what remains: [bold]{escape(_estimate_text(plan_))}[/bold]"
     )
+    note = device_estimate_note(sweep.device)
+    if note:
+        _warn(console, f"warning: {note}")
     engine = _engine_line(plan_, sweep)
     if engine:
         console.print(engine)

@@ -47,3 +47,12 @@ def test_the_estimate_says_what_a_busy_machine_costs() -> None:
     assert estimate(206.0, 2, MachineLoad(cores=2, load=0.0)).text() == "3m26s"  # idle: one figure
     assert estimate(206.0, 2, None).text() == "3m26s"  # SLURM: this machine's load does not matter
     assert MachineLoad.now(lambda: (1.0, 2.5, 0.5)).load == 2.5  # a quiet minute of a busy hour counts as busy
+
+
+def test_an_estimate_for_a_gpu_sweep_is_marked_as_priced_at_cpu_rates() -> None:
+    """No GPU planning rates are fitted: a device=cuda sweep's estimate says so instead of posing as one."""
+    from runners.sweep import device_estimate_note
+
+    assert device_estimate_note("cpu") is None
+    note = device_estimate_note("cuda")
+    assert note is not None and "CPU rates" in note and "not a GPU estimate" in note and "gpu_check.sh" in note
