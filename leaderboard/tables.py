@@ -56,12 +56,17 @@ DASH = "—"
 
 # ---------------------------------------------------------------------------------------- formatting
 def fmt(value: Any, digits: int = 3, signed: bool = False) -> str:
-    """A number with fixed decimals; missing values as a dash (never "nan" in a table)."""
+    """A number with fixed decimals; missing values as a dash (never "nan" in a table).
+
+    A signed value that rounds to zero is "±0.000": ``-0.000`` (a difference of -0.0001 shown
+    to three decimals) read as a loss that is not there."""
     if value is None or value is pd.NA:
         return DASH
     value = float(value)
     if math.isnan(value):
         return DASH
+    if signed and round(value, digits) == 0:
+        return f"±{0:.{digits}f}"
     return f"{value:+.{digits}f}" if signed else f"{value:.{digits}f}"
 
 
