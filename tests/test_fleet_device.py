@@ -14,7 +14,6 @@ and truncated episodes (bootstrapped with the critics), so the rarer paths are e
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +24,7 @@ import morality_gym
 from morality_gym.baselines.fleet import FleetCheckpoint, FleetRun, build_fleet
 from morality_gym.baselines.fleet.env import DeviceFleetEnv, FleetEnv
 from morality_gym.baselines.specs import learner_spec
+from tests.test_fleet import _one_torch_thread  # noqa: F401 - the fleet tests' one-thread fixture (autouse)
 
 SMALL = {
     "ppo": {"n_steps": 32, "n_epochs": 2},
@@ -41,14 +41,6 @@ CASES = [
     ("cpo", "corrected"),
 ]
 ROLLOUT = 32 * 8
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread() -> Iterator[None]:
-    before = th.get_num_threads()
-    th.set_num_threads(1)
-    yield
-    th.set_num_threads(before)
 
 
 def _runs() -> list[FleetRun]:

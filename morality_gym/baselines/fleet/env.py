@@ -50,7 +50,22 @@ class FleetStep(NamedTuple):
     final_obs: th.Tensor | None  # last observations of the ended copies (zeros elsewhere); None: none ended
 
 
-class FleetEnv:
+class _FleetEnvBase:
+    """What both simulators of a fleet share: the runs' layout (copy ``k * n_envs + i`` is env ``i``
+    of run ``k``), the learner's reward and cost settings, and the device steps return tensors on."""
+
+    def __init__(self, bounds: Sequence[BoundChain], n_envs: int, reward_cost: RewardCostSpec, device: str | th.device) -> None:
+        self.n_runs = len(bounds)
+        self.n_envs = n_envs
+        self.reward_cost = reward_cost
+        self.device = th.device(device)
+
+    def copies_of(self, runs: th.Tensor) -> th.Tensor:
+        """Boolean mask over the copies of the runs where ``runs`` (``[K]`` bool) is true."""
+        return runs.repeat_interleave(self.n_envs)
+
+
+class FleetEnv(_FleetEnvBase):
     """``n_envs`` copies per run for every bound chain in ``bounds`` (one per run), simulated on the
     host; steps take and return tensors on ``device``."""
 
@@ -64,10 +79,7 @@ class FleetEnv:
         max_steps: int | None = MAX_STEPS,
         device: str | th.device = "cpu",
     ) -> None:
-        self.n_runs = len(bounds)
-        self.n_envs = n_envs
-        self.reward_cost = reward_cost
-        self.device = th.device(device)
+        super().__init__(bounds, n_envs, reward_cost, device)
         self.sim = MixedBatchedTrolleyEnv([b.env_id for b in bounds for _ in range(n_envs)], max_steps=max_steps)
         self.obs_dim = self.sim.obs_dim
         groups: dict[tuple[str, str, float], list[int]] = {}
@@ -97,10 +109,6 @@ class FleetEnv:
         self.sim.load_state_dict(state["sim"])
         for owner, memory in zip(owners, state["costs"]):
             owner.load_state_dict(memory)
-
-    def copies_of(self, runs: th.Tensor) -> th.Tensor:
-        """Boolean mask over the copies of the runs where ``runs`` (``[K]`` bool) is true."""
-        return runs.repeat_interleave(self.n_envs)
 
     def reset(self, runs: th.Tensor | None = None) -> th.Tensor:
         """Reset every copy (or the copies of the runs where ``runs`` is true); returns all observations.
@@ -137,7 +145,7 @@ class FleetEnv:
         return th.from_numpy(arr).to(self.device)
 
 
-class DeviceFleetEnv:
+class DeviceFleetEnv(_FleetEnvBase):
     """:class:`FleetEnv` with the simulator, the cost and the reward on the fleet's device."""
 
     name = "device"
@@ -150,11 +158,8 @@ class DeviceFleetEnv:
         max_steps: int | None = MAX_STEPS,
         device: str | th.device = "cpu",
     ) -> None:
+        super().__init__(bounds, n_envs, reward_cost, device)
         copies = [b for b in bounds for _ in range(n_envs)]
-        self.n_runs = len(bounds)
-        self.n_envs = n_envs
-        self.reward_cost = reward_cost
-        self.device = th.device(device)
         self.cost = TorchCost.for_copies(copies, reward_cost, self.device)  # first: refuses prescribed norms
         self.sim = TorchTrolleySim([b.env_id for b in copies], self.device, max_steps=max_steps)
         dims = set(self.sim.obs_dims.values())
@@ -174,9 +179,6 @@ class DeviceFleetEnv:
             raise ValueError(f"cost memories: expected 1, got {len(state['costs'])}")
         self.sim.load_state_dict(state["sim"])
         self.cost.load_state_dict(state["costs"][0])
-
-    def copies_of(self, runs: th.Tensor) -> th.Tensor:
-        return runs.repeat_interleave(self.n_envs)
 
     def reset(self, runs: th.Tensor | None = None) -> th.Tensor:
         """As :meth:`FleetEnv.reset`."""
