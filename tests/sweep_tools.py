@@ -19,3 +19,17 @@ def wait_for_results(results: Path, n: int, proc: subprocess.Popen, timeout: flo
         assert proc.poll() is None, proc.stdout.read() if proc.stdout else ""
         assert time.monotonic() < deadline, "the sweep made no progress"
         time.sleep(0.1)
+
+
+def children(pid: int) -> list[int]:
+    """The ids of ``pid``'s child processes, read from /proc (the field after the command name is the parent)."""
+    out = []
+    for proc in Path("/proc").iterdir():
+        if proc.name.isdigit():
+            try:
+                fields = (proc / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                out.append(int(proc.name))
+    return out

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from runners.results_schema import read_runs
-from tests.sweep_tools import run_files, wait_for_results
+from tests.sweep_tools import children, run_files, wait_for_results
 
 REPO = Path(__file__).resolve().parents[1]
 ARGS = ["algo=random", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "seed=[41]", "gif=false",
@@ -53,17 +53,6 @@ def assert_one_active_run_per_row(results: Path) -> None:
     assert all(status != "RUNNING" for _, status, _ in runs), runs  # an interrupted mirror is KILLED
 
 
-def children(pid: int) -> list[int]:
-    out = []
-    for proc in Path("/proc").iterdir():
-        if proc.name.isdigit():
-            try:
-                fields = (proc / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid:
-                out.append(int(proc.name))
-    return out
 
 
 def alive(pid: int) -> bool:

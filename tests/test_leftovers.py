@@ -153,16 +153,23 @@ def test_sigterm_to_a_build_cleans_up_and_keeps_the_previous_site(results: Path,
     assert {p.relative_to(site): p.read_bytes() for p in site.rglob("*") if p.is_file()} == before
 
 
+def _without_root_overrides() -> list[str]:
+    """The command prefix that makes permission bits bind: root ignores them, so as root the
+    command runs without the capabilities that let it (``setpriv``, as tests/test_faults.py's
+    read-only build does); skips the test where that cannot be done."""
+    import shutil
+
+    if os.geteuid() != 0:
+        return []
+    if shutil.which("setpriv") is None:
+        pytest.skip("running as root without setpriv: a read-only directory cannot be made")
+    return ["setpriv", "--bounding-set=-dac_override,-dac_read_search,-fowner", "--"]
+
+
 def test_a_release_into_a_read_only_directory_is_one_line(results: Path, tmp_path: Path) -> None:
     """Root ignores permission bits, so as root the command runs without the capabilities that let
     it (``setpriv``, as tests/test_faults.py's read-only build does)."""
-    import shutil
-
-    wrapper: list[str] = []
-    if os.geteuid() == 0:
-        if shutil.which("setpriv") is None:
-            pytest.skip("running as root without setpriv: a read-only directory cannot be made")
-        wrapper = ["setpriv", "--bounding-set=-dac_override,-dac_read_search,-fowner", "--"]
+    wrapper = _without_root_overrides()
     root = tmp_path / "readonly"
     root.mkdir()
     root.chmod(0o555)
@@ -181,13 +188,7 @@ def test_a_release_into_a_read_only_directory_is_one_line(results: Path, tmp_pat
 @pytest.mark.parametrize("what", ["sweep", "submit"])
 def test_a_read_only_results_directory_is_one_line(tmp_path: Path, what: str) -> None:
     """The sweep's preflight and the submission's check name the directory before anything runs."""
-    import shutil
-
-    wrapper: list[str] = []
-    if os.geteuid() == 0:
-        if shutil.which("setpriv") is None:
-            pytest.skip("running as root without setpriv: a read-only directory cannot be made")
-        wrapper = ["setpriv", "--bounding-set=-dac_override,-dac_read_search,-fowner", "--"]
+    wrapper = _without_root_overrides()
     results = tmp_path / "readonly"
     results.mkdir()
     results.chmod(0o555)

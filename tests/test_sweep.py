@@ -15,7 +15,7 @@ import pytest
 
 from runners.manifest import read_manifests
 from runners.results_schema import RUN_COLUMNS, read_runs
-from tests.sweep_tools import run_files, wait_for_results
+from tests.sweep_tools import children, run_files, wait_for_results
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = ["algo=random", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "seed=[41]"]
@@ -148,17 +148,6 @@ def test_failing_run_is_recorded_and_does_not_stop_others(tmp_path: Path) -> Non
     assert kept.returncode == 1 and "0 to run" in kept.stderr
 
 
-def _children(pid: int) -> list[int]:
-    out = []
-    for proc in Path("/proc").iterdir():
-        if proc.name.isdigit():
-            try:
-                fields = (proc / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid:
-                out.append(int(proc.name))
-    return out
 
 
 @pytest.mark.slow
@@ -166,7 +155,7 @@ def test_sigkill_of_the_sweep_then_resume_gives_exact_run_set(tmp_path: Path) ->
     args = ["algo=random", "chain=utility", "scenario=[switch_standard,push_or_switch]", "seed=[41,42]", "preset=smoke", "launcher.workers=2"]
     proc = sweep(tmp_path, *args, background=True)
     wait_for_results(tmp_path, 3, proc, timeout=180)
-    workers = _children(proc.pid)
+    workers = children(proc.pid)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(timeout=30)
     deadline = time.monotonic() + 20
@@ -188,7 +177,7 @@ def test_sigkill_of_the_sweep_then_resume_gives_exact_run_set(tmp_path: Path) ->
 
 def _busy_worker(sweep_pid: int) -> tuple[int, str] | None:
     """A worker process of the sweep that currently holds a run lock, and that run's id."""
-    for pid in _children(sweep_pid):
+    for pid in children(sweep_pid):
         try:
             if b"spawn_main" not in Path(f"/proc/{pid}/cmdline").read_bytes():
                 continue  # e.g. multiprocessing's resource tracker
