@@ -98,6 +98,10 @@ class FleetCPO(FleetCostTrainer):
 
     def _setup_optimisers(self) -> None:
         super()._setup_optimisers()
+        self._build_flats()
+
+    def _build_flats(self) -> None:
+        """The actor's flat-vector layout (:class:`~.cpo_math.FlatActor`), from :attr:`actor_params`."""
         self.flat_actor = FlatActor(self.actor_params)
 
     def _actor(self, k: int) -> th.Tensor:
