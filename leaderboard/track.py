@@ -129,6 +129,12 @@ def summarise(frame: pd.DataFrame, resamples: int = DEFAULT_RESAMPLES, seed: int
     return pd.DataFrame(rows)
 
 
+def _in_order(learners: Any) -> list[str]:
+    """Random, the baselines, then everything else (submissions) by name."""
+    names = list(dict.fromkeys(learners))
+    return [n for n in LABELS if n in names] + sorted(n for n in names if n not in LABELS)
+
+
 def _ci(row: pd.Series) -> str:
     return f"[{row['low']:.3f}, {row['high']:.3f}]"
 
@@ -141,7 +147,7 @@ def draw_figure(summary: pd.DataFrame, path: Path, score: str = "range_score") -
     import matplotlib.pyplot as plt
 
     part = summary[(summary["score"] == score) & (summary["set"].isin(SETS))]
-    learners = list(dict.fromkeys(part["learner"]))
+    learners = _in_order(part["learner"])
     fig, ax = plt.subplots(figsize=(7.5, 3.6), dpi=110)
     width = 0.8 / max(1, len(learners))
     for i, learner in enumerate(learners):
@@ -187,14 +193,15 @@ def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
     for score, title in SCORES.items():
         part = summary[summary["score"] == score]
         rows = []
-        for learner in dict.fromkeys(part["learner"]):
+        for learner in _in_order(part["learner"]):
             cells = part[part["learner"] == learner].set_index("set")
             record = next(r for r in records if r["learner"] == learner)
             rows.append({
                 "learner": LABELS.get(learner, learner), "colour": COLOURS.get(learner, "#999999"),
                 "budget": "exact, untrained" if learner == "random" else "submitted policy" if record.get("submitted")
                 else f"{record['budget']:,} steps",
-                "seeds": ", ".join(sorted({str(r["seed"]) for r in records if r["learner"] == learner})),
+                "seeds": "exact" if learner == "random" else
+                ", ".join(sorted({str(r["seed"]) for r in records if r["learner"] == learner})),
                 "cells": [{"mean": float(cells.loc[s, "mean"]), "ci": _ci(cells.loc[s])} if s in cells.index else None
                           for s in [*SETS, "gap"]],
                 "time": "—" if learner == "random" or record.get("submitted") else _seconds(records, learner),
