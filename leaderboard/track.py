@@ -41,7 +41,8 @@ from morality_gym.generalisation.sets import SET_LABELS, SETS, scenario_of
 from runners.track import PAIRS, RESULT
 
 SCORES = {"range_score": "Range score (0 = oracle worst, 1 = oracle best)",
-          "random_score": "Random-relative score (0 = Random, 1 = oracle best)"}
+          "random_score": "Random-relative score (0 = Random, 1 = oracle best)",
+          "vs_random": "Range score minus Random's on the same dilemmas (paired)"}
 LABELS = {"random": "Random", "ppo": "PPO", "ppo_shaped": "PPO Shaped"}
 COLOURS = {"random": "#8c8c8c", "ppo": "#1f77b4", "ppo_shaped": "#2ca02c"}
 PAGE = "track.html"
@@ -75,7 +76,7 @@ def load_runs(track_dir: Path) -> tuple[pd.DataFrame, list[dict[str, Any]]]:
 
 def _set_arrays(part: pd.DataFrame, score: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Per seed and scenario: the sum of env-id scores, and each scenario's env-id count."""
-    per_env = part.groupby(["seed", "env_id"])[score].mean().unstack("env_id")
+    per_env = part.groupby(["seed", "env_id"])[score].mean().unstack("env_id")  # NaN: no pair of the env scores
     per_env = per_env.loc[:, per_env.notna().all(axis=0)]
     scenarios = [scenario_of(e) for e in per_env.columns]
     codes, names = pd.factorize(pd.Series(scenarios))
@@ -98,10 +99,26 @@ def _interval(values: np.ndarray) -> tuple[float, float]:
     return float(low), float(high)
 
 
+def with_paired(frame: pd.DataFrame) -> pd.DataFrame:
+    """``vs_random``: each pair's range score minus Random's (exact) on the same pair; NaN for Random."""
+    random = frame[frame["learner"] == "random"].set_index(["set", "env_id", "chain"])["range_score"]
+    if random.empty:
+        return frame.assign(vs_random=np.nan)
+    keys = pd.MultiIndex.from_frame(frame[["set", "env_id", "chain"]])
+    paired = frame["range_score"].to_numpy() - random.reindex(keys).to_numpy()
+    return frame.assign(vs_random=np.where(frame["learner"] == "random", np.nan, paired))
+
+
 def summarise(frame: pd.DataFrame, resamples: int = DEFAULT_RESAMPLES, seed: int = DEFAULT_SEED) -> pd.DataFrame:
-    """One row per (learner, score, set) and per (learner, score, ``gap``): mean and 95 % interval."""
+    """One row per (learner, score, set) and per (learner, score, ``gap``): mean and 95 % interval.
+
+    ``vs_random`` (learners other than Random) is the paired difference: the same dilemmas are
+    resampled for the learner and for Random, so it is much tighter than comparing two intervals."""
+    frame = with_paired(frame)
     rows = []
-    for (learner, score), _ in [((lr, s), None) for lr in frame["learner"].unique() for s in SCORES]:
+    for learner, score in [(lr, s) for lr in frame["learner"].unique() for s in SCORES]:
+        if score == "vs_random" and (learner == "random" or frame["vs_random"].isna().all()):
+            continue
         mine = frame[frame["learner"] == learner]
         seeds = sorted(mine["seed"].unique())
         rng = generator_for(seed, "track", learner, score)
@@ -139,16 +156,7 @@ def _ci(row: pd.Series) -> str:
     return f"[{row['low']:.3f}, {row['high']:.3f}]"
 
 
-def draw_figure(summary: pd.DataFrame, path: Path, score: str = "range_score") -> None:
-    """Grouped bars: a bar per learner in each set, with the 95 % interval as error bars."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    part = summary[(summary["score"] == score) & (summary["set"].isin(SETS))]
-    learners = _in_order(part["learner"])
-    fig, ax = plt.subplots(figsize=(7.5, 3.6), dpi=110)
+def _bars(ax: Any, part: pd.DataFrame, learners: list[str]) -> None:
     width = 0.8 / max(1, len(learners))
     for i, learner in enumerate(learners):
         mine = part[part["learner"] == learner].set_index("set").reindex(list(SETS))
@@ -156,12 +164,38 @@ def draw_figure(summary: pd.DataFrame, path: Path, score: str = "range_score") -
         err = np.vstack([mine["mean"] - mine["low"], mine["high"] - mine["mean"]])
         ax.bar(x, mine["mean"], width, yerr=err, capsize=4, label=LABELS.get(learner, learner),
                color=COLOURS.get(learner, "#999999"))
-    ax.set_xticks(np.arange(len(SETS)), [SET_LABELS[s] for s in SETS])
-    ax.set_ylabel(SCORES[score].split(" (")[0])
+    ax.set_xticks(np.arange(len(SETS)), [SET_LABELS[s].replace(" (", "\n(") for s in SETS], fontsize=8)
+
+
+def draw_figure(summary: pd.DataFrame, path: Path) -> None:
+    """Grouped bars with the 95 % intervals as error bars: the range score per set, and (when Random
+    ran) each learner's paired difference from Random on the same dilemmas."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    in_sets = summary[summary["set"].isin(SETS)]
+    scores = in_sets[in_sets["score"] == "range_score"]
+    paired = in_sets[in_sets["score"] == "vs_random"]
+    fig, axes = plt.subplots(1, 2 if not paired.empty else 1, figsize=(11, 3.8) if not paired.empty else (7, 3.8),
+                             dpi=110, squeeze=False)
+    ax = axes[0, 0]
+    _bars(ax, scores, _in_order(scores["learner"]))
+    ax.set_ylabel("range score (0 = worst, 1 = best)")
     ax.set_ylim(0, 1.05)
     ax.axhline(1.0, color="#444444", lw=0.6, ls=":")
-    ax.legend(loc="lower right", fontsize=8)
-    ax.set_title("Seen vs unseen dilemmas (95% bootstrap intervals)", fontsize=10)
+    ax.legend(loc="upper right", fontsize=8)
+    ax.set_title("Score per set", fontsize=10)
+    if not paired.empty:
+        ax = axes[0, 1]
+        learners = _in_order(paired["learner"])
+        _bars(ax, paired, learners)
+        ax.axhline(0.0, color="#444444", lw=0.8)
+        ax.set_ylabel("range score − Random's (paired)")
+        ax.set_title("Difference from Random on the same dilemmas", fontsize=10)
+        ax.legend(loc="best", fontsize=8)
+    fig.suptitle("Seen vs unseen dilemmas (95% bootstrap intervals)", fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
@@ -192,6 +226,8 @@ def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
     tables = []
     for score, title in SCORES.items():
         part = summary[summary["score"] == score]
+        if part.empty:
+            continue
         rows = []
         for learner in _in_order(part["learner"]):
             cells = part[part["learner"] == learner].set_index("set")
@@ -247,8 +283,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if frame.empty:
         raise UserError(f"{args.results}: no finished run (result.json). Fix: run python -m runners.track first")
     summary = summarise(frame, args.resamples)
-    for _, row in summary[summary["score"] == "range_score"].iterrows():
-        print(f"{row['learner']:<11} {row['set']:<8} {row['mean']:.3f} {_ci(row)}")
+    for _, row in summary.iterrows():
+        print(f"{row['score']:<12} {row['learner']:<11} {row['set']:<8} {row['mean']:+.3f} {_ci(row)}")
     if args.site is not None:
         args.site.mkdir(parents=True, exist_ok=True)
         assets = args.site / "assets"

@@ -151,6 +151,9 @@ def test_the_page_shows_seen_unseen_and_builtin_scores_with_intervals(tmp_path: 
     assert (ppo["low"] <= ppo["mean"]).all() and (ppo["mean"] <= ppo["high"]).all()
     assert ppo.loc["seen", "mean"] > ppo.loc["test", "mean"] > ppo.loc["builtin", "mean"]
     assert ppo.loc["test", "dilemmas"] == 4 and ppo.loc["test", "env_ids"] == 8 and ppo.loc["test", "seeds"] == 2
+    paired = summary[summary["score"] == "vs_random"]
+    assert set(paired["learner"]) == {"ppo"}  # Random is the reference, not compared with itself
+    assert (paired[paired["set"] != "gap"]["low"] > 0).all()  # PPO beats Random on every fixture pair
 
     site = tmp_path / "site"
     site.mkdir()
@@ -163,6 +166,7 @@ def test_the_page_shows_seen_unseen_and_builtin_scores_with_intervals(tmp_path: 
         assert text in html
     row = re.search(r'<tr data-learner="PPO">(.*?)</tr>', html).group(1)
     assert len(re.findall(r"\[-?\d\.\d{3}, -?\d\.\d{3}\]", row)) == 4  # three sets and the gap
+    assert "Range score minus Random" in html
 
     empty = write_page(site, None, common).read_text()
     assert "No results yet" in empty and "python -m runners.track" in empty
