@@ -16,6 +16,7 @@ Layout of ``<site>``::
     index.html                   Table 1 as the paper's grid (the user's newest sweep, a release's beside it),
                                  status, the long Table 1 (sortable, filterable), Figure 2
     ranking.html                 aggregate scores with intervals, probability of improvement, profiles
+    track.html                   the generalisation track: seen vs unseen vs built-in (leaderboard.track)
     runs/index.html              every run with its status
     runs/<run_id>.html           one run: metrics, per-norm functions, config, curve, MLflow, error
     scenarios/<Scenario>.html    layout, variants, curves, return vs cost, violations, breakdown, GIFs
@@ -232,6 +233,8 @@ def _build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: Figu
     # SciPy waits: importing leaderboard.site must not load it
     from leaderboard.pages import index_context, run_context, runs_context, scenario_context
     from leaderboard.ranking_page import ranking_context
+    from leaderboard.track import track_results
+    from leaderboard.track import write_page as write_track_page
 
     tmp = _prepare_target(site_dir)
     try:
@@ -248,6 +251,7 @@ def _build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: Figu
         render_layouts(sb, scenarios)
         _write(tmp / "index.html", render("index.html", **index_context(sb)))
         _write(tmp / "ranking.html", render("ranking.html", **ranking_context(sb)))
+        write_track_page(tmp, track_results(sources.results), sb.common("Generalisation track", "", "track.html"))
         _write(tmp / "runs" / "index.html", render("runs.html", **runs_context(sb)))
         for scenario in scenarios:
             _write(tmp / "scenarios" / f"{safe_name(scenario)}.html", render("scenario.html", **scenario_context(sb, scenario)))
@@ -259,7 +263,7 @@ def _build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: Figu
             pages.place(tmp / "runs" / f"{safe_name(str(record['run_id']))}.html", "run.html", context,
                         lambda context=context: render("run.html", **context))
         pages.prune()
-        sb.pages = 3 + len(scenarios) + len(records)
+        sb.pages = 4 + len(scenarios) + len(records)
         sb.pages_reused = pages.reused
         _swap_in(tmp, site_dir)
         sb.out = site_dir

@@ -13,7 +13,7 @@ from leaderboard.sources import Sources
 
 #: The pages every page links to in its header (path from the site root, label).
 NAV = (("index.html", "Table 1"), ("index.html#table1-section", "Long table"), ("ranking.html", "Ranking"),
-       ("runs/index.html", "All runs"))
+       ("track.html", "Generalisation"), ("runs/index.html", "All runs"))
 
 
 @dataclass

@@ -376,7 +376,7 @@ def test_figures_are_written(built: BuiltSite) -> None:
 
 def test_site_is_self_contained_with_relative_links(built: BuiltSite) -> None:
     pages = sorted(built.site.rglob("*.html"))
-    assert len(pages) == 3 + len(ROWS) + len(built.data.records)  # index, ranking (issue 13), runs index
+    assert len(pages) == 4 + len(ROWS) + len(built.data.records)  # index, ranking (issue 13), track (35), runs index
     for page in pages:
         text = page.read_text()
         assert "http://" not in text and "https://" not in text, page
