@@ -123,7 +123,7 @@ def table1_context(sb: SiteBuild, root: str) -> dict[str, Any]:
     return {
         "rows": rows,
         "ddof": STD_DDOF,
-        "resamples": sb.resamples,
+        "resamples": sb.resamples("cells"),
         "bold_rule": BOLD_RULE,
         "notable": NOTABLE_DELTA,
         "random_exact": RANDOM_EXACT, "oracle_best": ORACLE_BEST, "oracle_worst": ORACLE_WORST,

@@ -189,7 +189,8 @@ def ranking_context(sb: SiteBuild) -> dict[str, Any]:
     n_rows = {len(g["rows"]) for g in groups}
     n_rows_text = f"{n_rows.pop()} rows" if len(n_rows) == 1 else "rows"
     return sb.common("Ranking across the benchmark", "", "ranking.html") | {
-        "groups": groups, "stat_labels": [label for _, label, _ in STATISTICS], "resamples": sb.resamples,
+        "groups": groups, "stat_labels": [label for _, label, _ in STATISTICS],
+        "resamples": sb.resamples("aggregates"),
         "random_exact": RANDOM_EXACT, "oracle_best": ORACLE_BEST, "n_rows_text": n_rows_text,
         "downloads_list": sb.downloads_of("ranking"),
     }

@@ -44,7 +44,7 @@ from leaderboard.intervals import with_intervals
 from leaderboard.paper_figures import norm_label, write_figures
 from leaderboard.release import ReleaseError, resolve
 from leaderboard.sources import Sources, load_sources
-from leaderboard.stats import DEFAULT_RESAMPLES, compute_stats
+from leaderboard.stats import compute_stats
 from morality_gym.baselines.specs import learner_spec, protocol_spec
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, did_you_mean, run_cli
 
@@ -529,7 +529,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--notes", type=Path, default=NOTES_FILE, help="curated readings (YAML)")
     parser.add_argument("--cache", type=Path, default=Path("results") / "cache" / "reference_rows.json",
                         help="reference-row cache (exact Random and oracle values)")
-    parser.add_argument("--resamples", type=int, default=DEFAULT_RESAMPLES, help="bootstrap resamples of the intervals")
+    parser.add_argument("--resamples", type=int, default=None,
+                        help="bootstrap resamples of every interval (default: each statistic's own, as the leaderboard)")
     add_debug_flag(parser)
     return parser
 

@@ -211,7 +211,7 @@ def _write(path: Path, text: str) -> None:
 
 def build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: FigureSet, results_name: str | None = None,
                progress: Progress | None = None, *, stats: Any = None, stat_figures: Any = None, stamp: str = "",
-               resamples: int = 0, cache_dir: Path | None = None) -> SiteBuild:
+               cache_dir: Path | None = None) -> SiteBuild:
     """Write the whole site into ``site_dir`` (replacing a previous build); returns what was written.
 
     ``stats``: :class:`leaderboard.stats.LeaderboardStats` (ranking page, matrix colours, curves,
@@ -223,11 +223,11 @@ def build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: Figur
     leftover = (f".{site_dir.name}.build-", f".{site_dir.name}.old-")
     with building_in(site_dir.parent, lambda name: name.startswith(leftover)), writing(site_dir):
         return _build_site(lb, sources, site_dir, figures, results_name, progress, stats=stats, stat_figures=stat_figures,
-                           stamp=stamp, resamples=resamples, cache_dir=cache_dir)
+                           stamp=stamp, cache_dir=cache_dir)
 
 
 def _build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: FigureSet, results_name: str | None,
-                progress: Progress | None, *, stats: Any, stat_figures: Any, stamp: str, resamples: int,
+                progress: Progress | None, *, stats: Any, stat_figures: Any, stamp: str,
                 cache_dir: Path | None) -> SiteBuild:
     """:func:`build_site` while this build holds the site's parent (:mod:`leaderboard.leftovers`)."""
     # SciPy waits: importing leaderboard.site must not load it
@@ -239,7 +239,7 @@ def _build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: Figu
     tmp = _prepare_target(site_dir)
     try:
         sb = SiteBuild(lb=lb, sources=sources, results_name=results_name or sources.name,
-                       figures=figures, out=tmp, stamp=stamp, stats=stats, resamples=resamples)
+                       figures=figures, out=tmp, stamp=stamp, stats=stats)
         (tmp / SITE_MARKER).write_text("built by leaderboard.site; this whole directory is replaced on every build\n")
         for name in STATIC_FILES:
             _copy(STATIC / name, tmp / "assets" / name)
