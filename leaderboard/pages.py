@@ -18,11 +18,12 @@ from leaderboard.intervals import BOLD_RULE
 from leaderboard.llm_entries import llm_entries
 from leaderboard.marks import NOTABLE_DELTA
 from leaderboard.paper_figures import chain_title, norm_abbreviation, norm_label
+from leaderboard.precision import DIGITS_RULE
 from leaderboard.render import clean, clean_records, is_missing, run_href, scenario_href, section_id
 from leaderboard.site_state import SiteBuild
 from leaderboard.sources import RESULTS_SOURCE
 from leaderboard.table1_grid import grid_context, opening_groups
-from leaderboard.tables import fmt
+from leaderboard.tables import fmt, interval_text
 from morality_gym.clitools import duration
 from morality_gym.envs.registry import scenario_named
 from runners.results_schema import MF_PREFIX
@@ -37,11 +38,9 @@ def expected_count(record: dict[str, Any]) -> int:
 
 
 def ci_text(record: dict[str, Any]) -> str:
-    """``[low, high]``, or a dash when there is no interval (the reason goes in the tooltip)."""
-    low, high = record.get("ci_low"), record.get("ci_high")
-    if is_missing(low) or is_missing(high):
-        return "—"
-    return f"[{fmt(low)}, {fmt(high)}]"
+    """``[low, high]`` to the decimals each bound is stable to, or a dash when there is no interval (the
+    reason goes in the tooltip)."""
+    return interval_text(record) or "—"
 
 
 def bold_title(record: dict[str, Any]) -> str:
@@ -124,6 +123,7 @@ def table1_context(sb: SiteBuild, root: str) -> dict[str, Any]:
         "rows": rows,
         "ddof": STD_DDOF,
         "resamples": sb.resamples("cells"),
+        "digits_rule": DIGITS_RULE,
         "bold_rule": BOLD_RULE,
         "notable": NOTABLE_DELTA,
         "random_exact": RANDOM_EXACT, "oracle_best": ORACLE_BEST, "oracle_worst": ORACLE_WORST,

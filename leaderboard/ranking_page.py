@@ -12,11 +12,12 @@ from typing import Any
 import pandas as pd
 
 from leaderboard.aggregate import ORACLE_BEST, RANDOM_EXACT, Group
+from leaderboard.precision import DIGITS_RULE
 from leaderboard.render import clean, clean_records, is_missing, scenario_href, section_id
 from leaderboard.site_state import SiteBuild
 from leaderboard.stats.cells import intervals_overlap
 from leaderboard.stats_figure_files import RANKING_FIGURES
-from leaderboard.tables import fmt
+from leaderboard.tables import fmt, interval_text
 
 #: Anchors of the score colour scale: worse than random (score -1 and below), random (0), oracle best (1).
 SCORE_COLOURS = ("#f2a7a0", "#f7f7f7", "#7cc68d")
@@ -44,10 +45,9 @@ def diverging(value: float | None, low: float, mid: float, high: float, anchors:
     return _mix(anchors[1], anchors[2], (value - mid) / (high - mid))
 
 
-def interval(low: Any, high: Any, digits: int = 3) -> str:
-    if is_missing(low) or is_missing(high):
-        return "—"
-    return f"[{fmt(low, digits)}, {fmt(high, digits)}]"
+def interval(record: dict[str, Any] | None, digits: int = 3) -> str:
+    """A record's ``[ci_low, ci_high]``, each bound to the decimals it is stable to (at most ``digits``), or a dash."""
+    return (interval_text(record, digits) if record else "") or "—"
 
 
 def group_frame(frame: pd.DataFrame | None, group: Group) -> pd.DataFrame:
@@ -74,7 +74,7 @@ def _matrix_tip(c: dict[str, Any], ref: dict[str, Any] | None, score: float | No
                 scenario: str) -> list[str]:
     """A matrix cell's tooltip parts: mean, interval, runs, score, and why it is incomplete or not bold."""
     tip = [f"{learner} · {chain} / {scenario}", f"mean {fmt(c['mean'])}",
-           "95% CI " + (interval(c.get("ci_low"), c.get("ci_high")) if not is_missing(c.get("ci_low"))
+           "95% CI " + (interval(c) if not is_missing(c.get("ci_low"))
                         else f"— ({c.get('ci_note') or 'none'})"),
            f"runs {int(c['n_runs'])}",
            f"normalised score {fmt(score)}" if score is not None
@@ -104,7 +104,7 @@ def _measure_rows(sb: SiteBuild, aggregates: pd.DataFrame, measure: str) -> list
             r = mine.get(statistic)
             best, bold = marks[statistic].get(learner, (False, False))
             stats.append({"value": None if r is None else r["value"],
-                          "ci": interval(r["ci_low"], r["ci_high"]) if r else "—", "top": best, "bold": bold})
+                          "ci": interval(r), "top": best, "bold": bold})
         first = next(iter(mine.values()))
         rows.append({"learner": learner, "colour": sb.colour(learner), "stats": stats,
                      "n_rows": first["n_rows"], "n_runs": first["n_runs"]})
@@ -142,10 +142,10 @@ def _improvement(sb: SiteBuild, frame: pd.DataFrame) -> tuple[list[tuple[str, st
             if x == y or r is None:
                 cells.append(None)
                 continue
-            cells.append({"probability": r["probability"], "ci": interval(r["ci_low"], r["ci_high"], 2),
+            cells.append({"probability": r["probability"], "ci": interval(r, 2),
                           "colour": diverging(r["probability"], 0.0, 0.5, 1.0, PROBABILITY_COLOURS),
                           "title": f"P({x} > {y}) = {fmt(r['probability'])}, 95% CI "
-                                   f"{interval(r['ci_low'], r['ci_high'])}, over {r['n_rows']} row(s)"})
+                                   f"{interval(r)}, over {r['n_rows']} row(s)"})
         rows.append({"learner": x, "colour": sb.colour(x), "cells": cells})
     return [(n, sb.colour(n)) for n in learners], rows
 
@@ -190,7 +190,8 @@ def ranking_context(sb: SiteBuild) -> dict[str, Any]:
     n_rows_text = f"{n_rows.pop()} rows" if len(n_rows) == 1 else "rows"
     return sb.common("Ranking across the benchmark", "", "ranking.html") | {
         "groups": groups, "stat_labels": [label for _, label, _ in STATISTICS],
-        "resamples": sb.resamples("aggregates"),
+        "resamples": sb.resamples("aggregates"), "improvement_resamples": sb.resamples("improvement"),
+        "digits_rule": DIGITS_RULE,
         "random_exact": RANDOM_EXACT, "oracle_best": ORACLE_BEST, "n_rows_text": n_rows_text,
         "downloads_list": sb.downloads_of("ranking"),
     }

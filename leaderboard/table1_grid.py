@@ -29,7 +29,7 @@ from leaderboard.ranking_page import SCORE_COLOURS, group_frame, matrix_cell
 from leaderboard.render import clean_records, is_missing, scenario_href, section_id
 from leaderboard.site_state import SiteBuild
 from leaderboard.sources import RESULTS_SOURCE, Sources
-from leaderboard.tables import fmt
+from leaderboard.tables import fmt, interval_text
 
 
 def group_origin(lb: Leaderboard, sources: Sources, group: Group) -> str:
@@ -51,11 +51,10 @@ def grid_cell(record: dict[str, Any] | None, ref: dict[str, Any] | None, learner
     cell = matrix_cell(record, ref, learner, chain, scenario)
     if record is None or record.get("mean") is None:
         return cell | {"best": False, "ci": "", "paper": "", "delta": "", "delta_off": False}
-    low, high = record.get("ci_low"), record.get("ci_high")
     delta = record.get("delta")
     return cell | {
         "best": bool(record.get("best")),
-        "ci": "" if is_missing(low) or is_missing(high) else f"[{fmt(low)}, {fmt(high)}]",
+        "ci": interval_text(record),
         "paper": "" if is_missing(record.get("paper")) else fmt(record["paper"]),
         "delta": "" if is_missing(delta) else fmt(delta, signed=True),
         "delta_off": not is_missing(delta) and abs(float(delta)) >= 0.05,

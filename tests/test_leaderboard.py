@@ -144,7 +144,8 @@ def test_runs_of_an_earlier_configuration_are_superseded_not_averaged() -> None:
 def test_csv_has_exactly_the_contract_columns(built: BuiltSite) -> None:
     with (built.results / "table1.csv").open() as fh:
         assert next(csv.reader(fh)) == CSV_COLUMNS == [
-            "chain", "scenario", "learner", "mean", "std", "ci_low", "ci_high", "n_runs", "paper", "delta",
+            "chain", "scenario", "learner", "mean", "std", "ci_low", "ci_high", "ci_low_mcse", "ci_high_mcse",
+            "n_runs", "paper", "delta",
             "n_variants", "n_variants_expected", "n_seeds", "n_seeds_expected", "complete", "incomplete_reason",
             "delta_note"]
 
