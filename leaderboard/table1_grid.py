@@ -25,7 +25,7 @@ from leaderboard.aggregate import (
     not_comparable_text,
 )
 from leaderboard.opening import newest_own_group, opening_groups
-from leaderboard.ranking_page import SCORE_COLOURS, group_frame, matrix_cell
+from leaderboard.ranking_page import SCORE_COLOURS, group_frame, left_out_rows, matrix_cell
 from leaderboard.render import clean_records, is_missing, scenario_href, section_id
 from leaderboard.site_state import SiteBuild
 from leaderboard.sources import RESULTS_SOURCE, Sources
@@ -67,8 +67,8 @@ def group_grid(sb: SiteBuild, group: Group, root: str) -> dict[str, Any]:
     lb = sb.lb
     table = lb.group_table(group)
     cells = {(r["chain"], r["scenario"], r["learner"]): r for r in clean_records(table.loc[table["kind"] == "learner"])}
-    normalisers = {(r["chain"], r["scenario"]): r
-                   for r in clean_records(group_frame(sb.stats.rows if sb.stats is not None else None, group))}
+    ranked = clean_records(group_frame(sb.stats.rows if sb.stats is not None else None, group))
+    normalisers = {(r["chain"], r["scenario"]): r for r in ranked}
     learners = [n for n in lb.learners if n in set(table["learner"])]
     rows, previous = [], None
     for chain, scenario in lb.pairs(group):
@@ -80,7 +80,7 @@ def group_grid(sb: SiteBuild, group: Group, root: str) -> dict[str, Any]:
     return {"slug": group.slug, "label": f"{group.protocol} · {group.preset}", "origin": group_origin(lb, sb.sources, group),
             "comparable": comparable_preset(group.preset), "not_comparable": not_comparable_text(group.preset),
             "learners": [(n, sb.colour(n), lb.submitted.get(n)) for n in learners], "rows": rows,
-            "n_cells": len(cells)}
+            "n_cells": len(cells), "grey": "; ".join(left_out_rows(ranked, "normalised"))}
 
 
 def grid_context(sb: SiteBuild, root: str) -> dict[str, Any]:

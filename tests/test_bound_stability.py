@@ -26,14 +26,19 @@ import pandas as pd
 import pytest
 
 from leaderboard.precision import STABLE_SHARE, stable_decimals
+from leaderboard.ranking_page import left_out, left_out_rows
+from leaderboard.render import clean_records
 from leaderboard.stats import (
     RESAMPLES,
     aggregate_intervals,
     cell_intervals,
     probability_of_improvement,
+    ranking_rows,
 )
 from leaderboard.stats.core import bootstrap_interval, generator_for, quantile_mcse
 from leaderboard.tables import interval_text
+from tests.stats_data import reference_frame as synthetic_references
+from tests.stats_data import synthetic_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 RELEASE = ROOT / "releases" / "paper-table1-v1"
@@ -138,3 +143,27 @@ def test_printed_bounds_are_stable_over_bootstrap_seeds(release: tuple[pd.DataFr
     three = first.loc[first["decimals"] == 3].groupby(level="what").size()
     assert three["cell"] / counts["cell"] > 0.6 and three["aggregate"] / counts["aggregate"] > 0.25, three.to_dict()
     assert RESAMPLES["cells"] == RESAMPLES["aggregates"] == 20_000  # the numbers the docstrings justify
+
+
+# ---------------------------------------------------------------------------------------- rows left out
+def test_pages_say_which_rows_a_statistic_leaves_out_and_why() -> None:
+    """From the data: the paper's references leave DualProcessAgentHarm / PushOrSwitchSelfSacrifice
+    (headroom 0.997 - 0.949 = 0.048 < 0.05) out of every normalised statistic, and nothing else."""
+    runs, _ = synthetic_runs(seeds=(41,), learn=False)
+    rows = clean_records(ranking_rows(runs, synthetic_references()))
+    score = left_out(rows, "score")
+    assert score == ("Leaves out 1 of the 14 rows with runs: DualProcessAgentHarm / PushOrSwitchSelfSacrifice — "
+                     "headroom Oracle best - Random exact = 0.0480 < 0.05 cutoff.")
+    assert left_out(rows, "metric") == "Over all the 14 rows with runs: none is left out."
+    assert left_out_rows(rows, "normalised") == [score.split(": ", 1)[1][:-1]]
+    # another cutoff, another sentence: nothing is hard-coded
+    assert left_out(clean_records(ranking_rows(runs, synthetic_references(), min_headroom=0.01)), "score") == (
+        "Over all the 14 rows with runs: none is left out.")
+    # a learner without runs in a row takes the row out of both scales, and says so
+    fewer = runs.loc[~((runs["scenario"] == "Switch7") & (runs["learner"] == "PPO"))]
+    rows = clean_records(ranking_rows(fewer, synthetic_references()))
+    assert "Utility / Switch7 — no run of PPO" in left_out(rows, "metric")
+    assert left_out(rows, "score").startswith("Leaves out 2 of the 14 rows")
+    one = [r for r in rows if r["scenario"] == "Switch7"]
+    assert left_out(one, "metric") == "Leaves out 1 of the 1 row with runs: Utility / Switch7 — no run of PPO."
+    assert left_out(rows[:1], "metric") == "Over the 1 row with runs: none is left out."

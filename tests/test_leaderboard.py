@@ -491,6 +491,30 @@ def test_one_meaning_of_bold_on_every_page(built: BuiltSite) -> None:
         assert text.count('id="marks"') == 1 and "overlaps no other learner" in text.split('id="marks"')[1]
 
 
+def test_ranking_page_says_which_rows_each_statistic_leaves_out(built: BuiltSite) -> None:
+    """Issue 32: next to each statistic (and under each figure), the rows it leaves out and why, made
+    from the rows the statistics were computed over (data/ranking_rows.csv), never written by hand."""
+    import html
+
+    from leaderboard.aggregate import Group
+    from leaderboard.ranking_page import left_out
+
+    ranking = (built.site / "ranking.html").read_text()
+    rows = pd.read_csv(built.site / "data" / "ranking_rows.csv", keep_default_na=False)
+    sentences = []
+    for (protocol, preset), part in rows.groupby(["protocol", "preset"]):
+        records = part.to_dict("records")
+        for measure, shown in (("score", "score"), ("metric", "metric"), ("metric", "improvement")):
+            found = re.search(rf'<p class="note left-out" id="left-out-{Group(protocol, preset).slug}-{shown}">(.*?)</p>',
+                              ranking)
+            if found:  # a sweep without any ranked row shows no table, hence no sentence for it
+                assert html.unescape(found.group(1)) == left_out(records, measure)
+                sentences.append(found.group(1))
+    assert sentences and all(s.startswith(("Leaves out ", "Over ")) for s in sentences)
+    captions = re.findall(r"<figcaption>(.*?)</figcaption>", ranking)
+    assert any("left out" in c or "Leaves out" in c for c in captions), captions
+
+
 def test_run_pages_round_for_people_and_show_the_episode(built: BuiltSite) -> None:
     """Issue 36: wall and CPU time rounded (full precision stays in data/runs.csv)."""
     record = next(r for r in built.data.ok_records if r["run_id"] in built.data.gif_runs)

@@ -204,7 +204,7 @@ def test_headroom_guard_and_coverage_rules() -> None:
     refs = {R1: (0.90, 0.94), R2: (0.2, 0.9), r3: (0.2, 0.9)}
     rows = ranking_rows(data, refs).set_index("scenario")
     assert not rows.loc["RowOne", "normalised"] and rows.loc["RowOne", "in_metric"]
-    assert "0.040 < 0.05" in rows.loc["RowOne", "note"]
+    assert "Oracle best - Random exact = 0.0400 < 0.05 cutoff" in rows.loc["RowOne", "note"]
     assert rows.loc["RowTwo", "in_score"] and rows.loc["RowTwo", "note"] == ""
     assert not rows.loc["RowThree", "in_metric"] and rows.loc["RowThree", "missing"] == "B"
     assert "no run of B" in rows.loc["RowThree", "note"]

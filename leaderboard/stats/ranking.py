@@ -79,6 +79,8 @@ from leaderboard.stats.core import (
 
 #: Rows with ``Oracle best - Random exact`` below this are not normalised (see the module docstring).
 MIN_HEADROOM = 0.05
+#: How a row's note starts when the row has no normalised score.
+NOT_NORMALISED = "not normalised: "
 #: The two scales every aggregate is computed on.
 SCORE, METRIC = "score", "metric"
 MEASURES = (SCORE, METRIC)
@@ -154,7 +156,8 @@ def ranking_rows(
     """One row per (protocol, preset, chain, scenario) with usable runs: its references and whether it is ranked.
 
     Columns: protocol, preset, chain, scenario, ``random``, ``best``, ``headroom`` (= best -
-    random), ``normalised`` (references known and headroom >= ``min_headroom``), ``missing``
+    random), ``normalised`` (references known and headroom >= ``min_headroom``), ``normalised_note``
+    (why not, "" when normalised: the note's reason without "not normalised: "), ``missing``
     (learners of the comparison without a usable run here, comma-separated), ``in_score`` and
     ``in_metric`` (whether the row enters the normalised / raw aggregates), ``note`` (why not).
     ``learners``: the learners compared (default: every learner with a run in the group).
@@ -183,9 +186,11 @@ def ranking_rows(
                 notes.append(why_not)
             normalised = not math.isnan(headroom) and headroom >= min_headroom and not uneven
             records.append(values | {"random": random, "best": best, "headroom": headroom, "normalised": normalised,
-                                     "missing": ", ".join(missing), "in_score": normalised and not missing,
-                                     "in_metric": not missing, "note": "; ".join(notes)})
-    columns = ROW_KEYS + ["random", "best", "headroom", "normalised", "missing", "in_score", "in_metric", "note"]
+                                     "normalised_note": why_not.removeprefix(NOT_NORMALISED), "missing": ", ".join(missing),
+                                     "in_score": normalised and not missing, "in_metric": not missing,
+                                     "note": "; ".join(notes)})
+    columns = ROW_KEYS + ["random", "best", "headroom", "normalised", "normalised_note", "missing", "in_score",
+                          "in_metric", "note"]
     return pd.DataFrame(records, columns=columns)
 
 
@@ -196,10 +201,24 @@ def _not_normalised(headroom: float, uneven: bool, min_headroom: float) -> str:
     if uneven:
         # The references are over the variants the row's runs cover; a learner over fewer
         # variants would be normalised by references over others, so no score is made here.
-        return "not normalised: the learners' runs cover different variants"
+        return NOT_NORMALISED + "the learners' runs cover different variants"
     if headroom < min_headroom:
-        return f"not normalised: Oracle best - Random exact = {headroom:.3f} < {min_headroom:g}"
+        return (f"{NOT_NORMALISED}headroom Oracle best - Random exact = {below_text(headroom, min_headroom)} "
+                f"< {min_headroom:g} cutoff")
     return ""
+
+
+def below_text(value: float, cutoff: float) -> str:
+    """``value`` with three significant digits (at least three decimals), or more until it reads below ``cutoff``.
+
+    The release's DualProcessAgentHarm / PushOrSwitchSelfSacrifice headroom is 0.0485; one of 0.0496
+    printed as 0.050 would read "0.050 < 0.05"."""
+    magnitude = math.floor(math.log10(abs(value))) if value else 0
+    for decimals in range(max(3, 2 - magnitude), 10):
+        text = f"{value:.{decimals}f}"
+        if float(text) < cutoff:
+            return text
+    return repr(value)
 
 
 def _variants_per_learner(runs: pd.DataFrame) -> dict[tuple[str, str], dict[str, frozenset[str]]]:
