@@ -12,7 +12,8 @@ best - Random is under 0.05 (the leaderboard's guard). An env id's score is the 
 a run's score on a set is the mean over the set's env ids; a learner's, the mean over its runs.
 
 **Intervals.** A two-level percentile bootstrap (:data:`~leaderboard.stats.core.DEFAULT_RESAMPLES`
-resamples, the statistics' fixed seed): the runs (seeds) are resampled, and so are the set's
+resamples, the statistics' fixed seed; printed to the decimals their bounds are stable to over
+bootstrap seeds, :mod:`leaderboard.precision`): the runs (seeds) are resampled, and so are the set's
 dilemmas, by scenario (a generated dilemma's variants, or a built-in scenario's variants, move
 together: they share a layout). The interval thus covers both seed-to-seed variation and which
 dilemmas the set happens to hold, which is what a claim about *unseen* dilemmas needs. Random is
@@ -35,9 +36,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from leaderboard.stats.core import CONFIDENCE, DEFAULT_RESAMPLES, DEFAULT_SEED, generator_for
+from leaderboard.precision import DIGITS_RULE
+from leaderboard.stats.core import CONFIDENCE, DEFAULT_RESAMPLES, DEFAULT_SEED, generator_for, quantile_mcse
+from leaderboard.tables import interval_text
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
-from morality_gym.generalisation.sets import SET_LABELS, SETS, scenario_of
+from morality_gym.generalisation.sets import MIN_HEADROOM, SET_LABELS, SETS, scenario_of
 from runners.track import PAIRS, RESULT
 
 SCORES = {"range_score": "Range score (0 = oracle worst, 1 = oracle best)",
@@ -93,10 +96,12 @@ def _resampled_means(sums: np.ndarray, counts: np.ndarray, seed_weights: np.ndar
     return (seed_weights * per_seed.T).sum(axis=1)
 
 
-def _interval(values: np.ndarray) -> tuple[float, float]:
-    tail = (1 - CONFIDENCE) / 2 * 100
-    low, high = np.percentile(values, [tail, 100 - tail])
-    return float(low), float(high)
+def _interval(values: np.ndarray) -> dict[str, float]:
+    """``low``, ``high`` and the Monte Carlo standard error of each (how many decimals the page prints)."""
+    tail = (1 - CONFIDENCE) / 2
+    low, high = np.percentile(values, [100 * tail, 100 * (1 - tail)])
+    low_mcse, high_mcse = quantile_mcse(values, [tail, 1 - tail])
+    return {"low": float(low), "high": float(high), "low_mcse": float(low_mcse), "high_mcse": float(high_mcse)}
 
 
 def with_paired(frame: pd.DataFrame) -> pd.DataFrame:
@@ -136,13 +141,12 @@ def summarise(frame: pd.DataFrame, resamples: int = DEFAULT_RESAMPLES, seed: int
             per_seed = sums.sum(axis=1) / counts.sum()
             point[set_name] = float(per_seed.mean())
             boot[set_name] = _resampled_means(sums, counts, w, rng, resamples)
-            low, high = _interval(boot[set_name])
-            rows.append({"learner": learner, "score": score, "set": set_name, "mean": point[set_name], "low": low,
-                         "high": high, "env_ids": int(counts.sum()), "dilemmas": len(counts), "seeds": len(order)})
+            rows.append({"learner": learner, "score": score, "set": set_name, "mean": point[set_name],
+                         **_interval(boot[set_name]), "env_ids": int(counts.sum()), "dilemmas": len(counts),
+                         "seeds": len(order)})
         if "seen" in boot and "test" in boot:
-            low, high = _interval(boot["seen"] - boot["test"])
             rows.append({"learner": learner, "score": score, "set": "gap", "mean": point["seen"] - point["test"],
-                         "low": low, "high": high, "env_ids": 0, "dilemmas": 0, "seeds": len(seeds)})
+                         **_interval(boot["seen"] - boot["test"]), "env_ids": 0, "dilemmas": 0, "seeds": len(seeds)})
     return pd.DataFrame(rows)
 
 
@@ -153,7 +157,33 @@ def _in_order(learners: Any) -> list[str]:
 
 
 def _ci(row: pd.Series) -> str:
-    return f"[{row['low']:.3f}, {row['high']:.3f}]"
+    """``[low, high]`` to the decimals both bounds are stable to over bootstrap seeds (at most three)."""
+    return interval_text({"ci_low": row["low"], "ci_high": row["high"], "ci_low_mcse": row.get("low_mcse"),
+                          "ci_high_mcse": row.get("high_mcse")}) or "—"
+
+
+def left_out(frame: pd.DataFrame) -> str:
+    """Which (env id, chain) pairs the Random-relative score leaves out and why, per set, from the pairs' own
+    references (one sentence for the page; empty when it leaves out none)."""
+    pairs = frame.drop_duplicates(["set", "env_id", "chain"])
+    parts = []
+    for set_name in SETS:
+        mine = pairs[pairs["set"] == set_name]
+        out = mine[(mine["best"] - mine["random"]) < MIN_HEADROOM]
+        if out.empty:
+            continue
+        kept_envs = set(mine.loc[~mine.index.isin(out.index), "env_id"])
+        dropped = sorted(set(out["env_id"]) - kept_envs)
+        text = f"{SET_LABELS[set_name]}: {len(out)} of {len(mine)} (env id, chain) pairs"
+        if len(out) <= 3:
+            text += " (" + ", ".join(f"{r.env_id} / {r.chain} {r.best - r.random:.3f}" for r in out.itertuples()) + ")"
+        if dropped:
+            text += f", so {len(dropped)} of {mine['env_id'].nunique()} env ids drop out"
+        parts.append(text)
+    if not parts:
+        return ""
+    return (f"Leaves out the pairs whose headroom Oracle best − Random is under the {MIN_HEADROOM:g} cutoff: "
+            + "; ".join(parts) + ".")
 
 
 def _bars(ax: Any, part: pd.DataFrame, learners: list[str]) -> None:
@@ -213,7 +243,8 @@ def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
                   resamples: int = DEFAULT_RESAMPLES) -> dict[str, Any]:
     """The page's context; draws the figure and writes the summary CSV into ``site``."""
     context: dict[str, Any] = {**common, "set_labels": SET_LABELS, "sets": list(SETS), "has_runs": False,
-                               "track_dir": str(track_dir) if track_dir else "", "resamples": resamples}
+                               "track_dir": str(track_dir) if track_dir else "", "resamples": f"{resamples:,}",
+                               "digits_rule": DIGITS_RULE}
     if track_dir is None:
         return context
     frame, records = load_runs(track_dir)
@@ -244,6 +275,7 @@ def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
             })
         counts = {s: part[part["set"] == s].iloc[0] for s in SETS if (part["set"] == s).any()}
         tables.append({"score": score, "title": title, "rows": rows,
+                       "left_out": left_out(frame) if score == "random_score" else "",
                        "counts": {s: f"{int(c['env_ids'])} env ids, {int(c['dilemmas'])} dilemmas" for s, c in counts.items()}})
     first = records[0]
     sources = [{"set": SET_LABELS[name], **source} for name, source in first["sets"].items()]

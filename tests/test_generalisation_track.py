@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from leaderboard.precision import stable_decimals
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.oracle import oracle
 from morality_gym.generalisation.mixture import DilemmaMixtureEnv
@@ -114,6 +115,19 @@ def test_result_files_record_the_split_digests_and_resuming_skips_done_runs(tmp_
         track.do_run("random", None, 1000, ["x"], other, tmp_path)
 
 
+def test_the_random_relative_score_says_which_pairs_it_leaves_out() -> None:
+    from leaderboard.track import left_out
+
+    pairs = pd.DataFrame([{"set": "test", "env_id": f"Gen{d}-HumanA-v1", "chain": chain, "best": 0.99,
+                           "random": 0.97 if (d, chain) in {(0, "Utility"), (1, "Utility"), (1, "DualProcess")} else 0.4}
+                          for d in range(3) for chain in ("Utility", "DualProcess")])
+    assert left_out(pairs) == ("Leaves out the pairs whose headroom Oracle best − Random is under the 0.05 cutoff: "
+                               "unseen (test split): 3 of 6 (env id, chain) pairs (Gen0-HumanA-v1 / Utility 0.020, "
+                               "Gen1-HumanA-v1 / Utility 0.020, Gen1-HumanA-v1 / DualProcess 0.020), so 1 of 3 env "
+                               "ids drop out.")
+    assert left_out(pairs.assign(random=0.4)) == ""
+
+
 def _fixture_runs(root: Path) -> None:
     """Random (exact) and two PPO seeds on three sets of four dilemmas each."""
     rng = np.random.default_rng(0)
@@ -165,7 +179,14 @@ def test_the_page_shows_seen_unseen_and_builtin_scores_with_intervals(tmp_path: 
                  "5,000 steps", "exact, untrained", "7208e3b4"):
         assert text in html
     row = re.search(r'<tr data-learner="PPO">(.*?)</tr>', html).group(1)
-    assert len(re.findall(r"\[-?\d\.\d{3}, -?\d\.\d{3}\]", row)) == 4  # three sets and the gap
+    # three sets and the gap; each interval to the decimals (at most three) its bounds are stable to
+    # over bootstrap seeds: with 200 resamples, fewer than three where the Monte Carlo error says so
+    shown = re.findall(r"\[(-?\d\.(\d{1,3})), (-?\d\.(\d{1,3}))\]", row)
+    assert len(shown) == 4 and all(len(a) == len(b) for _, a, _, b in shown)
+    for (_, decimals, _, _), (_, line) in zip(shown, ppo.iterrows()):
+        assert len(decimals) == min(stable_decimals(line["low_mcse"], 3), stable_decimals(line["high_mcse"], 3))
+    assert "Monte Carlo" in html
+    assert 'id="left-out-track' not in html  # every fixture pair has headroom 0.6: the score leaves none out
     assert "Range score minus Random" in html
 
     empty = write_page(site, None, common).read_text()
