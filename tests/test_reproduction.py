@@ -29,6 +29,7 @@ from leaderboard.reproduction import (
 from leaderboard.sources import load_sources
 from leaderboard.stats import compute_stats
 from morality_gym.clitools import UserError
+from morality_gym.norms.chain import builtin_chains
 from tests.stats_data import synthetic_runs
 
 
@@ -45,7 +46,16 @@ def test_verdict_rule() -> None:
 
 
 @pytest.fixture(scope="module")
-def board(tmp_path_factory: pytest.TempPathFactory):
+def reference_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One reference-rows cache for the module: the exact Random and oracle rows of Table 1 depend only
+    on (chain, scenario, beta, max_steps) and the chains' norms, the same for the synthetic board and
+    the shipped release, so they are computed once (~10-15 s) and read back after (a cached entry
+    equals a computed one: tests/test_build_cache.py::test_computed_reference_rows_equal_the_cached_ones)."""
+    return tmp_path_factory.mktemp("ref") / "reference_rows.json"
+
+
+@pytest.fixture(scope="module")
+def board(reference_cache: Path):
     runs, learn = synthetic_runs(seeds=(41, 42, 43), preset="paper")
     runs["config"] = [json.dumps({"learner": name}) for name in runs["learner"]]
     # one cell pushed far below the paper on two variants: its diagnosis must name them first
@@ -53,8 +63,9 @@ def board(tmp_path_factory: pytest.TempPathFactory):
     bad = sel & runs["variant"].isin(["Human", "HumanAnimal"])
     runs.loc[bad, "metric"] = 0.05
     lb = aggregate(runs, {})
-    cache = tmp_path_factory.mktemp("ref") / "reference_rows.json"
-    reference = compute_reference(reference_requests(lb.table), cache, None)
+    # the chains' definitions, as a build passes those of real runs: entries that carry them serve the
+    # release's page below too (an entry without them is computed again for runs that define their chain)
+    reference = compute_reference(reference_requests(lb.table), reference_cache, None, builtin_chains())
     lb = with_reference(lb, reference.entries, reference.errors, "paper", "paper")
     stats = compute_stats(lb.runs, lb.table, learn, n_resamples=200)
     return with_intervals(lb, stats.cells), learn
@@ -208,14 +219,14 @@ ROOT = Path(__file__).resolve().parents[1]
 SHIPPED_RELEASE = ROOT / "releases" / "paper-table1-v1"
 
 
-def test_the_committed_reproduction_page_is_what_the_shipped_release_makes(tmp_path: Path) -> None:
+def test_the_committed_reproduction_page_is_what_the_shipped_release_makes(tmp_path: Path, reference_cache: Path) -> None:
     """docs/reproduction.md says what the release's runs say, verdicts and evidence included: a change
     to the verdict rule, the evidence or the curated readings that is not regenerated fails here
     (regenerate: python -m leaderboard.reproduction --release releases/paper-table1-v1)."""
     from leaderboard.reproduction import main
 
     out = tmp_path / "docs" / "reproduction.md"
-    code = main(["--release", str(SHIPPED_RELEASE), "--out", str(out), "--cache", str(tmp_path / "reference.json")])
+    code = main(["--release", str(SHIPPED_RELEASE), "--out", str(out), "--cache", str(reference_cache)])
     assert code == 0
     committed = (ROOT / "docs" / "reproduction.md").read_text()
     assert out.read_text() == committed, "docs/reproduction.md is stale: regenerate it from the release"

@@ -23,7 +23,7 @@ from runners.results_schema import read_runs
 from tests.sweep_tools import run_files, wait_for_results
 
 REPO = Path(__file__).resolve().parents[1]
-BUDGET = 32768  # 32 updates of 1,024 steps: the signal lands long before training ends
+BUDGET = 16384  # 16 updates of 1,024 steps: the signal lands after the first ones, long before training ends
 FLEET = ["algo=ppo_lag", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "seed=[1]",
          "variant=[HumanA,HumanB,AnimalA]", f"preset.budget={BUDGET}", "preset.learn_eval_every=30000",
          "checkpoint_every_s=0.000001", "mlflow=false", "gif=false"]

@@ -152,7 +152,8 @@ def test_failing_run_is_recorded_and_does_not_stop_others(tmp_path: Path) -> Non
 
 @pytest.mark.slow
 def test_sigkill_of_the_sweep_then_resume_gives_exact_run_set(tmp_path: Path) -> None:
-    args = ["algo=random", "chain=utility", "scenario=[switch_standard,push_or_switch]", "seed=[41,42]", "preset=smoke", "launcher.workers=2"]
+    # 12 runs (SwitchStandard's variants): the kill after 3 lands with most of them still to do
+    args = ["algo=random", "chain=utility", "scenario=[switch_standard]", "seed=[41]", "preset=smoke", "launcher.workers=2"]
     proc = sweep(tmp_path, *args, background=True)
     wait_for_results(tmp_path, 3, proc, timeout=180)
     workers = children(proc.pid)
@@ -164,7 +165,7 @@ def test_sigkill_of_the_sweep_then_resume_gives_exact_run_set(tmp_path: Path) ->
         time.sleep(0.2)
     partial = set(run_files(tmp_path))
     planned = planned_ids(tmp_path)
-    assert 3 <= len(partial) < len(planned) == 44
+    assert 3 <= len(partial) < len(planned) == 12
     resumed = sweep(tmp_path, *args)
     assert resumed.returncode == 0, resumed.stderr
     assert f"{len(partial)} done" in resumed.stderr
