@@ -23,6 +23,7 @@ learner's class, chain coverage) is checked by :mod:`runners.config` after compo
 from __future__ import annotations
 
 import dataclasses
+import functools
 import re
 import typing
 from collections.abc import Callable, Mapping
@@ -33,9 +34,12 @@ from typing import Any
 import yaml
 
 from morality_gym.baselines import typed
-from morality_gym.baselines.specs import CONF_DIR, LearnerSpec, ProtocolSpec
+from morality_gym.baselines.specs import CONF_DIR, LearnerSpec, ProtocolSpec, RandomReplay
 from morality_gym.clitools import did_you_mean
 from morality_gym.constants import BETA, MAX_STEPS
+from morality_gym.norms.chain import parse_chain
+from morality_gym.norms.metric import BoundChain, bind_chain
+from runners.identity import config_key, run_id_of
 from runners.results_schema import SCHEMA_VERSION
 
 
@@ -281,10 +285,20 @@ class Sweep:
 
 
 @dataclass(frozen=True)
-class Run:
-    """One resolved run: what its id hashes (:func:`runners.identity.run_id_of` over
-    :meth:`config`) and what a worker executes. ``chain`` is the chain's full definition
-    (``{"name", "norms": [[norm, modality], ...]}``), so that a changed chain is a new run."""
+class RunConfig:
+    """One run, fully resolved where the sweep's configuration is validated, and never changed after.
+
+    ``algo`` is the learner's spec with everything applied (its algo file, the protocol, the
+    preset's overrides and rollout cap, the command line: :func:`runners.config.learner_layers`);
+    ``protocol`` is recorded whole because it is part of what the run is (and gives the random
+    learner its own settings, :attr:`replay`); ``chain`` is the chain's full definition
+    (``{"name", "norms": [[norm, modality], ...]}``), so that a changed chain is a new run.
+
+    The object itself is what a worker receives (pickled as it is); its JSON form
+    (:meth:`to_json`) is what its id hashes (:attr:`run_id`) and its Parquet row records, and
+    :meth:`from_json` reads such a record back (a fleet's run list). Reading it by key
+    (``run["algo"]["name"]``) reads that JSON form, as a recorded config reads.
+    """
 
     env_id: str
     scenario: str
@@ -302,10 +316,46 @@ class Run:
     learn_eval_episodes: int
     schema_version: int = SCHEMA_VERSION
 
-    def config(self) -> dict[str, Any]:
-        """The run config as plain data (JSON-ready): the dict the run id hashes, the worker
-        receives and the Parquet row records. Tuples become lists, specs their field dicts."""
+    def to_json(self) -> dict[str, Any]:
+        """The run config as plain data (JSON-ready): the dict the run id hashes and the Parquet
+        row records. Tuples become lists, specs their field dicts (a fresh copy each call)."""
         return {f.name: plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
+
+    @functools.cached_property
+    def _json(self) -> dict[str, Any]:
+        return self.to_json()
+
+    @functools.cached_property
+    def run_id(self) -> str:
+        """The run's content id (:func:`runners.identity.run_id_of` over :meth:`to_json`)."""
+        return run_id_of(self._json)
+
+    @property
+    def config_key(self) -> str:
+        """The id of the run's configuration within its Table 1 cell (:func:`runners.identity.config_key`)."""
+        return config_key(self._json)
+
+    def __getitem__(self, key: str) -> Any:
+        return self._json[key]
+
+    @property
+    def replay(self) -> RandomReplay:
+        """The random learner's own settings under the run's protocol (unused by every other learner)."""
+        return self.protocol.random_replay()
+
+    def bound_chain(self) -> BoundChain:
+        """The run's chain bound to its env id."""
+        chain = parse_chain({"name": self.chain["name"], "norms": [{"norm": n, "modality": m} for n, m in self.chain["norms"]]},
+                            source=f"run config {self.chain['name']}")
+        return bind_chain(chain, self.env_id, self.beta)
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> RunConfig:
+        """A recorded run config read back; it must give back exactly what was recorded (its id)."""
+        run = typed.from_plain(cls, data)
+        if run.to_json() != dict(data):
+            raise ValueError(f"a recorded run config does not read back as written (schema {data.get('schema_version')!r})")
+        return run
 
 
 def plain(value: Any) -> Any:

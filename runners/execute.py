@@ -27,10 +27,8 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec
 from morality_gym.clitools import disk_full_error, is_disk_full
-from morality_gym.norms.chain import parse_chain
-from morality_gym.norms.metric import bind_chain
+from runners.config_schema import RunConfig
 from runners.quarantine import read_table_or_quarantine
 from runners.results_schema import MF_PREFIX, SCHEMA_VERSION, run_path, runs_dir, write_learn, write_run, write_updates
 
@@ -144,50 +142,29 @@ def finished_status(results_dir: Path, run_id: str) -> str | None:
     return None if table is None else str(table.column("status")[0].as_py())
 
 
-def _base_row(config: dict[str, Any], run_id: str, engine: str | None = "single") -> dict[str, Any]:
-    algo = config["algo"]
+def _base_row(config: RunConfig, run_id: str, engine: str | None = "single") -> dict[str, Any]:
     return {
         "schema_version": SCHEMA_VERSION,
         "run_id": run_id,
-        "env_id": config["env_id"],
-        "scenario": config["scenario"],
-        "variant": config["variant"],
-        "chain": config["chain"]["name"],
-        "algo": algo["name"],
-        "learner": algo["label"],
-        "protocol": config["protocol"]["name"],
-        "preset": config["preset"],
-        "seed": int(config["seed"]),
-        "budget": int(config["budget"]),
-        "beta": float(config["beta"]),
-        "max_steps": config["max_steps"],
-        "eval_episodes": int(config["eval_episodes"]),
+        "env_id": config.env_id,
+        "scenario": config.scenario,
+        "variant": config.variant,
+        "chain": config.chain["name"],
+        "algo": config.algo.name,
+        "learner": config.algo.label,
+        "protocol": config.protocol.name,
+        "preset": config.preset,
+        "seed": int(config.seed),
+        "budget": int(config.budget),
+        "beta": float(config.beta),
+        "max_steps": config.max_steps,
+        "eval_episodes": int(config.eval_episodes),
         "hostname": socket.gethostname(),
         "git_commit": git_commit(),
         "versions": versions(),
-        "config": json.dumps(config, sort_keys=True),
+        "config": json.dumps(config.to_json(), sort_keys=True),
         "engine": engine,
     }
-
-
-def _chain(config: dict[str, Any]) -> Any:
-    c = config["chain"]
-    return parse_chain({"name": c["name"], "norms": [{"norm": n, "modality": m} for n, m in c["norms"]]}, source=f"run config {c['name']}")
-
-
-def spec_and_protocol(config: dict[str, Any]) -> tuple[Any, Any]:
-    """The learner spec and protocol of a run config (JSON lists back to the spec's tuples)."""
-    algo = dict(config["algo"])
-    algo["return_bounds"] = tuple(algo["return_bounds"])
-    algo["net_arch"] = tuple(algo["net_arch"])
-    proto = dict(config["protocol"])
-    proto["random_learn_eval_steps"] = tuple(proto["random_learn_eval_steps"])
-    return LearnerSpec(**algo), ProtocolSpec(**proto)
-
-
-def bound_chain(config: dict[str, Any]) -> Any:
-    """The run's chain bound to its env id."""
-    return bind_chain(_chain(config), config["env_id"], config["beta"])
 
 
 @dataclass(frozen=True)
@@ -218,22 +195,23 @@ class RunClock:
         return cls(started, time.perf_counter() - wall, time.process_time() - cpu)
 
 
-def execute_locked(config: dict[str, Any], run_id: str, results_dir: Path, gif: bool) -> dict[str, Any]:
+def execute_locked(config: RunConfig, run_id: str, results_dir: Path, gif: bool) -> dict[str, Any]:
     """Train, evaluate and record one run whose lock the caller holds (the single engine's unit,
-    and the fleet engine's fallback for what it does not reproduce)."""
+    and the fleet engine's fallback for what it does not reproduce). The run arrives resolved: its
+    learner is built from its spec as it is (no protocol applied again)."""
     limit_threads()
     clock = RunClock.start()
     try:
         # torch waits: importing runners.execute must not load it, and a failed import is this run's recorded error
-        from morality_gym.baselines.learners import build_learner
+        from morality_gym.baselines.learners import make_learner
 
-        spec, protocol = spec_and_protocol(config)
-        learner = build_learner(spec, bound_chain(config), protocol, seed=config["seed"], max_steps=config["max_steps"])
+        learner = make_learner(config.algo, config.bound_chain(), seed=config.seed, max_steps=config.max_steps,
+                               replay=config.replay)
         learn_rows: list[dict[str, Any]] = []
         learner.learn(
-            config["budget"],
-            eval_every=config["learn_eval_every"],
-            eval_episodes=config["learn_eval_episodes"],
+            config.budget,
+            eval_every=config.learn_eval_every,
+            eval_episodes=config.learn_eval_episodes,
             on_eval=learn_rows.append,
         )
     except Exception as exc:  # noqa: BLE001 - every failure must be recorded, whatever it is
@@ -242,7 +220,7 @@ def execute_locked(config: dict[str, Any], run_id: str, results_dir: Path, gif: 
 
 
 def record_outcome(
-    config: dict[str, Any],
+    config: RunConfig,
     run_id: str,
     results_dir: Path,
     gif: bool,
@@ -259,12 +237,12 @@ def record_outcome(
     as the run's failure too. Returns the short summary the parent receives.
     """
     row = _base_row(config, run_id, engine)
-    norms = [n for n, _ in config["chain"]["norms"]]
+    norms = [n for n, _ in config.chain["norms"]]
     try:
         if error is not None:
             raise error
         bound = learner.bound
-        final = learner.final_evaluation(config["eval_episodes"])
+        final = learner.final_evaluation(config.eval_episodes)
         exact = learner.exact_evaluation()
         artifacts = runs_dir(results_dir) / run_id
         artifacts.mkdir(parents=True, exist_ok=True)
@@ -338,12 +316,12 @@ _EMPTY_RESULT: dict[str, Any] = {
 }
 
 
-def record_failure(config: dict[str, Any], run_id: str, results_dir: str | Path, error: str, trace: str = "", engine: str | None = None) -> None:
+def record_failure(config: RunConfig, run_id: str, results_dir: str | Path, error: str, trace: str = "", engine: str | None = None) -> None:
     """Record a run that died without recording itself (a killed worker, a lost SLURM job)."""
     results_dir = Path(results_dir)
     if finished_status(results_dir, run_id) is not None:
         return
-    norms = [n for n, _ in config["chain"]["norms"]]
+    norms = [n for n, _ in config.chain["norms"]]
     row = _base_row(config, run_id, engine)
     now = utc_now()
     row.update(

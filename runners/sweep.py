@@ -267,7 +267,7 @@ def print_dry_run(plan_: Plan, console: Console) -> None:
               for i, j in enumerate(plan_.jobs) for r in j.runs}
     for r in plan_.runs:
         c = r.config
-        listing.add_row(r.run_id, c["env_id"], c["chain"]["name"], c["algo"]["label"], str(c["seed"]), str(c["budget"]),
+        listing.add_row(r.run_id, c.env_id, c.chain["name"], c.algo.label, str(c.seed), str(c.budget),
                         job_of.get(r.run_id, "-"), plan_.status[r.run_id] or "-")
     console.print(listing)
 
@@ -277,9 +277,9 @@ def fleet_label(job: Any) -> str:
     """``30 PPO on PushOrSwitch (Utility)``: a fleet in words; the chain when all its runs share one
     (a fleet may hold several chains of one scenario, and two fleets of one scenario are common)."""
     config = job.runs[0].config
-    chains = {r.config["chain"]["name"] for r in job.runs}
+    chains = {r.config.chain["name"] for r in job.runs}
     chain = f" ({next(iter(chains))})" if len(chains) == 1 else f" ({len(chains)} chains)"
-    return f"{len(job.runs)} {config['algo']['label']} on {config['scenario']}{chain}"
+    return f"{len(job.runs)} {config.algo.label} on {config.scenario}{chain}"
 
 
 class FleetBars(JobProgress):
@@ -442,7 +442,7 @@ def report(plan_: Plan, sweep: SweepConfig, console: Console, seconds: float) ->
             table = read_table_or_quarantine(sweep.results_dir, run_path(sweep.results_dir, r.run_id), columns=["error"])
             err = table.column("error")[0].as_py() if table is not None else "(result file unreadable)"
             c = r.config
-            console.print(f"  {r.run_id} {c['algo']['label']} {c['env_id']} {c['chain']['name']} seed {c['seed']}: {err}")
+            console.print(f"  {r.run_id} {c.algo.label} {c.env_id} {c.chain['name']} seed {c.seed}: {err}")
     return 0 if not failed and not missing else 1
 
 

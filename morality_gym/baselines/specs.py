@@ -202,6 +202,21 @@ def learner_spec(name: str, overrides: Mapping[str, Any] | None = None) -> Learn
 
 
 @dataclass(frozen=True)
+class RandomReplay:
+    """How the random baseline draws its evaluations from its one random stream (the random
+    learner's own settings, which a protocol sets: :meth:`ProtocolSpec.random_replay`).
+
+    ``learn_evals``: before the final evaluation, play the learn-time evaluations at ``steps``
+    (each followed by a render episode of up to ``render_episode_steps`` steps) from the same
+    stream, as the reference's runs did; off, the final evaluation starts the stream afresh.
+    """
+
+    learn_evals: bool = False
+    steps: tuple[int, ...] = (0, LEARN_EVAL_EVERY)
+    render_episode_steps: int = 50
+
+
+@dataclass(frozen=True)
 class ProtocolSpec:
     """What a protocol changes (docs/protocols.md; the reasons are in ``conf/protocol/*.yaml``).
 
@@ -216,7 +231,8 @@ class ProtocolSpec:
 
     ``random_replays_learn_evals``: Random's final evaluation continues the random stream of its
     learn-time evaluations (each followed by a render episode of up to ``render_episode_steps``
-    steps), which is what reproduces the paper's Random column exactly.
+    steps), which is what reproduces the paper's Random column exactly. The random learner gets
+    these three as its own settings (:meth:`random_replay`), never the protocol.
     """
 
     name: str
@@ -241,9 +257,16 @@ class ProtocolSpec:
         _check_keys(where, values, typed.valid_keys(cls))
         return _typed(cls, values, where=where)
 
+    def random_replay(self) -> RandomReplay:
+        """The random learner's settings under this protocol (its only effect on that learner)."""
+        return RandomReplay(self.random_replays_learn_evals, tuple(self.random_learn_eval_steps), self.render_episode_steps)
+
     def apply(self, spec: LearnerSpec) -> LearnerSpec:
         """``spec`` with this protocol's overrides for its algorithm name, stamped with the protocol.
 
+        Called once per learner: by a sweep where it resolves its runs (``runners.config``), or by
+        the library's :func:`~morality_gym.baselines.learners.build_learner` and
+        :func:`~morality_gym.baselines.fleet.build_fleet` for a spec no protocol has touched yet.
         A spec already stamped with this protocol is returned unchanged (so that settings changed
         after the protocol, e.g. on a sweep's command line, are not overwritten); one stamped with
         another protocol is an error, never a silent mix of the two.
