@@ -1,8 +1,8 @@
 """From run rows to the numbers of Table 1, the per-norm figures and the status report.
 
 Everything here except :func:`compute_reference` is a pure function of the runs DataFrame (as
-:func:`runners.results_schema.read_runs` returns it) and the planned runs of the sweep manifests (as
-:func:`runners.manifest.planned_runs` returns them). The aggregation rules are those of the
+:func:`morality_gym.results.schema.read_runs` returns it) and the planned runs of the sweep manifests (as
+:func:`morality_gym.results.manifest.planned_runs` returns them). The aggregation rules are those of the
 evaluation spec, section 7:
 
 * Table 1 cell = arithmetic mean of the final evaluation's ``metric`` over every run (all variants
@@ -20,7 +20,7 @@ A results directory also outlives configurations: rerun a sweep after changing a
 and the old runs (other config, so other run ids) stay on disk beside the new ones. Averaging both
 into one cell would mix two algorithms under one label, so a cell counts the runs of **one
 configuration** only (:func:`select_configurations`; the configuration key is the run config's
-hash without env and seed, :func:`runners.identity.config_key`): the one planned by the most recently
+hash without env and seed, :func:`morality_gym.results.identity.config_key`): the one planned by the most recently
 launched sweep manifest, else the one with the newest result. Within it each *slot* (protocol,
 preset, chain, env id, learner, seed, beta, max_steps) counts one run. All other runs are
 *superseded*: reported, never counted. Chains are told apart by what they are (their norms, order
@@ -114,7 +114,7 @@ from leaderboard.table_cells import (
     table1_frame,
     variant_frame,
 )
-from runners.identity import PROVENANCE_KEY, SUBMITTED_ALGO
+from morality_gym.results.identity import PROVENANCE_KEY, SUBMITTED_ALGO
 
 #: Every name readers import from here; the pieces live in the modules above, each with one job.
 __all__ = [

@@ -44,7 +44,7 @@ from leaderboard.sources import Sources, load_sources
 from leaderboard.stamp import StampError, source_date_epoch, stamp_text
 from leaderboard.tables import write_tables
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, did_you_mean, run_cli, writing
-from runners.quarantine import quarantined_files
+from morality_gym.results.quarantine import quarantined_files
 
 REFERENCE_CACHE = Path("cache") / "reference_rows.json"
 EXIT_OK = 0

@@ -31,7 +31,7 @@ from leaderboard.aggregate import aggregate, learner_order, row_order
 from leaderboard.build import load
 from leaderboard.tables import fmt, md_escape
 from morality_gym.clitools import OneLineParser, UserError, run_cli
-from runners.results_schema import read_updates
+from morality_gym.results.schema import read_updates
 
 #: The cell columns a side must provide (both a results directory and a table1_all.csv give them).
 _CELL = ["protocol", "preset", "chain", "scenario", "learner"]

@@ -11,7 +11,7 @@ from functools import cache
 
 from morality_gym.norms.chain import ChainError, get_chain
 from morality_gym.paper import LEARNERS, table1
-from runners.config_schema import PresetError, load_preset, preset_names
+from morality_gym.results.presets import PresetError, load_preset, preset_names
 
 
 # ---------------------------------------------------------------------------------------- groups

@@ -16,7 +16,7 @@ from typing import Any
 import pandas as pd
 
 from leaderboard.aggregate import LLM_POLICY_KIND
-from runners.identity import PROVENANCE_KEY, SUBMITTED_ALGO
+from morality_gym.results.identity import PROVENANCE_KEY, SUBMITTED_ALGO
 
 
 def llm_entries(runs: pd.DataFrame) -> list[dict[str, Any]]:

@@ -25,7 +25,7 @@ from leaderboard.table1_grid import grid_context, opening_groups
 from leaderboard.tables import fmt
 from morality_gym.clitools import duration
 from morality_gym.envs.registry import scenario_named
-from runners.results_schema import MF_PREFIX
+from morality_gym.results.schema import MF_PREFIX
 
 
 def expected_count(record: dict[str, Any]) -> int:

@@ -48,9 +48,9 @@ import pyarrow.parquet as pq
 from leaderboard.aggregate import safe_name
 from leaderboard.leftovers import building_in
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli, writing
-from runners.identity import config_key
-from runners.manifest import manifests_dir, read_manifests
-from runners.results_schema import SCHEMA_VERSION, compute_seconds, learn_path, read_runs, run_files, updates_path
+from morality_gym.results.identity import config_key
+from morality_gym.results.manifest import manifests_dir, read_manifests
+from morality_gym.results.schema import SCHEMA_VERSION, compute_seconds, learn_path, read_runs, run_files, updates_path
 
 #: Where a checkout keeps its releases; the leaderboard shows every release found here by default.
 RELEASES_DIR = Path(__file__).resolve().parents[1] / "releases"
@@ -222,7 +222,7 @@ def machine() -> dict[str, Any]:
 def sweeps_summary(results: Path, runs: pd.DataFrame) -> list[dict[str, Any]]:
     """Per launched sweep manifest: its command, protocol, preset, planned runs, and of its runs with
     a result: first start, last finish, the wall span between them and compute per learner in
-    core-seconds (:func:`runners.results_schema.compute_seconds`: CPU time where the runs recorded
+    core-seconds (:func:`morality_gym.results.schema.compute_seconds`: CPU time where the runs recorded
     it, else wall time), with how many runs recorded CPU time, and the CPU cost per run per 1M steps
     of each learner (:func:`cpu_rate_per_learner`)."""
     out = []

@@ -17,8 +17,12 @@ import pandas as pd
 
 from leaderboard.display_order import Group, group_order
 from morality_gym.norms.chain import builtin_chains, chain_fingerprint
-from runners.identity import PROVENANCE_KEY, SUBMITTED_ALGO, configuration_key  # a run's identity: defined there
-from runners.results_schema import MF_PREFIX
+from morality_gym.results.identity import (  # a run's identity: defined there
+    PROVENANCE_KEY,
+    SUBMITTED_ALGO,
+    configuration_key,
+)
+from morality_gym.results.schema import MF_PREFIX
 
 #: ``config["policy"]["kind"]`` of a submitted language-model episode (``python -m leaderboard.llm``).
 LLM_POLICY_KIND = "llm"

@@ -6,7 +6,7 @@ the same run rows (:mod:`leaderboard.release`), so they join the results directo
 DataFrame with a ``source`` column; only the side files (learn-time evaluations, update diagnostics,
 GIFs, MLflow links) are found differently, and :class:`Sources` answers those per run.
 
-A run id names a configuration, env and seed (:mod:`runners.identity`), so a run present in the
+A run id names a configuration, env and seed (:mod:`morality_gym.results.identity`), so a run present in the
 results directory and in a release is the same run computed twice: the results directory's copy is
 counted (it is the user's own, and may be newer code), the release's is dropped and counted in
 :attr:`Sources.shadowed`. The first release listed wins over later ones likewise.
@@ -23,8 +23,8 @@ from typing import Any
 import pandas as pd
 
 from leaderboard.release import Release
-from runners.manifest import planned_runs
-from runners.results_schema import (
+from morality_gym.results.manifest import planned_runs
+from morality_gym.results.schema import (
     LEARN_FIELDS,
     RUN_COLUMNS,
     learn_path,

@@ -26,8 +26,8 @@ from leaderboard.reference_rows import (
 from leaderboard.run_selection import CELL_KEYS, UNKNOWN, cell_of, mf_columns
 from morality_gym.constants import BETA, MAX_STEPS
 from morality_gym.envs.registry import UnknownEnvError, scenario_named
-from runners.paths import preset_seeds
-from runners.results_schema import MF_PREFIX
+from morality_gym.results.presets import preset_seeds
+from morality_gym.results.schema import MF_PREFIX
 
 #: "Standard deviation over three seeds": the sample standard deviation (n - 1 in the denominator).
 STD_DDOF = 1

@@ -24,8 +24,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from runners.config_schema import RunConfig
-from runners.execute import finished_status
+from morality_gym.results.recording import finished_status
+from morality_gym.results.run_config import RunConfig
 
 CHECKPOINTS_DIR = "checkpoints"
 

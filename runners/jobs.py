@@ -36,18 +36,11 @@ from typing import Any
 
 from morality_gym.baselines.specs import SpecError
 from morality_gym.baselines.stopped import TrainingStopped
+from morality_gym.results.recording import RunClock, RunLock, finished_status, git_commit
+from morality_gym.results.run_config import RunConfig
 from runners import stopping
-from runners.config_schema import ENGINES, RunConfig
-from runners.execute import (
-    RunClock,
-    RunLock,
-    execute_locked,
-    finished_status,
-    git_commit,
-    limit_threads,
-    record_outcome,
-    training_code,
-)
+from runners.config_schema import ENGINES
+from runners.execute import execute_locked, limit_threads, record_outcome, training_code
 from runners.fleet_checkpoints import fleet_to_train, remove_fleet, write_fleet_runs
 from runners.plan import PlannedRun
 
@@ -269,7 +262,7 @@ def execute_job(
     calls ``progress(steps, total)`` as it trains, and, with ``checkpoint_every_s > 0``, it
     checkpoints its training at most that often (and resumes from a checkpoint it finds).
     """
-    git_commit()  # fixed before training: a SLURM task's job may outlast a commit (runners.execute.git_commit)
+    git_commit()  # fixed before training: a SLURM task's job may outlast a commit (morality_gym.results.recording.git_commit)
     training_code()  # likewise: what a fleet checkpoint is keyed by
     results_dir = Path(results_dir)
     locks: list[RunLock] = []

@@ -52,18 +52,10 @@ import pyarrow.parquet as pq
 
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
 from morality_gym.clitools import console as make_console
-from runners.execute import RunLock
-from runners.identity import PER_RUN_KEYS, PROVENANCE_KEY, config_key, run_identity
-from runners.manifest import manifests_dir, plan_hash
-from runners.rename_history import (
-    MIGRATIONS,
-    Migration,
-    MigrationError,
-    migrate_config,
-    migrate_sidecar,
-    unmigrate_config,
-)
-from runners.results_schema import (
+from morality_gym.results.identity import PER_RUN_KEYS, PROVENANCE_KEY, config_key, run_identity
+from morality_gym.results.manifest import manifests_dir, plan_hash
+from morality_gym.results.recording import RunLock
+from morality_gym.results.schema import (
     atomic_write_table,
     learn_path,
     read_jsonl,
@@ -71,6 +63,14 @@ from runners.results_schema import (
     run_path,
     runs_dir,
     updates_path,
+)
+from runners.rename_history import (
+    MIGRATIONS,
+    Migration,
+    MigrationError,
+    migrate_config,
+    migrate_sidecar,
+    unmigrate_config,
 )
 from runners.tracking import Tracker, TrackingError, check_reachable, marker_path, tracking_lock
 

@@ -5,7 +5,7 @@ full definition, the learner's complete spec, the protocol, the preset's budget 
 settings, seed, beta, max_steps, results-schema version). The same configuration always gets the
 same id, so re-running a sweep finds finished runs by file name, and any change that could change
 the numbers gives a new id. Launch settings (workers, SLURM partition, results_dir) are not part
-of it. The *configuration key* (:func:`runners.identity.config_key`) is the same hash without the env and the seed:
+of it. The *configuration key* (:func:`morality_gym.results.identity.config_key`) is the same hash without the env and the seed:
 all runs of one Table 1 cell that belong to one configuration share it, which is how the
 leaderboard keeps runs of different configurations out of one cell.
 """
@@ -19,10 +19,10 @@ from morality_gym.baselines.specs import training_steps
 from morality_gym.baselines.targets import learner_trains
 from morality_gym.envs.registry import scenario_named
 from morality_gym.norms.chain import chain_fingerprint
+from morality_gym.results.identity import PER_RUN_KEYS, config_key, run_id_of  # noqa: F401 - re-exported
+from morality_gym.results.run_config import RunConfig
+from morality_gym.results.schema import SCHEMA_VERSION
 from runners.config import SweepConfig
-from runners.config_schema import RunConfig
-from runners.identity import PER_RUN_KEYS, config_key, run_id_of  # noqa: F401 - re-exported
-from runners.results_schema import SCHEMA_VERSION
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from leaderboard.run_charts import chart_svg, learn_chart, nice_ticks, updates_chart
-from runners.results_schema import learn_path
+from morality_gym.results.schema import learn_path
 from tests.leaderboard_data import REPO, make_results
 
 

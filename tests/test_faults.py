@@ -20,8 +20,8 @@ from pathlib import Path
 
 import pytest
 
-from runners.manifest import read_manifests
-from runners.results_schema import read_runs
+from morality_gym.results.manifest import read_manifests
+from morality_gym.results.schema import read_runs
 from tests.sweep_tools import run_files, wait_for_results
 from tests.test_scenario_files import _tiny
 
@@ -485,7 +485,7 @@ def test_11_slurm_without_a_controller_says_make_slurm_up(tmp_path: Path) -> Non
 # ---------------------------------------------------------------------------------------- case 12
 def test_12_a_dry_run_plans_nothing_the_leaderboard_counts(tmp_path: Path) -> None:
     from leaderboard.build import load
-    from runners.manifest import planned_runs
+    from morality_gym.results.manifest import planned_runs
 
     results = tmp_path / "r"
     args = [*SMOKE, "scenario=[switch_standard]", "variant=[HumanA,HumanB]", "mlflow=false", "gif=false"]

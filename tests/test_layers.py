@@ -41,6 +41,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("api", ("morality_gym", "morality_gym.api", "morality_gym.paper")),
     ("llm", ("morality_gym.llm",)),
     ("baselines", ("morality_gym.baselines",)),
+    ("results", ("morality_gym.results",)),
     ("runners", ("runners",)),
     ("leaderboard", ("leaderboard",)),
     ("cli", ("morality_gym.__main__", "morality_gym.play")),

@@ -21,8 +21,8 @@ from PIL import Image
 
 from leaderboard.aggregate import CSV_COLUMNS, aggregate, compute_reference, reference_requests
 from morality_gym.paper import table1
-from runners.manifest import planned_runs, write_manifest
-from runners.results_schema import read_runs
+from morality_gym.results.manifest import planned_runs, write_manifest
+from morality_gym.results.schema import read_runs
 from tests.leaderboard_data import BOTH_PROTOCOLS, LEARNERS, ROWS, BuiltSite, run_build, shared_build, snapshot
 
 PAPER = {(r.chain, r.scenario): r.paper for r in table1()}

@@ -2,7 +2,7 @@
 
 ``releases/paper-table1-v1/runs.parquet`` records each run's id and its resolved configuration.
 A run is found on disk by its id, so the one resolved run configuration
-(:class:`runners.config_schema.RunConfig`) must give every recorded run its recorded id: read back
+(:class:`morality_gym.results.run_config.RunConfig`) must give every recorded run its recorded id: read back
 from its record, and built afresh by resolving the Table 1 sweep through the layers of
 :func:`runners.config.learner_layers` (algo file < protocol < preset < command line).
 """
@@ -15,8 +15,8 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
+from morality_gym.results.run_config import RunConfig
 from runners.config import validate
-from runners.config_schema import RunConfig
 from runners.paths import CONF_DIR
 from runners.plan import plan
 

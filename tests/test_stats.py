@@ -535,8 +535,8 @@ def test_everything_on_a_realistic_frame(realistic: tuple[pd.DataFrame, pd.DataF
 def test_stats_of_a_leaderboard(tmp_path: Path) -> None:
     # The leaderboard's own synthetic results directory (a failed and a missing run, two protocols):
     # the statistics take Leaderboard.runs and Leaderboard.table as they are.
-    from runners.manifest import planned_runs
-    from runners.results_schema import read_learn, read_runs
+    from morality_gym.results.manifest import planned_runs
+    from morality_gym.results.schema import read_learn, read_runs
     from tests.leaderboard_data import make_results
 
     data = make_results(tmp_path / "results")

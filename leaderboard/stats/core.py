@@ -74,12 +74,12 @@ def usable_runs(runs: pd.DataFrame, what: str = "runs") -> pd.DataFrame:
     """The runs that count: ``ok`` ones, one per slot, as :func:`leaderboard.aggregate.aggregate` counts them.
 
     Pass ``Leaderboard.runs`` (prepared, superseded runs already removed, column ``ok``). A raw
-    frame from :func:`runners.results_schema.read_runs` (no ``ok`` column) is prepared and de-duplicated
+    frame from :func:`morality_gym.results.schema.read_runs` (no ``ok`` column) is prepared and de-duplicated
     here with the aggregator's own functions (without manifests, a slot keeps its newest usable
     run), so the rules for "ok" and "superseded" stay defined once.
     """
     require_columns(runs, ["chain", "scenario", "learner", "metric"], what,
-                    "pass run rows as runners.results_schema.read_runs or Leaderboard.runs return them")
+                    "pass run rows as morality_gym.results.schema.read_runs or Leaderboard.runs return them")
     if "ok" not in runs.columns:
         runs, _ = split_superseded(prepare_runs(runs), {})
     return runs.loc[runs["ok"].astype(bool)].copy()

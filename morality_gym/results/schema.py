@@ -244,7 +244,7 @@ def write_updates(results_dir: str | Path, run_id: str, rows: list[Mapping[str, 
 
 def read_updates(results_dir: str | Path, run_id: str) -> Any:
     """One run's per-update diagnostics as a DataFrame (empty if the run has none)."""
-    import pandas as pd  # pandas waits: importing runners.results_schema must not load it
+    import pandas as pd  # pandas waits: importing morality_gym.results.schema must not load it
 
     path = updates_path(results_dir, run_id)
     if not path.is_file():
@@ -294,9 +294,9 @@ def read_runs(results_dir: str | Path, skipped: list[dict[str, str]] | None = No
 
     A file that cannot be read, or is of another schema version, raises, unless ``skipped`` is
     given: then it is left out and reported there as ``{"file", "reason"}`` (the leaderboard builds
-    from what is readable and lists the rest; it never moves files, see :mod:`runners.quarantine`).
+    from what is readable and lists the rest; it never moves files, see :mod:`morality_gym.results.quarantine`).
     """
-    import pandas as pd  # pandas waits: importing runners.results_schema must not load it
+    import pandas as pd  # pandas waits: importing morality_gym.results.schema must not load it
 
     tables = []
     for path in run_files(results_dir):
@@ -330,7 +330,7 @@ def concat_tables(tables: list[pa.Table]) -> Any:
     concatenating the frames took seconds (pandas reindexes each frame onto the union of columns).
     Tables whose types cannot be unified (an old file with an int where a float is now) take
     pandas' path, which upcasts as before."""
-    import pandas as pd  # pandas waits: importing runners.results_schema must not load it
+    import pandas as pd  # pandas waits: importing morality_gym.results.schema must not load it
 
     try:
         return pa.concat_tables(tables, promote_options="default").to_pandas()
@@ -339,7 +339,7 @@ def concat_tables(tables: list[pa.Table]) -> Any:
 
 
 def read_learn(results_dir: str | Path) -> Any:
-    import pandas as pd  # pandas waits: importing runners.results_schema must not load it
+    import pandas as pd  # pandas waits: importing morality_gym.results.schema must not load it
 
     tables = [read_small_table(p) for p in sorted(runs_dir(results_dir).glob("*.learn.parquet"))]
     return concat_tables(tables) if tables else pd.DataFrame(columns=[f.name for f in LEARN_FIELDS])

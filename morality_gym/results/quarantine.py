@@ -10,11 +10,11 @@ with it, so that the new result replaces the old mirror instead of being skipped
 
 A file of another schema version (written by a newer morality-gym, say) is treated the same way:
 moved aside with the reason ``schema version N, this code reads version M`` and its run planned
-again (the one rule of :mod:`runners.results_schema`; the leaderboard lists such a file as
+again (the one rule of :mod:`morality_gym.results.schema`; the leaderboard lists such a file as
 unreadable). Only the main run file decides whether a run is done. An unreadable side file
 (``<run_id>.learn.parquet``, ``<run_id>.updates.parquet``, any ``<run_id>.<kind>.parquet``) is moved
 aside too, and the run stays done. Readers that must not write (the leaderboard) skip unreadable
-files and list them instead (:func:`runners.results_schema.read_runs` with ``skipped=``).
+files and list them instead (:func:`morality_gym.results.schema.read_runs` with ``skipped=``).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from runners.results_schema import read_jsonl, run_path, runs_dir, version_problem
+from morality_gym.results.schema import read_jsonl, run_path, runs_dir, version_problem
 
 QUARANTINE = ".quarantine"
 INDEX = "index.jsonl"
@@ -105,7 +105,7 @@ def quarantine(results_dir: str | Path, path: Path, reason: str, announce: bool 
 
 def read_table_or_quarantine(results_dir: str | Path, path: Path, columns: list[str] | None = None) -> pa.Table | None:
     """The Parquet table at ``path``; None if it does not exist or was unreadable or of another
-    schema version (then moved aside: :func:`runners.results_schema.version_problem`)."""
+    schema version (then moved aside: :func:`morality_gym.results.schema.version_problem`)."""
     if not path.is_file():
         return None
     try:

@@ -13,7 +13,7 @@ variants or seeds) adds a manifest instead of overwriting the first one's plan, 
 first one planned stay reported as missing until they exist. Relaunching the same selection
 rewrites its own manifest with the same plan (``created_at`` becomes the latest launch, which is
 how readers tell which configuration is meant now). ``config_key`` identifies the run's
-configuration apart from env and seed (:func:`runners.identity.config_key`), ``chain_key`` what its
+configuration apart from env and seed (:func:`morality_gym.results.identity.config_key`), ``chain_key`` what its
 chain is (:attr:`morality_gym.norms.chain.MoralityChain.fingerprint`).
 
 A dry run (``dry_run=true``) writes its manifest marked ``"dry_run": true``; readers ignore such
