@@ -9,6 +9,7 @@ same code a sweep runs (``build_fleet(...).learn``). The CUDA rows run wherever 
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from typing import Any
@@ -25,6 +26,15 @@ LEARNERS = (("ppo", "paper"), ("ppo_shaped", "paper"), ("ppo_lag", "paper"), ("c
 SIZES = (21, 84, 336, 1512)
 #: The largest fleet measured on the CPU: K=336 of PPO is 5.5M env steps a rollout, minutes on one core.
 CPU_MAX = 84
+#: A lent GPU's minutes are few: ``MORALITY_GYM_BENCH_DEVICES=cuda`` and ``MORALITY_GYM_BENCH_SIZES=336,1512``
+#: measure only those rows there (benchmarks/gpu_check.sh); the other cells read "not run".
+DEVICES_ENV, SIZES_ENV = "MORALITY_GYM_BENCH_DEVICES", "MORALITY_GYM_BENCH_SIZES"
+
+
+def _chosen_sizes(quick: bool) -> tuple[int, ...]:
+    if os.environ.get(SIZES_ENV):
+        return tuple(int(k) for k in os.environ[SIZES_ENV].split(","))
+    return (21,) if quick else SIZES
 
 
 def _sync(device: str) -> None:
@@ -94,12 +104,21 @@ def table1_steps() -> dict[str, int]:
 def _devices() -> list[str]:
     import torch
 
-    return ["cpu", "cuda"] if torch.cuda.is_available() else ["cpu"]
+    present = ["cpu", "cuda"] if torch.cuda.is_available() else ["cpu"]
+    chosen = os.environ.get(DEVICES_ENV)
+    return [d for d in present if d in chosen.split(",")] if chosen else present
+
+
+def _absent(device: str) -> str:
+    """The cell of a device not measured: no GPU here, or left out by :data:`DEVICES_ENV`."""
+    import torch
+
+    return "skipped" if device == "cuda" and not torch.cuda.is_available() else "not run"
 
 
 def _learner_rows(ctx: Context, rates: dict[tuple[str, str, str, int], float]) -> list[list[str]]:
     devices = _devices()
-    sizes = (21,) if ctx.quick else SIZES
+    sizes = _chosen_sizes(ctx.quick)
     task = ctx.task("fleet_device", len(LEARNERS) * len(sizes) * len(devices))
     rows = []
     for name, protocol in LEARNERS:
@@ -108,7 +127,7 @@ def _learner_rows(ctx: Context, rates: dict[tuple[str, str, str, int], float]) -
             cells = [label, device]
             for k in SIZES:
                 if device not in devices or k not in sizes or (device == "cpu" and k > CPU_MAX):
-                    cells.append("skipped" if device not in devices else "-")
+                    cells.append(_absent(device) if device not in devices else "-")
                     continue
                 rates[(name, protocol, device, k)] = _fleet_rate(name, protocol, k, device)
                 cells.append(f"{rates[(name, protocol, device, k)]:,.0f}")
@@ -126,7 +145,7 @@ def _simulator_rows(ctx: Context) -> list[list[str]]:
             cells = [f"simulator: {simulator}", device]
             for k in SIZES:
                 if device not in _devices():
-                    cells.append("skipped")
+                    cells.append(_absent(device))
                     continue
                 cells.append(f"{_simulator_rate(simulator, k, device, steps):,.0f}")
             rows.append(cells)
@@ -168,7 +187,8 @@ warm-up rollout on a GPU). Env steps per second of all runs together: per *CPU* 
 steadier on a shared machine), per wall second on CUDA (the device's queue drained before and after). CPU fleets
 above K={CPU_MAX} are not measured ("-": minutes per rollout on one core). The simulator rows step the fleet's
 simulator with its step-wise cost and reward (`host`: numpy, `device`: torch on the device), 8 envs per run,
-random actions. "skipped": torch sees no GPU here; `benchmarks/gpu_check.sh` runs this section on a GPU machine.
+random actions. "skipped": torch sees no GPU here; `benchmarks/gpu_check.sh` runs this section on a GPU machine,
+and `benchmarks/gpu_runs/` keeps what lent GPUs measured (card, commit, per-phase seconds, several processes at once).
 """,
         headers=["learner", "device", *[f"K={k:,} steps/s" for k in SIZES]],
         rows=rows,

@@ -250,7 +250,7 @@ def test_fleet_learners_save_and_load_like_single_runs(tmp_path: Any) -> None:
 
 
 @pytest.mark.skipif(not th.cuda.is_available(), reason="needs a GPU (device=cuda); this machine has none")
-@pytest.mark.parametrize(("name", "protocol"), [("ppo", "paper"), ("ppo_lag", "corrected"), ("cpo", "paper")])
+@pytest.mark.parametrize(("name", "protocol"), [("ppo", "paper"), ("ppo_lag", "corrected"), ("cpo", "paper"), ("cpo", "corrected")])
 def test_a_fleet_on_the_gpu_trains_as_on_the_cpu(name: str, protocol: str) -> None:
     spec = small_spec(name)
     runs = [FleetRun(bound(), 1), FleetRun(bound("PushOrSwitch-Animal-v1"), 2)]

@@ -18,7 +18,8 @@ tolerance; changing one run's seed changes no other run). Modules: :mod:`.env` (
 in one simulator, per-run cost and reward), :mod:`.nets` (parameters stacked along a run axis,
 batched matrix products), :mod:`.optim` (per-run Adam and clipping), :mod:`.base` (start, learn loop,
 the state as its parts' states), :mod:`.rollout` (one rollout of every run, on the device), :mod:`.streams` (each run's
-random streams), :mod:`.ppo`, :mod:`.ppo_lag`, :mod:`.cpo` (the updates), :mod:`.state` and
+random streams), :mod:`.ppo`, :mod:`.ppo_lag`, :mod:`.cpo` (the updates; CPO's actor step run by run,
+or all runs at once on accelerators: :mod:`.cpo_batch`, with :mod:`.cpo_math` what both use), :mod:`.state` and
 :mod:`.checkpoint` (a killed fleet resumes bit for bit).
 """
 

@@ -29,13 +29,20 @@ arithmetic depends on another's.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
-import numpy as np
 import torch as th
 
 from morality_gym.baselines.fleet.cost_base import FleetCostTrainer
+from morality_gym.baselines.fleet.cpo_batch import BatchedActorStep
+from morality_gym.baselines.fleet.cpo_math import (
+    ActorStep,
+    FlatActor,
+    Operator,
+    conjugate_gradient,
+    fisher_product,
+    new_search,
+)
 from morality_gym.baselines.fleet.dedup import DistinctStates
 from morality_gym.baselines.fleet.losses import Policy
 from morality_gym.baselines.fleet.nets import Trace
@@ -47,8 +54,6 @@ from morality_gym.baselines.safe.cpo_dual import (
     omnisafe_direction,
 )
 from morality_gym.baselines.specs import CPO
-
-Operator = Callable[[th.Tensor], th.Tensor]
 
 
 @dataclass
@@ -87,18 +92,13 @@ class Evaluation:
 class FleetCPO(FleetCostTrainer):
     algorithm = CPO
 
-    # ------------------------------------------------------------------ flat actor vectors
-    def _flat(self, tensors: list[th.Tensor]) -> th.Tensor:
-        """``[R, D]``: per row, the actor tensors (one row each) concatenated, in the order of
-        :attr:`actor_params` (the layout of the actor's flat parameter buffer)."""
-        return th.cat([t.reshape(t.shape[0], -1) for t in tensors], dim=1)
+    #: Whether the actor steps run all at once (:mod:`.cpo_batch`): ``None`` does so on accelerators,
+    #: where the per-run path is launch-bound; the per-run path keeps the CPU's (and the release's) bits.
+    batched_actor_step: bool | None = None
 
-    def _split(self, vectors: th.Tensor) -> list[th.Tensor]:
-        """The inverse of :meth:`_flat`: ``[R, D]`` as actor-shaped tangents ``[R, out, in]``, ``[R, out, 1]``."""
-        shapes = [p.shape[1:] for p in self.actor_params]
-        sizes = [int(np.prod(s)) for s in shapes]
-        rows = vectors.shape[0]
-        return [t.reshape(rows, *s) for t, s in zip(th.split(vectors, sizes, dim=1), shapes)]
+    def _setup_optimisers(self) -> None:
+        super()._setup_optimisers()
+        self.flat_actor = FlatActor(self.actor_params)
 
     def _actor(self, k: int) -> th.Tensor:
         """Run ``k``'s actor parameters as one vector (a view: writing it moves the actor)."""
@@ -132,47 +132,16 @@ class FleetCPO(FleetCostTrainer):
         onehot = th.zeros(2, n_actions * n_states, device=coef.device).index_add_(1, cell, coef).view(2, n_actions, n_states)
         per_state = th.zeros(2, n_states, device=coef.device).index_add_(1, data.states.inverse, coef)
         dlogits = onehot.sub_(policy.p * per_state.unsqueeze(1))
-        return self._flat(self.nets.backward(actor, dlogits))
+        return self.flat_actor.flat(self.nets.backward(actor, dlogits))
 
     def _fisher_product(self, data: RunBatch, actor: Trace, policy: Policy, damping: float) -> Operator:
         """``V -> H V + damping V`` for vectors ``V`` (``[R, D]``), ``H`` the Fisher matrix of the
         mean KL at the current actor (the module docstring)."""
-        p = policy.p  # [1, A, U]
-        weights = data.states.weights.view(1, 1, -1)
-
-        def product(vectors: th.Tensor) -> th.Tensor:
-            dz = self.nets.jvp(actor, self._split(vectors))  # J V, [R, A, U]
-            pdz = p * dz
-            u = (pdz - p * pdz.sum(dim=1, keepdim=True)).mul_(weights)  # w_s (diag p - p p^T) J V
-            return self._flat(self.nets.backward(actor, u)).add_(vectors, alpha=damping)
-
-        return product
+        return fisher_product(self.nets, self.flat_actor, actor, policy, data.states.weights.unsqueeze(0), damping)
 
     def _conjugate_gradient(self, fvp: Operator, b: th.Tensor) -> th.Tensor:
-        """:func:`~morality_gym.baselines.safe.functional.conjugate_gradient` for every row of
-        ``b`` (``[R, D]``), each stopping on its own residual (a stopped row's solution is frozen)."""
         m = self.model
-        eps, tol = float(m.cg_eps), float(m.cg_residual_tol)
-        x = th.zeros_like(b)
-        residual = b.clone()
-        direction = residual.clone()
-        rdotr = (residual * residual).sum(dim=1)
-        done = th.zeros(b.shape[0], dtype=th.bool, device=b.device)
-        for _ in range(int(m.cg_max_steps)):
-            h_direction = fvp(direction)
-            alpha = (rdotr / ((direction * h_direction).sum(dim=1) + eps)).unsqueeze(1)
-            live = (~done).unsqueeze(1)
-            x = th.where(live, x + alpha * direction, x)
-            residual = th.where(live, residual - alpha * h_direction, residual)
-            new_rdotr = (residual * residual).sum(dim=1)
-            converged = th.sqrt(new_rdotr) < tol
-            go_on = ~done & ~converged
-            direction = th.where(go_on.unsqueeze(1), residual + (new_rdotr / (rdotr + eps)).unsqueeze(1) * direction, direction)
-            rdotr = th.where(go_on, new_rdotr, rdotr)
-            done = done | converged
-            if bool(done.all()):
-                break
-        return x
+        return conjugate_gradient(fvp, b, int(m.cg_max_steps), float(m.cg_eps), float(m.cg_residual_tol))
 
     def _step_direction(self, data: RunBatch, c: float) -> tuple[CPOStep, th.Tensor, CPOScalars, Policy]:
         """``CPO._step_direction`` for one run: ``(step, g, scalars, the policy at theta_old)``."""
@@ -201,7 +170,7 @@ class FleetCPO(FleetCostTrainer):
         theta_old = theta.clone()
         start = self._evaluate(data)
         expected = (g @ step.direction).item()
-        result = {"accept_step": 0, "fraction": 0.0, "kl": math.nan, "tried": 0, "d_reward": 0.0, "d_cost": 0.0}
+        result = new_search()
         fraction = 1.0
         shrink = float(m.line_search_shrinking_factor)
         for j in range(int(m.line_search_max_iter)):
@@ -228,6 +197,18 @@ class FleetCPO(FleetCostTrainer):
         return result
 
     # ------------------------------------------------------------------ update
+    def _actor_step(self, k: int, c: float) -> ActorStep:
+        """Run ``k``'s actor step on its own (the per-run path), its actor moved."""
+        data = self._batch(k)
+        step, g, sc, old = self._step_direction(data, c)
+        search = self._line_search(data, old, step, g, c)
+        kl_mean = self._mean_kl(data, old, self._evaluate(data).policy)
+        taken = search["fraction"] * step.direction
+        return ActorStep(step, sc, search, kl_mean, step.direction.norm().item(), taken.norm().item(), (g @ taken).item())
+
+    def _batched(self) -> bool:
+        return self.device.type != "cpu" if self.batched_actor_step is None else self.batched_actor_step
+
     def _train(self) -> None:
         m = self.model
         _, critic_lr = self._learning_rates(actor=False)
@@ -235,21 +216,22 @@ class FleetCPO(FleetCostTrainer):
         c = mean_ep_costs - float(m.cost_limit)
         self._normalize_advantages()
         self._draw_full_batch_order()
-        rows = []
         with th.no_grad():
-            for k in range(self.n_runs):
-                data = self._batch(k)
-                step, g, sc, old = self._step_direction(data, float(c[k]))
-                search = self._line_search(data, old, step, g, float(c[k]))
-                kl_mean = self._mean_kl(data, old, self._evaluate(data).policy)
-                rows.append((step, g, sc, search, kl_mean))
+            if self._batched():
+                ro = self.rollout
+                assert ro is not None and ro.cost_advantages is not None
+                batch = BatchedActorStep(self.nets, m, self.flat_actor, self.actor_optimizer.flat, self.distinct_states(),
+                                         ro.actions, ro.log_probs, ro.advantages, ro.cost_advantages)
+                steps = batch.run(c)
+            else:
+                steps = [self._actor_step(k, float(c[k])) for k in range(self.n_runs)]
         value_loss, cost_value_loss = self._train_critics()
-        for k, (step, g, sc, search, kl_mean) in enumerate(rows):
-            taken = search["fraction"] * step.direction
+        for k, a in enumerate(steps):
+            step, sc, search = a.step, a.scalars, a.search
             self._row(
                 k, mean_ep_costs[k], None, critic_lr,
                 kl=search["kl"],
-                kl_mean=kl_mean,
+                kl_mean=a.kl_mean,
                 cpo_case=int(step.case),
                 accept_step=int(search["accept_step"]),
                 line_search_tried=int(search["tried"]),
@@ -263,9 +245,9 @@ class FleetCPO(FleetCostTrainer):
                 s=sc.s,
                 c=float(c[k]),
                 b_norm=math.sqrt(max(sc.bb, 0.0)),
-                full_step_norm=step.direction.norm().item(),
-                step_norm=taken.norm().item(),
-                expected_reward_change=(g @ taken).item(),
+                full_step_norm=a.full_step_norm,
+                step_norm=a.step_norm,
+                expected_reward_change=a.expected_reward_change,
                 surrogate_reward_change=search["d_reward"],
                 surrogate_cost_change=search["d_cost"],
                 value_loss=float(value_loss[k]),

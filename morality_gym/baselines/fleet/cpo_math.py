@@ -1,0 +1,103 @@
+"""What both of the fleet's CPO actor steps use (:mod:`.cpo` run by run, :mod:`.cpo_batch` all runs at
+once): flat actor vectors, the Fisher-vector product at distinct observations, conjugate gradients
+over rows that stop one by one, and the record of one run's step.
+
+Why a module of its own: the two actor steps must compute the same quantities the same way, and
+neither should import the other.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch as th
+
+from morality_gym.baselines.fleet.losses import Policy
+from morality_gym.baselines.fleet.nets import FleetNetworks, Trace
+from morality_gym.baselines.safe.cpo_dual import CPOScalars, CPOStep
+
+Operator = Callable[[th.Tensor], th.Tensor]
+
+
+class FlatActor:
+    """The actor's stacked tensors as one vector per row, in the order of the actor's parameters
+    (the layout of the actor's flat parameter buffer), and back."""
+
+    def __init__(self, params: Sequence[th.Tensor]) -> None:
+        self.shapes = [p.shape[1:] for p in params]
+        self.sizes = [int(np.prod(s)) for s in self.shapes]
+
+    @staticmethod
+    def flat(tensors: list[th.Tensor]) -> th.Tensor:
+        """``[R, D]``: per row, the tensors (one row each) concatenated."""
+        return th.cat([t.reshape(t.shape[0], -1) for t in tensors], dim=1)
+
+    def split(self, vectors: th.Tensor) -> list[th.Tensor]:
+        """The inverse of :meth:`flat`: ``[R, D]`` as actor-shaped tangents ``[R, out, in]``, ``[R, out, 1]``."""
+        rows = vectors.shape[0]
+        return [t.reshape(rows, *s) for t, s in zip(th.split(vectors, self.sizes, dim=1), self.shapes)]
+
+
+def fisher_product(nets: FleetNetworks, flat: FlatActor, actor: Trace, policy: Policy, weights: th.Tensor, damping: float) -> Operator:
+    """``V -> H V + damping V`` for vectors ``V`` (``[R, D]``), ``H`` the Fisher matrix of the mean KL
+    at the traced actor: ``sum_s w_s J_s^T (diag p_s - p_s p_s^T) J_s`` (``weights``: ``w_s``, ``[R', U]``
+    broadcasting over the rows), as a forward-mode ``J V``, the per-state matrix and one backward pass."""
+    p = policy.p  # [R', A, U]
+    w = weights.unsqueeze(1)
+
+    def product(vectors: th.Tensor) -> th.Tensor:
+        dz = nets.jvp(actor, flat.split(vectors))  # J V, [R, A, U]
+        pdz = p * dz
+        u = (pdz - p * pdz.sum(dim=1, keepdim=True)).mul_(w)  # w_s (diag p - p p^T) J V
+        return flat.flat(nets.backward(actor, u)).add_(vectors, alpha=damping)
+
+    return product
+
+
+def conjugate_gradient(fvp: Operator, b: th.Tensor, max_steps: int, eps: float, tol: float) -> th.Tensor:
+    """:func:`~morality_gym.baselines.safe.functional.conjugate_gradient` for every row of ``b``
+    (``[R, D]``), each stopping on its own residual (a stopped row's solution is frozen)."""
+    x = th.zeros_like(b)
+    residual = b.clone()
+    direction = residual.clone()
+    rdotr = (residual * residual).sum(dim=1)
+    done = th.zeros(b.shape[0], dtype=th.bool, device=b.device)
+    for _ in range(max_steps):
+        h_direction = fvp(direction)
+        alpha = (rdotr / ((direction * h_direction).sum(dim=1) + eps)).unsqueeze(1)
+        live = (~done).unsqueeze(1)
+        x = th.where(live, x + alpha * direction, x)
+        residual = th.where(live, residual - alpha * h_direction, residual)
+        new_rdotr = (residual * residual).sum(dim=1)
+        converged = th.sqrt(new_rdotr) < tol
+        go_on = ~done & ~converged
+        direction = th.where(go_on.unsqueeze(1), residual + (new_rdotr / (rdotr + eps)).unsqueeze(1) * direction, direction)
+        rdotr = th.where(go_on, new_rdotr, rdotr)
+        done = done | converged
+        if bool(done.all()):
+            break
+    return x
+
+
+def new_search() -> dict[str, float]:
+    """A line search's record before its first candidate (no step accepted)."""
+    return {"accept_step": 0, "fraction": 0.0, "kl": math.nan, "tried": 0, "d_reward": 0.0, "d_cost": 0.0}
+
+
+@dataclass(frozen=True)
+class ActorStep:
+    """One run's actor step as its diagnostics row reports it."""
+
+    step: CPOStep
+    scalars: CPOScalars
+    search: dict[str, float]
+    kl_mean: float
+    full_step_norm: float
+    step_norm: float
+    expected_reward_change: float
+
+
+__all__ = ["ActorStep", "FlatActor", "Operator", "conjugate_gradient", "fisher_product", "new_search"]
