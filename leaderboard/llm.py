@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from leaderboard.aggregate import LLM_POLICY_KIND
+from leaderboard.runs.aggregate import LLM_POLICY_KIND
 from leaderboard.submit import _submitter, check_name, code_version
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, positive_float, run_cli
 from morality_gym.constants import BETA

@@ -19,7 +19,7 @@ Rows are labelled ``algo = "submitted"``, ``learner = <display name>`` and carry
 determines its numbers (cell, variant, seed, evaluation settings, display name and the SHA-256 of
 the policy's files), not the provenance: re-submitting the same file under the same name writes
 nothing new, and a changed file gives new runs whose newer configuration the leaderboard counts,
-reporting the old ones as superseded (:func:`leaderboard.aggregate.select_configurations`).
+reporting the old ones as superseded (:func:`leaderboard.runs.aggregate.select_configurations`).
 Files are written atomically, one per run, after the whole evaluation of the run succeeded.
 """
 
@@ -177,7 +177,7 @@ def code_version() -> str:
 def check_name(name: str) -> str:
     """A display name that cannot pass for one of the paper's learners or a reference row."""
     # pandas, pyarrow wait: importing leaderboard.submit (its --help too) must not load them
-    from leaderboard.aggregate import REFERENCE_LEARNERS
+    from leaderboard.runs.aggregate import REFERENCE_LEARNERS
 
     cleaned = " ".join(str(name).split())
     if not cleaned:
@@ -268,7 +268,7 @@ def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: st
     if sub.gif:
         at(sub, f"{where}, GIF episode")
         # PIL waits: importing leaderboard.submit (its --help too) must not load it
-        from morality_gym.render.gif import record_episode
+        from morality_gym.evaluation.gif import record_episode
 
         gif = runs_dir(results) / run_id / "episode.gif"
         with writing(gif):

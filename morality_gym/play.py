@@ -338,7 +338,7 @@ def gif_paths(target: str, episodes: int) -> list[Path]:
 
 def record(args: argparse.Namespace, loaded: Any, out: TextIO) -> int:
     """``--render OUT.gif``: each episode to a GIF, with a one-line summary of it."""
-    from morality_gym.render.gif import record_episode  # PIL waits: the command line starts without it
+    from morality_gym.evaluation.gif import record_episode  # PIL waits: the command line starts without it
 
     for k, path in enumerate(gif_paths(args.render, args.episodes)):
         seed = None if args.seed is None else args.seed + k

@@ -147,7 +147,7 @@ def test_02_a_user_chain_cannot_take_a_builtin_chains_name(tmp_path: Path) -> No
 def test_02_results_are_keyed_by_what_a_chain_is() -> None:
     """Runs recorded under a built-in name with other norms (e.g. before this check existed) never
     pass for the built-in chain: they get their own label."""
-    from leaderboard.aggregate import chain_label
+    from leaderboard.runs.aggregate import chain_label
     from morality_gym.norms.chain import builtin_chains, chain_fingerprint
 
     utility = builtin_chains()["Utility"]

@@ -37,7 +37,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("render", ("morality_gym.render",)),
     ("envs", ("morality_gym.envs",)),
     ("norms", ("morality_gym.norms",)),
-    ("evaluation", ("morality_gym.evaluation", "morality_gym.render.gif", "morality_gym.generator")),
+    ("evaluation", ("morality_gym.evaluation", "morality_gym.generator")),
     ("api", ("morality_gym", "morality_gym.api", "morality_gym.paper")),
     ("llm", ("morality_gym.llm",)),
     ("baselines", ("morality_gym.baselines",)),

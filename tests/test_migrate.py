@@ -228,8 +228,8 @@ def test_old_directory_is_planned_again_then_migrated_counts(dirs: dict[str, Any
     assert_migrated(dirs, old)
     after = sweep(old, *SELECTION, "dry_run=true", "mlflow=false")
     assert after.returncode == 0 and "(2 done, 0 to run)" in after.stderr, after.stderr
-    from leaderboard.aggregate import aggregate
     from leaderboard.build import load
+    from leaderboard.runs.aggregate import aggregate
 
     runs, planned, skipped = load(old)
     board = aggregate(runs, planned)

@@ -10,8 +10,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from leaderboard.aggregate import aggregate, compute_reference, reference_requests, with_reference
-from leaderboard.intervals import with_intervals
+from leaderboard.outputs.intervals import with_intervals
 from leaderboard.reproduction import (
     PAPER,
     cells,
@@ -22,7 +21,8 @@ from leaderboard.reproduction import (
     page,
     verdict,
 )
-from leaderboard.sources import load_sources
+from leaderboard.runs.aggregate import aggregate, compute_reference, reference_requests, with_reference
+from leaderboard.runs.sources import load_sources
 from leaderboard.stats import compute_stats
 from morality_gym.clitools import UserError
 from tests.stats_data import synthetic_runs

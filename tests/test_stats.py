@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 from scipy import stats as sps
 
-from leaderboard.aggregate import aggregate, learner_cells, prepare_runs
+from leaderboard.runs.aggregate import aggregate, learner_cells, prepare_runs
 from leaderboard.stats import (
     StatsInputError,
     aggregate_intervals,
@@ -553,6 +553,6 @@ def test_stats_of_a_leaderboard(tmp_path: Path) -> None:
 
 
 def test_references_of_the_synthetic_frame_are_the_paper_rows() -> None:
-    from leaderboard.aggregate import paper_rows
+    from leaderboard.runs.aggregate import paper_rows
 
     assert list(REFERENCES) == paper_rows()

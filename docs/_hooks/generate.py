@@ -84,7 +84,7 @@ def _replay_policy(actions: list[int]) -> Callable[[Any], int]:
 
 
 def _gif(env_id: str, actions: list[int]) -> bytes:
-    from morality_gym.render.gif import record_episode
+    from morality_gym.evaluation.gif import record_episode
 
     with tempfile.TemporaryDirectory(prefix="docs-gif-") as tmp:
         path = Path(tmp) / "episode.gif"

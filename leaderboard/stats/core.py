@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from leaderboard.aggregate import Group, group_order, learner_order, prepare_runs, row_order, split_superseded
+from leaderboard.runs.aggregate import Group, group_order, learner_order, prepare_runs, row_order, split_superseded
 
 #: Coverage of every interval.
 CONFIDENCE = 0.95
@@ -71,7 +71,7 @@ def require_columns(frame: pd.DataFrame, columns: Iterable[str], what: str, fix:
 
 
 def usable_runs(runs: pd.DataFrame, what: str = "runs") -> pd.DataFrame:
-    """The runs that count: ``ok`` ones, one per slot, as :func:`leaderboard.aggregate.aggregate` counts them.
+    """The runs that count: ``ok`` ones, one per slot, as :func:`leaderboard.runs.aggregate.aggregate` counts them.
 
     Pass ``Leaderboard.runs`` (prepared, superseded runs already removed, column ``ok``). A raw
     frame from :func:`morality_gym.results.schema.read_runs` (no ``ok`` column) is prepared and de-duplicated

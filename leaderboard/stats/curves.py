@@ -27,7 +27,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from leaderboard.aggregate import CELL_KEYS
+from leaderboard.runs.aggregate import CELL_KEYS
 from leaderboard.stats.core import (
     CONFIDENCE,
     DEFAULT_RESAMPLES,

@@ -117,7 +117,7 @@ class Learner:
     def record_gif(self, path: str | Path, max_steps: int = 50) -> dict[str, Any]:
         """One evaluation episode of the stochastic policy as a GIF (like the reference's render episode)."""
         # PIL waits: importing morality_gym.baselines.learners must not load it
-        from morality_gym.render.gif import record_episode
+        from morality_gym.evaluation.gif import record_episode
 
         adapter = PolicyAdapter(self.policy)
         rng = np.random.default_rng(self.seed + 7919)

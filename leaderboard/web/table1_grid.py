@@ -3,11 +3,11 @@
 Why a grid: readers of the paper think of Table 1 as rows (chain / scenario) by a column per
 learner; the long table (one row per cell, 70 of them, 148 with one's own runs) is for sorting and
 filtering, one click away. Each grid cell carries what a reader checks: the mean (bold, shaded and
-⚠ as everywhere, :data:`leaderboard.marks.MARKS`), its 95% interval, and the paper's value with
+⚠ as everywhere, :data:`leaderboard.outputs.marks.MARKS`), its 95% interval, and the paper's value with
 the difference where the budget is the paper's. Where it is not, the grid says so once, above
 the table, and shows no difference.
 
-Which sweep the grid opens on, and which one it shows beside it, is :mod:`leaderboard.opening`'s
+Which sweep the grid opens on, and which one it shows beside it, is :mod:`leaderboard.runs.opening`'s
 choice; each is labelled with where its runs come from.
 """
 
@@ -15,7 +15,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from leaderboard.aggregate import (
+from leaderboard.outputs.tables import fmt
+from leaderboard.runs.aggregate import (
     ORACLE_BEST,
     ORACLE_WORST,
     RANDOM_EXACT,
@@ -24,12 +25,11 @@ from leaderboard.aggregate import (
     comparable_preset,
     not_comparable_text,
 )
-from leaderboard.opening import newest_own_group, opening_groups
-from leaderboard.ranking_page import SCORE_COLOURS, group_frame, matrix_cell
-from leaderboard.render import clean_records, is_missing, scenario_href, section_id
-from leaderboard.site_state import SiteBuild
-from leaderboard.sources import RESULTS_SOURCE, Sources
-from leaderboard.tables import fmt
+from leaderboard.runs.opening import newest_own_group, opening_groups
+from leaderboard.runs.sources import RESULTS_SOURCE, Sources
+from leaderboard.web.ranking_page import SCORE_COLOURS, group_frame, matrix_cell
+from leaderboard.web.render import clean_records, is_missing, scenario_href, section_id
+from leaderboard.web.site_state import SiteBuild
 
 
 def group_origin(lb: Leaderboard, sources: Sources, group: Group) -> str:

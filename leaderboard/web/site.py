@@ -7,9 +7,9 @@ every image, GIF and download the pages show is copied into the site directory, 
 zipped or moved as a whole.
 
 This module assembles the site: it copies files and writes pages. What a page shows is built by
-:mod:`leaderboard.pages` and :mod:`leaderboard.ranking_page`, how it looks lives in
-``leaderboard/templates`` (Jinja2, autoescaped) and ``leaderboard/static`` (CSS, JS), rendered by
-:mod:`leaderboard.render`.
+:mod:`leaderboard.web.pages` and :mod:`leaderboard.web.ranking_page`, how it looks lives in
+``leaderboard/web/templates`` (Jinja2, autoescaped) and ``leaderboard/web/static`` (CSS, JS), rendered by
+:mod:`leaderboard.web.render`.
 
 Layout of ``<site>``::
 
@@ -24,7 +24,7 @@ Layout of ``<site>``::
 The directory is rebuilt from scratch into a temporary sibling and swapped in at the end, so a
 failed build leaves the previous site intact; a directory that was not made by this module is
 never deleted (it must carry the marker file). The same results give the same bytes: pages carry
-the build stamp of :mod:`leaderboard.stamp`, never the clock.
+the build stamp of :mod:`leaderboard.runs.stamp`, never the clock.
 """
 
 from __future__ import annotations
@@ -36,14 +36,14 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
-from leaderboard.aggregate import Group, Leaderboard, safe_name
-from leaderboard.downloads import write_downloads
-from leaderboard.leftovers import building_in
-from leaderboard.page_cache import PageCache, link_or_copy
-from leaderboard.paper_figures import FigureSet
-from leaderboard.render import STATIC, STATIC_FILES, render
-from leaderboard.site_state import SiteBuild
-from leaderboard.sources import Sources
+from leaderboard.outputs.downloads import write_downloads
+from leaderboard.outputs.paper_figures import FigureSet
+from leaderboard.runs.aggregate import Group, Leaderboard, safe_name
+from leaderboard.runs.sources import Sources
+from leaderboard.web.leftovers import building_in
+from leaderboard.web.page_cache import PageCache, link_or_copy
+from leaderboard.web.render import STATIC, STATIC_FILES, render
+from leaderboard.web.site_state import SiteBuild
 from morality_gym.clitools import writing
 from morality_gym.envs.registry import scenario_named
 
@@ -181,7 +181,7 @@ def check_target(site_dir: Path) -> None:
         if not site_dir.is_dir():
             raise SiteError(f"{site_dir} exists and is not a directory")
         if any(site_dir.iterdir()) and not (site_dir / SITE_MARKER).is_file():
-            raise SiteError(f"{site_dir} is not empty and was not built by leaderboard.site (no {SITE_MARKER}); "
+            raise SiteError(f"{site_dir} is not empty and was not built by leaderboard.web.site (no {SITE_MARKER}); "
                             "refusing to replace it: choose another --site or remove it yourself")
 
 
@@ -215,8 +215,8 @@ def build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: Figur
 
     ``stats``: :class:`leaderboard.stats.LeaderboardStats` (ranking page, matrix colours, curves,
     violations; without it those parts say there is nothing to show); ``stat_figures``:
-    :class:`leaderboard.stats_figure_files.StatFigures`; ``stamp``: the build date shown in the footer;
-    ``cache_dir``: where run pages are kept between builds (:mod:`leaderboard.page_cache`; None: render all).
+    :class:`leaderboard.outputs.stats_figures.StatFigures`; ``stamp``: the build date shown in the footer;
+    ``cache_dir``: where run pages are kept between builds (:mod:`leaderboard.web.page_cache`; None: render all).
     """
     check_target(site_dir)
     leftover = (f".{site_dir.name}.build-", f".{site_dir.name}.old-")
@@ -228,16 +228,16 @@ def build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: Figur
 def _build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: FigureSet, results_name: str | None,
                 progress: Progress | None, *, stats: Any, stat_figures: Any, stamp: str, resamples: int,
                 cache_dir: Path | None) -> SiteBuild:
-    """:func:`build_site` while this build holds the site's parent (:mod:`leaderboard.leftovers`)."""
-    # SciPy waits: importing leaderboard.site must not load it
-    from leaderboard.pages import index_context, run_context, runs_context, scenario_context
-    from leaderboard.ranking_page import ranking_context
+    """:func:`build_site` while this build holds the site's parent (:mod:`leaderboard.web.leftovers`)."""
+    # SciPy waits: importing leaderboard.web.site must not load it
+    from leaderboard.web.pages import index_context, run_context, runs_context, scenario_context
+    from leaderboard.web.ranking_page import ranking_context
 
     tmp = _prepare_target(site_dir)
     try:
         sb = SiteBuild(lb=lb, sources=sources, results_name=results_name or sources.name,
                        figures=figures, out=tmp, stamp=stamp, stats=stats, resamples=resamples)
-        (tmp / SITE_MARKER).write_text("built by leaderboard.site; this whole directory is replaced on every build\n")
+        (tmp / SITE_MARKER).write_text("built by leaderboard.web.site; this whole directory is replaced on every build\n")
         for name in STATIC_FILES:
             _copy(STATIC / name, tmp / "assets" / name)
         copy_figures(sb)

@@ -5,7 +5,7 @@ that ships with the code (issue 36): the index opened on the release's ``paper Â
 ``results/table1.csv`` held the release's numbers. So with runs of their own, the build's primary
 sweep (``table1.csv``, ``table1.tex``, the first table of ``table1.md``) and the index's grid are
 the sweep of the user's newest run; the release's sweep of the same protocol is shown beside it.
-Without own runs, :func:`leaderboard.aggregate.choose_primary` decides as before. Kept apart from
+Without own runs, :func:`leaderboard.runs.aggregate.choose_primary` decides as before. Kept apart from
 the site's modules so that the build can ask before anything heavy is imported.
 """
 
@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import pandas as pd
 
-from leaderboard.aggregate import Group, Leaderboard, choose_primary
-from leaderboard.sources import RESULTS_SOURCE
+from leaderboard.runs.aggregate import Group, Leaderboard, choose_primary
+from leaderboard.runs.sources import RESULTS_SOURCE
 
 
 def _own_runs(lb: Leaderboard) -> pd.DataFrame:

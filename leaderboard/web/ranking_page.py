@@ -1,5 +1,5 @@
 """The data of the ranking page (aggregates, probability of improvement, figures, rows used) and the
-colours of Table 1's grid on the index page (:mod:`leaderboard.table1_grid`), both from :mod:`leaderboard.stats`.
+colours of Table 1's grid on the index page (:mod:`leaderboard.web.table1_grid`), both from :mod:`leaderboard.stats`.
 
 Colours are computed here (a cell's background is data: its normalised score or its probability),
 so the templates stay free of arithmetic.
@@ -11,12 +11,12 @@ from typing import Any
 
 import pandas as pd
 
-from leaderboard.aggregate import ORACLE_BEST, RANDOM_EXACT, Group
-from leaderboard.render import clean, clean_records, is_missing, scenario_href, section_id
-from leaderboard.site_state import SiteBuild
+from leaderboard.outputs.stats_figures import RANKING_FIGURES
+from leaderboard.outputs.tables import fmt
+from leaderboard.runs.aggregate import ORACLE_BEST, RANDOM_EXACT, Group
 from leaderboard.stats.cells import intervals_overlap
-from leaderboard.stats_figure_files import RANKING_FIGURES
-from leaderboard.tables import fmt
+from leaderboard.web.render import clean, clean_records, is_missing, scenario_href, section_id
+from leaderboard.web.site_state import SiteBuild
 
 #: Anchors of the score colour scale: worse than random (score -1 and below), random (0), oracle best (1).
 SCORE_COLOURS = ("#f2a7a0", "#f7f7f7", "#7cc68d")
@@ -59,7 +59,7 @@ def group_frame(frame: pd.DataFrame | None, group: Group) -> pd.DataFrame:
 # ---------------------------------------------------------------------------------------- Table 1 cells
 def matrix_cell(c: dict[str, Any] | None, ref: dict[str, Any] | None, learner: str, chain: str,
                 scenario: str) -> dict[str, Any]:
-    """One Table 1 grid cell (:mod:`leaderboard.table1_grid`): the mean, coloured by its normalised score (when the row has one), with a tooltip."""
+    """One Table 1 grid cell (:mod:`leaderboard.web.table1_grid`): the mean, coloured by its normalised score (when the row has one), with a tooltip."""
     if c is None or c["mean"] is None:
         return {"text": "—", "colour": NOT_NORMALISED, "title": f"{learner}: no result", "score": None,
                 "bold": False, "incomplete": False}
@@ -89,7 +89,7 @@ def _matrix_tip(c: dict[str, Any], ref: dict[str, Any] | None, score: float | No
 # ---------------------------------------------------------------------------------------- ranking
 def _measure_rows(sb: SiteBuild, aggregates: pd.DataFrame, measure: str) -> list[dict[str, Any]]:
     """Per learner, each statistic with its interval, shaded when best and bold when also separated
-    from every other learner's interval: the one meaning of the marks (:mod:`leaderboard.marks`)."""
+    from every other learner's interval: the one meaning of the marks (:mod:`leaderboard.outputs.marks`)."""
     part = aggregates.loc[aggregates["measure"] == measure] if not aggregates.empty else aggregates
     if part.empty:
         return []

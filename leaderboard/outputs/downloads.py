@@ -17,7 +17,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from leaderboard.aggregate import Leaderboard
+from leaderboard.runs.aggregate import Leaderboard
 
 DATA_DIR = "data"
 FLOAT_FORMAT = "%.6f"

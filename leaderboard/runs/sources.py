@@ -22,7 +22,7 @@ from typing import Any
 
 import pandas as pd
 
-from leaderboard.release import Release
+from leaderboard.runs.releases import Release
 from morality_gym.results.manifest import planned_runs
 from morality_gym.results.schema import (
     LEARN_FIELDS,

@@ -15,7 +15,7 @@ from typing import Any
 
 import pandas as pd
 
-from leaderboard.aggregate import LLM_POLICY_KIND
+from leaderboard.runs.aggregate import LLM_POLICY_KIND
 from morality_gym.results.identity import PROVENANCE_KEY, SUBMITTED_ALGO
 
 

@@ -20,10 +20,10 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from leaderboard import render as render_module
-from leaderboard import tables as tables_module
-from leaderboard.content_cache import atomic_write, digest
-from leaderboard.render import TEMPLATES
+from leaderboard.outputs import tables as tables_module
+from leaderboard.web import render as render_module
+from leaderboard.web.content_cache import atomic_write, digest
+from leaderboard.web.render import TEMPLATES
 
 
 def link_or_copy(src: Path, dst: Path) -> None:
@@ -40,7 +40,7 @@ def link_or_copy(src: Path, dst: Path) -> None:
 
 @lru_cache(maxsize=1)
 def templates_digest() -> str:
-    """Every template, the filters (:mod:`leaderboard.render`, :mod:`leaderboard.tables`) and Jinja's version."""
+    """Every template, the filters (:mod:`leaderboard.web.render`, :mod:`leaderboard.outputs.tables`) and Jinja's version."""
     files = sorted(p for p in TEMPLATES.rglob("*") if p.is_file())
     return digest([metadata.version("jinja2"), metadata.version("markupsafe"),
                    Path(render_module.__file__).read_bytes(), Path(tables_module.__file__).read_bytes(),

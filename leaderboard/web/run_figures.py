@@ -18,11 +18,11 @@ from typing import Any
 
 import pandas as pd
 
-from leaderboard import run_charts
-from leaderboard.aggregate import Leaderboard, safe_name
-from leaderboard.content_cache import atomic_write, digest, read_index, write_index
-from leaderboard.paper_figures import FigureSet
-from leaderboard.sources import SideFile, Sources
+from leaderboard.outputs.paper_figures import FigureSet
+from leaderboard.runs.aggregate import Leaderboard, safe_name
+from leaderboard.runs.sources import SideFile, Sources
+from leaderboard.web import run_charts
+from leaderboard.web.content_cache import atomic_write, digest, read_index, write_index
 
 Progress = Callable[[Iterable[Any], str, int], Iterable[Any]]
 #: The index of the charts' input digests, relative to ``--out``.

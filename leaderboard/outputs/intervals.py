@@ -1,10 +1,10 @@
 """Table 1 with interval estimates: ``ci_low``, ``ci_high`` and the bold rule from :mod:`leaderboard.stats`.
 
-Why a separate step: :mod:`leaderboard.aggregate` makes the table and :mod:`leaderboard.stats`
+Why a separate step: :mod:`leaderboard.runs.aggregate` makes the table and :mod:`leaderboard.stats`
 imports it, so the intervals are joined onto ``Leaderboard.table`` here, after both, and every
 writer (CSV, Markdown, LaTeX, site) reads the same columns.
 
-The bold rule (one definition, :data:`leaderboard.marks.BOLD_RULE`, quoted by every output): a learner cell is bold
+The bold rule (one definition, :data:`leaderboard.outputs.marks.BOLD_RULE`, quoted by every output): a learner cell is bold
 when it has the highest mean of its row among the *complete* learner cells and its 95% interval
 overlaps the interval of no other complete learner of the row. Incomplete cells are left out of
 the comparison, as before (issue 11: they are never bold and not compared with the paper). No
@@ -17,8 +17,8 @@ from dataclasses import replace
 
 import pandas as pd
 
-from leaderboard.aggregate import Leaderboard
-from leaderboard.marks import BOLD_RULE, BOLD_RULE_TEX  # noqa: F401 - re-exported: tables and pages quote them
+from leaderboard.outputs.marks import BOLD_RULE, BOLD_RULE_TEX  # noqa: F401 - re-exported: tables and pages quote them
+from leaderboard.runs.aggregate import Leaderboard
 from leaderboard.stats import bold_cells
 
 KEYS = ["protocol", "preset", "chain", "scenario", "learner"]

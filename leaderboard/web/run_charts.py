@@ -23,7 +23,7 @@ from functools import lru_cache
 import numpy as np
 import pandas as pd
 
-from leaderboard.render import TEMPLATES, render
+from leaderboard.web.render import TEMPLATES, render
 
 #: The chart template; its text is part of every cached chart's key (an edit redraws them all).
 TEMPLATE = "charts/chart.svg"

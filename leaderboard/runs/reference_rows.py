@@ -1,5 +1,5 @@
 """The reference rows of Table 1, computed from the environments rather than from runs (part of
-:mod:`leaderboard.aggregate`): the random policy's exact expectation and the oracle's best and
+:mod:`leaderboard.runs.aggregate`): the random policy's exact expectation and the oracle's best and
 worst, per (chain, scenario, beta, max_steps), cached on disk between builds.
 """
 
@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from leaderboard.display_order import row_order
-from leaderboard.run_selection import CELL_KEYS
+from leaderboard.runs.display_order import row_order
+from leaderboard.runs.selection import CELL_KEYS
 from morality_gym.envs.registry import parse_env_id, scenario_named
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.oracle import oracle

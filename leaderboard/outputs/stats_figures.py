@@ -15,7 +15,7 @@ from typing import Any
 
 import pandas as pd
 
-from leaderboard.aggregate import Group, Leaderboard, safe_name
+from leaderboard.runs.aggregate import Group, Leaderboard, safe_name
 from leaderboard.stats import plots as sf
 
 Progress = Callable[[Iterable[Any], str, int], Iterable[Any]]

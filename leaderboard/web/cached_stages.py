@@ -17,14 +17,15 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
-from leaderboard import paper_figures as figures_module
-from leaderboard import stats_figure_files as stat_figures_module
-from leaderboard.aggregate import Leaderboard
-from leaderboard.content_cache import cached_outputs, digest, frame_digest
-from leaderboard.paper_figures import FigureSet, write_figures
-from leaderboard.sources import Sources
+from leaderboard.outputs import paper_figures as figures_module
+from leaderboard.outputs import stats_figures as stat_figures_module
+from leaderboard.outputs.paper_figures import FigureSet, write_figures
+from leaderboard.outputs.stats_figures import StatFigures, write_stat_figures
+from leaderboard.runs import display_order as display_module
+from leaderboard.runs.aggregate import Leaderboard
+from leaderboard.runs.sources import Sources
 from leaderboard.stats import LeaderboardStats, compute_stats
-from leaderboard.stats_figure_files import StatFigures, write_stat_figures
+from leaderboard.web.content_cache import cached_outputs, digest, frame_digest
 
 Progress = Callable[[Iterable[Any], str, int], Iterable[Any]]
 CACHE = Path("cache")
@@ -77,7 +78,7 @@ def _files_of_figures(found: FigureSet) -> list[Path]:
 def paper_figures(lb: Leaderboard, out_dir: Path, progress: Progress | None = None) -> tuple[FigureSet, bool]:
     """Figure 2 per (sweep, chain) and a radar per (sweep, chain, scenario) (:func:`write_figures`), cached."""
     figures_dir = out_dir / "figures"
-    key = digest([code_digest(Path(figures_module.__file__)), frame_digest(lb.norms_by_chain),
+    key = digest([code_digest(Path(figures_module.__file__), Path(display_module.__file__)), frame_digest(lb.norms_by_chain),
                   frame_digest(lb.norms_by_scenario), repr(lb.learners), repr(lb.groups), str(figures_dir.resolve())])
     found, hit = cached_outputs(
         out_dir / CACHE / "figures.pickle", key, lambda: write_figures(lb, figures_dir, progress),

@@ -1,4 +1,4 @@
-"""The paper's figures from the aggregated numbers: Figure 2 bars and radar plots (per-run charts: :mod:`leaderboard.run_charts`).
+"""The paper's figures from the aggregated numbers: Figure 2 bars and radar plots (per-run charts: :mod:`leaderboard.web.run_charts`).
 
 Figures are drawn on :class:`matplotlib.figure.Figure` objects with the Agg canvas directly, never
 through ``pyplot``: no global figure state, no GUI backend picked up from the environment, and
@@ -20,39 +20,12 @@ import pandas as pd
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from leaderboard.aggregate import Group, Leaderboard, safe_name
+from leaderboard.runs.aggregate import Group, Leaderboard, safe_name
+from leaderboard.runs.display_order import DPI, EXTRA_COLOURS, LEARNER_COLOURS, learner_palette  # noqa: F401 - re-exported
 from morality_gym.norms.catalogue import CATALOGUE
 from morality_gym.norms.chain import ChainError, get_chain
 
-#: Okabe-Ito colours (distinguishable with the common colour-vision deficiencies) for the paper's learners.
-LEARNER_COLOURS = {
-    "CPO": "#0072B2",
-    "PPO": "#D55E00",
-    "PPO Lag": "#009E73",
-    "PPO Shaped": "#CC79A7",
-    "Random": "#7F7F7F",
-}
-#: Colours for other learners, handed out in the order of :func:`learner_palette`'s argument.
-EXTRA_COLOURS = ["#E69F00", "#56B4E9", "#F0E442", "#000000", "#8C564B", "#17BECF", "#BCBD22", "#9467BD"]
-DPI = 120
 Progress = Callable[[Iterable[Any], str, int], Iterable[Any]]
-
-
-def learner_palette(learners: Iterable[str]) -> dict[str, str]:
-    """A colour per learner: the fixed ones for the paper's learners, the extras for the rest.
-
-    Build it once from *all* learners of the results and pass it to every figure, so that an
-    unknown learner gets the same colour in every plot of one build.
-    """
-    palette: dict[str, str] = {}
-    extra = 0
-    for name in learners:
-        if name in LEARNER_COLOURS:
-            palette[name] = LEARNER_COLOURS[name]
-        else:
-            palette[name] = EXTRA_COLOURS[extra % len(EXTRA_COLOURS)]
-            extra += 1
-    return palette
 
 
 def norm_abbreviation(norm: str) -> str:

@@ -1,5 +1,6 @@
-"""The order and names the leaderboard shows: sweep groups (protocol, preset), the paper's rows and
-learners, each chain's norms, and file-name-safe identifiers (part of :mod:`leaderboard.aggregate`).
+"""The order, names and colours the leaderboard shows: sweep groups (protocol, preset), the paper's rows and
+learners, each chain's norms, file-name-safe identifiers (part of :mod:`leaderboard.runs.aggregate`), and
+each learner's colour in every figure and page.
 """
 
 from __future__ import annotations
@@ -92,3 +93,35 @@ def group_order(groups: Iterable[Group]) -> list[Group]:
     (paper > quick > smoke), then other presets by name."""
     rank = preset_rank()
     return sorted(set(groups), key=lambda g: (g.protocol != "paper", g.protocol, rank.get(g.preset, len(rank)), g.preset))
+
+
+# ---------------------------------------------------------------------------------------- colours
+#: Okabe-Ito colours (distinguishable with the common colour-vision deficiencies) for the paper's learners.
+LEARNER_COLOURS = {
+    "CPO": "#0072B2",
+    "PPO": "#D55E00",
+    "PPO Lag": "#009E73",
+    "PPO Shaped": "#CC79A7",
+    "Random": "#7F7F7F",
+}
+#: Colours for other learners, handed out in the order of :func:`learner_palette`'s argument.
+EXTRA_COLOURS = ["#E69F00", "#56B4E9", "#F0E442", "#000000", "#8C564B", "#17BECF", "#BCBD22", "#9467BD"]
+#: The resolution of every figure the leaderboard draws.
+DPI = 120
+
+
+def learner_palette(learners: Iterable[str]) -> dict[str, str]:
+    """A colour per learner: the fixed ones for the paper's learners, the extras for the rest.
+
+    Build it once from *all* learners of the results and pass it to every figure, so that an
+    unknown learner gets the same colour in every plot of one build.
+    """
+    palette: dict[str, str] = {}
+    extra = 0
+    for name in learners:
+        if name in LEARNER_COLOURS:
+            palette[name] = LEARNER_COLOURS[name]
+        else:
+            palette[name] = EXTRA_COLOURS[extra % len(EXTRA_COLOURS)]
+            extra += 1
+    return palette

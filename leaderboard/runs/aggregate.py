@@ -34,10 +34,10 @@ planned or ran for the cell. An incomplete cell keeps its mean (so the table sho
 but is never the best of its row and is never compared with the paper (no delta); the reason is
 in ``incomplete_reason``.
 
-The work is split by job: :mod:`leaderboard.run_selection` decides which runs count (and reports
-the rest), :mod:`leaderboard.table_cells` computes the cells of Table 1 and the figures' frames,
-:mod:`leaderboard.reference_rows` the rows computed from the environments, and
-:mod:`leaderboard.display_order` the order and names shown. This module puts them together
+The work is split by job: :mod:`leaderboard.runs.selection` decides which runs count (and reports
+the rest), :mod:`leaderboard.runs.cells` computes the cells of Table 1 and the figures' frames,
+:mod:`leaderboard.runs.reference_rows` the rows computed from the environments, and
+:mod:`leaderboard.runs.display_order` the order and names shown. This module puts them together
 (:func:`aggregate`, :class:`Leaderboard`) and re-exports their names, so readers import from here.
 """
 
@@ -50,50 +50,7 @@ from typing import Any
 
 import pandas as pd
 
-from leaderboard.display_order import (
-    Group,
-    chain_norm_order,
-    group_order,
-    learner_order,
-    paper_rows,
-    paper_values,
-    preset_rank,
-    row_order,
-    safe_name,
-)
-from leaderboard.reference_rows import (
-    ORACLE_BEST,
-    ORACLE_WORST,
-    RANDOM_EXACT,
-    REFERENCE_CACHE_VERSION,
-    REFERENCE_LEARNERS,
-    ReferenceResult,
-    chain_definitions,
-    compute_reference,
-    covered_variants,
-    load_reference_cache,
-    reference_coverage,
-    reference_key,
-    reference_mean,
-    reference_requests,
-)
-from leaderboard.run_selection import (
-    CELL_KEYS,
-    LLM_POLICY_KIND,
-    REPORT_COLUMNS,
-    SLOT_KEYS,
-    chain_label,
-    groups_of,
-    label_planned,
-    mf_columns,
-    missing_runs,
-    prepare_runs,
-    problem_runs,
-    select_configurations,
-    split_superseded,
-    submitted_learners,
-)
-from leaderboard.table_cells import (
+from leaderboard.runs.cells import (
     COMPLETENESS_COLUMNS,
     CSV_COLUMNS,
     PAPER_PRESET,
@@ -113,6 +70,49 @@ from leaderboard.table_cells import (
     seed_spread,
     table1_frame,
     variant_frame,
+)
+from leaderboard.runs.display_order import (
+    Group,
+    chain_norm_order,
+    group_order,
+    learner_order,
+    paper_rows,
+    paper_values,
+    preset_rank,
+    row_order,
+    safe_name,
+)
+from leaderboard.runs.reference_rows import (
+    ORACLE_BEST,
+    ORACLE_WORST,
+    RANDOM_EXACT,
+    REFERENCE_CACHE_VERSION,
+    REFERENCE_LEARNERS,
+    ReferenceResult,
+    chain_definitions,
+    compute_reference,
+    covered_variants,
+    load_reference_cache,
+    reference_coverage,
+    reference_key,
+    reference_mean,
+    reference_requests,
+)
+from leaderboard.runs.selection import (
+    CELL_KEYS,
+    LLM_POLICY_KIND,
+    REPORT_COLUMNS,
+    SLOT_KEYS,
+    chain_label,
+    groups_of,
+    label_planned,
+    mf_columns,
+    missing_runs,
+    prepare_runs,
+    problem_runs,
+    select_configurations,
+    split_superseded,
+    submitted_learners,
 )
 from morality_gym.results.identity import PROVENANCE_KEY, SUBMITTED_ALGO
 

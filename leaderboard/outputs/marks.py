@@ -10,7 +10,7 @@ beyond the standard library: the page frame loads this before SciPy may be impor
 
 from __future__ import annotations
 
-#: What bold means, stated next to every table that uses it (applied by :mod:`leaderboard.intervals`).
+#: What bold means, stated next to every table that uses it (applied by :mod:`leaderboard.outputs.intervals`).
 BOLD_RULE = ("highest mean of the row whose 95% interval overlaps no other learner's (complete cells only); "
              "no bold = not separated from another learner, or an interval is missing (one seed).")
 BOLD_RULE_TEX = ("bold: highest mean of the row whose 95\\% bootstrap interval overlaps no other learner's; "

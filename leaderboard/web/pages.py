@@ -13,16 +13,24 @@ from typing import Any
 
 import pandas as pd
 
-from leaderboard.aggregate import ORACLE_BEST, ORACLE_WORST, RANDOM_EXACT, STD_DDOF, Group, chain_norm_order, safe_name
-from leaderboard.intervals import BOLD_RULE
-from leaderboard.llm_entries import llm_entries
-from leaderboard.marks import NOTABLE_DELTA
-from leaderboard.paper_figures import chain_title, norm_abbreviation, norm_label
-from leaderboard.render import clean, clean_records, is_missing, run_href, scenario_href, section_id
-from leaderboard.site_state import SiteBuild
-from leaderboard.sources import RESULTS_SOURCE
-from leaderboard.table1_grid import grid_context, opening_groups
-from leaderboard.tables import fmt
+from leaderboard.outputs.intervals import BOLD_RULE
+from leaderboard.outputs.marks import NOTABLE_DELTA
+from leaderboard.outputs.paper_figures import chain_title, norm_abbreviation, norm_label
+from leaderboard.outputs.tables import fmt
+from leaderboard.runs.aggregate import (
+    ORACLE_BEST,
+    ORACLE_WORST,
+    RANDOM_EXACT,
+    STD_DDOF,
+    Group,
+    chain_norm_order,
+    safe_name,
+)
+from leaderboard.runs.sources import RESULTS_SOURCE
+from leaderboard.web.llm_entries import llm_entries
+from leaderboard.web.render import clean, clean_records, is_missing, run_href, scenario_href, section_id
+from leaderboard.web.site_state import SiteBuild
+from leaderboard.web.table1_grid import grid_context, opening_groups
 from morality_gym.clitools import duration
 from morality_gym.envs.registry import scenario_named
 from morality_gym.results.schema import MF_PREFIX

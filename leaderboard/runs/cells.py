@@ -1,5 +1,5 @@
 """The numbers of Table 1 and of the per-norm and per-variant figures, from the counted runs (part of
-:mod:`leaderboard.aggregate`): each cell's mean and spread over seeds, how complete it is, its
+:mod:`leaderboard.runs.aggregate`): each cell's mean and spread over seeds, how complete it is, its
 comparison with the paper, the best of each row, and the group a build shows first.
 """
 
@@ -12,8 +12,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from leaderboard.display_order import Group, chain_norm_order, group_order, learner_order, paper_values, row_order
-from leaderboard.reference_rows import (
+from leaderboard.runs.display_order import Group, chain_norm_order, group_order, learner_order, paper_values, row_order
+from leaderboard.runs.reference_rows import (
     ORACLE_BEST,
     ORACLE_WORST,
     RANDOM_EXACT,
@@ -23,7 +23,7 @@ from leaderboard.reference_rows import (
     reference_key,
     reference_mean,
 )
-from leaderboard.run_selection import CELL_KEYS, UNKNOWN, cell_of, mf_columns
+from leaderboard.runs.selection import CELL_KEYS, UNKNOWN, cell_of, mf_columns
 from morality_gym.constants import BETA, MAX_STEPS
 from morality_gym.envs.registry import UnknownEnvError, scenario_named
 from morality_gym.results.presets import preset_seeds
@@ -37,7 +37,7 @@ STD_DDOF = 1
 #: result; ``incomplete_reason``: what is lacking (empty when complete). Reference rows are exact
 #: over all variants (``complete`` true, seed columns empty). ``ci_low``/``ci_high``: the 95% bootstrap
 #: interval of the mean (seeds resampled within each variant; empty with one seed and on reference
-#: rows), joined by :mod:`leaderboard.intervals` (empty when the table was built without it).
+#: rows), joined by :mod:`leaderboard.outputs.intervals` (empty when the table was built without it).
 #: ``delta_note``: why ``delta`` is empty although ``paper`` is not (``not comparable: preset smoke``,
 #: ``not compared: incomplete``); empty when the delta is given or there is no paper value.
 CSV_COLUMNS = ["chain", "scenario", "learner", "mean", "std", "ci_low", "ci_high", "n_runs", "paper", "delta",

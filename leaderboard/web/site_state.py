@@ -6,10 +6,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from leaderboard.aggregate import Group, Leaderboard
-from leaderboard.marks import MARKS
-from leaderboard.paper_figures import FigureSet
-from leaderboard.sources import Sources
+from leaderboard.outputs.marks import MARKS
+from leaderboard.outputs.paper_figures import FigureSet
+from leaderboard.runs.aggregate import Group, Leaderboard
+from leaderboard.runs.sources import Sources
 
 #: The pages every page links to in its header (path from the site root, label).
 NAV = (("index.html", "Table 1"), ("index.html#table1-section", "Long table"), ("ranking.html", "Ranking"),

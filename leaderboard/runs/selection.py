@@ -1,4 +1,4 @@
-"""Which runs count (part of :mod:`leaderboard.aggregate`, whose docstring states the rules).
+"""Which runs count (part of :mod:`leaderboard.runs.aggregate`, whose docstring states the rules).
 
 Prepares the runs DataFrame, labels chains by what they are, keeps one configuration per cell and
 one run per slot (the others are *superseded*), and lists what cannot count: runs without a usable
@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from leaderboard.display_order import Group, group_order
+from leaderboard.runs.display_order import Group, group_order
 from morality_gym.norms.chain import builtin_chains, chain_fingerprint
 from morality_gym.results.identity import (  # a run's identity: defined there
     PROVENANCE_KEY,

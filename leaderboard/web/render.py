@@ -1,12 +1,12 @@
 """The Jinja2 environment of the site: templates and static files shipped inside the package.
 
 Why templates: the pages' markup, CSS and script are edited as HTML, CSS and JavaScript
-(``leaderboard/templates``, ``leaderboard/static``), and Python only builds the data each page
-shows (:mod:`leaderboard.pages`, :mod:`leaderboard.ranking_page`). Autoescaping is on for every
+(``leaderboard/web/templates``, ``leaderboard/web/static``), and Python only builds the data each page
+shows (:mod:`leaderboard.web.pages`, :mod:`leaderboard.web.ranking_page`). Autoescaping is on for every
 template, so any text from a results file (errors, tracebacks, configurations, names) is escaped
 wherever it lands; markup built in Python is never passed in.
 
-The filters below format numbers exactly like the tables (:func:`leaderboard.tables.fmt`), so the
+The filters below format numbers exactly like the tables (:func:`leaderboard.outputs.tables.fmt`), so the
 site and ``table1.md`` never disagree on a digit.
 """
 
@@ -22,8 +22,8 @@ import jinja2
 import pandas as pd
 from markupsafe import Markup
 
-from leaderboard.aggregate import Group, safe_name
-from leaderboard.tables import fmt
+from leaderboard.outputs.tables import fmt
+from leaderboard.runs.aggregate import Group, safe_name
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 TEMPLATES = PACKAGE_DIR / "templates"
