@@ -37,6 +37,7 @@ from leaderboard.submit import _submitter, check_name, code_version
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, positive_float, run_cli
 from morality_gym.constants import BETA
 from morality_gym.envs.registry import UnknownEnvError, parse_env_id
+from morality_gym.llm.episode import EPISODE_KEY
 from morality_gym.llm.settings import DEFAULT_PRESET, PRESETS, AgentSettings, SettingsError
 from morality_gym.llm.text import FRAMINGS, FramingError
 from morality_gym.llm.tokens import estimate_tokens
@@ -77,9 +78,6 @@ class Episode:
 
 def read_episodes(path: Path) -> tuple[list[Episode], dict[str, Any]]:
     """The scored episodes of an Inspect log and the task's ``morality_gym`` metadata."""
-    # Inspect waits: importing leaderboard.llm (its --help too) must not load it
-    from morality_gym.llm.inspect_tasks import EPISODE_KEY
-
     log, meta = _read_log(path)
     # The temperature the calls used: the task's, else Inspect's --temperature, else the provider's default.
     eval_temperature = log.plan.config.temperature if log.plan is not None else None

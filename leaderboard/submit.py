@@ -39,6 +39,8 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
+import morality_gym
+from leaderboard.runs.display_order import REFERENCE_LEARNERS
 from morality_gym.baselines.io import ModelError
 from morality_gym.baselines.policy_ref import LoadedPolicy, PolicyError, is_stationary, load_policy, probe
 from morality_gym.baselines.specs import CONF_DIR
@@ -64,6 +66,7 @@ from morality_gym.paper import LEARNERS, table1
 from morality_gym.results.identity import PROVENANCE_KEY as PROVENANCE
 from morality_gym.results.identity import SUBMITTED_ALGO as SUBMITTED
 from morality_gym.results.identity import run_identity
+from morality_gym.results.presets import PresetError, load_preset
 
 DEFAULT_PROTOCOL = "paper"
 DEFAULT_PRESET = "paper"
@@ -146,9 +149,6 @@ def _check_variants(pairs: list[tuple[MoralityChain, str]], variants: Sequence[s
 def preset_facts(preset: str) -> tuple[tuple[int, ...], int]:
     """(seeds, final-evaluation episodes) of ``conf/preset/<preset>.yaml``, read and checked by the
     sweep's own preset schema (:func:`morality_gym.results.presets.load_preset`)."""
-    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
-    from morality_gym.results.presets import PresetError, load_preset
-
     try:
         loaded = load_preset(preset)
     except PresetError as exc:
@@ -169,16 +169,11 @@ def code_version() -> str:
     try:
         return f"morality-gym {version('morality-gym')}"
     except PackageNotFoundError:
-        import morality_gym
-
         return f"morality-gym {morality_gym.__version__}"
 
 
 def check_name(name: str) -> str:
     """A display name that cannot pass for one of the paper's learners or a reference row."""
-    # pandas, pyarrow wait: importing leaderboard.submit (its --help too) must not load them
-    from leaderboard.runs.aggregate import REFERENCE_LEARNERS
-
     cleaned = " ".join(str(name).split())
     if not cleaned:
         raise UserError("--name must not be empty: it is the entry's label on the leaderboard")

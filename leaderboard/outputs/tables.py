@@ -22,6 +22,7 @@ from typing import Any
 
 import pandas as pd
 
+from leaderboard.outputs.marks import BOLD_RULE, BOLD_RULE_TEX
 from leaderboard.runs.aggregate import (
     CSV_COLUMNS,
     ORACLE_BEST,
@@ -250,9 +251,6 @@ def _seed(value: Any) -> str:
 
 def explanation_lines() -> list[str]:
     """How the numbers were made, next to the numbers (so the table can be read on its own)."""
-    # SciPy waits: importing leaderboard.outputs.tables must not load it
-    from leaderboard.outputs.intervals import BOLD_RULE
-
     return [
         ("Each learner cell: mean of the final evaluation's morality metric over all variants and seeds of the "
         f"scenario ± standard deviation over seeds of the per-seed means (ddof={STD_DDOF}); 95% CI = percentile "
@@ -407,9 +405,6 @@ def _latex_cell(cell: dict[str, Any] | None) -> str:
 def _latex_foot(lb: Leaderboard, group: Group, incomplete: list[str]) -> list[str]:
     """The closing rules and the notes: interval and bold rule, the dagger, the abbreviations used."""
     lines = ["\\bottomrule", "\\end{tabular}"]
-    # SciPy waits: importing leaderboard.outputs.tables must not load it
-    from leaderboard.outputs.intervals import BOLD_RULE_TEX
-
     lines.append(f"\\par\\smallskip{{\\footnotesize Brackets: 95\\% bootstrap interval of the mean (seeds resampled "
                  f"within each variant); {BOLD_RULE_TEX}}}")
     if not comparable_preset(group.preset):

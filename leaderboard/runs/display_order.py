@@ -14,6 +14,11 @@ from morality_gym.norms.chain import ChainError, get_chain
 from morality_gym.paper import LEARNERS, table1
 from morality_gym.results.presets import PresetError, load_preset, preset_names
 
+#: The rows of Table 1 computed from the environments rather than from runs
+#: (:func:`leaderboard.runs.reference_rows.compute_reference`).
+RANDOM_EXACT, ORACLE_BEST, ORACLE_WORST = "Random (exact)", "Oracle best", "Oracle worst"
+REFERENCE_LEARNERS = (RANDOM_EXACT, ORACLE_BEST, ORACLE_WORST)
+
 
 # ---------------------------------------------------------------------------------------- groups
 @dataclass(frozen=True, order=True)

@@ -17,16 +17,19 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from leaderboard.runs.display_order import row_order
+from leaderboard.runs.display_order import (  # noqa: F401 - the reference rows' names, re-exported
+    ORACLE_BEST,
+    ORACLE_WORST,
+    RANDOM_EXACT,
+    REFERENCE_LEARNERS,
+    row_order,
+)
 from leaderboard.runs.selection import CELL_KEYS
 from morality_gym.envs.registry import parse_env_id, scenario_named
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.oracle import oracle
 from morality_gym.norms.chain import ChainError, parse_chain
 
-#: Rows computed from the environments rather than from runs (see :func:`compute_reference`).
-RANDOM_EXACT, ORACLE_BEST, ORACLE_WORST = "Random (exact)", "Oracle best", "Oracle worst"
-REFERENCE_LEARNERS = (RANDOM_EXACT, ORACLE_BEST, ORACLE_WORST)
 #: Bump when the content of the reference cache changes meaning (old entries are then recomputed).
 REFERENCE_CACHE_VERSION = 2  # 2: entries record the chain's norms and the variants it cannot score
 
