@@ -29,7 +29,14 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from morality_gym.baselines import typed
 from morality_gym.baselines.hparams import algorithm_class, validate_learner
-from morality_gym.baselines.specs import ALGO_FILE_EXTRAS, LearnerSpec, ProtocolSpec, SpecError, training_steps
+from morality_gym.baselines.specs import (
+    ALGO_FILE_EXTRAS,
+    LearnerSpec,
+    ProtocolSpec,
+    SpecError,
+    check_keys,
+    training_steps,
+)
 from morality_gym.baselines.targets import learner_trains
 from morality_gym.clitools import did_you_mean
 from morality_gym.envs.registry import scenarios as all_scenarios
@@ -442,8 +449,10 @@ def _protocol(node: Any, algo_options: list[str]) -> ProtocolSpec:
     schema), whose ``learner_overrides`` may only name existing algos."""
     if node is None:
         raise ConfigError("protocol: select a protocol, e.g. protocol=paper")
+    where = f"protocol={node.get('name', '?')}"
     try:
-        protocol = typed.build(ProtocolSpec, node, where=f"protocol={node.get('name', '?')}")
+        check_keys(where, node, typed.valid_keys(ProtocolSpec))  # a key added with +protocol.<key>=
+        protocol = typed.build(ProtocolSpec, node, where=where)
     except (SpecError, typed.TypedConfigError) as exc:
         raise ConfigError(f"protocol: {exc}") from exc
     for algo_name in protocol.learner_overrides:

@@ -53,7 +53,7 @@ class SpecError(ValueError):
     """A learner or protocol setting is invalid; the message names the key and the valid choices."""
 
 
-def _check_keys(where: str, given: Mapping[str, Any], allowed: list[str]) -> None:
+def check_keys(where: str, given: Mapping[str, Any], allowed: list[str]) -> None:
     allowed_here = [("target" if a == "_target_" else a) for a in allowed]
     for key in given:
         if key not in allowed_here:
@@ -132,7 +132,7 @@ class LearnerSpec:
         """
         overrides = _rename_target(overrides)
         where = where or f"learner {self.name!r}"
-        _check_keys(where, overrides, _settable(LearnerSpec))
+        check_keys(where, overrides, _settable(LearnerSpec))
         if not isinstance(overrides.get("hparams", {}), Mapping):
             raise SpecError(f"{where}: hparams must be a mapping, got {overrides['hparams']!r}")
         return _typed(LearnerSpec, dataclasses.asdict(self), overrides, where=where)
@@ -143,7 +143,7 @@ class LearnerSpec:
         takes this class's default, ``label`` defaults to ``name``)."""
         values = _rename_target(values)
         where = where or f"learner {name!r}"
-        _check_keys(where, values, _settable(cls))
+        check_keys(where, values, _settable(cls))
         if "target" not in values:
             raise SpecError(f"{where}: no _target_; name the algorithm class, e.g. _target_: stable_baselines3.A2C")
         if not isinstance(values.get("hparams") or {}, Mapping):
@@ -246,7 +246,7 @@ class ProtocolSpec:
             if not isinstance(override, Mapping):
                 raise SpecError(f"protocol {self.name!r}: learner_overrides.{algo} must be a mapping")
             allowed = [f.name for f in dataclasses.fields(LearnerSpec) if f.name not in ("name", "label", "target", "protocol")]
-            _check_keys(f"protocol {self.name!r}: learner_overrides.{algo}", override, allowed)
+            check_keys(f"protocol {self.name!r}: learner_overrides.{algo}", override, allowed)
         if isinstance(self.render_episode_steps, bool) or not isinstance(self.render_episode_steps, int) or self.render_episode_steps < 0:
             raise SpecError(f"protocol {self.name!r}: render_episode_steps must be an integer >= 0, got {self.render_episode_steps!r}")
 
@@ -254,7 +254,7 @@ class ProtocolSpec:
     def from_mapping(cls, values: Mapping[str, Any], where: str = "") -> ProtocolSpec:
         """A protocol from a protocol file's values over this class's defaults."""
         where = where or f"protocol {values.get('name', '?')!r}"
-        _check_keys(where, values, typed.valid_keys(cls))
+        check_keys(where, values, typed.valid_keys(cls))
         return _typed(cls, values, where=where)
 
     def random_replay(self) -> RandomReplay:
