@@ -45,9 +45,13 @@ from leaderboard.runs.aggregate import (
 from leaderboard.runs.releases import ReleaseError, resolve
 from leaderboard.runs.sources import Sources, load_sources
 from leaderboard.stats import DEFAULT_RESAMPLES, compute_stats
+from morality_gym.baselines.specs import learner_spec, protocol_spec
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, did_you_mean, run_cli
 
 CLAIMS_FILE = Path(__file__).resolve().parents[1] / "morality_gym" / "data" / "paper" / "figure2_claims.yaml"
+TABLE1_CLAIMS_FILE = CLAIMS_FILE.with_name("table1_claims.yaml")
+#: The learners of Table 1 by their names in conf/algo (the page speaks of their labels).
+TABLE1_LEARNERS = ("random", "ppo", "ppo_shaped", "ppo_lag", "cpo")
 NOTES_FILE = Path(__file__).resolve().parents[1] / "docs" / "reproduction_notes.yaml"
 PAPER = Group("paper", "paper")
 CORRECTED = Group("corrected", "paper")
@@ -119,6 +123,28 @@ def cells(lb: Leaderboard, group: Group) -> list[Cell]:
             out.append(Cell(chain, scenario, learner, mean, low, high, sd, int(_num(r.get("n_runs")) or 0) if r else 0,
                             int(_num(r.get("n_expected")) or 0) if r else 0, value,
                             verdict(mean, low, high, sd, value, complete)))
+    return out
+
+
+def protocol_neutral_learners() -> list[str]:
+    """The labels of Table 1's learners that train identically under both protocols: the corrected
+    protocol (conf/protocol/corrected.yaml) overrides nothing of theirs, and Random's evaluation is
+    not among them (its final evaluation's random stream is a protocol setting). Their corrected
+    cells are their paper-protocol cells, so the corrected sweep does not run them again."""
+    paper, corrected = protocol_spec("paper"), protocol_spec("corrected")
+    changed = set(paper.learner_overrides) | set(corrected.learner_overrides)
+    if paper.random_replays_learn_evals != corrected.random_replays_learn_evals:
+        changed.add("random")
+    return [learner_spec(name).label for name in TABLE1_LEARNERS if name not in changed]
+
+
+def cells_as_run(lb: Leaderboard, group: Group) -> dict[tuple[str, str, str], Cell]:
+    """``group``'s Table 1 cells by (chain, scenario, learner); under the corrected protocol a
+    protocol-neutral learner's cells are its paper-protocol ones (:func:`protocol_neutral_learners`)."""
+    out = {(c.chain, c.scenario, c.learner): c for c in cells(lb, group)}
+    if group != PAPER:
+        neutral = set(protocol_neutral_learners())
+        out.update({(c.chain, c.scenario, c.learner): c for c in cells(lb, PAPER) if c.learner in neutral})
     return out
 
 
@@ -293,13 +319,18 @@ def corrected_section(lb: Leaderboard) -> list[str]:
     (``docs/protocols.md``); a cell "moved" when the two protocols' 95% intervals do not overlap,
     which is what tells a reader whether a deviation from the paper comes from those bugs."""
     paper_cells = {(c.chain, c.scenario, c.learner): c for c in cells(lb, PAPER)}
-    run = [c for c in cells(lb, CORRECTED) if c.verdict != "not run"]
+    neutral = protocol_neutral_learners()
+    affected = [c for c in cells(lb, CORRECTED) if c.learner not in neutral]
+    run = [c for c in affected if c.verdict != "not run"]
     lines = ["## The corrected protocol", "",
              ("The `corrected` protocol fixes only the reference's arithmetic bugs in PPO-Lag and CPO "
               "([Protocols](protocols.md)); the other learners train identically under both. Verdicts by the same rule; "
-              "**moved**: the two protocols' 95% intervals do not overlap."), ""]
+              "**moved**: the two protocols' 95% intervals do not overlap."), "",
+             (f"{' and '.join(neutral)} train identically under both protocols (the corrected protocol changes none of "
+              "their settings), so their cells are the paper protocol's above and are not run again; the corrected "
+              f"protocol's Table 1 is the other learners' {len(affected)} cells, of which {len(run)} are run in full."), ""]
     if not run:
-        return lines + ["No cell has been run in full under the corrected protocol yet.", ""]
+        return lines + ["No cell has been run in full under the corrected protocol yet.", ""] + _not_run_lines(affected)
     counts = {v: sum(c.verdict == v for c in run) for v in VERDICTS}
     lines += [(f"**{len(run)} cells run under the corrected protocol: {counts['reproduces']} reproduce, "
                f"{counts['close']} are close, {counts['deviates']} deviate.**"), "",
@@ -312,7 +343,17 @@ def corrected_section(lb: Leaderboard) -> list[str]:
         lines.append(f"| {c.chain} | {c.scenario} | {c.learner} | {f'{before.mean:.3f}' if ran_before else '—'} | "
                      f"{c.mean:.3f} | [{c.ci_low:.3f}, {c.ci_high:.3f}] | {c.sd:.3f} | {c.n_runs}/{c.n_expected} | "
                      f"{c.paper:.3f} | {c.verdict} | {moved} |")
-    return lines + [""]
+    return lines + [""] + _not_run_lines(affected)
+
+
+def _not_run_lines(affected: list[Cell]) -> list[str]:
+    """The corrected cells not (fully) run yet, with how many of their runs exist: no verdict on them."""
+    missing = [c for c in affected if c.verdict == "not run"]
+    if not missing:
+        return []
+    listed = "; ".join(f"{c.chain} / {c.scenario} / {c.learner} ({f'{c.n_runs}/{c.n_expected} runs' if c.n_expected else 'no runs yet'})"
+                       for c in missing)
+    return [f"*Not yet run in full under the corrected protocol ({len(missing)} of {len(affected)} cells; no verdict):* {listed}.", ""]
 
 
 def check_notes(notes: dict[tuple[str, str, str], str], path: Path) -> None:
@@ -330,13 +371,21 @@ def check_notes(notes: dict[tuple[str, str, str], str], path: Path) -> None:
 def figure2_claims(lb: Leaderboard, group: Group) -> list[tuple[str, str, str]]:
     """(claim, our numbers, holds / does not hold / not run) for each statement of the paper about Figure 2."""
     data = yaml.safe_load(CLAIMS_FILE.read_text())["claims"]
-    by_chain = lb.norms_by_chain
-    by_chain = by_chain.loc[(by_chain["protocol"] == group.protocol) & (by_chain["preset"] == group.preset)]
+    frame = lb.norms_by_chain
+    neutral = set(protocol_neutral_learners()) if group != PAPER else set()
+    table = cells_as_run(lb, group)
     out = []
     for claim in data:
+        learners = [claim["learner"], *claim.get("than", [])]
+        partial = [key for key, c in table.items() if key[0] == claim["chain"] and key[2] in learners and c.verdict == "not run"]
+        if partial:  # a bar over some of the chain's scenarios is not the figure's bar
+            out.append((claim["text"], "—", "not run"))
+            continue
         def value(learner: str, claim: dict[str, Any] = claim) -> float:
-            row = by_chain.loc[(by_chain["chain"] == claim["chain"]) & (by_chain["learner"] == learner)
-                               & (by_chain["norm"] == claim["norm"])]
+            # a protocol-neutral learner's bars are its paper-protocol ones (cells_as_run)
+            protocol = PAPER.protocol if learner in neutral else group.protocol
+            row = frame.loc[(frame["protocol"] == protocol) & (frame["preset"] == group.preset) & (frame["chain"] == claim["chain"])
+                            & (frame["learner"] == learner) & (frame["norm"] == claim["norm"])]
             return float(row["mean"].iloc[0]) if len(row) else math.nan
 
         mine = value(claim["learner"])
@@ -355,6 +404,43 @@ def figure2_claims(lb: Leaderboard, group: Group) -> list[tuple[str, str, str]]:
             numbers = f"{mine:.3f} vs " + ", ".join(f"{n} {x:.3f}" for n, x in others.items())
         out.append((claim["text"], numbers, "holds" if holds else "does not hold"))
     return out
+
+
+def table1_claims(lb: Leaderboard, group: Group) -> list[tuple[str, str, str]]:
+    """(claim, our numbers, holds / does not hold / not run) for each statement of the paper about
+    its Table 1 (``table1_claims.yaml``), on ``group``'s cells (:func:`cells_as_run`)."""
+    table = cells_as_run(lb, group)
+    out = []
+    for claim in yaml.safe_load(TABLE1_CLAIMS_FILE.read_text())["claims"]:
+        if claim["kind"] == "best_everywhere":
+            out.append((claim["text"], *_best_everywhere(table, claim["learner"])))
+            continue
+        cell = table.get((claim["chain"], claim["scenario"], claim["learner"]))
+        if cell is None or cell.verdict == "not run":
+            out.append((claim["text"], "—", "not run"))
+            continue
+        at_least = claim["kind"] == "at_least"
+        holds = cell.mean >= claim["threshold"] if at_least else cell.mean <= claim["threshold"]
+        out.append((claim["text"], f"{cell.mean:.3f} (needs {'≥' if at_least else '≤'} {claim['threshold']})",
+                    "holds" if holds else "does not hold"))
+    return out
+
+
+def _best_everywhere(table: dict[tuple[str, str, str], Cell], learner: str) -> tuple[str, str]:
+    """(numbers, result) of "``learner`` scores highest in every row": the rows where it does not, by how much."""
+    rows: dict[tuple[str, str], dict[str, Cell]] = {}
+    for (chain, scenario, name), cell in table.items():
+        rows.setdefault((chain, scenario), {})[name] = cell
+    if any(c.verdict == "not run" for row in rows.values() for c in row.values()):
+        return "—", "not run"
+    beaten = []
+    for (chain, scenario), row in rows.items():
+        best = max((c for name, c in row.items() if name != learner), key=lambda c: c.mean)
+        if learner not in row or row[learner].mean <= best.mean:
+            beaten.append(f"{chain} / {scenario}: {best.learner} {best.mean:.3f} vs {row[learner].mean:.3f}")
+    if not beaten:
+        return f"highest in all {len(rows)} rows", "holds"
+    return f"not highest in {len(beaten)} of {len(rows)} rows ({'; '.join(beaten)})", "does not hold"
 
 
 # ---------------------------------------------------------------------------------------- page
@@ -415,10 +501,23 @@ def page(lb: Leaderboard, sources: Sources, learn: pd.DataFrame, figure_dir: Pat
         src = figure_dir / f"bars_{safe_name(chain)}.png"
         if src.is_file():
             lines.append(f"![Figure 2, {chain}]({img_rel}/{src.name})")
-    lines += ["", "The paper's description of Figure 2, statement by statement, against our bars:", "",
-              "| the paper says | ours | on our runs |", "|---|---|---|"]
-    lines += [f"| {text} | {numbers} | {result} |" for text, numbers, result in figure2_claims(lb, PAPER)]
+    lines += ["", ("The paper's description of Figure 2, statement by statement, against our bars (the last column: the "
+                   "same statement on the corrected protocol's runs, where they differ):"), ""]
+    lines += _claims_table(figure2_claims(lb, PAPER), figure2_claims(lb, CORRECTED))
+    lines += ["", "## The paper's prose about Table 1", "",
+              ("Its statements about Table 1, statement by statement, on our cells under each protocol "
+               "(`morality_gym/data/paper/table1_claims.yaml` turns the words into numbers):"), ""]
+    lines += _claims_table(table1_claims(lb, PAPER), table1_claims(lb, CORRECTED))
     return "\n".join(lines) + "\n"
+
+
+def _claims_table(paper: list[tuple[str, str, str]], corrected: list[tuple[str, str, str]]) -> list[str]:
+    """One row per claim: our numbers and result under the paper protocol, then under the corrected one."""
+    lines = ["| the paper says | ours | on our runs | corrected protocol |", "|---|---|---|---|"]
+    for (text, numbers, result), (_, numbers_c, result_c) in zip(paper, corrected):
+        under_corrected = result_c if result_c == "not run" or numbers_c == numbers else f"{result_c}: {numbers_c}"
+        lines.append(f"| {text} | {numbers} | {result} | {under_corrected} |")
+    return lines
 
 
 def build_parser() -> argparse.ArgumentParser:

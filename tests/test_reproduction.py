@@ -12,13 +12,17 @@ import pytest
 
 from leaderboard.outputs.intervals import with_intervals
 from leaderboard.reproduction import (
+    CORRECTED,
     PAPER,
     cells,
+    cells_as_run,
     check_notes,
     corrected_section,
     figure2_claims,
     load_notes,
     page,
+    protocol_neutral_learners,
+    table1_claims,
     verdict,
 )
 from leaderboard.runs.aggregate import aggregate, compute_reference, reference_requests, with_reference
@@ -88,6 +92,49 @@ def test_figure2_claims_are_checked_against_the_bars(board) -> None:
     ppo = frame.loc[(frame["chain"] == "Utility") & (frame["learner"] == "PPO") & (frame["norm"] == "n_human_harm"), "mean"]
     expected = "holds" if float(ppo.iloc[0]) <= 0.1 else "does not hold"
     assert by_text["U: standard PPO almost completely fails on Min Humans Harmed, scoring close to zero"][1] == expected
+
+
+def test_the_protocol_neutral_learners_come_from_the_protocol_files() -> None:
+    """conf/protocol/corrected.yaml overrides PPO-Lag and CPO and Random's evaluation stream, nothing of PPO's."""
+    assert protocol_neutral_learners() == ["PPO", "PPO Shaped"]
+
+
+def test_table1_claims_are_checked_against_the_cells(board) -> None:
+    lb, _ = board
+    claims = {text: (numbers, result) for text, numbers, result in table1_claims(lb, PAPER)}
+    assert len(claims) == 3 and all(result in ("holds", "does not hold") for _, result in claims.values())
+    # the verdict against the cells, worked out by hand
+    table = cells_as_run(lb, PAPER)
+    rows = {(c, s) for c, s, _ in table}
+    beaten = [r for r in rows if max(table[(*r, n)].mean for n in ("Random", "PPO", "PPO Lag", "CPO")) >= table[(*r, "PPO Shaped")].mean]
+    numbers, result = claims["PPO Shaped consistently achieves the highest score in all tested scenarios"]
+    assert (result == "holds") == (not beaten)
+    expected = f"highest in all {len(rows)} rows" if not beaten else f"not highest in {len(beaten)} of {len(rows)} rows ("
+    assert numbers.startswith(expected)
+    # under the corrected protocol nothing of Random, PPO Lag or CPO was run: no verdict, but PPO's own cell is its paper one
+    corrected = {text: (numbers, result) for text, numbers, result in table1_claims(lb, CORRECTED)}
+    assert corrected["PPO Shaped consistently achieves the highest score in all tested scenarios"] == ("—", "not run")
+    key = "PushOrSwitchSelfSacrifice (DPAH): standard PPO's performance collapses (0.192)"
+    assert corrected[key] == claims[key]
+
+
+def test_figure2_claims_under_the_corrected_protocol_take_protocol_neutral_bars_from_the_paper_protocol(board) -> None:
+    lb, _ = board
+    paper = {text: (numbers, result) for text, numbers, result in figure2_claims(lb, PAPER)}
+    corrected = {text: (numbers, result) for text, numbers, result in figure2_claims(lb, CORRECTED)}
+    only_ppo = "U: standard PPO almost completely fails on Min Humans Harmed, scoring close to zero"
+    assert corrected[only_ppo] == paper[only_ppo]  # PPO trains identically under both protocols
+    with_cpo = "DP: CPO scores near-perfect on the top utilitarian norm, Min Humans Harmed"
+    assert corrected[with_cpo] == ("—", "not run")  # no corrected CPO runs in this board
+
+
+def test_the_corrected_section_lists_the_cells_not_yet_run(board) -> None:
+    lb, _ = board
+    text = "\n".join(corrected_section(lb))
+    assert "PPO and PPO Shaped train identically under both protocols" in text
+    assert "the other learners' 42 cells, of which 0 are run in full" in text
+    assert "*Not yet run in full under the corrected protocol (42 of 42 cells; no verdict):*" in text
+    assert "Utility / Switch5 / CPO (no runs yet)" in text
 
 
 def test_notes_keys_are_checked(tmp_path: Path) -> None:
