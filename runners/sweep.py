@@ -278,9 +278,9 @@ def fleet_label(job: Any) -> str:
     """``30 PPO on PushOrSwitch (Utility)``: a fleet in words; the chain when all its runs share one
     (a fleet may hold several chains of one scenario, and two fleets of one scenario are common)."""
     config = job.runs[0].config
-    chains = {r.config.chain["name"] for r in job.runs}
+    chains = {r.config["chain"]["name"] for r in job.runs}
     chain = f" ({next(iter(chains))})" if len(chains) == 1 else f" ({len(chains)} chains)"
-    return f"{len(job.runs)} {config.algo.label} on {config.scenario}{chain}"
+    return f"{len(job.runs)} {config['algo']['label']} on {config['scenario']}{chain}"
 
 
 class FleetBars(JobProgress):

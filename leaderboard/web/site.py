@@ -42,8 +42,6 @@ from leaderboard.runs.aggregate import Group, Leaderboard, safe_name
 from leaderboard.runs.sources import Sources
 from leaderboard.web.leftovers import building_in
 from leaderboard.web.page_cache import PageCache, link_or_copy
-from leaderboard.web.pages import index_context, run_context, runs_context, scenario_context
-from leaderboard.web.ranking_page import ranking_context
 from leaderboard.web.render import STATIC, STATIC_FILES, render
 from leaderboard.web.site_state import SiteBuild
 from morality_gym.clitools import writing
@@ -231,6 +229,11 @@ def _build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: Figu
                 progress: Progress | None, *, stats: Any, stat_figures: Any, stamp: str, resamples: int,
                 cache_dir: Path | None) -> SiteBuild:
     """:func:`build_site` while this build holds the site's parent (:mod:`leaderboard.web.leftovers`)."""
+    # SciPy waits: leaderboard.build imports this module (check_target) before it has checked
+    # SOURCE_DATE_EPOCH, which numpy's f2py, loaded with SciPy, reads at import and dies on
+    from leaderboard.web.pages import index_context, run_context, runs_context, scenario_context
+    from leaderboard.web.ranking_page import ranking_context
+
     tmp = _prepare_target(site_dir)
     try:
         sb = SiteBuild(lb=lb, sources=sources, results_name=results_name or sources.name,
