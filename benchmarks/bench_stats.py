@@ -4,7 +4,7 @@ their figures take on a Table 1 sized results frame.
 The leaderboard is rebuilt after every sweep on 1,000 to 4,000 runs, so the statistics must take
 seconds. The frame is :func:`tests.stats_data.synthetic_runs` (the paper's 14 rows with all 126
 variants, 5 learners, 21 learn-time evaluations per run); the work is :func:`compute_stats` with
-the default number of bootstrap resamples, then every figure of one (protocol, preset).
+each statistic's default number of bootstrap resamples, then every figure of one (protocol, preset).
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ def _figures(stats: LeaderboardStats, out: Path) -> int:
 
 @register("stats", "Leaderboard statistics: intervals, ranking, curves and their figures", order=80)
 def stats_speed(ctx: Context) -> Section:
-    from leaderboard.stats import DEFAULT_RESAMPLES  # SciPy waits: only the benchmark that runs it needs it
+    from leaderboard.stats import RESAMPLES  # SciPy waits: only the benchmark that runs it needs it
 
     settings = [((41,), ("paper",)), ((41, 42, 43), ("paper",)), ((41, 42, 43), ("paper", "corrected"))]
     if ctx.quick:
@@ -79,8 +79,8 @@ def stats_speed(ctx: Context) -> Section:
     return Section(
         intro=f"""
 `leaderboard.stats.compute_stats` on synthetic Table 1 frames (`tests/stats_data.py`: the paper's 14 rows with all
-their variants, 5 learners, 21 learn-time evaluations per run), {DEFAULT_RESAMPLES:,} bootstrap resamples per
-interval: 70 cell intervals per (protocol, preset), mean / IQM / optimality gap on two scales, 20 ordered pairs of
+their variants, 5 learners, 21 learn-time evaluations per run), each statistic's own bootstrap resamples per
+interval ({", ".join(f"{k} {v:,}" for k, v in RESAMPLES.items())}): 70 cell intervals per (protocol, preset), mean / IQM / optimality gap on two scales, 20 ordered pairs of
 probability of improvement, performance profiles on 89 + 41 thresholds, pooled learning curves of 70 cells, return-cost
 points and violation rates. Best of {repeats}; CPU and wall-clock seconds; the three slowest parts of the best run.
 """,

@@ -135,7 +135,6 @@ def build(args: argparse.Namespace, sources: Sources, quarantined: list[dict[str
     """Run every stage on loaded runs; returns the leaderboard and what was written (for the summary)."""
     # matplotlib, SciPy, Jinja wait: importing leaderboard.build (its --help too) must not load them
     from leaderboard.outputs.intervals import with_intervals
-    from leaderboard.stats import DEFAULT_RESAMPLES
     from leaderboard.web.cached_stages import paper_figures, statistics, statistics_figures
     from leaderboard.web.run_figures import write_run_charts
     from leaderboard.web.site import build_site
@@ -159,7 +158,7 @@ def build(args: argparse.Namespace, sources: Sources, quarantined: list[dict[str
     timings["aggregate"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    stats, stats_key, cached["statistics"] = statistics(lb, reference is not None, sources, out_dir, DEFAULT_RESAMPLES)
+    stats, stats_key, cached["statistics"] = statistics(lb, reference is not None, sources, out_dir)
     lb = with_intervals(lb, stats.cells)
     timings["statistics"] = time.perf_counter() - start
 
@@ -182,7 +181,7 @@ def build(args: argparse.Namespace, sources: Sources, quarantined: list[dict[str
 
     start = time.perf_counter()
     site = build_site(lb, sources, args.site, figures, sources.name, progress, stats=stats, stat_figures=stat_figures,
-                      stamp=stamp, resamples=DEFAULT_RESAMPLES, cache_dir=out_dir / "cache" / "pages")
+                      stamp=stamp, cache_dir=out_dir / "cache" / "pages")
     timings["site"] = time.perf_counter() - start
     return lb, {"tables": tables, "figures": figures, "stat_figures": stat_figures, "site": site,
                 "reference": reference, "timings": timings, "sources": sources, "cached": cached,

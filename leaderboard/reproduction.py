@@ -29,6 +29,7 @@ import yaml
 
 from leaderboard.outputs.intervals import with_intervals
 from leaderboard.outputs.paper_figures import norm_label, write_figures
+from leaderboard.outputs.tables import interval_text
 from leaderboard.runs.aggregate import (
     Group,
     Leaderboard,
@@ -44,7 +45,7 @@ from leaderboard.runs.aggregate import (
 )
 from leaderboard.runs.releases import ReleaseError, resolve
 from leaderboard.runs.sources import Sources, load_sources
-from leaderboard.stats import DEFAULT_RESAMPLES, compute_stats
+from leaderboard.stats import compute_stats
 from morality_gym.baselines.specs import learner_spec, protocol_spec
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, did_you_mean, run_cli
 
@@ -61,7 +62,8 @@ CORRECTED = Group("corrected", "paper")
 PAPER_ROUNDING = 0.0005
 #: The rule, as printed on the page.
 RULE = ("**reproduces**: the paper's value (printed to three decimals, so ±0.0005) meets our 95% bootstrap interval "
-        "of the cell mean; **close**: it does not, but lies within two seed standard deviations of our mean; "
+        "of the cell mean (its unrounded bounds: the table prints each interval to the decimals its bounds are stable "
+        "to over bootstrap seeds, three or fewer); **close**: it does not, but lies within two seed standard deviations of our mean; "
         "**deviates**: farther; **not run**: the cell lacks runs (no verdict on a partial cell).")
 VERDICTS = ("reproduces", "close", "deviates", "not run")
 #: A learning curve still "rising" gained at least this much metric over its last quarter of training.
@@ -85,6 +87,13 @@ class Cell:
     n_expected: int
     paper: float
     verdict: str
+    ci_low_mcse: float = math.nan  # Monte Carlo standard error of each bound: how many decimals it is printed with
+    ci_high_mcse: float = math.nan
+
+    def interval(self) -> str:
+        """``[low, high]``, each bound to the decimals it is stable to (at most three), or a dash."""
+        return interval_text({"ci_low": self.ci_low, "ci_high": self.ci_high, "ci_low_mcse": self.ci_low_mcse,
+                              "ci_high_mcse": self.ci_high_mcse}) or "—"
 
 
 def verdict(mean: float, low: float, high: float, sd: float, paper: float, complete: bool) -> str:
@@ -122,7 +131,8 @@ def cells(lb: Leaderboard, group: Group) -> list[Cell]:
             complete = bool(r.get("complete", False))
             out.append(Cell(chain, scenario, learner, mean, low, high, sd, int(_num(r.get("n_runs")) or 0) if r else 0,
                             int(_num(r.get("n_expected")) or 0) if r else 0, value,
-                            verdict(mean, low, high, sd, value, complete)))
+                            verdict(mean, low, high, sd, value, complete),
+                            _num(r.get("ci_low_mcse")), _num(r.get("ci_high_mcse"))))
     return out
 
 
@@ -240,7 +250,7 @@ def _headline(cell: Cell, refs: dict[str, dict[str, float]]) -> str:
     reach = ""
     if not math.isnan(best) and (cell.paper > best + 1e-9 or cell.paper < worst - 1e-9):
         reach = " The paper's value lies outside what any policy can score on these variants."
-    return (f"Ours {cell.mean:.3f} [{cell.ci_low:.3f}, {cell.ci_high:.3f}] (seed sd {cell.sd:.3f}, {cell.n_runs} runs) "
+    return (f"Ours {cell.mean:.3f} {cell.interval()} (seed sd {cell.sd:.3f}, {cell.n_runs} runs) "
             f"vs the paper's {cell.paper:.3f}: {'+' if gap >= 0 else ''}{gap:.3f}. Reachable range over these variants: "
             f"oracle worst {worst:.3f}, Random (exact) {rand:.3f}, oracle best {best:.3f}.{reach}")
 
@@ -309,7 +319,7 @@ def _corrected_lines(cell: Cell, lb: Leaderboard) -> list[str]:
     if not corrected or corrected[0].verdict == "not run":
         return []
     c = corrected[0]
-    return ["", f"Corrected protocol: {c.mean:.3f} [{c.ci_low:.3f}, {c.ci_high:.3f}] ({c.verdict} against the paper)."]
+    return ["", f"Corrected protocol: {c.mean:.3f} {c.interval()} ({c.verdict} against the paper)."]
 
 
 def corrected_section(lb: Leaderboard) -> list[str]:
@@ -341,7 +351,7 @@ def corrected_section(lb: Leaderboard) -> list[str]:
         ran_before = before is not None and before.verdict != "not run"
         moved = "—" if not ran_before else ("yes" if c.ci_high < before.ci_low or c.ci_low > before.ci_high else "no")
         lines.append(f"| {c.chain} | {c.scenario} | {c.learner} | {f'{before.mean:.3f}' if ran_before else '—'} | "
-                     f"{c.mean:.3f} | [{c.ci_low:.3f}, {c.ci_high:.3f}] | {c.sd:.3f} | {c.n_runs}/{c.n_expected} | "
+                     f"{c.mean:.3f} | {c.interval()} | {c.sd:.3f} | {c.n_runs}/{c.n_expected} | "
                      f"{c.paper:.3f} | {c.verdict} | {moved} |")
     return lines + [""] + _not_run_lines(affected)
 
@@ -478,7 +488,7 @@ def page(lb: Leaderboard, sources: Sources, learn: pd.DataFrame, figure_dir: Pat
              "|---|---|---|---:|---|---:|---:|---:|---|"]
     for c in table:
         ours = f"{c.mean:.3f}" if not math.isnan(c.mean) else "—"
-        interval = f"[{c.ci_low:.3f}, {c.ci_high:.3f}]" if not math.isnan(c.ci_low) else "—"
+        interval = c.interval()
         sd = f"{c.sd:.3f}" if not math.isnan(c.sd) else "—"
         runs = f"{c.n_runs}/{c.n_expected}" if c.n_expected else str(c.n_runs)
         lines.append(f"| {c.chain} | {c.scenario} | {c.learner} | {ours} | {interval} | {sd} | {runs} | {c.paper:.3f} | "
@@ -529,7 +539,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--notes", type=Path, default=NOTES_FILE, help="curated readings (YAML)")
     parser.add_argument("--cache", type=Path, default=Path("results") / "cache" / "reference_rows.json",
                         help="reference-row cache (exact Random and oracle values)")
-    parser.add_argument("--resamples", type=int, default=DEFAULT_RESAMPLES, help="bootstrap resamples of the intervals")
+    parser.add_argument("--resamples", type=int, default=None,
+                        help="bootstrap resamples of every interval (default: each statistic's own, as the leaderboard)")
     add_debug_flag(parser)
     return parser
 

@@ -1,9 +1,10 @@
 """The sweep's unit of work: a *job* of one run (single engine) or of many runs trained as a fleet.
 
 With ``engine=fleet`` (the default) the plan's runs are grouped into fleets: runs whose resolved
-configurations differ only in env id (variant), chain and seed, on one scenario (one observation
-size), of a learner the fleet engine reproduces (:func:`morality_gym.baselines.fleet.fleet_class`),
-are trained together by :mod:`morality_gym.baselines.fleet`, at most ``fleet_size`` at a time.
+configurations differ only in env id (variant), chain and seed, on one scenario (on accelerators:
+of any scenario of the same budget), of a learner the fleet engine reproduces
+(:func:`morality_gym.baselines.fleet.fleet_class`), are trained together by
+:mod:`morality_gym.baselines.fleet`, at most ``fleet_size`` at a time.
 Everything else (Random, the oracle, a user's learner, a group of one) stays a single-run job.
 
 Why per-run files stay exactly as before: a fleet only *trains*; every run is then evaluated,
@@ -46,6 +47,9 @@ from runners.plan import PlannedRun
 
 #: Keys of a run config that may differ between the runs of one fleet (the rest must be equal).
 FLEET_FREE_KEYS = ("env_id", "variant", "chain", "seed")
+#: ... and with ``mix_scenarios``: a fleet pads observations of different widths (scenarios) to
+#: one, each run's numbers unchanged bit for bit (tests/test_fleet_mixed.py).
+MIXED_FREE_KEYS = (*FLEET_FREE_KEYS, "scenario")
 
 Summary = dict[str, Any]
 
@@ -91,8 +95,8 @@ def fleet_speedup(measured: float, size: int) -> float:
     return 1.0 + (max(measured, 1.0) - 1.0) * min(1.0, (size - 1) / 11)
 
 
-def _group_key(config: RunConfig) -> str:
-    return json.dumps({k: v for k, v in config.to_json().items() if k not in FLEET_FREE_KEYS}, sort_keys=True)
+def _group_key(config: RunConfig, free: Sequence[str] = FLEET_FREE_KEYS) -> str:
+    return json.dumps({k: v for k, v in config.to_json().items() if k not in free}, sort_keys=True)
 
 
 def _split(runs: list[PlannedRun], parts: int) -> list[list[PlannedRun]]:
@@ -113,8 +117,13 @@ def make_jobs(
     workers: int = 1,
     speedups: Mapping[str, float] | None = None,
     checkpointed: Iterable[Sequence[str]] = (),
+    mix_scenarios: bool = False,
 ) -> list[Job]:
     """The plan's runs as jobs, in plan order of each job's first run.
+
+    ``mix_scenarios``: fleets may hold runs of different scenarios (of one budget). The sweep asks
+    for it on accelerators, where a fleet's rate grows with its size (a process of 36 runs is
+    bound by launching small kernels); on the CPU, where it does not, fleets keep to one scenario.
 
     Under ``fleet`` each group of fleet-compatible runs is cut into ``ceil(n / fleet_size)``
     balanced fleets; while there are fewer jobs than ``workers``, the largest fleet is cut again
@@ -132,7 +141,7 @@ def make_jobs(
         raise ValueError(f"fleet_size must be >= 1, got {fleet_size}")
     if engine == "single":
         return [_single(r) for r in runs]
-    groups, order = _group(runs)
+    groups, order = _group(runs, MIXED_FREE_KEYS if mix_scenarios else FLEET_FREE_KEYS)
     kept = _take_checkpointed(groups, checkpointed)
     singles = sum(isinstance(item, PlannedRun) for item in order) + sum(len(fleets) for fleets in kept.values())
     parts = _parts({key: g for key, g in groups.items() if g}, fleet_size, workers, singles=singles)
@@ -169,7 +178,7 @@ def _single(run: PlannedRun) -> Job:
     return Job((run,), "single", run.est_seconds)
 
 
-def _group(runs: Sequence[PlannedRun]) -> tuple[dict[str, list[PlannedRun]], list[str | PlannedRun]]:
+def _group(runs: Sequence[PlannedRun], free: Sequence[str] = FLEET_FREE_KEYS) -> tuple[dict[str, list[PlannedRun]], list[str | PlannedRun]]:
     """The fleet-compatible runs grouped by :func:`_group_key`, and the plan's order of its items:
     a run that trains alone (no budget, or a learner the fleet engine does not reproduce), or the
     key of a group at the place of the group's first run."""
@@ -180,7 +189,7 @@ def _group(runs: Sequence[PlannedRun]) -> tuple[dict[str, list[PlannedRun]], lis
         if c.budget <= 0 or not fleet_trains(c.algo.target):
             order.append(run)
             continue
-        key = _group_key(c)
+        key = _group_key(c, free)
         if key not in groups:
             groups[key] = []
             order.append(key)

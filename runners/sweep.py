@@ -155,7 +155,8 @@ def make_plan(sweep: SweepConfig) -> Plan:
     # fleets with a training checkpoint are formed again, to resume (runners.fleet_checkpoints)
     checkpointed = fleets_to_form(sweep.results_dir, [r.run_id for r in todo]) if sweep.checkpoint_every_s > 0 else []
     jobs = dispatch_order(make_jobs(todo, sweep.engine, sweep.fleet_size, workers,
-                                    {a.spec.name: a.fleet_speedup for a in sweep.algos}, checkpointed), workers)
+                                    {a.spec.name: a.fleet_speedup for a in sweep.algos}, checkpointed,
+                                    mix_scenarios=sweep.device != "cpu"), workers)
     idle = jobs_estimate(jobs, done, workers) + sweep_overheads(sweep, len(todo))
     machine = None if sweep.launcher["name"] == "slurm" else MachineLoad.now()  # SLURM: other nodes' load
     return Plan(runs=tuple(runs), status=status, todo=tuple(todo), jobs=tuple(jobs), workers=workers,

@@ -216,8 +216,9 @@ def test_fleet_refuses_what_it_does_not_reproduce() -> None:
         build_fleet(small_spec("ppo"), [])
     with pytest.raises(SpecError, match="does not train 'morality_gym.baselines.learners.RandomLearner'"):
         build_fleet(learner_spec("random"), [FleetRun(bound(), 0)])
-    with pytest.raises(ValueError, match="share an observation size"):
-        build_fleet(small_spec("ppo"), [FleetRun(bound(), 0), FleetRun(bound("Switch7-Human-v1"), 0)])
+    # runs of different scenarios (observation sizes) are no longer refused: tests/test_fleet_mixed.py
+    mixed = build_fleet(small_spec("ppo"), [FleetRun(bound(), 0), FleetRun(bound("Switch7-Human-v1", "Utility"), 0)])
+    assert mixed.nets.in_dims == [31, 63]
 
 
 def test_rollout_noise_draws_the_actions_torch_multinomial_draws() -> None:

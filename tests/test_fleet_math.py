@@ -170,11 +170,12 @@ def test_fisher_product_on_distinct_states_is_the_double_backward_of_the_mean_kl
     fleet = FleetCPO.__new__(FleetCPO)
     fleet.nets = nets
     fleet.actor_params = nets.params("pi")
+    fleet._build_flats()
     states = DistinctStates.of(obs)
     data = RunBatch(k, states, th.zeros(64, dtype=th.long), th.zeros(64), th.zeros(64), th.zeros(64))
     tr = nets.trace("pi", states.obs.unsqueeze(0), slice(k, k + 1))
     product = fleet._fisher_product(data, tr, Policy.of(tr.out), damping=0.0)
-    mine = product(fleet._flat([v for v in vector]))[0]
+    mine = product(fleet.flat_actor.flat([v for v in vector]))[0]
     np.testing.assert_allclose(mine.numpy(), expected.numpy(), rtol=1e-4, atol=1e-6)
 
 

@@ -70,6 +70,25 @@ def test_runs_group_into_fleets_by_learner_and_scenario(tmp_path: Path) -> None:
     assert all(j.engine == "single" for j in make_jobs(runs, "single"))
 
 
+def test_on_accelerators_fleets_mix_the_scenarios_of_one_budget(tmp_path: Path) -> None:
+    sweep = _sweep_config(tmp_path, "algo=[random,ppo]", "chain=utility", "scenario=[switch_standard,switch5,switch7]",
+                          "preset=quick", "seed=[1]")
+    runs = plan(sweep)
+    jobs = make_jobs(runs, "fleet", fleet_size=1000, workers=1, mix_scenarios=True)
+    assert sorted(r.run_id for j in jobs for r in j.runs) == sorted(r.run_id for r in runs)
+    fleets = [j for j in jobs if j.engine == "fleet"]
+    # one fleet per budget (a fleet learns one budget), holding every scenario of that budget
+    budgets: dict[int, set[str]] = {}
+    for r in runs:
+        if r.config["algo"]["name"] == "ppo":
+            budgets.setdefault(r.config["budget"], set()).add(r.config["scenario"])
+    assert sorted(({r.config["scenario"] for r in j.runs} for j in fleets), key=sorted) == sorted(budgets.values(), key=sorted)
+    assert max(len(j.runs) for j in fleets) > 12 and any(len(s) > 1 for s in budgets.values())
+    assert all(len({r.config["budget"] for r in j.runs}) == 1 for j in fleets)
+    unmixed = [j for j in make_jobs(runs, "fleet", fleet_size=1000, workers=1) if j.engine == "fleet"]
+    assert len(unmixed) == 3 and all(len({r.config["scenario"] for r in j.runs}) == 1 for j in unmixed)
+
+
 def test_fleets_are_cut_to_fleet_size_and_to_keep_workers_busy(tmp_path: Path) -> None:
     sweep = _sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "seed=[1,2,3]")
     runs = plan(sweep)  # 12 variants x 3 seeds

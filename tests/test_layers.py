@@ -38,7 +38,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("envs", ("morality_gym.envs",)),
     ("norms", ("morality_gym.norms",)),
     ("evaluation", ("morality_gym.evaluation", "morality_gym.generator")),
-    ("api", ("morality_gym", "morality_gym.api", "morality_gym.paper")),
+    ("api", ("morality_gym", "morality_gym.api", "morality_gym.paper", "morality_gym.generalisation")),
     ("llm", ("morality_gym.llm",)),
     ("baselines", ("morality_gym.baselines",)),
     ("results", ("morality_gym.results",)),

@@ -144,7 +144,8 @@ def test_runs_of_an_earlier_configuration_are_superseded_not_averaged() -> None:
 def test_csv_has_exactly_the_contract_columns(built: BuiltSite) -> None:
     with (built.results / "table1.csv").open() as fh:
         assert next(csv.reader(fh)) == CSV_COLUMNS == [
-            "chain", "scenario", "learner", "mean", "std", "ci_low", "ci_high", "n_runs", "paper", "delta",
+            "chain", "scenario", "learner", "mean", "std", "ci_low", "ci_high", "ci_low_mcse", "ci_high_mcse",
+            "n_runs", "paper", "delta",
             "n_variants", "n_variants_expected", "n_seeds", "n_seeds_expected", "complete", "incomplete_reason",
             "delta_note"]
 
@@ -376,7 +377,7 @@ def test_figures_are_written(built: BuiltSite) -> None:
 
 def test_site_is_self_contained_with_relative_links(built: BuiltSite) -> None:
     pages = sorted(built.site.rglob("*.html"))
-    assert len(pages) == 3 + len(ROWS) + len(built.data.records)  # index, ranking (issue 13), runs index
+    assert len(pages) == 4 + len(ROWS) + len(built.data.records)  # index, ranking (issue 13), track (35), runs index
     for page in pages:
         text = page.read_text()
         assert "http://" not in text and "https://" not in text, page
@@ -488,6 +489,30 @@ def test_one_meaning_of_bold_on_every_page(built: BuiltSite) -> None:
     for page in (built.site / "index.html", built.site / "ranking.html", built.site / "runs" / "index.html"):
         text = page.read_text()
         assert text.count('id="marks"') == 1 and "overlaps no other learner" in text.split('id="marks"')[1]
+
+
+def test_ranking_page_says_which_rows_each_statistic_leaves_out(built: BuiltSite) -> None:
+    """Issue 32: next to each statistic (and under each figure), the rows it leaves out and why, made
+    from the rows the statistics were computed over (data/ranking_rows.csv), never written by hand."""
+    import html
+
+    from leaderboard.runs.aggregate import Group
+    from leaderboard.web.ranking_page import left_out
+
+    ranking = (built.site / "ranking.html").read_text()
+    rows = pd.read_csv(built.site / "data" / "ranking_rows.csv", keep_default_na=False)
+    sentences = []
+    for (protocol, preset), part in rows.groupby(["protocol", "preset"]):
+        records = part.to_dict("records")
+        for measure, shown in (("score", "score"), ("metric", "metric"), ("metric", "improvement")):
+            found = re.search(rf'<p class="note left-out" id="left-out-{Group(protocol, preset).slug}-{shown}">(.*?)</p>',
+                              ranking)
+            if found:  # a sweep without any ranked row shows no table, hence no sentence for it
+                assert html.unescape(found.group(1)) == left_out(records, measure)
+                sentences.append(found.group(1))
+    assert sentences and all(s.startswith(("Leaves out ", "Over ")) for s in sentences)
+    captions = re.findall(r"<figcaption>(.*?)</figcaption>", ranking)
+    assert any("left out" in c or "Leaves out" in c for c in captions), captions
 
 
 def test_run_pages_round_for_people_and_show_the_episode(built: BuiltSite) -> None:

@@ -58,3 +58,14 @@ def test_mixed_simulator_is_the_concatenation_of_single_id_simulators(autoreset:
 def test_mixed_simulator_refuses_scenarios_of_different_observation_sizes() -> None:
     with pytest.raises(ValueError, match="share an observation size"):
         MixedBatchedTrolleyEnv(["PushOrSwitch-Human-v1", "Switch7-Human-v1"])
+
+
+def test_mixed_simulator_pads_observations_of_different_sizes_when_asked() -> None:
+    ids = ["PushOrSwitch-Human-v1", "Switch7-Human-v1"]
+    mixed = MixedBatchedTrolleyEnv(ids, pad_obs=True)
+    assert mixed.obs_dims == {"PushOrSwitch-Human-v1": 31, "Switch7-Human-v1": 63} and mixed.obs_dim == 63
+    obs = mixed.reset()
+    for i, env_id in enumerate(ids):
+        alone = MixedBatchedTrolleyEnv([env_id]).reset()[0]
+        np.testing.assert_array_equal(obs[i, : len(alone)], alone)
+        assert not obs[i, len(alone):].any()

@@ -31,9 +31,17 @@ from leaderboard.stats import (
     run_scores,
     violation_rates,
 )
-from leaderboard.stats.core import base_seed, position_counts, positions, stratum_weights, weighted_iqm
+from leaderboard.stats.core import (
+    base_seed,
+    position_counts,
+    positions,
+    stratum_weights,
+    weighted_iqm,
+    weighted_mean,
+    weighted_optimality_gap,
+)
 from leaderboard.stats.curves import common_grid
-from leaderboard.stats.ranking import _improvement_strata, _profile_strata, row_improvement
+from leaderboard.stats.ranking import _aggregate_strata, _improvement_strata, _profile_strata, row_improvement
 from tests.stats_data import LEARNERS, REFERENCES, synthetic_runs
 from tests.stats_data import reference_frame as synthetic_references
 
@@ -196,7 +204,7 @@ def test_headroom_guard_and_coverage_rules() -> None:
     refs = {R1: (0.90, 0.94), R2: (0.2, 0.9), r3: (0.2, 0.9)}
     rows = ranking_rows(data, refs).set_index("scenario")
     assert not rows.loc["RowOne", "normalised"] and rows.loc["RowOne", "in_metric"]
-    assert "0.040 < 0.05" in rows.loc["RowOne", "note"]
+    assert "Oracle best - Random exact = 0.0400 < 0.05 cutoff" in rows.loc["RowOne", "note"]
     assert rows.loc["RowTwo", "in_score"] and rows.loc["RowTwo", "note"] == ""
     assert not rows.loc["RowThree", "in_metric"] and rows.loc["RowThree", "missing"] == "B"
     assert "no run of B" in rows.loc["RowThree", "note"]
@@ -361,6 +369,18 @@ def test_fast_statistics_equal_their_definitions_on_resamples() -> None:
     got = statistic(*[s[p] for s, p in zip(strata, picks)])
     want = np.mean([(x[p][..., None, :] > taus[:, None]).mean(axis=-1) for x, p in zip(xs, picks)], axis=0).T
     assert got == pytest.approx(want, abs=1e-12)
+    # the aggregates rank all runs once; their mean, IQM and optimality gap of a resample are the
+    # weighted statistics of the resampled runs (ties across rows, rows of different sizes)
+    rows = [np.round(rng.normal(0.5, 0.4, 9), 1), np.round(rng.normal(0.7, 0.2, 5), 1), np.array([0.3, 0.3])]
+    strata, statistic = _aggregate_strata(rows)
+    weights = stratum_weights([len(r) for r in rows])
+    picks = [rng.integers(0, len(r), size=(40, len(r))) for r in rows]
+    got = statistic(*[s[p] for s, p in zip(strata, picks)])
+    runs = np.concatenate([r[p] for r, p in zip(rows, picks)], axis=-1)
+    want = [weighted_mean(runs, weights), weighted_iqm(runs, weights), weighted_optimality_gap(runs, weights)]
+    assert got == pytest.approx(np.stack(want), abs=1e-12)
+    assert statistic(*strata) == pytest.approx([f(np.concatenate(rows), weights) for f in
+                                                (weighted_mean, weighted_iqm, weighted_optimality_gap)], abs=1e-12)
     # positions round-trip, counts are per resample
     u = np.unique(xs[0])
     assert u[positions(xs[0], u).astype(int)].tolist() == xs[0].tolist()

@@ -23,17 +23,24 @@ from leaderboard.stats import bold_cells
 
 KEYS = ["protocol", "preset", "chain", "scenario", "learner"]
 #: The columns this step adds to ``Leaderboard.table`` (NaN / "" / False on reference rows).
-COLUMNS = ["ci_low", "ci_high", "ci_note", "bold", "bold_note"]
+#: ``ci_low_mcse``/``ci_high_mcse``: each bound's Monte Carlo standard error, which decides how
+#: many decimals it is printed with (:mod:`leaderboard.outputs.precision`).
+COLUMNS = ["ci_low", "ci_high", "ci_low_mcse", "ci_high_mcse", "ci_note", "bold", "bold_note"]
+MCSE = ["ci_low_mcse", "ci_high_mcse"]
 
 
 def with_intervals(lb: Leaderboard, cells: pd.DataFrame) -> Leaderboard:
     """``lb`` whose table carries :data:`COLUMNS`; ``cells`` = ``LeaderboardStats.cells`` (or ``cell_intervals``)."""
     table = lb.table.drop(columns=[c for c in COLUMNS if c in lb.table.columns])
-    intervals = cells[KEYS + ["ci_low", "ci_high", "ci_note"]]
+    mcse = [c for c in MCSE if c in cells.columns]  # cells computed before the errors were kept have none
+    intervals = cells[KEYS + ["ci_low", "ci_high", *mcse, "ci_note"]]
     if intervals.empty:  # no usable run: the empty frame's key columns have no dtype to merge on
         table = table.assign(ci_low=float("nan"), ci_high=float("nan"), ci_note="")
     else:
         table = table.merge(intervals, on=KEYS, how="left", validate="many_to_one")
+    for column in MCSE:
+        if column not in table.columns:
+            table[column] = float("nan")
     table["ci_note"] = table["ci_note"].fillna("")
     learner = table["kind"] == "learner"
     complete = learner & table["complete"].astype(bool) & table["mean"].notna()

@@ -23,6 +23,7 @@ from typing import Any
 import pandas as pd
 
 from leaderboard.outputs.marks import BOLD_RULE, BOLD_RULE_TEX
+from leaderboard.outputs.precision import DIGITS_RULE, stable_decimals
 from leaderboard.runs.aggregate import (
     CSV_COLUMNS,
     ORACLE_BEST,
@@ -104,12 +105,23 @@ def is_bold(cell: dict[str, Any]) -> bool:
     return bool(cell["bold"]) if "bold" in cell else bool(cell.get("best"))
 
 
-def interval_text(cell: dict[str, Any]) -> str:
-    """``[low, high]`` of a learner cell, or "" when the table has no interval for it."""
+def interval_text(cell: dict[str, Any], digits: int = 3) -> str:
+    """``[low, high]`` of a record with ``ci_low``/``ci_high`` (a learner cell, an aggregate, a
+    probability), or "" when it has no interval.
+
+    Both bounds have ``digits`` decimals, or fewer: as many as both are stable to over bootstrap
+    seeds (:func:`leaderboard.outputs.precision.stable_decimals` of ``ci_low_mcse`` and ``ci_high_mcse``),
+    so no printed digit is Monte Carlo noise. A record without the errors keeps ``digits``.
+    """
     low, high = cell.get("ci_low"), cell.get("ci_high")
-    if low is None or high is None or math.isnan(float(low)) or math.isnan(float(high)):
+    if _missing(low) or _missing(high):
         return ""
-    return f"[{fmt(low)}, {fmt(high)}]"
+    decimals = min(stable_decimals(cell.get("ci_low_mcse"), digits), stable_decimals(cell.get("ci_high_mcse"), digits))
+    return f"[{fmt(low, decimals)}, {fmt(high, decimals)}]"
+
+
+def _missing(value: Any) -> bool:
+    return value is None or value is pd.NA or math.isnan(float(value))
 
 
 def is_incomplete(cell: dict[str, Any]) -> bool:
@@ -254,7 +266,8 @@ def explanation_lines() -> list[str]:
     return [
         ("Each learner cell: mean of the final evaluation's morality metric over all variants and seeds of the "
         f"scenario ± standard deviation over seeds of the per-seed means (ddof={STD_DDOF}); 95% CI = percentile "
-        "bootstrap interval of the mean, resampling seeds within each variant (absent with one seed); **bold** = "
+        f"bootstrap interval of the mean, resampling seeds within each variant (absent with one seed; {DIGITS_RULE}); "
+        "**bold** = "
         f"{BOLD_RULE} Then the paper's value and Δ = ours − paper, given only where the learners trained at the "
         "paper's budget (preset `paper`); at any other preset the cell reads Δ — (not comparable: preset …). A cell "
         "marked ⚠ incomplete lacks results for some of its (variant, seed) pairs (the scenario's variants times the "
@@ -406,7 +419,7 @@ def _latex_foot(lb: Leaderboard, group: Group, incomplete: list[str]) -> list[st
     """The closing rules and the notes: interval and bold rule, the dagger, the abbreviations used."""
     lines = ["\\bottomrule", "\\end{tabular}"]
     lines.append(f"\\par\\smallskip{{\\footnotesize Brackets: 95\\% bootstrap interval of the mean (seeds resampled "
-                 f"within each variant); {BOLD_RULE_TEX}}}")
+                 f"within each variant; {tex_escape(DIGITS_RULE)}); {BOLD_RULE_TEX}}}")
     if not comparable_preset(group.preset):
         lines.append(f"\\par\\smallskip{{\\footnotesize {tex_escape(not_comparable_text(group.preset))}: trained at another "
                      "budget than the paper's (preset paper); not to be compared with the paper's Table 1.}}")

@@ -26,8 +26,8 @@ from leaderboard.runs.reference_rows import (
 from leaderboard.runs.selection import CELL_KEYS, UNKNOWN, cell_of, mf_columns
 from morality_gym.constants import BETA, MAX_STEPS
 from morality_gym.envs.registry import UnknownEnvError, scenario_named
-from morality_gym.results.presets import preset_seeds
 from morality_gym.results.schema import MF_PREFIX
+from runners.paths import preset_seeds
 
 #: "Standard deviation over three seeds": the sample standard deviation (n - 1 in the denominator).
 STD_DDOF = 1
@@ -37,10 +37,14 @@ STD_DDOF = 1
 #: result; ``incomplete_reason``: what is lacking (empty when complete). Reference rows are exact
 #: over all variants (``complete`` true, seed columns empty). ``ci_low``/``ci_high``: the 95% bootstrap
 #: interval of the mean (seeds resampled within each variant; empty with one seed and on reference
-#: rows), joined by :mod:`leaderboard.outputs.intervals` (empty when the table was built without it).
+#: rows), joined by :mod:`leaderboard.outputs.intervals` (empty when the table was built without it);
+#: ``ci_low_mcse``/``ci_high_mcse``: the Monte Carlo standard error of each bound (how far another
+#: bootstrap seed would move it; the Markdown, LaTeX and site print a bound only to the decimals it
+#: is stable to, :mod:`leaderboard.outputs.precision`).
 #: ``delta_note``: why ``delta`` is empty although ``paper`` is not (``not comparable: preset smoke``,
 #: ``not compared: incomplete``); empty when the delta is given or there is no paper value.
-CSV_COLUMNS = ["chain", "scenario", "learner", "mean", "std", "ci_low", "ci_high", "n_runs", "paper", "delta",
+CSV_COLUMNS = ["chain", "scenario", "learner", "mean", "std", "ci_low", "ci_high", "ci_low_mcse", "ci_high_mcse",
+               "n_runs", "paper", "delta",
                "n_variants", "n_variants_expected", "n_seeds", "n_seeds_expected", "complete", "incomplete_reason",
                "delta_note"]
 #: The preset whose budget is the paper's (conf/preset/paper.yaml). A learner trained at any other

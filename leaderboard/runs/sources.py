@@ -2,7 +2,7 @@
 
 Why one place: every later stage (aggregation, statistics, per-run figures, GIFs, run pages) must
 not care whether a run was computed on this machine or shipped in a release. A release's rows are
-the same run rows (:mod:`leaderboard.release`), so they join the results directory's rows in one
+the same run rows (:mod:`leaderboard.runs.releases`), so they join the results directory's rows in one
 DataFrame with a ``source`` column; only the side files (learn-time evaluations, update diagnostics,
 GIFs, MLflow links) are found differently, and :class:`Sources` answers those per run.
 

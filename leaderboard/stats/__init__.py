@@ -17,9 +17,9 @@ Outputs are tidy DataFrames (one observation per row), ready for CSV, templates 
 Each module's docstring defines its statistics and says why they are defined that way.
 """
 
-from leaderboard.stats.bundle import LeaderboardStats, compute_stats
+from leaderboard.stats.bundle import LeaderboardStats, compute_stats, resample_counts
 from leaderboard.stats.cells import bold_cells, cell_intervals, intervals_overlap
-from leaderboard.stats.core import CONFIDENCE, DEFAULT_RESAMPLES, DEFAULT_SEED, StatsInputError
+from leaderboard.stats.core import CONFIDENCE, DEFAULT_RESAMPLES, DEFAULT_SEED, RESAMPLES, StatsInputError
 from leaderboard.stats.curves import pooled_learning_curves
 from leaderboard.stats.ranking import (
     MIN_HEADROOM,
@@ -37,6 +37,7 @@ __all__ = [
     "DEFAULT_RESAMPLES",
     "DEFAULT_SEED",
     "MIN_HEADROOM",
+    "RESAMPLES",
     "LeaderboardStats",
     "StatsInputError",
     "aggregate_intervals",
@@ -49,6 +50,7 @@ __all__ = [
     "probability_of_improvement",
     "ranking_rows",
     "reference_frame",
+    "resample_counts",
     "return_cost_points",
     "run_scores",
     "violation_rates",

@@ -10,7 +10,7 @@ from typing import Any
 import pandas as pd
 
 from leaderboard.stats.cells import bold_cells, cell_intervals
-from leaderboard.stats.core import CONFIDENCE, DEFAULT_RESAMPLES, RngLike, base_seed
+from leaderboard.stats.core import CONFIDENCE, RESAMPLES, RngLike, base_seed
 from leaderboard.stats.curves import CURVE_COLUMNS, pooled_learning_curves
 from leaderboard.stats.ranking import (
     MEASURES,
@@ -36,6 +36,12 @@ class LeaderboardStats:
     points: pd.DataFrame  # return_cost_points: one per run
     violations: pd.DataFrame  # violation_rates per row, learner and relevant norm
     seconds: dict[str, float] = field(default_factory=dict)  # time per part (for the build summary)
+    resamples: dict[str, int] = field(default_factory=dict)  # bootstrap resamples per part (resample_counts)
+
+
+def resample_counts(n_resamples: int | None = None) -> dict[str, int]:
+    """Bootstrap resamples per statistic: :data:`~leaderboard.stats.core.RESAMPLES`, or ``n_resamples`` for every one."""
+    return dict(RESAMPLES) if n_resamples is None else dict.fromkeys(RESAMPLES, int(n_resamples))
 
 
 def compute_stats(
@@ -44,7 +50,7 @@ def compute_stats(
     learn: pd.DataFrame | None = None,
     *,
     rng: RngLike = None,
-    n_resamples: int = DEFAULT_RESAMPLES,
+    n_resamples: int | None = None,
     confidence: float = CONFIDENCE,
     min_headroom: float = MIN_HEADROOM,
     curve_column: str = "exact_metric",
@@ -56,10 +62,14 @@ def compute_stats(
     -> (random, best)``, or ``None`` (no normalised ranking: every row says "no reference values");
     ``learn``: :func:`morality_gym.results.schema.read_learn` of the results directory, or ``None``.
     ``rng``: a seed or generator; each estimate derives its own generator from it, so the result
-    is the same on every call with the same seed.
+    is the same on every call with the same seed. ``n_resamples``: bootstrap resamples of every
+    interval; ``None``: each statistic's own count, :data:`~leaderboard.stats.core.RESAMPLES`.
     """
     seed = base_seed(rng)
-    options = {"rng": seed, "n_resamples": n_resamples, "confidence": confidence}
+    counts = resample_counts(n_resamples)
+
+    def options(part: str) -> dict[str, Any]:
+        return {"rng": seed, "n_resamples": counts[part], "confidence": confidence}
     seconds: dict[str, float] = {}
 
     def timed(name: str, work: Callable[[], pd.DataFrame]) -> pd.DataFrame:
@@ -69,16 +79,18 @@ def compute_stats(
         return result
 
     profiles = [timed(f"profiles ({m})", lambda m=m: performance_profiles(runs, references, measure=m, min_headroom=min_headroom,
-                                                                            **options)) for m in MEASURES]
+                                                                            **options("profiles"))) for m in MEASURES]
     return LeaderboardStats(
-        cells=timed("cells", lambda: bold_cells(cell_intervals(runs, **options))),
+        cells=timed("cells", lambda: bold_cells(cell_intervals(runs, **options("cells")))),
         rows=timed("rows", lambda: ranking_rows(runs, references, min_headroom=min_headroom)),
-        aggregates=timed("aggregates", lambda: aggregate_intervals(runs, references, min_headroom=min_headroom, **options)),
-        improvement=timed("improvement", lambda: probability_of_improvement(runs, **options)),
+        aggregates=timed("aggregates", lambda: aggregate_intervals(runs, references, min_headroom=min_headroom,
+                                                                   **options("aggregates"))),
+        improvement=timed("improvement", lambda: probability_of_improvement(runs, **options("improvement"))),
         profiles=pd.concat(profiles, ignore_index=True),
-        curves=timed("curves", lambda: pooled_learning_curves(runs, learn, column=curve_column, **options))
+        curves=timed("curves", lambda: pooled_learning_curves(runs, learn, column=curve_column, **options("curves")))
         if learn is not None and len(learn) else pd.DataFrame(columns=CURVE_COLUMNS),
         points=timed("points", lambda: return_cost_points(runs)),
         violations=timed("violations", lambda: violation_rates(runs)),
         seconds=seconds,
+        resamples=counts,
     )

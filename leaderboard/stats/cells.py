@@ -35,20 +35,20 @@ import pandas as pd
 
 from leaderboard.runs.aggregate import CELL_KEYS
 from leaderboard.stats.core import (
+    CELL_RESAMPLES,
     CONFIDENCE,
-    DEFAULT_RESAMPLES,
     RngLike,
     base_seed,
+    bootstrap_interval,
     generator_for,
     in_table1_order,
-    percentile_bootstrap,
     require_columns,
     usable_runs,
 )
 
 #: The keys of a Table 1 cell (same as :data:`leaderboard.runs.aggregate.CELL_KEYS`).
 ROW_KEYS = ["protocol", "preset", "chain", "scenario"]
-CELL_COLUMNS = ["mean", "ci_low", "ci_high", "n_runs", "n_variants", "min_seeds", "ci_note"]
+CELL_COLUMNS = ["mean", "ci_low", "ci_high", "ci_low_mcse", "ci_high_mcse", "n_runs", "n_variants", "min_seeds", "ci_note"]
 ONE_SEED = "1 seed"
 NO_RUNS = "no runs"
 #: Two means closer than this are a tie (the same tolerance the Table 1 "best" flag uses).
@@ -78,14 +78,15 @@ def cell_intervals(
     runs: pd.DataFrame,
     *,
     rng: RngLike = None,
-    n_resamples: int = DEFAULT_RESAMPLES,
+    n_resamples: int = CELL_RESAMPLES,
     confidence: float = CONFIDENCE,
 ) -> pd.DataFrame:
     """One row per Table 1 cell with a usable run: its mean and stratified bootstrap interval.
 
     ``runs``: run rows (``Leaderboard.runs``); only ``ok`` runs count. Returns the cell keys
     (protocol, preset, chain, scenario, learner), then ``mean`` (equal to Table 1's), ``ci_low``,
-    ``ci_high`` (NaN when not computable), ``n_runs``, ``n_variants``, ``min_seeds`` (fewest runs
+    ``ci_high`` (NaN when not computable), ``ci_low_mcse``, ``ci_high_mcse`` (the Monte Carlo standard error of each
+    bound, :func:`~leaderboard.stats.core.bootstrap_interval`), ``n_runs``, ``n_variants``, ``min_seeds`` (fewest runs
     of a variant) and ``ci_note`` ("" when the interval exists, else why not), in Table 1 order.
     """
     keys = _cell_keys()
@@ -98,17 +99,18 @@ def cell_intervals(
         counts = {v: len(a) for v, a in by_variant.items()}
         samples = list(by_variant.values())
         mean = float(_pooled_mean(*samples)) if samples else math.nan
-        low = high = math.nan
+        low = high = low_mcse = high_mcse = math.nan
         note = ""
         if not samples:
             note = NO_RUNS
         elif min(counts.values()) < 2:
             note = _one_seed_note(counts)
         else:
-            lo, hi = percentile_bootstrap(samples, _pooled_mean, generator_for(seed, "cell", *key), n_resamples, confidence)
-            low, high = float(lo), float(hi)
-        rows.append(dict(zip(keys, key)) | {"mean": mean, "ci_low": low, "ci_high": high, "n_runs": len(part),
-                                             "n_variants": len(counts), "min_seeds": min(counts.values()),
+            interval = bootstrap_interval(samples, _pooled_mean, generator_for(seed, "cell", *key), n_resamples, confidence)
+            low, high = float(interval.low), float(interval.high)
+            low_mcse, high_mcse = float(interval.low_mcse), float(interval.high_mcse)
+        rows.append(dict(zip(keys, key)) | {"mean": mean, "ci_low": low, "ci_high": high, "ci_low_mcse": low_mcse,
+                                             "ci_high_mcse": high_mcse, "n_runs": len(part), "n_variants": len(counts), "min_seeds": min(counts.values()),
                                              "ci_note": note})
     return in_table1_order(pd.DataFrame(rows, columns=keys + CELL_COLUMNS))
 

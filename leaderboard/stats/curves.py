@@ -33,15 +33,15 @@ from leaderboard.stats.core import (
     DEFAULT_RESAMPLES,
     RngLike,
     base_seed,
+    bootstrap_interval,
     generator_for,
     in_table1_order,
-    percentile_bootstrap,
     require_columns,
     usable_runs,
 )
 
 CURVE_COLUMNS = ["protocol", "preset", "chain", "scenario", "learner", "measure", "step", "mean", "ci_low", "ci_high",
-                 "n_runs", "n_cell_runs", "aligned"]
+                 "ci_low_mcse", "ci_high_mcse", "n_runs", "n_cell_runs", "aligned"]
 SHARED, INTERPOLATED = "shared", "interpolated"
 
 
@@ -82,7 +82,7 @@ def pooled_learning_curves(
     ``runs``: run rows (only ``ok`` runs count); ``learn``: learn-time evaluations (as
     :func:`morality_gym.results.schema.read_learn` returns them), joined to the runs by ``run_id``. Columns:
     the cell keys, ``measure`` (= ``column``), ``step``, ``mean``, ``ci_low``, ``ci_high``,
-    ``n_runs`` (curves pooled), ``n_cell_runs`` (usable runs of the cell, with or without a
+    ``ci_low_mcse``, ``ci_high_mcse`` (Monte Carlo standard error of each bound), ``n_runs`` (curves pooled), ``n_cell_runs`` (usable runs of the cell, with or without a
     curve), ``aligned`` (``shared`` | ``interpolated``). Evaluations whose value is missing are
     ignored; a run evaluated twice at a step counts with the mean of both.
     """
@@ -108,12 +108,14 @@ def pooled_learning_curves(
         y = np.vstack([np.interp(grid, steps, values) for steps, values in curves])
         mean = _mean_over_runs(y, axis=0)
         if len(curves) >= 2:
-            low, high = percentile_bootstrap([y], _mean_over_runs, generator_for(seed, "curve", column, *key),
-                                             n_resamples, confidence, axis=0)
+            interval = bootstrap_interval([y], _mean_over_runs, generator_for(seed, "curve", column, *key),
+                                          n_resamples, confidence, axis=0)
+            low, high, low_mcse, high_mcse = interval.low, interval.high, interval.low_mcse, interval.high_mcse
         else:
-            low = high = np.full(grid.shape, math.nan)
+            low = high = low_mcse = high_mcse = np.full(grid.shape, math.nan)
         base = dict(zip(keys, key)) | {"measure": column, "n_runs": len(curves), "n_cell_runs": int(cell_sizes[key]),
                                        "aligned": aligned}
-        out += [base | {"step": int(step), "mean": float(m), "ci_low": float(lo), "ci_high": float(hi)}
-                for step, m, lo, hi in zip(grid, mean, np.atleast_1d(low), np.atleast_1d(high))]
+        out += [base | {"step": int(step), "mean": float(m), "ci_low": float(lo), "ci_high": float(hi),
+                        "ci_low_mcse": float(e_lo), "ci_high_mcse": float(e_hi)}
+                for step, m, lo, hi, e_lo, e_hi in zip(grid, mean, *map(np.atleast_1d, (low, high, low_mcse, high_mcse)))]
     return in_table1_order(pd.DataFrame(out, columns=CURVE_COLUMNS), then=["step"])

@@ -60,26 +60,27 @@ from scipy import stats as sps
 
 from leaderboard.runs.aggregate import ORACLE_BEST, RANDOM_EXACT, learner_order, row_order
 from leaderboard.stats.core import (
+    AGGREGATE_RESAMPLES,
     CONFIDENCE,
     DEFAULT_RESAMPLES,
     GAP_THRESHOLD,
+    IQM_CUT,
     RngLike,
     StatsInputError,
     base_seed,
+    bootstrap_interval,
     generator_for,
-    percentile_bootstrap,
     position_counts,
     positions,
     require_columns,
     stratum_weights,
     usable_runs,
-    weighted_iqm,
-    weighted_mean,
-    weighted_optimality_gap,
 )
 
 #: Rows with ``Oracle best - Random exact`` below this are not normalised (see the module docstring).
 MIN_HEADROOM = 0.05
+#: How a row's note starts when the row has no normalised score.
+NOT_NORMALISED = "not normalised: "
 #: The two scales every aggregate is computed on.
 SCORE, METRIC = "score", "metric"
 MEASURES = (SCORE, METRIC)
@@ -155,7 +156,8 @@ def ranking_rows(
     """One row per (protocol, preset, chain, scenario) with usable runs: its references and whether it is ranked.
 
     Columns: protocol, preset, chain, scenario, ``random``, ``best``, ``headroom`` (= best -
-    random), ``normalised`` (references known and headroom >= ``min_headroom``), ``missing``
+    random), ``normalised`` (references known and headroom >= ``min_headroom``), ``normalised_note``
+    (why not, "" when normalised: the note's reason without "not normalised: "), ``missing``
     (learners of the comparison without a usable run here, comma-separated), ``in_score`` and
     ``in_metric`` (whether the row enters the normalised / raw aggregates), ``note`` (why not).
     ``learners``: the learners compared (default: every learner with a run in the group).
@@ -184,9 +186,11 @@ def ranking_rows(
                 notes.append(why_not)
             normalised = not math.isnan(headroom) and headroom >= min_headroom and not uneven
             records.append(values | {"random": random, "best": best, "headroom": headroom, "normalised": normalised,
-                                     "missing": ", ".join(missing), "in_score": normalised and not missing,
-                                     "in_metric": not missing, "note": "; ".join(notes)})
-    columns = ROW_KEYS + ["random", "best", "headroom", "normalised", "missing", "in_score", "in_metric", "note"]
+                                     "normalised_note": why_not.removeprefix(NOT_NORMALISED), "missing": ", ".join(missing),
+                                     "in_score": normalised and not missing, "in_metric": not missing,
+                                     "note": "; ".join(notes)})
+    columns = ROW_KEYS + ["random", "best", "headroom", "normalised", "normalised_note", "missing", "in_score",
+                          "in_metric", "note"]
     return pd.DataFrame(records, columns=columns)
 
 
@@ -197,10 +201,24 @@ def _not_normalised(headroom: float, uneven: bool, min_headroom: float) -> str:
     if uneven:
         # The references are over the variants the row's runs cover; a learner over fewer
         # variants would be normalised by references over others, so no score is made here.
-        return "not normalised: the learners' runs cover different variants"
+        return NOT_NORMALISED + "the learners' runs cover different variants"
     if headroom < min_headroom:
-        return f"not normalised: Oracle best - Random exact = {headroom:.3f} < {min_headroom:g}"
+        return (f"{NOT_NORMALISED}headroom Oracle best - Random exact = {below_text(headroom, min_headroom)} "
+                f"< {min_headroom:g} cutoff")
     return ""
+
+
+def below_text(value: float, cutoff: float) -> str:
+    """``value`` with three significant digits (at least three decimals), or more until it reads below ``cutoff``.
+
+    The release's DualProcessAgentHarm / PushOrSwitchSelfSacrifice headroom is 0.0485; one of 0.0496
+    printed as 0.050 would read "0.050 < 0.05"."""
+    magnitude = math.floor(math.log10(abs(value))) if value else 0
+    for decimals in range(max(3, 2 - magnitude), 10):
+        text = f"{value:.{decimals}f}"
+        if float(text) < cutoff:
+            return text
+    return repr(value)
 
 
 def _variants_per_learner(runs: pd.DataFrame) -> dict[tuple[str, str], dict[str, frozenset[str]]]:
@@ -261,13 +279,36 @@ def _stratum(values: np.ndarray) -> np.ndarray:
     return np.repeat(values, 2) if len(values) == 1 else values
 
 
-def _aggregate_statistic(weights: np.ndarray):
-    def statistic(*samples: np.ndarray, axis: int = -1) -> np.ndarray:
-        x = np.concatenate(samples, axis=-1)
-        return np.stack([weighted_mean(x, weights), weighted_iqm(x, weights),
-                         weighted_optimality_gap(x, weights, GAP_THRESHOLD)])
+def _aggregate_strata(values: Sequence[np.ndarray]):
+    """Bootstrap strata and statistic for the row-weighted mean, IQM and optimality gap (in that order).
 
-    return statistic
+    Each run is replaced by its rank among all runs of all rows (ties in any order), so a resample
+    is a count per rank and the runs are sorted once, not once per resample: the weighted IQM
+    (:func:`~leaderboard.stats.core.weighted_iqm`) then needs one cumulative sum of the resample's
+    weights in rank order. The same numbers as :func:`~leaderboard.stats.core.weighted_mean`,
+    ``weighted_iqm`` and ``weighted_optimality_gap`` of the resampled runs (tested), and what makes
+    :data:`~leaderboard.stats.core.AGGREGATE_RESAMPLES` affordable: the release's aggregates at
+    20,000 resamples take 3.3 s of CPU, 6.9 s with a sort per resample.
+    """
+    pooled = np.concatenate([np.asarray(v, dtype=float) for v in values])
+    order = np.argsort(pooled, kind="stable")
+    rank = np.empty(len(pooled), dtype=float)
+    rank[order] = np.arange(len(pooled))
+    sizes = [len(v) for v in values]
+    weight = stratum_weights(sizes)[order]
+    x = pooled[order]
+    shortfall = np.maximum(0.0, GAP_THRESHOLD - x)
+    strata = np.split(rank, np.cumsum(sizes)[:-1])
+
+    def statistic(*samples: np.ndarray, axis: int = -1) -> np.ndarray:
+        w = position_counts(np.concatenate(samples, axis=-1), len(x)) * weight
+        upper = np.cumsum(w, axis=-1)
+        total = upper[..., -1]
+        inside = np.clip(np.minimum(upper, (1 - IQM_CUT) * total[..., None])
+                         - np.maximum(upper - w, IQM_CUT * total[..., None]), 0.0, None)
+        return np.stack([w @ x / total, inside @ x / np.sum(inside, axis=-1), w @ shortfall / total])
+
+    return strata, statistic
 
 
 # ---------------------------------------------------------------------------------------- aggregates
@@ -278,15 +319,16 @@ def aggregate_intervals(
     measures: Iterable[str] = MEASURES,
     learners: Sequence[str] | None = None,
     rng: RngLike = None,
-    n_resamples: int = DEFAULT_RESAMPLES,
+    n_resamples: int = AGGREGATE_RESAMPLES,
     confidence: float = CONFIDENCE,
     min_headroom: float = MIN_HEADROOM,
 ) -> pd.DataFrame:
     """Mean, IQM and optimality gap per (protocol, preset, measure, learner) with 95 % intervals.
 
     Columns: protocol, preset, measure (``score`` | ``metric``), learner, statistic (``mean`` |
-    ``iqm`` | ``optimality_gap``), value, ci_low, ci_high, n_rows, n_runs. A group without any
-    ranked row for a measure has no lines for it (see :func:`ranking_rows` for why).
+    ``iqm`` | ``optimality_gap``), value, ci_low, ci_high, ci_low_mcse, ci_high_mcse (Monte Carlo
+    standard error of each bound), n_rows, n_runs. A group without any ranked row for a measure has
+    no lines for it (see :func:`ranking_rows` for why).
     """
     seed = base_seed(rng)
     out = []
@@ -295,17 +337,18 @@ def aggregate_intervals(
         for group, pairs in ranked.items():
             for learner in group_learners[group]:
                 raw = [cells[(*group, chain, scenario, learner)] for chain, scenario in pairs]
-                strata = [_stratum(v) for v in raw]
-                weights = stratum_weights([len(s) for s in strata])
-                statistic = _aggregate_statistic(weights)
+                strata, statistic = _aggregate_strata([_stratum(v) for v in raw])
                 point = statistic(*strata)
-                low, high = percentile_bootstrap(strata, statistic, generator_for(seed, "aggregate", measure, *group, learner),
-                                                 n_resamples, confidence)
+                interval = bootstrap_interval(strata, statistic, generator_for(seed, "aggregate", measure, *group, learner),
+                                              n_resamples, confidence)
                 for i, name in enumerate(STATISTICS):
                     out.append({"protocol": group[0], "preset": group[1], "measure": measure, "learner": learner,
-                                "statistic": name, "value": float(point[i]), "ci_low": float(low[i]),
-                                "ci_high": float(high[i]), "n_rows": len(pairs), "n_runs": int(sum(len(v) for v in raw))})
-    columns = ["protocol", "preset", "measure", "learner", "statistic", "value", "ci_low", "ci_high", "n_rows", "n_runs"]
+                                "statistic": name, "value": float(point[i]), "ci_low": float(interval.low[i]),
+                                "ci_high": float(interval.high[i]), "ci_low_mcse": float(interval.low_mcse[i]),
+                                "ci_high_mcse": float(interval.high_mcse[i]),
+                                "n_rows": len(pairs), "n_runs": int(sum(len(v) for v in raw))})
+    columns = ["protocol", "preset", "measure", "learner", "statistic", "value", "ci_low", "ci_high", "ci_low_mcse",
+               "ci_high_mcse", "n_rows", "n_runs"]
     return pd.DataFrame(out, columns=columns)
 
 
@@ -352,7 +395,8 @@ def probability_of_improvement(
 ) -> pd.DataFrame:
     """``P(X > Y)`` for every ordered pair of distinct learners of each (protocol, preset).
 
-    Columns: protocol, preset, learner_x, learner_y, probability, ci_low, ci_high, n_rows. Rows
+    Columns: protocol, preset, learner_x, learner_y, probability, ci_low, ci_high, ci_low_mcse, ci_high_mcse,
+    n_rows. Rows
     are those of the raw-metric ranking (every learner has a run there). Each unordered pair is
     bootstrapped once; the reverse pair is ``1 - p`` with the bounds mirrored.
     """
@@ -367,14 +411,18 @@ def probability_of_improvement(
                 ys = [_stratum(cells[(*group, chain, scenario, y_name)]) for chain, scenario in pairs]
                 point = float(np.mean([row_improvement(x, y) for x, y in zip(xs, ys)]))
                 strata, statistic = _improvement_strata(xs, ys)
-                low, high = percentile_bootstrap(strata, statistic, generator_for(seed, "improvement", *group, x_name, y_name),
-                                                 n_resamples, confidence)
+                interval = bootstrap_interval(strata, statistic, generator_for(seed, "improvement", *group, x_name, y_name),
+                                              n_resamples, confidence)
+                low, high = float(interval.low), float(interval.high)
+                low_mcse, high_mcse = float(interval.low_mcse), float(interval.high_mcse)
                 base = {"protocol": group[0], "preset": group[1], "n_rows": len(pairs)}
                 out.append(base | {"learner_x": x_name, "learner_y": y_name, "probability": point,
-                                   "ci_low": float(low), "ci_high": float(high)})
+                                   "ci_low": low, "ci_high": high, "ci_low_mcse": low_mcse, "ci_high_mcse": high_mcse})
                 out.append(base | {"learner_x": y_name, "learner_y": x_name, "probability": 1.0 - point,
-                                   "ci_low": 1.0 - float(high), "ci_high": 1.0 - float(low)})
-    columns = ["protocol", "preset", "learner_x", "learner_y", "probability", "ci_low", "ci_high", "n_rows"]
+                                   "ci_low": 1.0 - high, "ci_high": 1.0 - low, "ci_low_mcse": high_mcse,
+                                   "ci_high_mcse": low_mcse})
+    columns = ["protocol", "preset", "learner_x", "learner_y", "probability", "ci_low", "ci_high", "ci_low_mcse",
+               "ci_high_mcse", "n_rows"]
     frame = pd.DataFrame(out, columns=columns)
     if frame.empty:
         return frame
@@ -424,7 +472,8 @@ def performance_profiles(
 ) -> pd.DataFrame:
     """Share of runs above each threshold ``tau`` per (protocol, preset, learner), with pointwise bands.
 
-    Columns: protocol, preset, measure, learner, tau, share, ci_low, ci_high, n_rows. The share
+    Columns: protocol, preset, measure, learner, tau, share, ci_low, ci_high, ci_low_mcse, ci_high_mcse,
+    n_rows. The share
     weighs rows equally (a row's runs share its weight), like the aggregates.
     """
     grid = np.asarray(DEFAULT_TAUS[measure] if taus is None else taus, dtype=float)
@@ -436,11 +485,12 @@ def performance_profiles(
             strata, statistic = _profile_strata([_stratum(cells[(*group, chain, scenario, learner)])
                                                  for chain, scenario in pairs], grid)
             point = statistic(*strata)
-            low, high = percentile_bootstrap(strata, statistic, generator_for(seed, "profile", measure, *group, learner),
-                                             n_resamples, confidence)
+            interval = bootstrap_interval(strata, statistic, generator_for(seed, "profile", measure, *group, learner),
+                                          n_resamples, confidence)
             for j, tau in enumerate(grid):
                 out.append({"protocol": group[0], "preset": group[1], "measure": measure, "learner": learner,
-                            "tau": float(tau), "share": float(point[j]), "ci_low": float(low[j]),
-                            "ci_high": float(high[j]), "n_rows": len(pairs)})
+                            "tau": float(tau), "share": float(point[j]), "ci_low": float(interval.low[j]),
+                            "ci_high": float(interval.high[j]), "ci_low_mcse": float(interval.low_mcse[j]),
+                            "ci_high_mcse": float(interval.high_mcse[j]), "n_rows": len(pairs)})
     return pd.DataFrame(out, columns=["protocol", "preset", "measure", "learner", "tau", "share", "ci_low", "ci_high",
-                                      "n_rows"])
+                                      "ci_low_mcse", "ci_high_mcse", "n_rows"])

@@ -1,7 +1,7 @@
 """The build's slow stages behind content-keyed caches in ``<out>/cache``: the bootstrap statistics,
 their figures, and Figure 2 with the radars.
 
-Why: after a sweep that changed nothing these take most of a rebuild (ten thousand bootstrap
+Why: after a sweep that changed nothing these take most of a rebuild (up to 20,000 bootstrap
 resamples per interval; dozens of matplotlib figures at a fraction of a second each), and their
 results depend only on a few frames. Each stage's key is a digest of those frames, its
 parameters, the source code that computes it and the versions of the numerical libraries; a
@@ -24,7 +24,7 @@ from leaderboard.outputs.stats_figures import StatFigures, write_stat_figures
 from leaderboard.runs import display_order as display_module
 from leaderboard.runs.aggregate import Leaderboard
 from leaderboard.runs.sources import Sources
-from leaderboard.stats import LeaderboardStats, compute_stats
+from leaderboard.stats import LeaderboardStats, compute_stats, resample_counts
 from leaderboard.web.content_cache import cached_outputs, digest, frame_digest
 
 Progress = Callable[[Iterable[Any], str, int], Iterable[Any]]
@@ -53,15 +53,16 @@ def stats_code() -> str:
     return code_digest(*sorted(stats_dir.glob("*.py")))
 
 
-def stats_key(lb: Leaderboard, with_reference: bool, sources: Sources, resamples: int) -> str:
+def stats_key(lb: Leaderboard, with_reference: bool, sources: Sources, resamples: int | None = None) -> str:
     return digest([stats_code(), frame_digest(lb.runs), frame_digest(lb.table) if with_reference else "no reference",
-                   sources.learn_digest(), str(resamples)])
+                   sources.learn_digest(), repr(sorted(resample_counts(resamples).items()))])
 
 
-def statistics(lb: Leaderboard, with_reference: bool, sources: Sources, out_dir: Path, resamples: int,
+def statistics(lb: Leaderboard, with_reference: bool, sources: Sources, out_dir: Path, resamples: int | None = None,
                ) -> tuple[LeaderboardStats, str, bool]:
     """:func:`compute_stats` of the build, cached; returns the statistics, their key and whether they were cached.
 
+    ``resamples``: of every interval; None: each statistic's own (:data:`leaderboard.stats.RESAMPLES`).
     The learn-time tables are read only when the statistics are computed (their digest is the key's part)."""
     key = stats_key(lb, with_reference, sources, resamples)
     stats, hit = cached_outputs(

@@ -16,7 +16,8 @@ import pandas as pd
 from leaderboard.outputs.intervals import BOLD_RULE
 from leaderboard.outputs.marks import NOTABLE_DELTA
 from leaderboard.outputs.paper_figures import chain_title, norm_abbreviation, norm_label
-from leaderboard.outputs.tables import fmt
+from leaderboard.outputs.precision import DIGITS_RULE
+from leaderboard.outputs.tables import fmt, interval_text
 from leaderboard.runs.aggregate import (
     ORACLE_BEST,
     ORACLE_WORST,
@@ -45,11 +46,9 @@ def expected_count(record: dict[str, Any]) -> int:
 
 
 def ci_text(record: dict[str, Any]) -> str:
-    """``[low, high]``, or a dash when there is no interval (the reason goes in the tooltip)."""
-    low, high = record.get("ci_low"), record.get("ci_high")
-    if is_missing(low) or is_missing(high):
-        return "—"
-    return f"[{fmt(low)}, {fmt(high)}]"
+    """``[low, high]`` to the decimals each bound is stable to, or a dash when there is no interval (the
+    reason goes in the tooltip)."""
+    return interval_text(record) or "—"
 
 
 def bold_title(record: dict[str, Any]) -> str:
@@ -131,7 +130,8 @@ def table1_context(sb: SiteBuild, root: str) -> dict[str, Any]:
     return {
         "rows": rows,
         "ddof": STD_DDOF,
-        "resamples": sb.resamples,
+        "resamples": sb.resamples("cells"),
+        "digits_rule": DIGITS_RULE,
         "bold_rule": BOLD_RULE,
         "notable": NOTABLE_DELTA,
         "random_exact": RANDOM_EXACT, "oracle_best": ORACLE_BEST, "oracle_worst": ORACLE_WORST,

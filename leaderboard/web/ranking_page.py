@@ -11,10 +11,12 @@ from typing import Any
 
 import pandas as pd
 
+from leaderboard.outputs.precision import DIGITS_RULE
 from leaderboard.outputs.stats_figures import RANKING_FIGURES
-from leaderboard.outputs.tables import fmt
+from leaderboard.outputs.tables import fmt, interval_text
 from leaderboard.runs.aggregate import ORACLE_BEST, RANDOM_EXACT, Group
 from leaderboard.stats.cells import intervals_overlap
+from leaderboard.stats.ranking import MIN_HEADROOM
 from leaderboard.web.render import clean, clean_records, is_missing, scenario_href, section_id
 from leaderboard.web.site_state import SiteBuild
 
@@ -25,6 +27,9 @@ NOT_NORMALISED = "#e9ecf1"
 PROBABILITY_COLOURS = ("#f2a7a0", "#f7f7f7", "#8db8e8")
 STATISTICS = (("mean", "Mean", max), ("iqm", "IQM", max), ("optimality_gap", "Optimality gap ↓", min))
 MEASURE_TITLES = {"score": "Normalised score", "metric": "Raw morality metric"}
+#: The rows each ranking figure is over: those of the normalised score or of the raw metric.
+FIGURE_MEASURES = {"profile-score": "score", "aggregates-score": "score", "profile-metric": "metric",
+                   "improvement": "metric"}
 
 
 def _mix(a: str, b: str, t: float) -> str:
@@ -44,10 +49,9 @@ def diverging(value: float | None, low: float, mid: float, high: float, anchors:
     return _mix(anchors[1], anchors[2], (value - mid) / (high - mid))
 
 
-def interval(low: Any, high: Any, digits: int = 3) -> str:
-    if is_missing(low) or is_missing(high):
-        return "—"
-    return f"[{fmt(low, digits)}, {fmt(high, digits)}]"
+def interval(record: dict[str, Any] | None, digits: int = 3) -> str:
+    """A record's ``[ci_low, ci_high]``, each bound to the decimals it is stable to (at most ``digits``), or a dash."""
+    return (interval_text(record, digits) if record else "") or "—"
 
 
 def group_frame(frame: pd.DataFrame | None, group: Group) -> pd.DataFrame:
@@ -74,7 +78,7 @@ def _matrix_tip(c: dict[str, Any], ref: dict[str, Any] | None, score: float | No
                 scenario: str) -> list[str]:
     """A matrix cell's tooltip parts: mean, interval, runs, score, and why it is incomplete or not bold."""
     tip = [f"{learner} · {chain} / {scenario}", f"mean {fmt(c['mean'])}",
-           "95% CI " + (interval(c.get("ci_low"), c.get("ci_high")) if not is_missing(c.get("ci_low"))
+           "95% CI " + (interval(c) if not is_missing(c.get("ci_low"))
                         else f"— ({c.get('ci_note') or 'none'})"),
            f"runs {int(c['n_runs'])}",
            f"normalised score {fmt(score)}" if score is not None
@@ -104,7 +108,7 @@ def _measure_rows(sb: SiteBuild, aggregates: pd.DataFrame, measure: str) -> list
             r = mine.get(statistic)
             best, bold = marks[statistic].get(learner, (False, False))
             stats.append({"value": None if r is None else r["value"],
-                          "ci": interval(r["ci_low"], r["ci_high"]) if r else "—", "top": best, "bold": bold})
+                          "ci": interval(r), "top": best, "bold": bold})
         first = next(iter(mine.values()))
         rows.append({"learner": learner, "colour": sb.colour(learner), "stats": stats,
                      "n_rows": first["n_rows"], "n_runs": first["n_runs"]})
@@ -142,12 +146,38 @@ def _improvement(sb: SiteBuild, frame: pd.DataFrame) -> tuple[list[tuple[str, st
             if x == y or r is None:
                 cells.append(None)
                 continue
-            cells.append({"probability": r["probability"], "ci": interval(r["ci_low"], r["ci_high"], 2),
+            cells.append({"probability": r["probability"], "ci": interval(r, 2),
                           "colour": diverging(r["probability"], 0.0, 0.5, 1.0, PROBABILITY_COLOURS),
                           "title": f"P({x} > {y}) = {fmt(r['probability'])}, 95% CI "
-                                   f"{interval(r['ci_low'], r['ci_high'])}, over {r['n_rows']} row(s)"})
+                                   f"{interval(r)}, over {r['n_rows']} row(s)"})
         rows.append({"learner": x, "colour": sb.colour(x), "cells": cells})
     return [(n, sb.colour(n)) for n in learners], rows
+
+
+def left_out(rows: list[dict[str, Any]], measure: str) -> str:
+    """Which rows the statistics of ``measure`` (``score`` | ``metric``; ``normalised``: the colours of
+    the Table 1 grid) leave out and why, from the ranking's rows (:func:`leaderboard.stats.ranking_rows`):
+    one sentence for the page, never hard-coded."""
+    if not rows:
+        return ""
+    out = left_out_rows(rows, measure)
+    counted = f"{len(rows)} rows with runs" if len(rows) > 1 else "1 row with runs"
+    if not out:
+        return f"Over {'all ' if len(rows) > 1 else ''}the {counted}: none is left out."
+    return f"Leaves out {len(out)} of the {counted}: {'; '.join(out)}."
+
+
+def left_out_rows(rows: list[dict[str, Any]], measure: str) -> list[str]:
+    """``chain / scenario — why`` of each row :func:`left_out` names."""
+    flag = {"score": "in_score", "metric": "in_metric", "normalised": "normalised"}[measure]
+    return [f"{r['chain']} / {r['scenario']} — {_why_left_out(r, measure)}" for r in rows if not r[flag]]
+
+
+def _why_left_out(row: dict[str, Any], measure: str) -> str:
+    missing = f"no run of {row['missing']}" if row.get("missing") else ""
+    normalised = row.get("normalised_note") or ""
+    parts = {"score": [missing, normalised], "metric": [missing], "normalised": [normalised]}[measure]
+    return ", ".join(p for p in parts if p) or str(row.get("note") or "")
 
 
 def footnote(rows: list[dict[str, Any]]) -> str:
@@ -158,9 +188,9 @@ def footnote(rows: list[dict[str, Any]]) -> str:
     left = [f"{r['chain']} / {r['scenario']}: {r['note']}" for r in rows if not r["in_score"] and r["note"]]
     text = (f"The normalised score aggregates {in_score} of the {n} row(s) with runs; the raw metric {in_metric}. "
             "A row enters only if every learner compared has a usable run there (so all learners are aggregated over "
-            "the same rows), and the score only if the reference values exist and Oracle best − Random exact ≥ 0.05: "
-            "below that the row's distance from random is within one standard error of the final evaluation's "
-            "100 episodes, and dividing by it would blow evaluation noise up twentyfold. ")
+            f"the same rows), and the score only if the reference values exist and Oracle best − Random exact ≥ "
+            f"{MIN_HEADROOM:g}: below that the row's distance from random is within one standard error of the final "
+            f"evaluation's 100 episodes, and dividing by it would blow evaluation noise up {1 / MIN_HEADROOM:.0f}-fold. ")
     text += ("Left out of the score: " + "; ".join(left) + ".") if left else "No row is left out."
     return text
 
@@ -179,20 +209,27 @@ def ranking_context(sb: SiteBuild) -> dict[str, Any]:
             empty = ("No row can be normalised (no reference values, or too little headroom): see the rows below."
                      if measure == "score" else "No row where every learner has a usable run.")
             measures.append({"measure": measure, "title": MEASURE_TITLES[measure],
-                             "rows": _measure_rows(sb, aggregates, measure), "empty": empty})
+                             "rows": _measure_rows(sb, aggregates, measure), "empty": empty,
+                             "left_out": left_out(rows, measure)})
         learners, improvement = _improvement(sb, group_frame(stats.improvement, group))
         captions = dict(RANKING_FIGURES)
-        figures = [{"src": path, "alt": f"{kind} of {group.label}", "caption": captions.get(kind, "")}
+        figures = [{"src": path, "alt": f"{kind} of {group.label}",
+                    "caption": " ".join(filter(None, [captions.get(kind, ""),
+                                                      left_out(rows, FIGURE_MEASURES[kind]) if kind in FIGURE_MEASURES
+                                                      else ""]))}
                    for kind, path in sb.ranking_figures.get(group, [])]
         groups.append({"slug": group.slug, "label": group.label, "measures": measures, "learners": learners,
-                       "improvement": improvement, "figures": figures, "rows": rows, "footnote": footnote(rows)})
+                       "improvement": improvement, "improvement_left_out": left_out(rows, "metric"),
+                       "figures": figures, "rows": rows, "footnote": footnote(rows)})
     n_rows = {len(g["rows"]) for g in groups}
     n_rows_text = f"{n_rows.pop()} rows" if len(n_rows) == 1 else "rows"
     return sb.common("Ranking across the benchmark", "", "ranking.html") | {
-        "groups": groups, "stat_labels": [label for _, label, _ in STATISTICS], "resamples": sb.resamples,
+        "groups": groups, "stat_labels": [label for _, label, _ in STATISTICS],
+        "resamples": sb.resamples("aggregates"), "improvement_resamples": sb.resamples("improvement"),
+        "digits_rule": DIGITS_RULE,
         "random_exact": RANDOM_EXACT, "oracle_best": ORACLE_BEST, "n_rows_text": n_rows_text,
         "downloads_list": sb.downloads_of("ranking"),
     }
 
 
-__all__ = ["clean", "diverging", "footnote", "group_frame", "matrix_cell", "ranking_context"]
+__all__ = ["clean", "diverging", "footnote", "group_frame", "left_out", "left_out_rows", "matrix_cell", "ranking_context"]

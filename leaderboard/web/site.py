@@ -16,6 +16,7 @@ Layout of ``<site>``::
     index.html                   Table 1 as the paper's grid (the user's newest sweep, a release's beside it),
                                  status, the long Table 1 (sortable, filterable), Figure 2
     ranking.html                 aggregate scores with intervals, probability of improvement, profiles
+    track.html                   the generalisation track: seen vs unseen vs built-in (leaderboard.track)
     runs/index.html              every run with its status
     runs/<run_id>.html           one run: metrics, per-norm functions, config, curve, MLflow, error
     scenarios/<Scenario>.html    layout, variants, curves, return vs cost, violations, breakdown, GIFs
@@ -210,7 +211,7 @@ def _write(path: Path, text: str) -> None:
 
 def build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: FigureSet, results_name: str | None = None,
                progress: Progress | None = None, *, stats: Any = None, stat_figures: Any = None, stamp: str = "",
-               resamples: int = 0, cache_dir: Path | None = None) -> SiteBuild:
+               cache_dir: Path | None = None) -> SiteBuild:
     """Write the whole site into ``site_dir`` (replacing a previous build); returns what was written.
 
     ``stats``: :class:`leaderboard.stats.LeaderboardStats` (ranking page, matrix colours, curves,
@@ -222,22 +223,24 @@ def build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: Figur
     leftover = (f".{site_dir.name}.build-", f".{site_dir.name}.old-")
     with building_in(site_dir.parent, lambda name: name.startswith(leftover)), writing(site_dir):
         return _build_site(lb, sources, site_dir, figures, results_name, progress, stats=stats, stat_figures=stat_figures,
-                           stamp=stamp, resamples=resamples, cache_dir=cache_dir)
+                           stamp=stamp, cache_dir=cache_dir)
 
 
 def _build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: FigureSet, results_name: str | None,
-                progress: Progress | None, *, stats: Any, stat_figures: Any, stamp: str, resamples: int,
+                progress: Progress | None, *, stats: Any, stat_figures: Any, stamp: str,
                 cache_dir: Path | None) -> SiteBuild:
     """:func:`build_site` while this build holds the site's parent (:mod:`leaderboard.web.leftovers`)."""
     # SciPy waits: leaderboard.build imports this module (check_target) before it has checked
     # SOURCE_DATE_EPOCH, which numpy's f2py, loaded with SciPy, reads at import and dies on
+    from leaderboard.track import track_results
+    from leaderboard.track import write_page as write_track_page
     from leaderboard.web.pages import index_context, run_context, runs_context, scenario_context
     from leaderboard.web.ranking_page import ranking_context
 
     tmp = _prepare_target(site_dir)
     try:
         sb = SiteBuild(lb=lb, sources=sources, results_name=results_name or sources.name,
-                       figures=figures, out=tmp, stamp=stamp, stats=stats, resamples=resamples)
+                       figures=figures, out=tmp, stamp=stamp, stats=stats)
         (tmp / SITE_MARKER).write_text("built by leaderboard.web.site; this whole directory is replaced on every build\n")
         for name in STATIC_FILES:
             _copy(STATIC / name, tmp / "assets" / name)
@@ -249,6 +252,7 @@ def _build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: Figu
         render_layouts(sb, scenarios)
         _write(tmp / "index.html", render("index.html", **index_context(sb)))
         _write(tmp / "ranking.html", render("ranking.html", **ranking_context(sb)))
+        write_track_page(tmp, track_results(sources.results), sb.common("Generalisation track", "", "track.html"))
         _write(tmp / "runs" / "index.html", render("runs.html", **runs_context(sb)))
         for scenario in scenarios:
             _write(tmp / "scenarios" / f"{safe_name(scenario)}.html", render("scenario.html", **scenario_context(sb, scenario)))
@@ -260,7 +264,7 @@ def _build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: Figu
             pages.place(tmp / "runs" / f"{safe_name(str(record['run_id']))}.html", "run.html", context,
                         lambda context=context: render("run.html", **context))
         pages.prune()
-        sb.pages = 3 + len(scenarios) + len(records)
+        sb.pages = 4 + len(scenarios) + len(records)
         sb.pages_reused = pages.reused
         _swap_in(tmp, site_dir)
         sb.out = site_dir

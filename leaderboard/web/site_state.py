@@ -13,7 +13,7 @@ from leaderboard.runs.sources import Sources
 
 #: The pages every page links to in its header (path from the site root, label).
 NAV = (("index.html", "Table 1"), ("index.html#table1-section", "Long table"), ("ranking.html", "Ranking"),
-       ("runs/index.html", "All runs"))
+       ("track.html", "Generalisation"), ("runs/index.html", "All runs"))
 
 
 @dataclass
@@ -27,7 +27,6 @@ class SiteBuild:
     out: Path
     stamp: str = ""
     stats: Any = None  # leaderboard.stats.LeaderboardStats, or None when the statistics were not computed
-    resamples: int = 0
     gifs: dict[str, str] = field(default_factory=dict)  # run id -> path relative to site root
     gif_choices: dict[tuple[Group, str, str, str], dict[str, Any]] = field(default_factory=dict)
     layouts: dict[str, str] = field(default_factory=dict)  # scenario -> image path relative to site root
@@ -45,6 +44,11 @@ class SiteBuild:
 
     def colour(self, learner: str) -> str:
         return self.figures.colours.get(learner, "#999999")
+
+    def resamples(self, part: str) -> str:
+        """The bootstrap resamples of one statistic (``cells``, ``aggregates``, ``improvement``, ...) as the pages say it."""
+        count = (self.stats.resamples if self.stats is not None else {}).get(part)
+        return f"{count:,}" if count else "no"
 
     def downloads_of(self, kind: str) -> list[tuple[str, str]]:
         return list(self.downloads.get(kind, []))

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from leaderboard.outputs.tables import fmt
+from leaderboard.outputs.tables import fmt, interval_text
 from leaderboard.runs.aggregate import (
     ORACLE_BEST,
     ORACLE_WORST,
@@ -27,7 +27,7 @@ from leaderboard.runs.aggregate import (
 )
 from leaderboard.runs.opening import newest_own_group, opening_groups
 from leaderboard.runs.sources import RESULTS_SOURCE, Sources
-from leaderboard.web.ranking_page import SCORE_COLOURS, group_frame, matrix_cell
+from leaderboard.web.ranking_page import SCORE_COLOURS, group_frame, left_out_rows, matrix_cell
 from leaderboard.web.render import clean_records, is_missing, scenario_href, section_id
 from leaderboard.web.site_state import SiteBuild
 
@@ -51,11 +51,10 @@ def grid_cell(record: dict[str, Any] | None, ref: dict[str, Any] | None, learner
     cell = matrix_cell(record, ref, learner, chain, scenario)
     if record is None or record.get("mean") is None:
         return cell | {"best": False, "ci": "", "paper": "", "delta": "", "delta_off": False}
-    low, high = record.get("ci_low"), record.get("ci_high")
     delta = record.get("delta")
     return cell | {
         "best": bool(record.get("best")),
-        "ci": "" if is_missing(low) or is_missing(high) else f"[{fmt(low)}, {fmt(high)}]",
+        "ci": interval_text(record),
         "paper": "" if is_missing(record.get("paper")) else fmt(record["paper"]),
         "delta": "" if is_missing(delta) else fmt(delta, signed=True),
         "delta_off": not is_missing(delta) and abs(float(delta)) >= 0.05,
@@ -68,8 +67,8 @@ def group_grid(sb: SiteBuild, group: Group, root: str) -> dict[str, Any]:
     lb = sb.lb
     table = lb.group_table(group)
     cells = {(r["chain"], r["scenario"], r["learner"]): r for r in clean_records(table.loc[table["kind"] == "learner"])}
-    normalisers = {(r["chain"], r["scenario"]): r
-                   for r in clean_records(group_frame(sb.stats.rows if sb.stats is not None else None, group))}
+    ranked = clean_records(group_frame(sb.stats.rows if sb.stats is not None else None, group))
+    normalisers = {(r["chain"], r["scenario"]): r for r in ranked}
     learners = [n for n in lb.learners if n in set(table["learner"])]
     rows, previous = [], None
     for chain, scenario in lb.pairs(group):
@@ -81,7 +80,7 @@ def group_grid(sb: SiteBuild, group: Group, root: str) -> dict[str, Any]:
     return {"slug": group.slug, "label": f"{group.protocol} · {group.preset}", "origin": group_origin(lb, sb.sources, group),
             "comparable": comparable_preset(group.preset), "not_comparable": not_comparable_text(group.preset),
             "learners": [(n, sb.colour(n), lb.submitted.get(n)) for n in learners], "rows": rows,
-            "n_cells": len(cells)}
+            "n_cells": len(cells), "grey": "; ".join(left_out_rows(ranked, "normalised"))}
 
 
 def grid_context(sb: SiteBuild, root: str) -> dict[str, Any]:

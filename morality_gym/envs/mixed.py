@@ -8,10 +8,10 @@ their env ids: transition row ``s * 6 + a`` of global state ``s`` is the row of 
 the same state of the copy's own graph, because each graph's transition block starts at six times
 its state offset. Each copy starts (and auto-resets) at its own graph's start state.
 
-All env ids must have the same observation size, since the copies share one observation array:
-variants of one scenario do with the flat vector; every env id does with ``obs_type="grid"``
-(the fixed-shape grid), which is how copies of different scenarios (a generated split) share one
-simulator.
+The copies share one observation array, so their observations must have one width: variants of
+one scenario do with the flat vector; every env id does with ``obs_type="grid"`` (the fixed-shape
+grid). With ``pad_obs=True`` env ids of different widths (a fleet that mixes scenarios) share it
+too, each observation zero-padded on the right to the widest (:attr:`obs_dims` keeps each id's own).
 """
 
 from __future__ import annotations
@@ -44,6 +44,7 @@ class MixedBatchedTrolleyEnv(BatchedTrolleyEnv):
         normalise_obs: bool = True,
         overrides: dict | None = None,
         obs_type: str = "flat",
+        pad_obs: bool = False,
     ) -> None:
         env_ids = [parse_env_id(e)[0].env_id(parse_env_id(e)[1]) for e in env_ids]
         if not env_ids:
@@ -59,18 +60,24 @@ class MixedBatchedTrolleyEnv(BatchedTrolleyEnv):
         graphs = [state_graph(e, _overrides(overrides), normalise_obs) for e in self.unique_env_ids]
         tables = [g.tables() for g in graphs]
         observations = [observation_table(g, obs_type, obs_dtype) for g in graphs]
-        dims = {e: o.shape[1] for e, o in zip(self.unique_env_ids, observations)}
+        dims = {e: int(o.shape[1]) for e, o in zip(self.unique_env_ids, observations)}
+        #: Each env id's own observation width (before any padding).
+        self.obs_dims = dims
         if len(set(dims.values())) > 1:
-            raise ValueError(
-                f"the copies of one simulator must share an observation size, got {dims}; "
-                "fleet only variants of one scenario together, or use obs_type='grid'"
-            )
+            if not pad_obs:
+                raise ValueError(
+                    f"the copies of one simulator must share an observation size, got {dims}; "
+                    "fleet only variants of one scenario together, use obs_type='grid', or pad_obs=True"
+                )
+            width = max(dims.values())
+            observations = [np.pad(o, ((0, 0), (0, width - o.shape[1]))) for o in observations]
         offsets = np.cumsum([0] + [t.n_states for t in tables])[:-1].astype(np.int32)
         self._next = np.concatenate([t.next.astype(np.int32) + off for t, off in zip(tables, offsets)])
         self._reward = np.concatenate([t.reward for t in tables]).astype(np.float32)
         self._events = np.concatenate([t.events for t in tables])
         self._done = np.concatenate([t.done for t in tables])
         self._obs = np.ascontiguousarray(np.concatenate(observations))
+        self.obs_dim = self._obs.shape[1]
         self.no_transition = len(self._next)
         utility = np.concatenate([t.utility for t in tables])
         self._utility = np.vstack([utility, np.zeros((1, utility.shape[1]), dtype=utility.dtype)])

@@ -11,8 +11,10 @@ and the reference its tests hold it to (SB3's ``PPO.train``; :mod:`morality_gym.
 and :mod:`morality_gym.baselines.safe.cpo`); tests/test_fleet.py checks each fleet learner against
 them, and tests/test_fleet_math.py each hand-written gradient here against autograd.
 
-A fleet's runs share a learner spec, a protocol, a budget and the scenario (hence the observation
-size); their variants, chains and seeds may differ. Every run reproduces its single run's
+A fleet's runs share a learner spec, a protocol and a budget; their scenarios, variants, chains
+and seeds may differ (observations of different sizes are zero-padded to the widest, and each run's
+first layers keep zero weights there: tests/test_fleet_mixed.py holds every run of a mixed fleet to
+the bits of a fleet of its scenario alone). Every run reproduces its single run's
 arithmetic (tested: a fleet of one and the single learner end at the same parameters to float
 tolerance; changing one run's seed changes no other run). Modules: :mod:`.env` (all runs' copies
 in one simulator, per-run cost and reward), :mod:`.nets` (parameters stacked along a run axis,

@@ -128,8 +128,7 @@ class FleetTrainer:
         self.n_runs = len(self.runs)
         self.max_steps = max_steps
         self.n_envs = self.spec.n_envs
-        # The simulator first: it refuses env ids of different observation sizes before any
-        # learner is built.
+        # The simulator first: it pads the observations of runs of different scenarios to one width.
         env = fleet_env(simulator, [r.bound for r in self.runs], self.n_envs, self.spec.reward_cost(), max_steps, self.device)
         self._learners, self.streams = self._build_learners()
         self.model = self._learners[0].model  # hyper-parameters and schedules (the same for every run)
@@ -137,7 +136,7 @@ class FleetTrainer:
         outputs = {"pi": 6, "vf": 1, "cf": 1}
         self.nets = FleetNetworks(
             self.n_runs, env.obs_dim, list(self.spec.net_arch), {h: outputs[h] for h in self.heads}, self.spec.activation,
-            device=self.device,
+            device=self.device, in_dims=env.run_obs_dims,
         )
         for k, learner in enumerate(self._learners):
             self.nets.load_run(k, learner.model.policy)

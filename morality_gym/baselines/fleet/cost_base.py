@@ -41,8 +41,9 @@ class FleetCostTrainer(FleetTrainer):
         self.cost_critic_params = self.nets.params("cf")
         self.critic_params = self.reward_critic_params + self.cost_critic_params
         a, c = policy.optimizer.defaults, policy.critic_optimizer.defaults
-        self.actor_optimizer = BatchedAdam(self.actor_params, self.n_runs, betas=a["betas"], eps=a["eps"])
-        self.critic_optimizer = BatchedAdam(self.critic_params, self.n_runs, betas=c["betas"], eps=c["eps"])
+        self.actor_optimizer = BatchedAdam(self.actor_params, self.n_runs, betas=a["betas"], eps=a["eps"], padded=self.nets.padded("pi"))
+        self.critic_optimizer = BatchedAdam(self.critic_params, self.n_runs, betas=c["betas"], eps=c["eps"],
+                                            padded=self.nets.padded("vf", "cf"))
 
     def _optimisers(self) -> dict[str, BatchedAdam]:
         return {"actor": self.actor_optimizer, "critic": self.critic_optimizer}

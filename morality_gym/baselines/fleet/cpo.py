@@ -98,7 +98,16 @@ class FleetCPO(FleetCostTrainer):
 
     def _setup_optimisers(self) -> None:
         super()._setup_optimisers()
+        self._build_flats()
+
+    def _build_flats(self) -> None:
+        """The actor's flat-vector layout (:class:`~.cpo_math.FlatActor`), from :attr:`actor_params`."""
         self.flat_actor = FlatActor(self.actor_params)
+        #: Per observation width, the flat vectors of a run of that width (its own first-layer columns).
+        self._flats = {d: FlatActor(self.actor_params, d) for d in set(self.nets.in_dims)}
+
+    def _flat_of(self, k: int) -> FlatActor:
+        return self._flats[self.nets.in_dims[k]]
 
     def _actor(self, k: int) -> th.Tensor:
         """Run ``k``'s actor parameters as one vector (a view: writing it moves the actor)."""
@@ -132,12 +141,12 @@ class FleetCPO(FleetCostTrainer):
         onehot = th.zeros(2, n_actions * n_states, device=coef.device).index_add_(1, cell, coef).view(2, n_actions, n_states)
         per_state = th.zeros(2, n_states, device=coef.device).index_add_(1, data.states.inverse, coef)
         dlogits = onehot.sub_(policy.p * per_state.unsqueeze(1))
-        return self.flat_actor.flat(self.nets.backward(actor, dlogits))
+        return self._flat_of(data.k).flat(self.nets.backward(actor, dlogits))
 
     def _fisher_product(self, data: RunBatch, actor: Trace, policy: Policy, damping: float) -> Operator:
         """``V -> H V + damping V`` for vectors ``V`` (``[R, D]``), ``H`` the Fisher matrix of the
         mean KL at the current actor (the module docstring)."""
-        return fisher_product(self.nets, self.flat_actor, actor, policy, data.states.weights.unsqueeze(0), damping)
+        return fisher_product(self.nets, self._flat_of(data.k), actor, policy, data.states.weights.unsqueeze(0), damping)
 
     def _conjugate_gradient(self, fvp: Operator, b: th.Tensor) -> th.Tensor:
         m = self.model
@@ -168,13 +177,14 @@ class FleetCPO(FleetCostTrainer):
         m = self.model
         theta = self._actor(data.k)
         theta_old = theta.clone()
+        direction = self._flat_of(data.k).expand(step.direction)  # the buffer's layout
         start = self._evaluate(data)
         expected = (g @ step.direction).item()
         result = new_search()
         fraction = 1.0
         shrink = float(m.line_search_shrinking_factor)
         for j in range(int(m.line_search_max_iter)):
-            theta.copy_(theta_old + fraction * step.direction)
+            theta.copy_(theta_old + fraction * direction)
             result["tried"] = j + 1
             new = self._evaluate(data)
             if not new.valid:
@@ -189,7 +199,7 @@ class FleetCPO(FleetCostTrainer):
                 continue  # OmniSafe retries the same fraction
             if line_search_accepts(m.line_search_accept, m.target_kl, step, d_reward, d_cost, kl, c, expected):
                 result.update(accept_step=j + 1, fraction=fraction)
-                theta.copy_(theta_old + fraction * step.direction)
+                theta.copy_(theta_old + fraction * direction)
                 return result
             fraction *= shrink
         theta.copy_(theta_old)

@@ -24,21 +24,41 @@ Operator = Callable[[th.Tensor], th.Tensor]
 
 class FlatActor:
     """The actor's stacked tensors as one vector per row, in the order of the actor's parameters
-    (the layout of the actor's flat parameter buffer), and back."""
+    (the layout of the actor's flat parameter buffer), and back.
 
-    def __init__(self, params: Sequence[th.Tensor]) -> None:
-        self.shapes = [p.shape[1:] for p in params]
+    With ``width``, for a run of a fleet that mixes observation sizes: the vectors hold only the
+    run's own first-layer columns (``[out, width]``, not the padded ``[out, W]``), so its dot
+    products and norms sum what an unpadded fleet's sum, in the same order; :meth:`split` and
+    :meth:`expand` pad them back with zeros where the stacked tensors are wider.
+    """
+
+    def __init__(self, params: Sequence[th.Tensor], width: int | None = None) -> None:
+        self.full = [tuple(p.shape[1:]) for p in params]
+        self.shapes = list(self.full)
+        if width is not None and width < self.full[0][1]:
+            self.shapes[0] = (self.full[0][0], int(width))
         self.sizes = [int(np.prod(s)) for s in self.shapes]
 
-    @staticmethod
-    def flat(tensors: list[th.Tensor]) -> th.Tensor:
-        """``[R, D]``: per row, the tensors (one row each) concatenated."""
+    def flat(self, tensors: list[th.Tensor]) -> th.Tensor:
+        """``[R, D]``: per row, the tensors (one row each) concatenated (the first one's own columns only)."""
+        if self.shapes[0] != self.full[0]:
+            tensors = [tensors[0][:, :, : self.shapes[0][1]], *tensors[1:]]
         return th.cat([t.reshape(t.shape[0], -1) for t in tensors], dim=1)
 
     def split(self, vectors: th.Tensor) -> list[th.Tensor]:
-        """The inverse of :meth:`flat`: ``[R, D]`` as actor-shaped tangents ``[R, out, in]``, ``[R, out, 1]``."""
+        """The inverse of :meth:`flat`: ``[R, D]`` as actor-shaped tangents ``[R, out, in]``, ``[R, out, 1]``
+        (the first one zero-padded to the stacked width)."""
         rows = vectors.shape[0]
-        return [t.reshape(rows, *s) for t, s in zip(th.split(vectors, self.sizes, dim=1), self.shapes)]
+        out = [t.reshape(rows, *s) for t, s in zip(th.split(vectors, self.sizes, dim=1), self.shapes)]
+        if self.shapes[0] != self.full[0]:
+            out[0] = th.nn.functional.pad(out[0], (0, self.full[0][1] - self.shapes[0][1]))
+        return out
+
+    def expand(self, vector: th.Tensor) -> th.Tensor:
+        """A vector of :meth:`flat`'s layout (``[D]``) in the flat parameter buffer's (padded) layout."""
+        if self.shapes[0] == self.full[0]:
+            return vector
+        return th.cat([t.reshape(-1) for t in self.split(vector.unsqueeze(0))])
 
 
 def fisher_product(nets: FleetNetworks, flat: FlatActor, actor: Trace, policy: Policy, weights: th.Tensor, damping: float) -> Operator:

@@ -80,8 +80,9 @@ class FleetEnv(_FleetEnvBase):
         device: str | th.device = "cpu",
     ) -> None:
         super().__init__(bounds, n_envs, reward_cost, device)
-        self.sim = MixedBatchedTrolleyEnv([b.env_id for b in bounds for _ in range(n_envs)], max_steps=max_steps)
+        self.sim = MixedBatchedTrolleyEnv([b.env_id for b in bounds for _ in range(n_envs)], max_steps=max_steps, pad_obs=True)
         self.obs_dim = self.sim.obs_dim
+        self.run_obs_dims = [self.sim.obs_dims[self.sim.env_ids[k * n_envs]] for k in range(self.n_runs)]
         groups: dict[tuple[str, str, float], list[int]] = {}
         for k, b in enumerate(bounds):
             groups.setdefault((b.env_id, b.chain.name, float(b.beta)), []).append(k)
@@ -162,13 +163,8 @@ class DeviceFleetEnv(_FleetEnvBase):
         copies = [b for b in bounds for _ in range(n_envs)]
         self.cost = TorchCost.for_copies(copies, reward_cost, self.device)  # first: refuses prescribed norms
         self.sim = TorchTrolleySim([b.env_id for b in copies], self.device, max_steps=max_steps)
-        dims = set(self.sim.obs_dims.values())
-        if len(dims) > 1:
-            raise ValueError(
-                f"the copies of one fleet must share an observation size, got {self.sim.obs_dims}; "
-                "fleet only variants of one scenario together"
-            )
         self.obs_dim = self.sim.obs_dim
+        self.run_obs_dims = [self.sim.obs_dims[self.sim.env_ids[k * n_envs]] for k in range(self.n_runs)]
 
     def state_dict(self) -> dict[str, Any]:
         """The simulator's copies and the cost memory (see :meth:`FleetEnv.state_dict`)."""

@@ -103,11 +103,18 @@ class FleetNetworks:
     """The stacked parameters of ``n_runs`` runs' heads (see the module docstring)."""
 
     def __init__(
-        self, n_runs: int, obs_dim: int, hidden: Sequence[int], outputs: dict[str, int], activation: str, device: th.device | str = "cpu"
+        self, n_runs: int, obs_dim: int, hidden: Sequence[int], outputs: dict[str, int], activation: str,
+        device: th.device | str = "cpu", in_dims: Sequence[int] | None = None,
     ) -> None:
         if activation not in ACTIVATIONS:
             raise ValueError(f"activation {activation!r} is not one of {', '.join(ACTIVATIONS)}")
         self.n_runs = n_runs
+        #: Each run's own observation width: a fleet that mixes scenarios pads observations to the
+        #: widest (``obs_dim``), and run ``k``'s first layers keep zero weights beyond its
+        #: ``in_dims[k]`` columns (its zero inputs there leave those weights' gradients at exactly 0).
+        self.in_dims = [obs_dim] * n_runs if in_dims is None else [int(d) for d in in_dims]
+        if len(self.in_dims) != n_runs or max(self.in_dims) > obs_dim:
+            raise ValueError(f"in_dims {self.in_dims} do not fit {n_runs} runs of width at most {obs_dim}")
         self.activation_name = activation
         self._act, self._act_backward = ACTIVATIONS[activation]
         self.heads: dict[str, Layers] = {}
@@ -120,6 +127,17 @@ class FleetNetworks:
     def params(self, *heads: str) -> list[th.Tensor]:
         """The stacked tensors of the given heads, ``W0, b0, W1, b1, ...`` head after head."""
         return [t for head in heads for layer in self.heads[head] for t in layer]
+
+    def padded(self, *heads: str) -> dict[int, list[int]]:
+        """For :meth:`params` ``(*heads)``: the index of every first-layer weight and each run's own
+        width of it, when runs differ in width (``{}`` otherwise: nothing is padded)."""
+        if len(set(self.in_dims)) < 2:
+            return {}
+        out, i = {}, 0
+        for head in heads:
+            out[i] = list(self.in_dims)
+            i += 2 * len(self.heads[head])
+        return out
 
     def layers(self, head: str, runs: Runs = None) -> Layers:
         """``head``'s layers for ``runs`` (views for ``None`` and slices, gathered copies for indices)."""
@@ -214,7 +232,7 @@ class FleetNetworks:
             if len(linears) != len(layers):
                 raise ValueError(f"head {head!r}: the policy has {len(linears)} layers, the fleet {len(layers)}")
             for (w, b), lin in zip(layers, linears):
-                w[k] = lin.weight
+                w[k, :, : lin.weight.shape[1]] = lin.weight  # the first layer's padded columns stay 0
                 b[k, :, 0] = lin.bias
 
     @th.no_grad()
@@ -222,7 +240,7 @@ class FleetNetworks:
         """Copy run ``k``'s weights into an SB3 policy of the same architecture."""
         for head, layers in self.heads.items():
             for (w, b), lin in zip(layers, policy_linears(policy, head)):
-                lin.weight.copy_(w[k])
+                lin.weight.copy_(w[k, :, : lin.weight.shape[1]])
                 lin.bias.copy_(b[k, :, 0])
 
 

@@ -33,11 +33,19 @@ class BatchedAdam:
         view of its columns, batch-strided), so a step is one fused kernel over each run's row,
         instead of a dozen operations per tensor; the tensors keep their shapes.
     :param eps: Adam's ``eps`` (PyTorch's default 1e-8; SB3's policies pass 1e-5).
+    :param padded: ``{index: widths}`` for parameters ``[K, out, W]`` of which run ``k`` uses only the
+        first ``widths[k]`` columns (a fleet that mixes observation sizes: the rest stays exactly 0).
+        Gradient norms are taken over each run's own columns, laid out as its unpadded tensor, so
+        clipping gives the bits a fleet of one observation size gives.
     """
 
-    def __init__(self, params: Sequence[th.Tensor], n_runs: int, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8) -> None:
+    def __init__(
+        self, params: Sequence[th.Tensor], n_runs: int, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8,
+        padded: dict[int, list[int]] | None = None,
+    ) -> None:
         self.params = list(params)
         self.n_runs = n_runs
+        self._padded = {i: np.asarray(widths, dtype=np.int64) for i, widths in (padded or {}).items()}
         self.beta1, self.beta2 = float(betas[0]), float(betas[1])
         self.eps = float(eps)
         for p in self.params:
@@ -100,7 +108,7 @@ class BatchedAdam:
             params = self.flat if len(runs) == self.n_runs else self.flat[th.from_numpy(runs)]
             g.add_(params * (2.0 * l2))  # = l2 * (2 * theta) exactly: doubling is exact in binary floats
         if max_norm is not None:
-            self._clip(g, max_norm, clip_groups)
+            self._clip(g, max_norm, clip_groups, runs)
         # As torch.optim.Adam: the step count first, then the kernel.
         if len(runs) == self.n_runs:
             self._step_counts.add_(1.0)
@@ -118,19 +126,34 @@ class BatchedAdam:
                 eps=self.eps, amsgrad=False, maximize=False,
             )
 
-    def _clip(self, g: th.Tensor, max_norm: float, groups: Sequence[Sequence[int]] | None) -> None:
-        """Scale the gradient ``g`` (one row per run, ``[R, P]``) in place: :func:`clip_grad_norm`
-        per run and group."""
+    def _clip(self, g: th.Tensor, max_norm: float, groups: Sequence[Sequence[int]] | None, runs: np.ndarray) -> None:
+        """Scale the gradient ``g`` (one row per run of ``runs``, ``[R, P]``) in place:
+        :func:`clip_grad_norm` per run and group."""
         groups = [range(len(self.params))] if groups is None else groups
         for grp in groups:
             idx = list(grp)
-            norms = th.stack([th.linalg.vector_norm(g[:, slice(*self._columns[i])], 2.0, dim=1) for i in idx], dim=1)
+            norms = th.stack([self._norms(g, i, runs) for i in idx], dim=1)
             coef = th.clamp(max_norm / (th.linalg.vector_norm(norms, 2.0, dim=1) + 1e-6), max=1.0).unsqueeze(1)
             if idx == list(range(idx[0], idx[-1] + 1)):  # contiguous parameters: one block of columns
                 g[:, self._columns[idx[0]][0] : self._columns[idx[-1]][1]].mul_(coef)
             else:
                 for i in idx:
                     g[:, slice(*self._columns[i])].mul_(coef)
+
+    def _norms(self, g: th.Tensor, i: int, runs: np.ndarray) -> th.Tensor:
+        """``[R]``: each row's 2-norm of parameter ``i``'s gradient, over the run's own columns."""
+        block = g[:, slice(*self._columns[i])]
+        widths = self._padded.get(i)
+        if widths is None:
+            return th.linalg.vector_norm(block, 2.0, dim=1)
+        out_dim, width = self.params[i].shape[1:]
+        norms = block.new_empty(block.shape[0])
+        row_widths = widths[runs]
+        for d in np.unique(row_widths).tolist():
+            rows = th.from_numpy(np.flatnonzero(row_widths == d)).to(g.device)
+            own = block.index_select(0, rows).view(len(rows), out_dim, width)[:, :, :d].reshape(len(rows), -1)
+            norms[rows] = th.linalg.vector_norm(own, 2.0, dim=1)
+        return norms
 
     def state_dict(self) -> dict[str, th.Tensor]:
         """The moments and step counts of every run (CPU copies; the parameters are their owner's
@@ -149,13 +172,13 @@ class BatchedAdam:
 
     def state_of(self, k: int) -> list[dict[str, th.Tensor]]:
         """Run ``k``'s Adam state per parameter, as ``torch.optim.Adam.state`` holds it."""
+        def own(buf: th.Tensor, i: int, p: th.Tensor, a: int, b: int) -> th.Tensor:
+            value = buf[k, a:b].reshape(p.shape[1:])
+            return (value[:, : int(self._padded[i][k])] if i in self._padded else value).clone()
+
         return [
-            {
-                "step": self._steps[k].clone(),
-                "exp_avg": self.exp_avg[k, a:b].reshape(p.shape[1:]).clone(),
-                "exp_avg_sq": self.exp_avg_sq[k, a:b].reshape(p.shape[1:]).clone(),
-            }
-            for p, (a, b) in zip(self.params, self._columns)
+            {"step": self._steps[k].clone(), "exp_avg": own(self.exp_avg, i, p, a, b), "exp_avg_sq": own(self.exp_avg_sq, i, p, a, b)}
+            for i, (p, (a, b)) in enumerate(zip(self.params, self._columns))
         ]
 
 

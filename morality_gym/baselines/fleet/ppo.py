@@ -46,7 +46,8 @@ class FleetPPO(FleetTrainer):
         if defaults.get("weight_decay", 0) or defaults.get("amsgrad", False):
             raise self._unsupported("optimizer_kwargs", defaults, "plain Adam")
         self.params = self.nets.params("pi", "vf")
-        self.optimizer = BatchedAdam(self.params, self.n_runs, betas=defaults["betas"], eps=defaults["eps"])
+        self.optimizer = BatchedAdam(self.params, self.n_runs, betas=defaults["betas"], eps=defaults["eps"],
+                                     padded=self.nets.padded("pi", "vf"))
 
     def _optimisers(self) -> dict[str, BatchedAdam]:
         return {"policy": self.optimizer}

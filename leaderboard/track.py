@@ -1,0 +1,334 @@
+"""The generalisation track's page: each learner's score on seen vs unseen vs built-in dilemmas.
+
+Reads the runs of ``python -m runners.track`` (``<results>/track/runs/*/``: ``result.json`` and
+``pairs.parquet``) and shows, per learner, the mean score on the three sets
+(:mod:`morality_gym.generalisation.sets`) with 95 % bootstrap intervals, the seen - unseen gap,
+the budget and the split digests, and a bar chart.
+
+**Scores.** Per (env id, chain) pair, the policy's exact metric placed between the pair's exact
+oracle worst (0) and best (1): the *range score*; and, as on the ranking page, between Random's
+exact metric (0) and the best (1): the *Random-relative score*, left out for pairs whose headroom
+best - Random is under 0.05 (the leaderboard's guard). An env id's score is the mean over its pairs;
+a run's score on a set is the mean over the set's env ids; a learner's, the mean over its runs.
+
+**Intervals.** A two-level percentile bootstrap (:data:`~leaderboard.stats.core.DEFAULT_RESAMPLES`
+resamples, the statistics' fixed seed; printed to the decimals their bounds are stable to over
+bootstrap seeds, :mod:`leaderboard.outputs.precision`): the runs (seeds) are resampled, and so are the set's
+dilemmas, by scenario (a generated dilemma's variants, or a built-in scenario's variants, move
+together: they share a layout). The interval thus covers both seed-to-seed variation and which
+dilemmas the set happens to hold, which is what a claim about *unseen* dilemmas needs. Random is
+exact: its interval comes from the dilemmas alone. The gap resamples the seeds once for both sets.
+
+``python -m leaderboard.track --results DIR --site SITE`` writes the page alone (into an existing
+or a new site directory) and prints the table; ``leaderboard.build`` writes it with the rest.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from leaderboard.outputs.precision import DIGITS_RULE
+from leaderboard.outputs.tables import interval_text
+from leaderboard.stats.core import CONFIDENCE, DEFAULT_RESAMPLES, DEFAULT_SEED, generator_for, quantile_mcse
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
+from morality_gym.generalisation.sets import MIN_HEADROOM, SET_LABELS, SETS, scenario_of
+from runners.track import PAIRS, RESULT
+
+SCORES = {"range_score": "Range score (0 = oracle worst, 1 = oracle best)",
+          "random_score": "Random-relative score (0 = Random, 1 = oracle best)",
+          "vs_random": "Range score minus Random's on the same dilemmas (paired)"}
+LABELS = {"random": "Random", "ppo": "PPO", "ppo_shaped": "PPO Shaped"}
+COLOURS = {"random": "#8c8c8c", "ppo": "#1f77b4", "ppo_shaped": "#2ca02c"}
+PAGE = "track.html"
+FIGURE = "track/track_scores.png"
+CSV = "track/track_summary.csv"
+
+
+def track_results(results: Path | None) -> Path | None:
+    """Where a results directory keeps the track's runs (``<results>/track``), if it does."""
+    if results is None:
+        return None
+    path = results / "track"
+    return path if (path / "runs").is_dir() else None
+
+
+def load_runs(track_dir: Path) -> tuple[pd.DataFrame, list[dict[str, Any]]]:
+    """Every finished run's pairs (with ``learner`` and ``seed``) and its ``result.json``."""
+    frames, records = [], []
+    for run_dir in sorted(p for p in (track_dir / "runs").iterdir() if p.is_dir()):
+        if not (run_dir / RESULT).is_file() or not (run_dir / PAIRS).is_file():
+            continue  # unfinished: result.json is written last
+        record = json.loads((run_dir / RESULT).read_text())
+        frame = pd.read_parquet(run_dir / PAIRS)
+        frame["learner"], frame["seed"] = record["learner"], str(record["seed"])
+        frames.append(frame)
+        records.append(record | {"run": run_dir.name})
+    if not frames:
+        return pd.DataFrame(), records
+    return pd.concat(frames, ignore_index=True), records
+
+
+def _set_arrays(part: pd.DataFrame, score: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Per seed and scenario: the sum of env-id scores, and each scenario's env-id count."""
+    per_env = part.groupby(["seed", "env_id"])[score].mean().unstack("env_id")  # NaN: no pair of the env scores
+    per_env = per_env.loc[:, per_env.notna().all(axis=0)]
+    scenarios = [scenario_of(e) for e in per_env.columns]
+    codes, names = pd.factorize(pd.Series(scenarios))
+    onehot = np.zeros((len(per_env.columns), len(names)))
+    onehot[np.arange(len(codes)), codes] = 1.0
+    return per_env.to_numpy() @ onehot, onehot.sum(axis=0), list(per_env.index)
+
+
+def _resampled_means(sums: np.ndarray, counts: np.ndarray, seed_weights: np.ndarray, rng: np.random.Generator,
+                     resamples: int) -> np.ndarray:
+    clusters = rng.integers(len(counts), size=(resamples, len(counts)))
+    picks = np.stack([np.bincount(row, minlength=len(counts)) for row in clusters]).astype(float)  # [B, clusters]
+    per_seed = (sums @ picks.T) / (counts @ picks.T)  # [seeds, B]
+    return (seed_weights * per_seed.T).sum(axis=1)
+
+
+def _interval(values: np.ndarray) -> dict[str, float]:
+    """``low``, ``high`` and the Monte Carlo standard error of each (how many decimals the page prints)."""
+    tail = (1 - CONFIDENCE) / 2
+    low, high = np.percentile(values, [100 * tail, 100 * (1 - tail)])
+    low_mcse, high_mcse = quantile_mcse(values, [tail, 1 - tail])
+    return {"low": float(low), "high": float(high), "low_mcse": float(low_mcse), "high_mcse": float(high_mcse)}
+
+
+def with_paired(frame: pd.DataFrame) -> pd.DataFrame:
+    """``vs_random``: each pair's range score minus Random's (exact) on the same pair; NaN for Random."""
+    random = frame[frame["learner"] == "random"].set_index(["set", "env_id", "chain"])["range_score"]
+    if random.empty:
+        return frame.assign(vs_random=np.nan)
+    keys = pd.MultiIndex.from_frame(frame[["set", "env_id", "chain"]])
+    paired = frame["range_score"].to_numpy() - random.reindex(keys).to_numpy()
+    return frame.assign(vs_random=np.where(frame["learner"] == "random", np.nan, paired))
+
+
+def summarise(frame: pd.DataFrame, resamples: int = DEFAULT_RESAMPLES, seed: int = DEFAULT_SEED) -> pd.DataFrame:
+    """One row per (learner, score, set) and per (learner, score, ``gap``): mean and 95 % interval.
+
+    ``vs_random`` (learners other than Random) is the paired difference: the same dilemmas are
+    resampled for the learner and for Random, so it is much tighter than comparing two intervals."""
+    frame = with_paired(frame)
+    rows = []
+    for learner, score in [(lr, s) for lr in frame["learner"].unique() for s in SCORES]:
+        if score == "vs_random" and (learner == "random" or frame["vs_random"].isna().all()):
+            continue
+        mine = frame[frame["learner"] == learner]
+        seeds = sorted(mine["seed"].unique())
+        rng = generator_for(seed, "track", learner, score)
+        seed_draws = rng.integers(len(seeds), size=(resamples, len(seeds)))
+        weights = np.stack([np.bincount(r, minlength=len(seeds)) for r in seed_draws]) / len(seeds)  # [B, seeds]
+        boot: dict[str, np.ndarray] = {}
+        point: dict[str, float] = {}
+        for set_name in SETS:
+            part = mine[mine["set"] == set_name]
+            if part.empty:
+                continue
+            sums, counts, order = _set_arrays(part, score)
+            align = [seeds.index(s) for s in order]
+            w = weights[:, align] if len(order) == len(seeds) else np.full((resamples, len(order)), 1 / len(order))
+            per_seed = sums.sum(axis=1) / counts.sum()
+            point[set_name] = float(per_seed.mean())
+            boot[set_name] = _resampled_means(sums, counts, w, rng, resamples)
+            rows.append({"learner": learner, "score": score, "set": set_name, "mean": point[set_name],
+                         **_interval(boot[set_name]), "env_ids": int(counts.sum()), "dilemmas": len(counts),
+                         "seeds": len(order)})
+        if "seen" in boot and "test" in boot:
+            rows.append({"learner": learner, "score": score, "set": "gap", "mean": point["seen"] - point["test"],
+                         **_interval(boot["seen"] - boot["test"]), "env_ids": 0, "dilemmas": 0, "seeds": len(seeds)})
+    return pd.DataFrame(rows)
+
+
+def _in_order(learners: Any) -> list[str]:
+    """Random, the baselines, then everything else (submissions) by name."""
+    names = list(dict.fromkeys(learners))
+    return [n for n in LABELS if n in names] + sorted(n for n in names if n not in LABELS)
+
+
+def _ci(row: pd.Series) -> str:
+    """``[low, high]`` to the decimals both bounds are stable to over bootstrap seeds (at most three)."""
+    return interval_text({"ci_low": row["low"], "ci_high": row["high"], "ci_low_mcse": row.get("low_mcse"),
+                          "ci_high_mcse": row.get("high_mcse")}) or "—"
+
+
+def left_out(frame: pd.DataFrame) -> str:
+    """Which (env id, chain) pairs the Random-relative score leaves out and why, per set, from the pairs' own
+    references (one sentence for the page; empty when it leaves out none)."""
+    pairs = frame.drop_duplicates(["set", "env_id", "chain"])
+    parts = []
+    for set_name in SETS:
+        mine = pairs[pairs["set"] == set_name]
+        out = mine[(mine["best"] - mine["random"]) < MIN_HEADROOM]
+        if out.empty:
+            continue
+        kept_envs = set(mine.loc[~mine.index.isin(out.index), "env_id"])
+        dropped = sorted(set(out["env_id"]) - kept_envs)
+        text = f"{SET_LABELS[set_name]}: {len(out)} of {len(mine)} (env id, chain) pairs"
+        if len(out) <= 3:
+            text += " (" + ", ".join(f"{r.env_id} / {r.chain} {r.best - r.random:.3f}" for r in out.itertuples()) + ")"
+        if dropped:
+            text += f", so {len(dropped)} of {mine['env_id'].nunique()} env ids drop out"
+        parts.append(text)
+    if not parts:
+        return ""
+    return (f"Leaves out the pairs whose headroom Oracle best − Random is under the {MIN_HEADROOM:g} cutoff: "
+            + "; ".join(parts) + ".")
+
+
+def _bars(ax: Any, part: pd.DataFrame, learners: list[str]) -> None:
+    width = 0.8 / max(1, len(learners))
+    for i, learner in enumerate(learners):
+        mine = part[part["learner"] == learner].set_index("set").reindex(list(SETS))
+        x = np.arange(len(SETS)) + (i - (len(learners) - 1) / 2) * width
+        err = np.vstack([mine["mean"] - mine["low"], mine["high"] - mine["mean"]])
+        ax.bar(x, mine["mean"], width, yerr=err, capsize=4, label=LABELS.get(learner, learner),
+               color=COLOURS.get(learner, "#999999"))
+    ax.set_xticks(np.arange(len(SETS)), [SET_LABELS[s].replace(" (", "\n(") for s in SETS], fontsize=8)
+
+
+def draw_figure(summary: pd.DataFrame, path: Path) -> None:
+    """Grouped bars with the 95 % intervals as error bars: the range score per set, and (when Random
+    ran) each learner's paired difference from Random on the same dilemmas."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    in_sets = summary[summary["set"].isin(SETS)]
+    scores = in_sets[in_sets["score"] == "range_score"]
+    paired = in_sets[in_sets["score"] == "vs_random"]
+    fig, axes = plt.subplots(1, 2 if not paired.empty else 1, figsize=(11, 3.8) if not paired.empty else (7, 3.8),
+                             dpi=110, squeeze=False)
+    ax = axes[0, 0]
+    _bars(ax, scores, _in_order(scores["learner"]))
+    ax.set_ylabel("range score (0 = worst, 1 = best)")
+    ax.set_ylim(0, 1.05)
+    ax.axhline(1.0, color="#444444", lw=0.6, ls=":")
+    ax.legend(loc="upper right", fontsize=8)
+    ax.set_title("Score per set", fontsize=10)
+    if not paired.empty:
+        ax = axes[0, 1]
+        learners = _in_order(paired["learner"])
+        _bars(ax, paired, learners)
+        ax.axhline(0.0, color="#444444", lw=0.8)
+        ax.set_ylabel("range score − Random's (paired)")
+        ax.set_title("Difference from Random on the same dilemmas", fontsize=10)
+        ax.legend(loc="best", fontsize=8)
+    fig.suptitle("Seen vs unseen dilemmas (95% bootstrap intervals)", fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def _seconds(records: list[dict[str, Any]], learner: str) -> str:
+    mine = [r for r in records if r["learner"] == learner]
+    train = np.mean([r.get("train_seconds", 0) for r in mine])
+    evals = np.mean([r.get("eval_seconds", 0) for r in mine])
+    return f"{train:.0f} s + {evals:.0f} s"
+
+
+def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
+                  resamples: int = DEFAULT_RESAMPLES) -> dict[str, Any]:
+    """The page's context; draws the figure and writes the summary CSV into ``site``."""
+    context: dict[str, Any] = {**common, "set_labels": SET_LABELS, "sets": list(SETS), "has_runs": False,
+                               "track_dir": str(track_dir) if track_dir else "", "resamples": f"{resamples:,}",
+                               "digits_rule": DIGITS_RULE}
+    if track_dir is None:
+        return context
+    frame, records = load_runs(track_dir)
+    if frame.empty:
+        return context
+    summary = summarise(frame, resamples)
+    (site / CSV).parent.mkdir(parents=True, exist_ok=True)
+    summary.to_csv(site / CSV, index=False)
+    draw_figure(summary, site / FIGURE)
+    tables = []
+    for score, title in SCORES.items():
+        part = summary[summary["score"] == score]
+        if part.empty:
+            continue
+        rows = []
+        for learner in _in_order(part["learner"]):
+            cells = part[part["learner"] == learner].set_index("set")
+            record = next(r for r in records if r["learner"] == learner)
+            rows.append({
+                "learner": LABELS.get(learner, learner), "colour": COLOURS.get(learner, "#999999"),
+                "budget": "exact, untrained" if learner == "random" else "submitted policy" if record.get("submitted")
+                else f"{record['budget']:,} steps",
+                "seeds": "exact" if learner == "random" else
+                ", ".join(sorted({str(r["seed"]) for r in records if r["learner"] == learner})),
+                "cells": [{"mean": float(cells.loc[s, "mean"]), "ci": _ci(cells.loc[s])} if s in cells.index else None
+                          for s in [*SETS, "gap"]],
+                "time": "—" if learner == "random" or record.get("submitted") else _seconds(records, learner),
+            })
+        counts = {s: part[part["set"] == s].iloc[0] for s in SETS if (part["set"] == s).any()}
+        tables.append({"score": score, "title": title, "rows": rows,
+                       "left_out": left_out(frame) if score == "random_score" else "",
+                       "counts": {s: f"{int(c['env_ids'])} env ids, {int(c['dilemmas'])} dilemmas" for s, c in counts.items()}})
+    first = records[0]
+    sources = [{"set": SET_LABELS[name], **source} for name, source in first["sets"].items()]
+    trained = [r for r in records if r["learner"] != "random"]
+    context.update(has_runs=True, tables=tables, figure=FIGURE, csv=CSV, sources=sources,
+                   train_digest=first["train_digest"], grammar_version=first["grammar_version"],
+                   train_pool=first["train_pool"], hparams=trained[0].get("hparams") if trained else None,
+                   n_envs=trained[0].get("n_envs") if trained else None)
+    return context
+
+
+def write_page(site: Path, track_dir: Path | None, common: dict[str, Any], resamples: int = DEFAULT_RESAMPLES) -> Path:
+    from leaderboard.web.render import render
+
+    text = render("track.html", **track_context(common, track_dir, site, resamples))
+    (site / PAGE).write_text(text, encoding="utf-8")
+    return site / PAGE
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = OneLineParser(prog="python -m leaderboard.track", description="The generalisation track's page and table.")
+    parser.add_argument("--results", type=Path, required=True, help="the --out of python -m runners.track")
+    parser.add_argument("--site", type=Path, help="write track.html (and its figure) into this site directory")
+    parser.add_argument("--resamples", type=int, default=DEFAULT_RESAMPLES)
+    add_debug_flag(parser)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from leaderboard.outputs.marks import MARKS
+    from leaderboard.web.site_state import NAV
+
+    args = build_parser().parse_args(argv)
+    if not (args.results / "runs").is_dir():
+        raise UserError(f"{args.results}: no runs/ directory. Fix: pass the --out of python -m runners.track")
+    frame, _ = load_runs(args.results)
+    if frame.empty:
+        raise UserError(f"{args.results}: no finished run (result.json). Fix: run python -m runners.track first")
+    summary = summarise(frame, args.resamples)
+    for _, row in summary.iterrows():
+        print(f"{row['score']:<12} {row['learner']:<11} {row['set']:<8} {row['mean']:+.3f} {_ci(row)}")
+    if args.site is not None:
+        args.site.mkdir(parents=True, exist_ok=True)
+        assets = args.site / "assets"
+        assets.mkdir(exist_ok=True)
+        for name in ("site.css", "site.js"):
+            if not (assets / name).is_file():
+                shutil.copyfile(Path(__file__).parent / "static" / name, assets / name)
+        common = {"title": "Generalisation track", "root": "", "current": PAGE, "nav": NAV, "stamp": "",
+                  "results_name": str(args.results), "source_parts": [], "marks": MARKS}
+        print(write_page(args.site, args.results, common, args.resamples))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(run_cli(lambda: main(sys.argv[1:]), (), sys.argv[1:]))
