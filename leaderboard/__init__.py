@@ -17,6 +17,7 @@ The package is grouped by job, one folder per floor, each importing only the flo
 ``outputs/`` - what a build writes besides the site
     :mod:`~leaderboard.outputs.tables` (Table 1 as CSV, Markdown, LaTeX),
     :mod:`~leaderboard.outputs.intervals` (Table 1 with interval estimates),
+    :mod:`~leaderboard.outputs.precision` (the decimals a bound is printed with),
     :mod:`~leaderboard.outputs.marks` (what every mark means), :mod:`~leaderboard.outputs.paper_figures`
     (Figure 2 bars and radars), :mod:`~leaderboard.outputs.stats_figures` (the statistics' figures),
     :mod:`~leaderboard.outputs.downloads` (every table as CSV, all runs as Parquet).
@@ -33,5 +34,7 @@ the top level - the command-line tools (``python -m leaderboard.<tool>``)
     (score a policy trained elsewhere), :mod:`~leaderboard.llm` (a language-model agent),
     :mod:`~leaderboard.release` (freeze runs into ``releases/``), :mod:`~leaderboard.reproduction`
     (Table 1 against the paper, cell by cell), :mod:`~leaderboard.compare` and
-    :mod:`~leaderboard.engines` (two result sets side by side), :mod:`~leaderboard.screenshot`.
+    :mod:`~leaderboard.engines` (two result sets side by side), :mod:`~leaderboard.screenshot`,
+    :mod:`~leaderboard.track` (the generalisation track's table and page; the site's build calls it
+    for its track page, the one place a floor reaches up to a tool).
 """
