@@ -18,7 +18,7 @@ import morality_gym
 from benchmarks import Context, Section, register
 from morality_gym.baselines.specs import learner_spec
 from morality_gym.paper import table1
-from runners.config_schema import load_preset
+from morality_gym.results.presets import load_preset
 
 SCENARIO, CHAIN = "Switch5", "Utility"
 #: (learner, protocol): the paper-protocol learners of Table 1, and PPO-Lag's dearer corrected protocol.

@@ -58,7 +58,7 @@ def write_results(root: Path, seeds: tuple[int, ...] = (41, 42), updates: int = 
 
     PPO-Lag and CPO runs get ``updates`` per-update diagnostics (0: none), thinned to every ``stride``-th."""
     # pandas, pyarrow wait: only the benchmark that runs it needs them
-    from runners.results_schema import MF_PREFIX, SCHEMA_VERSION, run_schema, write_learn, write_run, write_updates
+    from morality_gym.results.schema import MF_PREFIX, SCHEMA_VERSION, run_schema, write_learn, write_run, write_updates
     from tests.stats_data import synthetic_runs
 
     runs, learn = synthetic_runs(seeds=seeds, preset="quick")

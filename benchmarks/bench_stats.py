@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import pandas as pd
 
 from benchmarks import Context, Section, best_time, register
-from leaderboard.aggregate import row_order
+from leaderboard.runs.aggregate import row_order
 from tests.stats_data import reference_frame, synthetic_runs
 
 if TYPE_CHECKING:

@@ -33,8 +33,8 @@ from typing import Any
 
 from morality_gym.baselines.specs import learner_spec
 from morality_gym.clitools import duration
+from morality_gym.results.schema import compute_seconds
 from runners.paths import CONF_DIR
-from runners.results_schema import compute_seconds
 
 
 @dataclass(frozen=True)
@@ -71,8 +71,8 @@ def finished_runs(results_dir: Path, protocol: str, preset: str | None, engine: 
     # pandas, pyarrow, OmegaConf wait: only the benchmark that runs it needs them
     import pandas as pd
 
+    from morality_gym.results.schema import read_runs
     from runners.jobs import fleet_trains
-    from runners.results_schema import read_runs
 
     frame = read_runs(results_dir, skipped=[])
     if frame.empty:

@@ -12,8 +12,8 @@ tables: never inside the installed package). User errors print one line and exit
 (``--debug`` shows the traceback).
 
 A rebuild is quick: ``cache/`` keeps the exact reference rows, the bootstrap statistics, Figure 2
-and the radars, the statistics figures (:mod:`leaderboard.cached_stages`), the per-run SVG charts
-(:mod:`leaderboard.run_figures`) and the run pages (:mod:`leaderboard.page_cache`), each keyed by a
+and the radars, the statistics figures (:mod:`leaderboard.web.cached_stages`), the per-run SVG charts
+(:mod:`leaderboard.web.run_figures`) and the run pages (:mod:`leaderboard.web.page_cache`), each keyed by a
 digest of its inputs and code, so what is reused is what a fresh build would write, byte for byte.
 Deleting ``cache/`` only makes the next build slower.
 """
@@ -29,7 +29,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, TypeVar
 
-from leaderboard.aggregate import (
+from leaderboard.outputs.tables import write_tables
+from leaderboard.runs.aggregate import (
     Leaderboard,
     aggregate,
     chain_definitions,
@@ -38,13 +39,12 @@ from leaderboard.aggregate import (
     reference_requests,
     with_reference,
 )
-from leaderboard.opening import primary_choice
-from leaderboard.release import Release, ReleaseError, resolve
-from leaderboard.sources import Sources, load_sources
-from leaderboard.stamp import StampError, source_date_epoch, stamp_text
-from leaderboard.tables import write_tables
+from leaderboard.runs.opening import primary_choice
+from leaderboard.runs.releases import Release, ReleaseError, resolve
+from leaderboard.runs.sources import Sources, load_sources
+from leaderboard.runs.stamp import StampError, source_date_epoch, stamp_text
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, did_you_mean, run_cli, writing
-from runners.quarantine import quarantined_files
+from morality_gym.results.quarantine import quarantined_files
 
 REFERENCE_CACHE = Path("cache") / "reference_rows.json"
 EXIT_OK = 0
@@ -134,10 +134,10 @@ def build(args: argparse.Namespace, sources: Sources, quarantined: list[dict[str
           ) -> tuple[Leaderboard, dict[str, Any]]:
     """Run every stage on loaded runs; returns the leaderboard and what was written (for the summary)."""
     # matplotlib, SciPy, Jinja wait: importing leaderboard.build (its --help too) must not load them
-    from leaderboard.cached_stages import paper_figures, statistics, statistics_figures
-    from leaderboard.intervals import with_intervals
-    from leaderboard.run_figures import write_run_charts
-    from leaderboard.site import build_site
+    from leaderboard.outputs.intervals import with_intervals
+    from leaderboard.web.cached_stages import paper_figures, statistics, statistics_figures
+    from leaderboard.web.run_figures import write_run_charts
+    from leaderboard.web.site import build_site
 
     runs, planned, skipped = sources.runs, sources.planned, sources.skipped
     out_dir: Path = args.out
@@ -270,7 +270,7 @@ def _output_lines(out: dict[str, Any], args: argparse.Namespace) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     """The build, with every user error raised as :class:`UserError` (one line, exit 2)."""
     # matplotlib, Jinja wait: importing leaderboard.build (its --help too) must not load them
-    from leaderboard.site import SiteError, check_target
+    from leaderboard.web.site import SiteError, check_target
 
     try:
         source_date_epoch()  # before scipy is imported: numpy.f2py reads the variable too and crashes on it

@@ -4,7 +4,7 @@ A change to a learner (a fixed bug, a reproduced quirk, a new default) is judged
 Table 1: which cells moved, by how much, and whether towards the paper's published values. This
 command answers that from two results directories (or one directory and a saved ``table1_all.csv``
 of an earlier leaderboard build, when the earlier run files are gone), aggregated by exactly the
-leaderboard's rules (:func:`leaderboard.aggregate.aggregate`: one configuration per cell,
+leaderboard's rules (:func:`leaderboard.runs.aggregate.aggregate`: one configuration per cell,
 superseded runs left out, completeness per cell). It never writes into either results directory.
 
 Output (Markdown, to stdout or ``--out``): per (protocol, preset) of AFTER, one row per Table 1 row
@@ -27,11 +27,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from leaderboard.aggregate import aggregate, learner_order, row_order
 from leaderboard.build import load
-from leaderboard.tables import fmt, md_escape
+from leaderboard.outputs.tables import fmt, md_escape
+from leaderboard.runs.aggregate import aggregate, learner_order, row_order
 from morality_gym.clitools import OneLineParser, UserError, run_cli
-from runners.results_schema import read_updates
+from morality_gym.results.schema import read_updates
 
 #: The cell columns a side must provide (both a results directory and a table1_all.csv give them).
 _CELL = ["protocol", "preset", "chain", "scenario", "learner"]

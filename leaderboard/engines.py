@@ -35,9 +35,9 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from leaderboard.aggregate import aggregate, learner_order, row_order
 from leaderboard.build import load
-from leaderboard.tables import fmt, md_escape
+from leaderboard.outputs.tables import fmt, md_escape
+from leaderboard.runs.aggregate import aggregate, learner_order, row_order
 from morality_gym.clitools import OneLineParser, UserError, duration, run_cli
 
 _CELL = ["protocol", "preset", "chain", "scenario", "learner"]

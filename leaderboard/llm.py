@@ -9,7 +9,7 @@ Two commands:
   the last line repeats), which is how the tests and the docs' example run end to end.
 * ``import LOG...``: turn Inspect logs (from ``run`` or from ``inspect eval``) into submitted runs.
 
-Each sample (one episode of one env id) becomes one submitted run row (:mod:`runners.results_schema`):
+Each sample (one episode of one env id) becomes one submitted run row (:mod:`morality_gym.results.schema`):
 ``algo`` ``submitted``, ``learner`` the ``--name``, ``seed`` the episode's sampling seed, and the
 episode's own morality metric and morality functions. So the leaderboard's cell mean is the mean
 over episodes (equal per variant), and its interval (seeds resampled within each variant) is the
@@ -32,20 +32,21 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from leaderboard.aggregate import LLM_POLICY_KIND
+from leaderboard.runs.aggregate import LLM_POLICY_KIND
 from leaderboard.submit import _submitter, check_name, code_version
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, positive_float, run_cli
 from morality_gym.constants import BETA
 from morality_gym.envs.registry import UnknownEnvError, parse_env_id
+from morality_gym.llm.episode import EPISODE_KEY
 from morality_gym.llm.settings import DEFAULT_PRESET, PRESETS, AgentSettings, SettingsError
 from morality_gym.llm.text import FRAMINGS, FramingError
 from morality_gym.llm.tokens import estimate_tokens
 from morality_gym.norms.chain import ChainError, get_chain
-from runners.execute import RunLock, finished_status, versions
-from runners.identity import PROVENANCE_KEY as PROVENANCE
-from runners.identity import SUBMITTED_ALGO as SUBMITTED
-from runners.identity import run_identity
-from runners.results_schema import MF_PREFIX, SCHEMA_VERSION, write_run
+from morality_gym.results.identity import PROVENANCE_KEY as PROVENANCE
+from morality_gym.results.identity import SUBMITTED_ALGO as SUBMITTED
+from morality_gym.results.identity import run_identity
+from morality_gym.results.recording import RunLock, finished_status, versions
+from morality_gym.results.schema import MF_PREFIX, SCHEMA_VERSION, write_run
 
 # Inspect AI (the llm extra) is imported inside the functions that run or read it, so that
 # --help and the one-line errors work without the extra installed.
@@ -77,9 +78,6 @@ class Episode:
 
 def read_episodes(path: Path) -> tuple[list[Episode], dict[str, Any]]:
     """The scored episodes of an Inspect log and the task's ``morality_gym`` metadata."""
-    # Inspect waits: importing leaderboard.llm (its --help too) must not load it
-    from morality_gym.llm.inspect_tasks import EPISODE_KEY
-
     log, meta = _read_log(path)
     # The temperature the calls used: the task's, else Inspect's --temperature, else the provider's default.
     eval_temperature = log.plan.config.temperature if log.plan is not None else None

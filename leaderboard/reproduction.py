@@ -27,7 +27,10 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from leaderboard.aggregate import (
+from leaderboard.outputs.intervals import with_intervals
+from leaderboard.outputs.paper_figures import norm_label, write_figures
+from leaderboard.outputs.tables import interval_text
+from leaderboard.runs.aggregate import (
     Group,
     Leaderboard,
     aggregate,
@@ -40,12 +43,9 @@ from leaderboard.aggregate import (
     safe_name,
     with_reference,
 )
-from leaderboard.intervals import with_intervals
-from leaderboard.paper_figures import norm_label, write_figures
-from leaderboard.release import ReleaseError, resolve
-from leaderboard.sources import Sources, load_sources
+from leaderboard.runs.releases import ReleaseError, resolve
+from leaderboard.runs.sources import Sources, load_sources
 from leaderboard.stats import compute_stats
-from leaderboard.tables import interval_text
 from morality_gym.baselines.specs import learner_spec, protocol_spec
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, did_you_mean, run_cli
 

@@ -2,7 +2,7 @@
 
 A policy from another library, a hand-written rule or a language model gets the evaluation every
 trained run of the sweep gets, and lands in the results directory as ordinary run rows
-(:mod:`runners.results_schema`), so ``python -m leaderboard.build`` shows it next to the baselines:
+(:mod:`morality_gym.results.schema`), so ``python -m leaderboard.build`` shows it next to the baselines:
 
 * for each selected (chain, scenario) cell, each variant of the scenario and each seed of the
   preset (``paper``: 41, 42, 43), the paper's final evaluation: ``eval_episodes`` (100) Monte-Carlo
@@ -19,7 +19,7 @@ Rows are labelled ``algo = "submitted"``, ``learner = <display name>`` and carry
 determines its numbers (cell, variant, seed, evaluation settings, display name and the SHA-256 of
 the policy's files), not the provenance: re-submitting the same file under the same name writes
 nothing new, and a changed file gives new runs whose newer configuration the leaderboard counts,
-reporting the old ones as superseded (:func:`leaderboard.aggregate.select_configurations`).
+reporting the old ones as superseded (:func:`leaderboard.runs.aggregate.select_configurations`).
 Files are written atomically, one per run, after the whole evaluation of the run succeeded.
 """
 
@@ -39,8 +39,11 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
+import morality_gym
+from leaderboard.runs.display_order import REFERENCE_LEARNERS
 from morality_gym.baselines.io import ModelError
 from morality_gym.baselines.policy_ref import LoadedPolicy, PolicyError, is_stationary, load_policy, probe
+from morality_gym.baselines.specs import CONF_DIR
 from morality_gym.clitools import (
     OneLineParser,
     UserError,
@@ -60,10 +63,10 @@ from morality_gym.evaluation.policies import PolicyFailure
 from morality_gym.norms.chain import ChainError, MoralityChain, get_chain
 from morality_gym.norms.metric import bind_chain
 from morality_gym.paper import LEARNERS, table1
-from runners.identity import PROVENANCE_KEY as PROVENANCE
-from runners.identity import SUBMITTED_ALGO as SUBMITTED
-from runners.identity import run_identity
-from runners.paths import CONF_DIR
+from morality_gym.results.identity import PROVENANCE_KEY as PROVENANCE
+from morality_gym.results.identity import SUBMITTED_ALGO as SUBMITTED
+from morality_gym.results.identity import run_identity
+from morality_gym.results.presets import PresetError, load_preset
 
 DEFAULT_PROTOCOL = "paper"
 DEFAULT_PRESET = "paper"
@@ -145,10 +148,7 @@ def _check_variants(pairs: list[tuple[MoralityChain, str]], variants: Sequence[s
 
 def preset_facts(preset: str) -> tuple[tuple[int, ...], int]:
     """(seeds, final-evaluation episodes) of ``conf/preset/<preset>.yaml``, read and checked by the
-    sweep's own preset schema (:func:`runners.config_schema.load_preset`)."""
-    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
-    from runners.config_schema import PresetError, load_preset
-
+    sweep's own preset schema (:func:`morality_gym.results.presets.load_preset`)."""
     try:
         loaded = load_preset(preset)
     except PresetError as exc:
@@ -160,7 +160,7 @@ def preset_facts(preset: str) -> tuple[tuple[int, ...], int]:
 def code_version() -> str:
     """The git commit of this checkout, else the installed package's version."""
     # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
-    from runners.execute import git_commit
+    from morality_gym.results.recording import git_commit
 
     commit = git_commit()
     if commit != "unknown":
@@ -169,16 +169,11 @@ def code_version() -> str:
     try:
         return f"morality-gym {version('morality-gym')}"
     except PackageNotFoundError:
-        import morality_gym
-
         return f"morality-gym {morality_gym.__version__}"
 
 
 def check_name(name: str) -> str:
     """A display name that cannot pass for one of the paper's learners or a reference row."""
-    # pandas, pyarrow wait: importing leaderboard.submit (its --help too) must not load them
-    from leaderboard.aggregate import REFERENCE_LEARNERS
-
     cleaned = " ".join(str(name).split())
     if not cleaned:
         raise UserError("--name must not be empty: it is the entry's label on the leaderboard")
@@ -211,7 +206,7 @@ class Submission:
 def run_config(sub: Submission, cell: Cell, variant: str, seed: int, stationary: bool) -> dict[str, Any]:
     """The recorded config of one submitted run (identity + ``provenance``)."""
     # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
-    from runners.results_schema import SCHEMA_VERSION
+    from morality_gym.results.schema import SCHEMA_VERSION
 
     target = sub.loaded.ref.rsplit(":", 1)[1] if sub.loaded.kind == "callable" and ":" in sub.loaded.ref else None
     return {
@@ -252,8 +247,8 @@ def bounded(loaded: LoadedPolicy, seconds: float) -> LoadedPolicy:
 def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: str, results: Path) -> dict[str, Any]:
     """Evaluate one (cell, variant, seed) and return its schema row (nothing written yet)."""
     # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
-    from runners.execute import RunClock, git_commit, utc_now, versions
-    from runners.results_schema import MF_PREFIX, SCHEMA_VERSION, runs_dir
+    from morality_gym.results.recording import RunClock, git_commit, utc_now, versions
+    from morality_gym.results.schema import MF_PREFIX, SCHEMA_VERSION, runs_dir
 
     clock = RunClock.start()
     env_id = config["env_id"]
@@ -268,7 +263,7 @@ def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: st
     if sub.gif:
         at(sub, f"{where}, GIF episode")
         # PIL waits: importing leaderboard.submit (its --help too) must not load it
-        from morality_gym.render.gif import record_episode
+        from morality_gym.evaluation.gif import record_episode
 
         gif = runs_dir(results) / run_id / "episode.gif"
         with writing(gif):
@@ -297,7 +292,7 @@ def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: st
 def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = print) -> dict[str, int]:
     """Evaluate and write every run of ``cells`` that is not in ``results`` yet; returns counts."""
     # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
-    from runners.execute import RunLock, finished_status
+    from morality_gym.results.recording import RunLock, finished_status
 
     counts = {"written": 0, "present": 0}
     for cell in cells:
@@ -344,7 +339,7 @@ def evaluate_and_write(sub: Submission, cell: Cell, config: dict[str, Any], run_
     """Evaluate one run and write its row; any failure (of the policy, of the disk) is one named
     line, and leaves nothing of this run behind (its GIF is removed with it): runs written before stay."""
     # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
-    from runners.results_schema import write_run
+    from morality_gym.results.schema import write_run
 
     where = f"{config['env_id']}, seed {config['seed']}"
     try:
@@ -368,7 +363,7 @@ def evaluate_and_write(sub: Submission, cell: Cell, config: dict[str, Any], run_
 def remove_artifacts(results: Path, run_id: str) -> None:
     """Remove ``runs/<run_id>/`` (what a run writes besides its row) of a run whose row was not written."""
     # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
-    from runners.results_schema import runs_dir
+    from morality_gym.results.schema import runs_dir
 
     shutil.rmtree(runs_dir(results) / run_id, ignore_errors=True)
 
@@ -376,8 +371,8 @@ def remove_artifacts(results: Path, run_id: str) -> None:
 def stored_scores(results: Path, run_id: str) -> tuple[float, float | None]:
     """(metric, exact metric or None) of a run already in ``results`` (re-submission: shown again)."""
     # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
-    from runners.quarantine import read_table_or_quarantine
-    from runners.results_schema import run_path
+    from morality_gym.results.quarantine import read_table_or_quarantine
+    from morality_gym.results.schema import run_path
 
     table = read_table_or_quarantine(results, run_path(results, run_id), columns=["metric", "exact_metric"])
     if table is None:

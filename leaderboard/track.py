@@ -13,7 +13,7 @@ a run's score on a set is the mean over the set's env ids; a learner's, the mean
 
 **Intervals.** A two-level percentile bootstrap (:data:`~leaderboard.stats.core.DEFAULT_RESAMPLES`
 resamples, the statistics' fixed seed; printed to the decimals their bounds are stable to over
-bootstrap seeds, :mod:`leaderboard.precision`): the runs (seeds) are resampled, and so are the set's
+bootstrap seeds, :mod:`leaderboard.outputs.precision`): the runs (seeds) are resampled, and so are the set's
 dilemmas, by scenario (a generated dilemma's variants, or a built-in scenario's variants, move
 together: they share a layout). The interval thus covers both seed-to-seed variation and which
 dilemmas the set happens to hold, which is what a claim about *unseen* dilemmas needs. Random is
@@ -36,9 +36,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from leaderboard.precision import DIGITS_RULE
+from leaderboard.outputs.marks import MARKS
+from leaderboard.outputs.precision import DIGITS_RULE
+from leaderboard.outputs.tables import interval_text
 from leaderboard.stats.core import CONFIDENCE, DEFAULT_RESAMPLES, DEFAULT_SEED, generator_for, quantile_mcse
-from leaderboard.tables import interval_text
+from leaderboard.web.render import render
+from leaderboard.web.site_state import NAV
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
 from morality_gym.generalisation.sets import MIN_HEADROOM, SET_LABELS, SETS, scenario_of
 from runners.track import PAIRS, RESULT
@@ -239,6 +242,31 @@ def _seconds(records: list[dict[str, Any]], learner: str) -> str:
     return f"{train:.0f} s + {evals:.0f} s"
 
 
+def _learner_row(learner: str, part: pd.DataFrame, records: list[dict[str, Any]]) -> dict[str, Any]:
+    """One learner's row of a score's table: its label, budget, seeds, cells and time."""
+    cells = part[part["learner"] == learner].set_index("set")
+    record = next(r for r in records if r["learner"] == learner)
+    return {
+        "learner": LABELS.get(learner, learner), "colour": COLOURS.get(learner, "#999999"),
+        "budget": "exact, untrained" if learner == "random" else "submitted policy" if record.get("submitted")
+        else f"{record['budget']:,} steps",
+        "seeds": "exact" if learner == "random" else
+        ", ".join(sorted({str(r["seed"]) for r in records if r["learner"] == learner})),
+        "cells": [{"mean": float(cells.loc[s, "mean"]), "ci": _ci(cells.loc[s])} if s in cells.index else None
+                  for s in [*SETS, "gap"]],
+        "time": "—" if learner == "random" or record.get("submitted") else _seconds(records, learner),
+    }
+
+
+def _score_table(score: str, title: str, part: pd.DataFrame, frame: pd.DataFrame,
+                 records: list[dict[str, Any]]) -> dict[str, Any]:
+    """The table of one score (``part``: the summary's rows of that score)."""
+    counts = {s: part[part["set"] == s].iloc[0] for s in SETS if (part["set"] == s).any()}
+    return {"score": score, "title": title, "rows": [_learner_row(learner, part, records) for learner in _in_order(part["learner"])],
+            "left_out": left_out(frame) if score == "random_score" else "",
+            "counts": {s: f"{int(c['env_ids'])} env ids, {int(c['dilemmas'])} dilemmas" for s, c in counts.items()}}
+
+
 def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
                   resamples: int = DEFAULT_RESAMPLES) -> dict[str, Any]:
     """The page's context; draws the figure and writes the summary CSV into ``site``."""
@@ -254,29 +282,8 @@ def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
     (site / CSV).parent.mkdir(parents=True, exist_ok=True)
     summary.to_csv(site / CSV, index=False)
     draw_figure(summary, site / FIGURE)
-    tables = []
-    for score, title in SCORES.items():
-        part = summary[summary["score"] == score]
-        if part.empty:
-            continue
-        rows = []
-        for learner in _in_order(part["learner"]):
-            cells = part[part["learner"] == learner].set_index("set")
-            record = next(r for r in records if r["learner"] == learner)
-            rows.append({
-                "learner": LABELS.get(learner, learner), "colour": COLOURS.get(learner, "#999999"),
-                "budget": "exact, untrained" if learner == "random" else "submitted policy" if record.get("submitted")
-                else f"{record['budget']:,} steps",
-                "seeds": "exact" if learner == "random" else
-                ", ".join(sorted({str(r["seed"]) for r in records if r["learner"] == learner})),
-                "cells": [{"mean": float(cells.loc[s, "mean"]), "ci": _ci(cells.loc[s])} if s in cells.index else None
-                          for s in [*SETS, "gap"]],
-                "time": "—" if learner == "random" or record.get("submitted") else _seconds(records, learner),
-            })
-        counts = {s: part[part["set"] == s].iloc[0] for s in SETS if (part["set"] == s).any()}
-        tables.append({"score": score, "title": title, "rows": rows,
-                       "left_out": left_out(frame) if score == "random_score" else "",
-                       "counts": {s: f"{int(c['env_ids'])} env ids, {int(c['dilemmas'])} dilemmas" for s, c in counts.items()}})
+    tables = [_score_table(score, title, part, frame, records) for score, title in SCORES.items()
+              if not (part := summary[summary["score"] == score]).empty]
     first = records[0]
     sources = [{"set": SET_LABELS[name], **source} for name, source in first["sets"].items()]
     trained = [r for r in records if r["learner"] != "random"]
@@ -288,8 +295,6 @@ def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
 
 
 def write_page(site: Path, track_dir: Path | None, common: dict[str, Any], resamples: int = DEFAULT_RESAMPLES) -> Path:
-    from leaderboard.render import render
-
     text = render("track.html", **track_context(common, track_dir, site, resamples))
     (site / PAGE).write_text(text, encoding="utf-8")
     return site / PAGE
@@ -305,8 +310,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from leaderboard.marks import MARKS
-    from leaderboard.site_state import NAV
 
     args = build_parser().parse_args(argv)
     if not (args.results / "runs").is_dir():

@@ -16,6 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from morality_gym import play
+from morality_gym.baselines.io import ModelError
+from morality_gym.baselines.policy_ref import PolicyError, in_context, load_policy, probe
 from morality_gym.clitools import OneLineParser, add_debug_flag, console, non_negative_int, positive_int, run_cli
 from morality_gym.constants import BETA, EVAL_EPISODES, MAX_STEPS
 from morality_gym.envs.naming import find_scenario as scenario_named  # either spelling: SwitchStandard, switch_standard
@@ -85,8 +87,6 @@ def _max_steps(text: str) -> int | None:
 def _load_policy(spec: str, env_ids: list[str], allow_other_env: bool) -> Any:
     """The policy ``spec`` names (:mod:`morality_gym.baselines.policy_ref`), checked against every env it
     will be evaluated on; a callable is asked for a first action so its mistakes fail early."""
-    # the learners wait: `list` and `--help` start without them
-    from morality_gym.baselines.policy_ref import load_policy, probe
 
     loaded = load_policy(spec, env_ids, allow_other_env)
     if loaded.kind == "callable":
@@ -104,8 +104,6 @@ def _evaluate_one(args: argparse.Namespace, policy: Any, env_id: str, chain: Any
 
 def cmd_eval(args: argparse.Namespace) -> int:
     """``eval``: evaluate a policy on every variant asked for, then print JSON or a table."""
-    # the learners wait: `list` and `--help` start without them
-    from morality_gym.baselines.policy_ref import in_context
 
     if args.exact and (args.episodes is not None or args.seed is not None):
         raise CliError("--exact computes expectations; it does not take --episodes or --seed")
@@ -375,9 +373,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def user_errors() -> tuple[type[BaseException], ...]:
     """What a user can get wrong here (one line, exit 2); anything else is a bug (traceback)."""
-    # the learners wait: `list` and `--help` start without them
-    from morality_gym.baselines.io import ModelError
-    from morality_gym.baselines.policy_ref import PolicyError
 
     return (CliError, ChainError, UnknownEnvError, ModelError, ScenarioError, InvalidActionError, PolicyError)
 

@@ -34,6 +34,8 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from morality_gym.baselines.io import ModelError
+from morality_gym.baselines.policy_ref import PolicyError, load_policy, probe
 from morality_gym.clitools import non_negative_int, one_line, positive_int
 from morality_gym.constants import MAX_STEPS
 from morality_gym.envs.registry import UnknownEnvError
@@ -338,7 +340,7 @@ def gif_paths(target: str, episodes: int) -> list[Path]:
 
 def record(args: argparse.Namespace, loaded: Any, out: TextIO) -> int:
     """``--render OUT.gif``: each episode to a GIF, with a one-line summary of it."""
-    from morality_gym.render.gif import record_episode  # PIL waits: the command line starts without it
+    from morality_gym.evaluation.gif import record_episode  # PIL waits: the command line starts without it
 
     for k, path in enumerate(gif_paths(args.render, args.episodes)):
         seed = None if args.seed is None else args.seed + k
@@ -378,9 +380,6 @@ def run(
         return _error(err, exc)
     loaded = None
     if policy is not None:
-        # the learners wait: only playing a saved policy needs them
-        from morality_gym.baselines.io import ModelError
-        from morality_gym.baselines.policy_ref import PolicyError, load_policy, probe
 
         try:
             loaded = load_policy(policy, [env.env_id], getattr(args, "allow_other_env", False))

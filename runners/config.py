@@ -17,24 +17,32 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import yaml
 from hydra.core.hydra_config import HydraConfig
+from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from morality_gym.baselines import typed
 from morality_gym.baselines.hparams import algorithm_class, validate_learner
-from morality_gym.baselines.specs import ALGO_FILE_EXTRAS, LearnerSpec, ProtocolSpec, SpecError, training_steps
+from morality_gym.baselines.specs import (
+    ALGO_FILE_EXTRAS,
+    LearnerSpec,
+    ProtocolSpec,
+    SpecError,
+    check_keys,
+    training_steps,
+)
 from morality_gym.baselines.targets import learner_trains
 from morality_gym.clitools import did_you_mean
 from morality_gym.envs.registry import scenarios as all_scenarios
 from morality_gym.norms.chain import ChainError, MoralityChain, check_name_collision, get_chain, parse_chain
 from morality_gym.norms.metric import bind_chain
-from runners.config_schema import ENGINES, LAUNCHERS, AlgoFile, Planning, Preset, Sweep, register
+from runners.config_schema import ENGINES, LAUNCHERS, Planning, Preset, Sweep, register
 from runners.paths import CONF_DIR, config_roots, find_config, group_options  # noqa: F401 - re-exported: CONF_DIR is defined once
 
 register()  # the schemas conf/config.yaml names (sweep_schema, schema/launcher/*): Hydra needs them stored
@@ -173,19 +181,6 @@ def load_algo_file(name: str) -> tuple[Path, dict[str, Any]]:
     return path, yaml.safe_load(path.read_text()) or {}
 
 
-def _diff(composed: Mapping[str, Any], base: Mapping[str, Any]) -> dict[str, Any]:
-    """What the command line changed relative to the file (nested for ``hparams``)."""
-    out: dict[str, Any] = {}
-    for key, value in composed.items():
-        if key == "hparams" and isinstance(value, Mapping):
-            inner = {k: v for k, v in value.items() if (base.get("hparams") or {}).get(k, object()) != v}
-            if inner:
-                out["hparams"] = inner
-        elif base.get(key, object()) != value:
-            out[key] = value
-    return out
-
-
 def _check_hparam_types(where: str, spec: LearnerSpec, defaults: LearnerSpec) -> None:
     for key, value in spec.hparams.items():
         default = defaults.hparams.get(key)
@@ -249,15 +244,66 @@ def _rollout_warning(spec: LearnerSpec, preset: Preset, pairs: list[tuple[Morali
             f"set preset.rollout_cap={budget} or algo.{spec.name}.hparams.n_steps")
 
 
-def _algo(option: str, node: Mapping[str, Any], preset: Preset, protocol: ProtocolSpec) -> AlgoChoice:
-    """file values < the protocol's overrides for this algorithm < the preset's overrides for it <
-    the preset's rollout cap < command-line overrides. Any class works (``_target_``); nothing here
-    knows the baselines."""
+def command_line_settings(overrides: Sequence[str], option: str) -> dict[str, Any]:
+    """What the command line sets under ``algo.<option>``, as a nested mapping
+    (``algo.ppo.hparams.n_steps=64`` -> ``{"hparams": {"n_steps": 64}}``), read from the overrides
+    themselves with Hydra's parser (so the values are typed as Hydra types them). Deletions
+    (``~algo...``) set nothing; the plan's ``planning`` is no learner setting."""
+    out: dict[str, Any] = {}
+    for override in OverridesParser.create().parse_overrides(list(overrides)):
+        path = override.key_or_group.split(".")
+        if path[:2] != ["algo", option] or override.is_delete() or len(path) < 3 or path[2] in ALGO_FILE_EXTRAS:
+            continue
+        node = out
+        for key in path[2:-1]:
+            node = node.setdefault(key, {})
+        node[path[-1]] = override.value()
+    return out
+
+
+#: One layer of a learner's settings: where its values come from (for messages) and what it does
+#: to the spec of the layers below it (the first layer builds the spec).
+Layer = tuple[str, Callable[[Any], LearnerSpec]]
+
+
+def learner_layers(option: str, where: str, file_values: Mapping[str, Any], command_line: Mapping[str, Any],
+                   preset: Preset, protocol: ProtocolSpec) -> list[Layer]:
+    """The precedence of a learner's settings, written once, lowest first: :class:`LearnerSpec`'s
+    defaults < its algo file < the protocol's overrides for it (and the protocol's stamp) < the
+    preset's ``algo_overrides`` for it < the preset's ``rollout_cap`` < the command line
+    (``algo.<option>.*=``). Any class works (``_target_``); nothing here knows the baselines."""
+    name = command_line.get("name") or file_values.get("name") or option
+    preset_override = preset.algo_overrides.get(option)
+    cap = preset.rollout_cap
+    given = {k: v for k, v in command_line.items() if not (k in ("name", "label") and v is None)}
+    at_preset = f"preset={preset.name}.algo_overrides.{option}"
+    at_cap = f"preset={preset.name}.rollout_cap"
+    return [
+        (where, lambda _: LearnerSpec.from_mapping(file_values, name, where=where)),
+        (f"protocol={protocol.name}", protocol.apply),
+        (at_preset, lambda spec: spec.with_overrides(preset_override, where=at_preset) if preset_override else spec),
+        (at_cap, lambda spec: _cap_rollout(spec, cap, where=at_cap) if cap is not None else spec),
+        (where, lambda spec: spec.with_overrides(given, where=where) if given else spec),
+    ]
+
+
+def _algo(option: str, node: Mapping[str, Any], preset: Preset, protocol: ProtocolSpec,
+          overrides: Sequence[str]) -> AlgoChoice:
+    """The learner of ``algo=<option>`` resolved through :func:`learner_layers`, checked against its
+    class, with its planning rates."""
     path, file_node = load_algo_file(option)
     where = f"algo={option} ({path})"
     file_values = {k: v for k, v in file_node.items() if k not in ALGO_FILE_EXTRAS}
-    composed = {k: v for k, v in node.items() if k not in ALGO_FILE_EXTRAS}
-    base, spec = _algo_spec(option, where, file_values, composed, preset, protocol)
+    layers = learner_layers(option, where, file_values, command_line_settings(overrides, option), preset, protocol)
+    try:
+        base = layers[0][1](None)
+        spec = base
+        for _, layer in layers[1:]:
+            spec = layer(spec)
+    except SpecError as exc:
+        raise ConfigError(f"{where}: {exc}" if where not in str(exc) else str(exc)) from exc
+    except TypeError as exc:
+        raise ConfigError(f"{where}: {exc}") from exc
     _check_hparam_types(where, spec, base)
     try:
         validate_learner(spec)  # keys against the algorithm class, values against sane ranges
@@ -266,33 +312,6 @@ def _algo(option: str, node: Mapping[str, Any], preset: Preset, protocol: Protoc
     planning = dict(node.get("planning") or {})
     steps_per_s, overhead, speedup = _planning_rate(where, planning, file_values, spec, protocol.name)
     return AlgoChoice(spec, steps_per_s, overhead, speedup)
-
-
-def _algo_spec(option: str, where: str, file_values: Mapping[str, Any], composed: Mapping[str, Any],
-               preset: Preset, protocol: ProtocolSpec) -> tuple[LearnerSpec, LearnerSpec]:
-    """The learner as its file states it, and as the sweep trains it (the layers of :func:`_algo`)."""
-    # What the command line changed: the composed node against the file over the same schema.
-    try:
-        file_typed = OmegaConf.to_container(typed.merge(AlgoFile, file_values, where=where))
-    except typed.TypedConfigError as exc:
-        raise ConfigError(str(exc)) from exc
-    name = composed.get("name") or option
-    try:
-        base = LearnerSpec.from_mapping(file_values, name, where=where)
-        spec = protocol.apply(base)
-        override = preset.algo_overrides.get(option)
-        if override:
-            spec = spec.with_overrides(override, where=f"preset={preset.name}.algo_overrides.{option}")
-        if preset.rollout_cap is not None:
-            spec = _cap_rollout(spec, preset.rollout_cap, where=f"preset={preset.name}.rollout_cap")
-        delta = {k: v for k, v in _diff(composed, file_typed).items() if not (k in ("name", "label") and v is None)}
-        if delta:
-            spec = spec.with_overrides(delta, where=where)
-    except SpecError as exc:
-        raise ConfigError(f"{where}: {exc}" if where not in str(exc) else str(exc)) from exc
-    except TypeError as exc:
-        raise ConfigError(f"{where}: {exc}") from exc
-    return base, spec
 
 
 _PLANNING_KEYS = set(typed.valid_keys(Planning)) - {"protocols"}
@@ -425,11 +444,16 @@ def _algo_selection(selection: Mapping[str, Any], algo_options: list[str]) -> Ma
     return selection
 
 
-def _protocol(node: Mapping[str, Any], algo_options: list[str]) -> ProtocolSpec:
-    """The protocol, whose ``learner_overrides`` may only name existing algos."""
+def _protocol(node: Any, algo_options: list[str]) -> ProtocolSpec:
+    """The protocol, built from its composed node (Hydra typed it over :class:`ProtocolSpec`'s
+    schema), whose ``learner_overrides`` may only name existing algos."""
+    if node is None:
+        raise ConfigError("protocol: select a protocol, e.g. protocol=paper")
+    where = f"protocol={node.get('name', '?')}"
     try:
-        protocol = ProtocolSpec.from_mapping(node, where=f"protocol={node.get('name', '?')}")
-    except SpecError as exc:
+        check_keys(where, node, typed.valid_keys(ProtocolSpec))  # a key added with +protocol.<key>=
+        protocol = typed.build(ProtocolSpec, node, where=where)
+    except (SpecError, typed.TypedConfigError) as exc:
         raise ConfigError(f"protocol: {exc}") from exc
     for algo_name in protocol.learner_overrides:
         if algo_name not in algo_options:
@@ -580,7 +604,7 @@ def _sweep_name(name: Any, experiment: Mapping[str, Any], algos: tuple[AlgoChoic
     return f"{selection}_{protocol.name}_{preset.name}"
 
 
-def validate(cfg: DictConfig) -> SweepConfig:
+def validate(cfg: DictConfig, overrides: Sequence[str] | None = None) -> SweepConfig:
     """Check the composed config and resolve it into a :class:`SweepConfig`, group by group.
 
     The checks run in a fixed order (the first error is the one reported, so the order is part of
@@ -588,15 +612,21 @@ def validate(cfg: DictConfig) -> SweepConfig:
     the sweep-wide values, launcher, engine. Nothing outside the configuration is touched; the
     machine (a writable results directory, MLflow, SLURM) is checked by
     :func:`runners.preflight.preflight` once the configuration is known to be valid.
+
+    ``overrides``: the command line it was composed with, whose ``algo.<option>.*`` settings are
+    the top layer of each learner (:func:`learner_layers`); by default those Hydra recorded in the
+    configuration (``hydra.overrides.task``, when it was composed with its ``hydra`` node).
     """
+    if overrides is None:
+        overrides = list(cfg.hydra.overrides.task) if "hydra" in cfg else []
     cfg = _without_hydra(cfg)
     known = all_scenarios()
     algo_options = group_options("algo")
     preset = _preset_with_algos(_group(cfg, "preset"), algo_options)
     chains = _chains(_group(cfg, "chain"))
     algos_sel = _algo_selection(_group(cfg, "algo"), algo_options)
-    protocol = _protocol(_group(cfg, "protocol"), algo_options)
-    algos = tuple(_algo(option, node, preset, protocol) for option, node in algos_sel.items())
+    protocol = _protocol(cfg.get("protocol"), algo_options)
+    algos = tuple(_algo(option, node, preset, protocol, overrides) for option, node in algos_sel.items())
     paper_chains = _scenario_chains()
     scen_sel = _scenario_selection(_group(cfg, "scenario"), known)
     experiment = _group(cfg, "experiment")

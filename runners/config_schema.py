@@ -30,13 +30,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from morality_gym.baselines import typed
-from morality_gym.baselines.specs import CONF_DIR, LearnerSpec, ProtocolSpec
-from morality_gym.clitools import did_you_mean
+from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec
 from morality_gym.constants import BETA, MAX_STEPS
-from runners.results_schema import SCHEMA_VERSION
+from morality_gym.results.presets import Preset
 
 
 @dataclass(frozen=True)
@@ -111,68 +108,6 @@ def _algo_file_fields() -> list[tuple[str, Any, Any]]:
 #: An algo file (``conf/algo/<name>.yaml``): derived from :class:`LearnerSpec`, not a copy of it.
 AlgoFile = dataclasses.make_dataclass("AlgoFile", _algo_file_fields(), frozen=True,
                                       namespace={"__module__": __name__, "__doc__": _algo_file_fields.__doc__})
-
-
-@dataclass(frozen=True)
-class Preset:
-    """How much each run trains and evaluates (``conf/preset/<name>.yaml``).
-
-    ``rollout_cap``: the most environment steps any learner collects per update (``n_steps`` x
-    ``n_envs``); a learner whose rollout is longer gets ``n_steps = rollout_cap // n_envs``. It
-    applies to every learner, a user's too, which ``algo_overrides`` (keyed by algo name) cannot.
-    """
-
-    name: str
-    seeds: tuple[int, ...]
-    budget: int
-    eval_episodes: int
-    learn_eval_every: int
-    learn_eval_episodes: int
-    budget_overrides: Mapping[str, int] = field(default_factory=dict)
-    algo_overrides: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
-    rollout_cap: int | None = None
-
-    def __post_init__(self) -> None:
-        where = f"preset={self.name}"
-        if not self.seeds:
-            raise ValueError(f"{where}.seeds: expected a non-empty list of integers, got []")
-        for key, minimum in (("budget", 0), ("eval_episodes", 1), ("learn_eval_every", 0), ("learn_eval_episodes", 1)):
-            if getattr(self, key) < minimum:
-                raise ValueError(f"{where}.{key}: expected an integer >= {minimum}, got {getattr(self, key)!r}")
-        for seed in self.seeds:
-            if seed < 0:
-                raise ValueError(f"{where}.seeds: expected integers >= 0, got {seed!r}")
-        for scenario, value in self.budget_overrides.items():
-            if value < 0:
-                raise ValueError(f"{where}.budget_overrides.{scenario}: expected an integer >= 0, got {value!r}")
-        if self.rollout_cap is not None and self.rollout_cap < 1:
-            raise ValueError(f"{where}.rollout_cap: expected an integer >= 1 or null, got {self.rollout_cap!r}")
-
-    def budget_for(self, scenario: str) -> int:
-        return int(self.budget_overrides.get(scenario, self.budget))
-
-
-class PresetError(ValueError):
-    """An unknown or invalid preset file; one line naming the file and the fix."""
-
-
-def preset_names() -> list[str]:
-    return sorted(p.stem for p in (CONF_DIR / "preset").glob("*.yaml"))
-
-
-def load_preset(name: str) -> Preset:
-    """``conf/preset/<name>.yaml`` over the :class:`Preset` schema, checked as a sweep checks it:
-    for readers that do not compose a sweep (``leaderboard.submit``, the leaderboard's seeds)."""
-    path = CONF_DIR / "preset" / f"{name}.yaml"
-    if not path.is_file():
-        names = preset_names()
-        hint = did_you_mean(name, names, n=3, quote=False)
-        raise PresetError(f"no {path}{hint}; presets: {', '.join(names)}")
-    try:
-        values = yaml.safe_load(path.read_text()) or {}
-        return typed.build(Preset, typed.merge(Preset, values, where=str(path)), where=str(path))
-    except (OSError, yaml.YAMLError, typed.TypedConfigError, ValueError, TypeError) as exc:
-        raise PresetError(f"{path}: {' '.join(str(exc).split())}") from exc
 
 
 @dataclass(frozen=True)
@@ -278,45 +213,6 @@ class Sweep:
     fleet_size: int = 36
     device: str = "cpu"
     checkpoint_every_s: float = 300.0
-
-
-@dataclass(frozen=True)
-class Run:
-    """One resolved run: what its id hashes (:func:`runners.identity.run_id_of` over
-    :meth:`config`) and what a worker executes. ``chain`` is the chain's full definition
-    (``{"name", "norms": [[norm, modality], ...]}``), so that a changed chain is a new run."""
-
-    env_id: str
-    scenario: str
-    variant: str
-    chain: Mapping[str, Any]
-    algo: LearnerSpec
-    protocol: ProtocolSpec
-    preset: str
-    seed: int
-    budget: int
-    beta: float
-    max_steps: int | None
-    eval_episodes: int
-    learn_eval_every: int
-    learn_eval_episodes: int
-    schema_version: int = SCHEMA_VERSION
-
-    def config(self) -> dict[str, Any]:
-        """The run config as plain data (JSON-ready): the dict the run id hashes, the worker
-        receives and the Parquet row records. Tuples become lists, specs their field dicts."""
-        return {f.name: plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
-
-
-def plain(value: Any) -> Any:
-    """``value`` as JSON-ready data: a dataclass as the dict of its fields, tuples as lists."""
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {f.name: plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
-    if isinstance(value, Mapping):
-        return {k: plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [plain(v) for v in value]
-    return value
 
 
 #: The schema of a class by the name OmegaConf gives it in its messages (for the valid keys).

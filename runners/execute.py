@@ -2,8 +2,9 @@
 
 The run's Parquet file is written last and atomically, so its existence means "finished"; every
 other artifact (model, GIF, learn-time evaluations) is written before it. A per-run lock
-(``flock``, released by the kernel even on ``kill -9``) keeps two processes from executing the
-same run at once when a sweep is resumed while an orphan is still busy. Any exception becomes a
+(:class:`~morality_gym.results.recording.RunLock`, released by the kernel even on ``kill -9``)
+keeps two processes from executing the same run at once when a sweep is resumed while an orphan
+is still busy. Any exception becomes a
 ``failed`` row with the error and traceback, so one bad run never stops the others, except a full
 disk: that is no failure of the run, no row is written (it would not fit), and
 :class:`~morality_gym.clitools.DiskFullError` stops the sweep with one line.
@@ -11,55 +12,26 @@ disk: that is no failure of the run, no row is written (it would not fit), and
 
 from __future__ import annotations
 
-import fcntl
 import hashlib
 import json
 import os
-import platform
 import socket
-import subprocess
-import time
 import traceback
-from dataclasses import dataclass
-from datetime import UTC, datetime
 from functools import lru_cache
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec
 from morality_gym.clitools import disk_full_error, is_disk_full
-from morality_gym.norms.chain import parse_chain
-from morality_gym.norms.metric import bind_chain
-from runners.quarantine import read_table_or_quarantine
-from runners.results_schema import MF_PREFIX, SCHEMA_VERSION, run_path, runs_dir, write_learn, write_run, write_updates
-
-
-def utc_now() -> str:
-    """The time now, UTC, to the second (ISO 8601): the rows' ``started_at`` / ``finished_at``."""
-    return datetime.now(UTC).isoformat(timespec="seconds")
-
-
-@lru_cache(maxsize=1)
-def git_commit() -> str:
-    """The commit of the checkout this code runs from, or "unknown" (an installed package: its
-    version is recorded with the others). A package installed into a virtual environment that
-    happens to sit inside some git work tree must not report that tree's commit, so the answer
-    counts only if the work tree's ``runners/execute.py`` is this very file.
-
-    Asked once per process (workers ask at start, when they import the code): a sweep runs for
-    hours, and a commit made meanwhile must not be recorded for runs of the code loaded before it
-    (a worker started at one commit recorded the checkout's later HEAD)."""
-    here = Path(__file__).resolve()
-    try:
-        out = subprocess.run(["git", "rev-parse", "--show-toplevel", "HEAD"], cwd=here.parent,
-                             capture_output=True, text=True, timeout=10, check=False)
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-    lines = out.stdout.split()
-    if out.returncode != 0 or len(lines) != 2 or (Path(lines[0]) / "runners" / "execute.py").resolve() != here:
-        return "unknown"
-    return lines[1]
+from morality_gym.results.recording import RunClock, finished_status, git_commit, utc_now, versions
+from morality_gym.results.run_config import RunConfig
+from morality_gym.results.schema import (
+    MF_PREFIX,
+    SCHEMA_VERSION,
+    runs_dir,
+    write_learn,
+    write_run,
+    write_updates,
+)
 
 
 @lru_cache(maxsize=1)
@@ -72,7 +44,7 @@ def training_code() -> str:
     must be finished by the code that began it, and the commit is too coarse for that (a commit
     of documentation or of the leaderboard would throw away every checkpoint) and too blind (an
     uncommitted edit keeps the commit). Asked once per process at the worker's start, as
-    :func:`git_commit`, so that it describes the code the worker loaded."""
+    :func:`~morality_gym.results.recording.git_commit`, so that it describes the code the worker loaded."""
     return code_fingerprint(Path(__file__).resolve().parents[1] / "morality_gym", versions())
 
 
@@ -88,17 +60,6 @@ def code_fingerprint(package: Path, versions_text: str) -> str:
     return digest.hexdigest()[:16]
 
 
-@lru_cache(maxsize=1)
-def versions() -> str:
-    out = {"python": platform.python_version()}
-    for pkg in ("morality-gym", "numpy", "torch", "gymnasium", "stable-baselines3", "sb3-contrib", "pyarrow", "mlflow"):
-        try:
-            out[pkg] = version(pkg)
-        except PackageNotFoundError:
-            out[pkg] = "not installed"
-    return json.dumps(out, sort_keys=True)
-
-
 def limit_threads() -> None:
     """One compute thread per worker: the pool provides the parallelism (no oversubscription)."""
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
@@ -111,129 +72,48 @@ def limit_threads() -> None:
         pass
 
 
-class RunLock:
-    """An exclusive, non-blocking lock per run id (None if another live process holds it)."""
-
-    def __init__(self, results_dir: Path, run_id: str) -> None:
-        directory = runs_dir(results_dir) / ".locks"
-        directory.mkdir(parents=True, exist_ok=True)
-        self.path = directory / f"{run_id}.lock"
-        self.fh: Any = None
-
-    def acquire(self) -> bool:
-        self.fh = open(self.path, "a+")  # noqa: SIM115 - held open while the lock is held; closed by release()
-        try:
-            fcntl.flock(self.fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            return True
-        except BlockingIOError:
-            self.fh.close()
-            self.fh = None
-            return False
-
-    def release(self) -> None:
-        if self.fh is not None:
-            fcntl.flock(self.fh, fcntl.LOCK_UN)
-            self.fh.close()
-            self.fh = None
-
-
-def finished_status(results_dir: Path, run_id: str) -> str | None:
-    """``ok`` / ``failed`` if the run has a readable result file, else None (an unreadable one is
-    moved aside by :mod:`runners.quarantine`, so the run is done again)."""
-    table = read_table_or_quarantine(results_dir, run_path(results_dir, run_id), columns=["status"])
-    return None if table is None else str(table.column("status")[0].as_py())
-
-
-def _base_row(config: dict[str, Any], run_id: str, engine: str | None = "single") -> dict[str, Any]:
-    algo = config["algo"]
+def _base_row(config: RunConfig, run_id: str, engine: str | None = "single") -> dict[str, Any]:
     return {
         "schema_version": SCHEMA_VERSION,
         "run_id": run_id,
-        "env_id": config["env_id"],
-        "scenario": config["scenario"],
-        "variant": config["variant"],
-        "chain": config["chain"]["name"],
-        "algo": algo["name"],
-        "learner": algo["label"],
-        "protocol": config["protocol"]["name"],
-        "preset": config["preset"],
-        "seed": int(config["seed"]),
-        "budget": int(config["budget"]),
-        "beta": float(config["beta"]),
-        "max_steps": config["max_steps"],
-        "eval_episodes": int(config["eval_episodes"]),
+        "env_id": config.env_id,
+        "scenario": config.scenario,
+        "variant": config.variant,
+        "chain": config.chain["name"],
+        "algo": config.algo.name,
+        "learner": config.algo.label,
+        "protocol": config.protocol.name,
+        "preset": config.preset,
+        "seed": int(config.seed),
+        "budget": int(config.budget),
+        "beta": float(config.beta),
+        "max_steps": config.max_steps,
+        "eval_episodes": int(config.eval_episodes),
         "hostname": socket.gethostname(),
         "git_commit": git_commit(),
         "versions": versions(),
-        "config": json.dumps(config, sort_keys=True),
+        "config": json.dumps(config.to_json(), sort_keys=True),
         "engine": engine,
     }
 
 
-def _chain(config: dict[str, Any]) -> Any:
-    c = config["chain"]
-    return parse_chain({"name": c["name"], "norms": [{"norm": n, "modality": m} for n, m in c["norms"]]}, source=f"run config {c['name']}")
-
-
-def spec_and_protocol(config: dict[str, Any]) -> tuple[Any, Any]:
-    """The learner spec and protocol of a run config (JSON lists back to the spec's tuples)."""
-    algo = dict(config["algo"])
-    algo["return_bounds"] = tuple(algo["return_bounds"])
-    algo["net_arch"] = tuple(algo["net_arch"])
-    proto = dict(config["protocol"])
-    proto["random_learn_eval_steps"] = tuple(proto["random_learn_eval_steps"])
-    return LearnerSpec(**algo), ProtocolSpec(**proto)
-
-
-def bound_chain(config: dict[str, Any]) -> Any:
-    """The run's chain bound to its env id."""
-    return bind_chain(_chain(config), config["env_id"], config["beta"])
-
-
-@dataclass(frozen=True)
-class RunClock:
-    """When a run started, by the wall clock and by this process's CPU clock.
-
-    Why both: a run's ``wall_time_s`` is what a user waited, but on a shared or oversubscribed
-    machine (a niced sweep beside other work, more workers than cores) it overstates the compute
-    the run needed; ``cpu_time_s`` (CPU seconds of the worker process, every thread counted) is the
-    compute, whatever else the machine did. Budgets and the planner's rates are about compute."""
-
-    started: str
-    wall0: float
-    cpu0: float
-
-    @classmethod
-    def start(cls) -> RunClock:
-        return cls(utc_now(), time.perf_counter(), time.process_time())
-
-    def elapsed(self) -> tuple[float, float]:
-        """(wall seconds, CPU seconds) since the start."""
-        return time.perf_counter() - self.wall0, time.process_time() - self.cpu0
-
-    @classmethod
-    def already_spent(cls, started: str, wall: float, cpu: float) -> RunClock:
-        """A clock that reads (``wall``, ``cpu``) now: a fleet's run starts from its share of the
-        fleet's training, so that summing over the fleet's runs still gives what the fleet spent."""
-        return cls(started, time.perf_counter() - wall, time.process_time() - cpu)
-
-
-def execute_locked(config: dict[str, Any], run_id: str, results_dir: Path, gif: bool) -> dict[str, Any]:
+def execute_locked(config: RunConfig, run_id: str, results_dir: Path, gif: bool) -> dict[str, Any]:
     """Train, evaluate and record one run whose lock the caller holds (the single engine's unit,
-    and the fleet engine's fallback for what it does not reproduce)."""
+    and the fleet engine's fallback for what it does not reproduce). The run arrives resolved: its
+    learner is built from its spec as it is (no protocol applied again)."""
     limit_threads()
     clock = RunClock.start()
     try:
         # torch waits: importing runners.execute must not load it, and a failed import is this run's recorded error
-        from morality_gym.baselines.learners import build_learner
+        from morality_gym.baselines.learners import make_learner
 
-        spec, protocol = spec_and_protocol(config)
-        learner = build_learner(spec, bound_chain(config), protocol, seed=config["seed"], max_steps=config["max_steps"])
+        learner = make_learner(config.algo, config.bound_chain(), seed=config.seed, max_steps=config.max_steps,
+                               replay=config.replay)
         learn_rows: list[dict[str, Any]] = []
         learner.learn(
-            config["budget"],
-            eval_every=config["learn_eval_every"],
-            eval_episodes=config["learn_eval_episodes"],
+            config.budget,
+            eval_every=config.learn_eval_every,
+            eval_episodes=config.learn_eval_episodes,
             on_eval=learn_rows.append,
         )
     except Exception as exc:  # noqa: BLE001 - every failure must be recorded, whatever it is
@@ -242,7 +122,7 @@ def execute_locked(config: dict[str, Any], run_id: str, results_dir: Path, gif: 
 
 
 def record_outcome(
-    config: dict[str, Any],
+    config: RunConfig,
     run_id: str,
     results_dir: Path,
     gif: bool,
@@ -259,12 +139,12 @@ def record_outcome(
     as the run's failure too. Returns the short summary the parent receives.
     """
     row = _base_row(config, run_id, engine)
-    norms = [n for n, _ in config["chain"]["norms"]]
+    norms = [n for n, _ in config.chain["norms"]]
     try:
         if error is not None:
             raise error
         bound = learner.bound
-        final = learner.final_evaluation(config["eval_episodes"])
+        final = learner.final_evaluation(config.eval_episodes)
         exact = learner.exact_evaluation()
         artifacts = runs_dir(results_dir) / run_id
         artifacts.mkdir(parents=True, exist_ok=True)
@@ -338,12 +218,12 @@ _EMPTY_RESULT: dict[str, Any] = {
 }
 
 
-def record_failure(config: dict[str, Any], run_id: str, results_dir: str | Path, error: str, trace: str = "", engine: str | None = None) -> None:
+def record_failure(config: RunConfig, run_id: str, results_dir: str | Path, error: str, trace: str = "", engine: str | None = None) -> None:
     """Record a run that died without recording itself (a killed worker, a lost SLURM job)."""
     results_dir = Path(results_dir)
     if finished_status(results_dir, run_id) is not None:
         return
-    norms = [n for n, _ in config["chain"]["norms"]]
+    norms = [n for n, _ in config.chain["norms"]]
     row = _base_row(config, run_id, engine)
     now = utc_now()
     row.update(

@@ -23,9 +23,9 @@ import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-from runners.execute import finished_status
+from morality_gym.results.recording import finished_status
+from morality_gym.results.run_config import RunConfig
 
 CHECKPOINTS_DIR = "checkpoints"
 
@@ -45,7 +45,7 @@ def checkpoint_path(results_dir: str | Path, run_ids: Iterable[str]) -> Path:
     return checkpoints_dir(results_dir) / f"{fleet_name(run_ids)}.pt"
 
 
-Item = tuple[str, dict[str, Any]]
+Item = tuple[str, RunConfig]
 
 
 @dataclass(frozen=True)
@@ -71,7 +71,7 @@ def write_fleet_runs(results_dir: str | Path, runs: Sequence[Item]) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     listing = _runs_path(path)
     tmp = listing.with_name(listing.name + ".tmp")
-    tmp.write_text(json.dumps({"runs": [[run_id, config] for run_id, config in runs]}, sort_keys=True))
+    tmp.write_text(json.dumps({"runs": [[run_id, config.to_json()] for run_id, config in runs]}, sort_keys=True))
     os.replace(tmp, listing)
     return path
 
@@ -90,7 +90,7 @@ def recorded_fleets(results_dir: str | Path) -> list[RecordedFleet]:
     fleets = []
     for listing in sorted(directory.glob("fleet-*.json")):
         try:
-            runs = tuple((str(run_id), dict(config)) for run_id, config in json.loads(listing.read_text())["runs"])
+            runs = tuple((str(run_id), RunConfig.from_json(config)) for run_id, config in json.loads(listing.read_text())["runs"])
         except (OSError, ValueError, KeyError, TypeError):
             continue
         fleets.append(RecordedFleet(listing.with_suffix(".pt"), runs))

@@ -37,20 +37,11 @@ from typing import Any
 
 from morality_gym.baselines.specs import SpecError
 from morality_gym.baselines.stopped import TrainingStopped
+from morality_gym.results.recording import RunClock, RunLock, finished_status, git_commit
+from morality_gym.results.run_config import RunConfig
 from runners import stopping
 from runners.config_schema import ENGINES
-from runners.execute import (
-    RunClock,
-    RunLock,
-    bound_chain,
-    execute_locked,
-    finished_status,
-    git_commit,
-    limit_threads,
-    record_outcome,
-    spec_and_protocol,
-    training_code,
-)
+from runners.execute import execute_locked, limit_threads, record_outcome, training_code
 from runners.fleet_checkpoints import fleet_to_train, remove_fleet, write_fleet_runs
 from runners.plan import PlannedRun
 
@@ -74,8 +65,8 @@ class Job:
     est_seconds: float
 
     @property
-    def items(self) -> list[tuple[str, dict[str, Any]]]:
-        """``(run_id, config)`` of each run: what a worker receives."""
+    def items(self) -> list[tuple[str, RunConfig]]:
+        """``(run_id, config)`` of each run: what a worker receives (the resolved run, as it is)."""
         return [(r.run_id, r.config) for r in self.runs]
 
 
@@ -104,8 +95,8 @@ def fleet_speedup(measured: float, size: int) -> float:
     return 1.0 + (max(measured, 1.0) - 1.0) * min(1.0, (size - 1) / 11)
 
 
-def _group_key(config: Mapping[str, Any], free: Sequence[str] = FLEET_FREE_KEYS) -> str:
-    return json.dumps({k: v for k, v in config.items() if k not in free}, sort_keys=True)
+def _group_key(config: RunConfig, free: Sequence[str] = FLEET_FREE_KEYS) -> str:
+    return json.dumps({k: v for k, v in config.to_json().items() if k not in free}, sort_keys=True)
 
 
 def _split(runs: list[PlannedRun], parts: int) -> list[list[PlannedRun]]:
@@ -195,7 +186,7 @@ def _group(runs: Sequence[PlannedRun], free: Sequence[str] = FLEET_FREE_KEYS) ->
     order: list[str | PlannedRun] = []
     for run in runs:
         c = run.config
-        if int(c["budget"]) <= 0 or not fleet_trains(str(c["algo"]["target"])):
+        if c.budget <= 0 or not fleet_trains(c.algo.target):
             order.append(run)
             continue
         key = _group_key(c, free)
@@ -223,7 +214,7 @@ def _fleet_job(chunk: list[PlannedRun], speedups: Mapping[str, float]) -> Job:
     """One chunk of a group as a job: a fleet, or a single run when the chunk holds one."""
     if len(chunk) == 1:
         return _single(chunk[0])
-    measured = float(speedups.get(chunk[0].config["algo"]["name"], 1.0))
+    measured = float(speedups.get(chunk[0].config.algo.name, 1.0))
     # only training is shared; each run's evaluations and writes stay its own
     overhead = sum(r.overhead_s for r in chunk)
     est = overhead + (sum(r.est_seconds for r in chunk) - overhead) / fleet_speedup(measured, len(chunk))
@@ -264,7 +255,7 @@ def jobs_estimate(jobs: Sequence[Job], done: set[str], workers: int) -> float:
 
 # ---------------------------------------------------------------------------------------------- workers
 def execute_job(
-    items: Sequence[tuple[str, dict[str, Any]]],
+    items: Sequence[tuple[str, RunConfig]],
     results_dir: str | Path,
     gif: bool = True,
     engine: str = "single",
@@ -280,11 +271,11 @@ def execute_job(
     calls ``progress(steps, total)`` as it trains, and, with ``checkpoint_every_s > 0``, it
     checkpoints its training at most that often (and resumes from a checkpoint it finds).
     """
-    git_commit()  # fixed before training: a SLURM task's job may outlast a commit (runners.execute.git_commit)
+    git_commit()  # fixed before training: a SLURM task's job may outlast a commit (morality_gym.results.recording.git_commit)
     training_code()  # likewise: what a fleet checkpoint is keyed by
     results_dir = Path(results_dir)
     locks: list[RunLock] = []
-    mine: list[tuple[str, dict[str, Any]]] = []
+    mine: list[tuple[str, RunConfig]] = []
     try:
         for run_id, config in items:
             lock = RunLock(results_dir, run_id)
@@ -307,7 +298,7 @@ def execute_job(
 
 
 def execute_job_all(
-    items: Sequence[tuple[str, dict[str, Any]]], results_dir: str, gif: bool = True, engine: str = "single", device: str = "cpu",
+    items: Sequence[tuple[str, RunConfig]], results_dir: str, gif: bool = True, engine: str = "single", device: str = "cpu",
     checkpoint_every_s: float = 0.0,
 ) -> list[Summary]:
     """:func:`execute_job` as one list (what a SLURM array task returns to the parent).
@@ -333,7 +324,7 @@ def interrupted(run_id: str, why: str) -> Summary:
 
 
 def _train_fleet(
-    mine: list[tuple[str, dict[str, Any]]],
+    mine: list[tuple[str, RunConfig]],
     results_dir: Path,
     gif: bool,
     device: str = "cpu",
@@ -347,7 +338,7 @@ def _train_fleet(
     killed while it recorded its runs is built again with all of its runs, to restore its
     checkpoint (:func:`runners.fleet_checkpoints.fleet_to_train`); only ``mine`` are recorded."""
     # torch waits: importing runners.jobs must not load it
-    from morality_gym.baselines.fleet import FleetRun, build_fleet
+    from morality_gym.baselines.fleet import FleetRun, make_fleet
     from morality_gym.baselines.fleet.base import fleet_device
 
     limit_threads()
@@ -363,11 +354,9 @@ def _train_fleet(
             yield record_outcome(config, run_id, results_dir, gif, None, [], clock, engine=engine, error=exc)
         return
     try:
-        spec, protocol = spec_and_protocol(first)
-        fleet = build_fleet(
-            spec, [FleetRun(bound_chain(c), int(c["seed"])) for _, c in trained], protocol, max_steps=first["max_steps"],
-            device=device,
-        )
+        spec, protocol = first.algo, first.protocol  # resolved: the fleet applies nothing again
+        fleet = make_fleet(spec, [FleetRun(c.bound_chain(), c.seed) for _, c in trained], protocol, max_steps=first.max_steps,
+                           device=device)
     except SpecError:
         # A setting the fleet does not reproduce (e.g. a learner option it has no batched form
         # of): the runs are trained one by one, as the single engine would.
@@ -383,9 +372,9 @@ def _train_fleet(
     try:
         with stopping.stop_at_update(checkpoint):  # a SIGTERM checkpoints at the next update, then stops
             fleet.learn(
-                int(first["budget"]),
-                eval_every=int(first["learn_eval_every"]),
-                eval_episodes=int(first["learn_eval_episodes"]),
+                first.budget,
+                eval_every=first.learn_eval_every,
+                eval_episodes=first.learn_eval_episodes,
                 on_eval=lambda k, row: training.learn_rows[k].append(row),
                 on_progress=progress,
                 checkpoint=checkpoint,
@@ -412,7 +401,7 @@ class FleetTraining:
     evaluation rows and the time spent, which a checkpoint carries across a kill (its ``extra``
     data), so that a resumed fleet records every row and the whole time it trained."""
 
-    def __init__(self, runs: Sequence[tuple[str, dict[str, Any]]], clock: RunClock) -> None:
+    def __init__(self, runs: Sequence[tuple[str, RunConfig]], clock: RunClock) -> None:
         self.runs = list(runs)
         self.run_ids = [run_id for run_id, _ in runs]
         self.clock = clock

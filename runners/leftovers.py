@@ -8,7 +8,7 @@ temporary name and renamed into place, so a kill never leaves half a file under 
 paper fleet is megabytes) and nothing removed them.
 
 A sweep removes them when it starts, but only those that no live process may still be writing:
-a run's temporary files when its run lock (:class:`runners.execute.RunLock`, released by the
+a run's temporary files when its run lock (:class:`morality_gym.results.recording.RunLock`, released by the
 kernel when its holder dies) is free, and a fleet's temporary checkpoint when the locks of all its
 runs are free. Another sweep sharing the directory keeps what it is writing.
 """
@@ -19,9 +19,9 @@ import contextlib
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-from runners.execute import RunLock
+from morality_gym.results.recording import RunLock
+from morality_gym.results.schema import runs_dir
 from runners.fleet_checkpoints import checkpoints_dir, recorded_fleets
-from runners.results_schema import runs_dir
 
 
 @contextlib.contextmanager

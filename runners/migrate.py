@@ -49,21 +49,22 @@ from typing import Any
 
 import pyarrow as pa
 import pyarrow.parquet as pq
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+from rich.table import Table  # rich waits: importing runners.migrate (its --help too) must not load it
 
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
 from morality_gym.clitools import console as make_console
-from runners.execute import RunLock
-from runners.identity import PER_RUN_KEYS, PROVENANCE_KEY, config_key, run_identity
-from runners.manifest import manifests_dir, plan_hash
-from runners.rename_history import (
-    MIGRATIONS,
-    Migration,
-    MigrationError,
-    migrate_config,
-    migrate_sidecar,
-    unmigrate_config,
-)
-from runners.results_schema import (
+from morality_gym.results.identity import PER_RUN_KEYS, PROVENANCE_KEY, config_key, run_identity
+from morality_gym.results.manifest import manifests_dir, plan_hash
+from morality_gym.results.recording import RunLock
+from morality_gym.results.schema import (
     atomic_write_table,
     learn_path,
     read_jsonl,
@@ -71,6 +72,14 @@ from runners.results_schema import (
     run_path,
     runs_dir,
     updates_path,
+)
+from runners.rename_history import (
+    MIGRATIONS,
+    Migration,
+    MigrationError,
+    migrate_config,
+    migrate_sidecar,
+    unmigrate_config,
 )
 from runners.tracking import Tracker, TrackingError, check_reachable, marker_path, tracking_lock
 
@@ -622,15 +631,6 @@ def _open_tracker(results: Path, todo: list[RunMove]) -> Any:
 def _run_moves(results: Path, todo: list[RunMove], tracker: Any, step: Step, console: Any, show: bool) -> None:
     if not todo:
         return
-    # rich waits: importing runners.migrate (its --help too) must not load it
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
 
     columns = (TextColumn("migrating"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn())
     with Progress(*columns, console=console, transient=True, disable=not show) as bar:
@@ -667,7 +667,6 @@ def _summary_line(report: Report, dry_run: bool) -> str:
 
 
 def _runs_table(shown: list[RunMove], dry_run: bool) -> Any:
-    from rich.table import Table  # rich waits: importing runners.migrate (its --help too) must not load it
 
     table = Table(title="runs" + (" (dry run: nothing written)" if dry_run else ""))
     for column in ("old id", "new id", "learner", "env", "status", "why"):

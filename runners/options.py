@@ -21,29 +21,27 @@ import hashlib
 import re
 from pathlib import Path
 
+from hydra.core.config_store import ConfigStore
+
+from morality_gym.envs.naming import snake, squash
+from morality_gym.envs.registry import scenarios
+from morality_gym.norms.chain import ChainError, chain_file_stem, get_chain
 from runners.paths import find_config, group_options, split_list
 
 
 def options(group: str, argv: list[str]) -> list[str]:
     """The options of a group: files on the search path plus ConfigStore entries."""
-    from hydra.core.config_store import ConfigStore
-
     stored = ConfigStore.instance().repo.get(group, {})
     return sorted({*group_options(group, argv), *(name.removesuffix(".yaml") for name in stored)})
 
 
 def _store(group: str, name: str, node: dict, package: str) -> None:
-    from hydra.core.config_store import ConfigStore
-
     ConfigStore.instance().store(group=group, name=name, node=node, package=package, provider="morality_gym")
 
 
 def _scenario_option(item: str, argv: list[str], known_options: list[str]) -> str:
     if item in known_options:
         return item
-    from morality_gym.envs.naming import snake, squash
-    from morality_gym.envs.registry import scenarios
-
     for name in scenarios():
         if squash(name) == squash(item):
             option = snake(name)
@@ -57,8 +55,6 @@ def _scenario_option(item: str, argv: list[str], known_options: list[str]) -> st
 def _chain_option(item: str, argv: list[str], known_options: list[str]) -> str:
     if item in known_options:
         return item
-    from morality_gym.norms.chain import ChainError, chain_file_stem, get_chain
-
     path = Path(item).expanduser()
     is_file = item.endswith((".yaml", ".yml")) or path.is_file()
     try:

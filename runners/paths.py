@@ -1,4 +1,4 @@
-"""Where the sweep configuration lives, and the few facts of it that readers of results need.
+"""Where the sweep configuration lives: ``conf/``, the user's directories and the plugins' (the search path).
 
 The location is defined once, as :data:`morality_gym.baselines.specs.CONF_DIR` (the package
 directory ``morality_gym/conf``): the library's loaders (``learner_spec("ppo_lag")``) read the same
@@ -9,31 +9,19 @@ and ``pip install .`` find it the same way. Users do not edit it: they add or ov
 their own directory (``--config-dir``).
 
 Kept apart from :mod:`runners.config` (which validates whole sweeps and so imports the learners,
-and with them torch) so that the leaderboard can learn a preset's seeds quickly.
+and with them torch). What readers of results need of the configuration (a preset's seeds) is
+:mod:`morality_gym.results.presets`, below the runners.
 """
 
 from __future__ import annotations
 
 import importlib.util
 import sys
-from functools import cache
 from importlib.metadata import entry_points
 from pathlib import Path
 
 from morality_gym.baselines.specs import CONF_DIR  # re-exported: defined once, there
-
-
-@cache
-def preset_seeds(preset: str) -> tuple[int, ...] | None:
-    """The seeds of ``conf/preset/<preset>.yaml`` (None if there is no such preset or it is invalid)."""
-    # pyarrow waits: importing runners.paths must not load it
-    from runners.config_schema import PresetError, load_preset
-
-    try:
-        return load_preset(preset).seeds
-    except PresetError:
-        return None
-
+from morality_gym.results.presets import preset_seeds  # noqa: F401 - re-exported: defined once, there
 
 #: Entry-point group of installed plugins: each entry point names a package that is a config root
 #: (holding ``algo/*.yaml`` and, if it likes, ``chain/``, ``scenario/``, ...), e.g. in a plugin's

@@ -5,7 +5,7 @@ full definition, the learner's complete spec, the protocol, the preset's budget 
 settings, seed, beta, max_steps, results-schema version). The same configuration always gets the
 same id, so re-running a sweep finds finished runs by file name, and any change that could change
 the numbers gives a new id. Launch settings (workers, SLURM partition, results_dir) are not part
-of it. The *configuration key* (:func:`runners.identity.config_key`) is the same hash without the env and the seed:
+of it. The *configuration key* (:func:`morality_gym.results.identity.config_key`) is the same hash without the env and the seed:
 all runs of one Table 1 cell that belong to one configuration share it, which is how the
 leaderboard keeps runs of different configurations out of one cell.
 """
@@ -19,16 +19,16 @@ from morality_gym.baselines.specs import training_steps
 from morality_gym.baselines.targets import learner_trains
 from morality_gym.envs.registry import scenario_named
 from morality_gym.norms.chain import chain_fingerprint
+from morality_gym.results.identity import PER_RUN_KEYS, config_key, run_id_of  # noqa: F401 - re-exported
+from morality_gym.results.run_config import RunConfig
+from morality_gym.results.schema import SCHEMA_VERSION
 from runners.config import SweepConfig
-from runners.config_schema import Run
-from runners.identity import PER_RUN_KEYS, config_key, run_id_of  # noqa: F401 - re-exported
-from runners.results_schema import SCHEMA_VERSION
 
 
 @dataclass(frozen=True)
 class PlannedRun:
     run_id: str
-    config: dict[str, Any]  # the resolved run config (what the worker executes)
+    config: RunConfig  # the resolved run (what the worker executes; its JSON form is what the id hashes)
     est_seconds: float
     overhead_s: float = 0.0  # the part of est_seconds every run pays whatever trains it (evaluations, writes)
 
@@ -37,17 +37,17 @@ class PlannedRun:
         c = self.config
         return {
             "run_id": self.run_id,
-            "env_id": c["env_id"],
-            "scenario": c["scenario"],
-            "variant": c["variant"],
-            "chain": c["chain"]["name"],
-            "algo": c["algo"]["name"],
-            "learner": c["algo"]["label"],
-            "protocol": c["protocol"]["name"],
-            "preset": c["preset"],
-            "seed": c["seed"],
-            "config_key": config_key(c),
-            "chain_key": chain_fingerprint(c["chain"]["norms"]),
+            "env_id": c.env_id,
+            "scenario": c.scenario,
+            "variant": c.variant,
+            "chain": c.chain["name"],
+            "algo": c.algo.name,
+            "learner": c.algo.label,
+            "protocol": c.protocol.name,
+            "preset": c.preset,
+            "seed": c.seed,
+            "config_key": c.config_key,
+            "chain_key": chain_fingerprint(c.chain["norms"]),
         }
 
 
@@ -64,7 +64,7 @@ def plan(sweep: SweepConfig) -> list[PlannedRun]:
             for algo in sweep.algos:
                 for seed in sweep.seeds:
                     budget = sweep.preset.budget_for(scenario_name) if learner_trains(algo.spec.target) else 0
-                    config = Run(
+                    run = RunConfig(
                         schema_version=SCHEMA_VERSION,
                         env_id=env_id,
                         scenario=scenario_name,
@@ -80,13 +80,12 @@ def plan(sweep: SweepConfig) -> list[PlannedRun]:
                         eval_episodes=sweep.preset.eval_episodes,
                         learn_eval_every=sweep.preset.learn_eval_every,
                         learn_eval_episodes=sweep.preset.learn_eval_episodes,
-                    ).config()
-                    rid = run_id_of(config)
-                    if rid in seen:
+                    )
+                    if run.run_id in seen:
                         continue
-                    seen.add(rid)
+                    seen.add(run.run_id)
                     steps = training_steps(algo.spec, budget)
-                    runs.append(PlannedRun(rid, config, algo.overhead_s + steps / max(algo.steps_per_s, 1e-9), algo.overhead_s))
+                    runs.append(PlannedRun(run.run_id, run, algo.overhead_s + steps / max(algo.steps_per_s, 1e-9), algo.overhead_s))
     return runs
 
 
@@ -95,7 +94,7 @@ def describe(runs: list[PlannedRun], done: set[str], workers: int) -> dict[str, 
     todo = [r for r in runs if r.run_id not in done]
     by_algo: dict[str, list[int]] = {}
     for r in runs:
-        entry = by_algo.setdefault(r.config["algo"]["label"], [0, 0])
+        entry = by_algo.setdefault(r.config.algo.label, [0, 0])
         entry[0] += 1
         entry[1] += r.run_id in done
     est = sum(r.est_seconds for r in todo) / max(1, workers)

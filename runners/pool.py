@@ -34,8 +34,9 @@ from typing import Any
 
 from morality_gym.baselines.stopped import TrainingStopped
 from morality_gym.clitools import DiskFullError
+from morality_gym.results.recording import git_commit
 from runners import stopping
-from runners.execute import git_commit, limit_threads, training_code
+from runners.execute import limit_threads, training_code
 from runners.jobs import Job, execute_job
 from runners.plan import PlannedRun
 

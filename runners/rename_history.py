@@ -1,6 +1,6 @@
 """The changes of the recorded run configuration that renamed vocabulary and nothing else.
 
-A run's id is the hash of its recorded config (:mod:`runners.identity`), so renaming a key of the
+A run's id is the hash of its recorded config (:mod:`morality_gym.results.identity`), so renaming a key of the
 config (not a number, not what runs) gives every run a new id: a results directory written before
 the rename is not found by a sweep at the new code, which then plans every run again, and the
 leaderboard shows the old runs as superseded. Each :class:`Migration` below is one such rename, as

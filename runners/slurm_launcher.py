@@ -14,7 +14,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from runners.execute import finished_status
+from morality_gym.results.recording import finished_status
 from runners.jobs import Job, execute_job_all
 from runners.plan import PlannedRun
 from runners.slurm_controller import SlurmUnavailable, check_controller  # noqa: F401 - re-exported for callers

@@ -24,7 +24,7 @@ Exit status: 0 if every planned run is ``ok``, 1 if some failed (they are listed
 invalid configuration or another user error (one line; ``--debug`` or ``MORALITY_GYM_DEBUG=1``
 shows the traceback). Killing the sweep at any point and running it again finishes it with no
 lost and no duplicated results; an unreadable result file is moved aside and its run done again
-(:mod:`runners.quarantine`); two sweeps on one directory share it safely (per-run locks, and one
+(:mod:`morality_gym.results.quarantine`); two sweeps on one directory share it safely (per-run locks, and one
 MLflow writer at a time).
 
 Flags (read by :mod:`runners.sweep_cli`). The configuration is composed with Hydra's compose API,
@@ -61,19 +61,20 @@ from rich.table import Table
 
 from morality_gym.clitools import DEBUG_ENV, debug_enabled, duration, one_line, run_cli, version_text
 from morality_gym.norms.chain import ChainError
+from morality_gym.results.manifest import manifest_body, manifest_name, write_manifest
+from morality_gym.results.quarantine import Quarantined, check_run_files, read_table_or_quarantine
+from morality_gym.results.recording import finished_status
+from morality_gym.results.schema import run_path
 from runners.config import ConfigError, SweepConfig  # also stores the schemas (runners.config_schema)
 from runners.config_schema import SweepOverheads
-from runners.execute import finished_status, record_failure
+from runners.execute import record_failure
 from runners.fleet_checkpoints import fleets_to_form, remove_stale
 from runners.jobs import Job, dispatch_order, jobs_estimate, make_jobs
 from runners.leftovers import remove_leftovers
 from runners.machine_load import Estimate, MachineLoad, estimate
-from runners.manifest import manifest_body, manifest_name, write_manifest
 from runners.plan import PlannedRun, describe, plan
 from runners.pool import JobProgress, PoolStopped, WorkerPool
 from runners.preflight import preflight
-from runners.quarantine import Quarantined, check_run_files, read_table_or_quarantine
-from runners.results_schema import run_path
 from runners.slurm_launcher import SlurmUnavailable, run_on_slurm
 from runners.sweep_cli import (  # noqa: F401 - compose_check, precheck, with_plugins, PROGRAM: re-exported
     PROGRAM,
@@ -268,7 +269,7 @@ def print_dry_run(plan_: Plan, console: Console) -> None:
               for i, j in enumerate(plan_.jobs) for r in j.runs}
     for r in plan_.runs:
         c = r.config
-        listing.add_row(r.run_id, c["env_id"], c["chain"]["name"], c["algo"]["label"], str(c["seed"]), str(c["budget"]),
+        listing.add_row(r.run_id, c.env_id, c.chain["name"], c.algo.label, str(c.seed), str(c.budget),
                         job_of.get(r.run_id, "-"), plan_.status[r.run_id] or "-")
     console.print(listing)
 
@@ -443,7 +444,7 @@ def report(plan_: Plan, sweep: SweepConfig, console: Console, seconds: float) ->
             table = read_table_or_quarantine(sweep.results_dir, run_path(sweep.results_dir, r.run_id), columns=["error"])
             err = table.column("error")[0].as_py() if table is not None else "(result file unreadable)"
             c = r.config
-            console.print(f"  {r.run_id} {c['algo']['label']} {c['env_id']} {c['chain']['name']} seed {c['seed']}: {err}")
+            console.print(f"  {r.run_id} {c.algo.label} {c.env_id} {c.chain['name']} seed {c.seed}: {err}")
     return 0 if not failed and not missing else 1
 
 

@@ -21,6 +21,7 @@ writes the leaderboard page.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -29,8 +30,12 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from morality_gym.baselines.policy_ref import load_policy
+from morality_gym.baselines.specs import learner_spec
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli, write_atomically
 from morality_gym.constants import MAX_STEPS
+from morality_gym.generalisation.mixture import DilemmaMixtureEnv
+from morality_gym.generalisation.scoring import score_set
 from morality_gym.generalisation.sets import SEEN_SAMPLE, SETS, EvalSet, load_sets, training_chain
 from morality_gym.generator.grammar import GRAMMAR_VERSION
 from morality_gym.generator.splits import split_manifest
@@ -63,8 +68,6 @@ def _train_ppo(learner: str, seed: int, budget: int, train_ids: Sequence[str], n
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 
-    from morality_gym.baselines.specs import learner_spec
-    from morality_gym.generalisation.mixture import DilemmaMixtureEnv
 
     torch.set_num_threads(1)
     # SB3 takes any 3-D uint8 Box for an image; the grid is not one (images are not normalised: normalize_images=False)
@@ -91,13 +94,11 @@ def _train_ppo(learner: str, seed: int, budget: int, train_ids: Sequence[str], n
 
 
 def dataclass_dict(value: Any) -> dict[str, Any]:
-    import dataclasses
 
     return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(value).items()}
 
 
 def evaluate_sets(policy: Any, sets: dict[str, EvalSet]) -> list[dict[str, Any]]:
-    from morality_gym.generalisation.scoring import score_set
 
     rows: list[dict[str, Any]] = []
     for eval_set in sets.values():
@@ -141,7 +142,6 @@ def do_run(learner: str, seed: int | None, budget: int, train_ids: Sequence[str]
         policy: Any = "random"
         info: dict[str, Any] = {"trained_steps": 0}
     elif policy_ref is not None:
-        from morality_gym.baselines.policy_ref import load_policy
 
         policy = load_policy(policy_ref, allow_other_env=True).policy
         info = {"trained_steps": None, "policy_ref": policy_ref, "submitted": True}

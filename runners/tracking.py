@@ -31,8 +31,8 @@ from typing import Any
 from urllib.parse import urlparse
 
 from morality_gym.clitools import disk_full_error, is_disk_full
-from runners.quarantine import read_table_or_quarantine
-from runners.results_schema import MF_PREFIX, UPDATE_COLUMNS, learn_path, run_path, updates_path
+from morality_gym.results.quarantine import read_table_or_quarantine
+from morality_gym.results.schema import MF_PREFIX, UPDATE_COLUMNS, learn_path, run_path, updates_path
 
 EXPERIMENT = "morality-gym"
 _METRICS = ("metric", "metric_stderr", "exact_metric", "mean_return", "mean_cost", "mean_length", "truncation_rate", "goal_rate", "wall_time_s", "cpu_time_s", "total_steps")

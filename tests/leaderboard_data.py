@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 from PIL import Image, ImageDraw
 
-from runners.manifest import write_manifest
-from runners.results_schema import MF_PREFIX, RUN_COLUMNS, SCHEMA_VERSION, write_learn, write_run
+from morality_gym.results.manifest import write_manifest
+from morality_gym.results.schema import MF_PREFIX, RUN_COLUMNS, SCHEMA_VERSION, write_learn, write_run
 
 REPO = Path(__file__).resolve().parents[1]
 ROWS: tuple[tuple[str, str], ...] = (

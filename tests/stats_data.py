@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from runners.results_schema import MF_PREFIX
+from morality_gym.results.schema import MF_PREFIX
 
 LEARNERS = ("CPO", "PPO", "PPO Lag", "PPO Shaped", "Random")
 #: (level of the top relevant norm, of the others) per learner, roughly the paper's picture.

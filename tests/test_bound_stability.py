@@ -25,9 +25,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from leaderboard.precision import STABLE_SHARE, stable_decimals
-from leaderboard.ranking_page import left_out, left_out_rows
-from leaderboard.render import clean_records
+from leaderboard.outputs.precision import STABLE_SHARE, stable_decimals
+from leaderboard.outputs.tables import interval_text
 from leaderboard.stats import (
     RESAMPLES,
     aggregate_intervals,
@@ -36,7 +35,8 @@ from leaderboard.stats import (
     ranking_rows,
 )
 from leaderboard.stats.core import bootstrap_interval, generator_for, quantile_mcse
-from leaderboard.tables import interval_text
+from leaderboard.web.ranking_page import left_out, left_out_rows
+from leaderboard.web.render import clean_records
 from tests.stats_data import reference_frame as synthetic_references
 from tests.stats_data import synthetic_runs
 
@@ -84,7 +84,7 @@ def test_quantile_mcse_matches_the_spread_of_bounds_over_seeds() -> None:
 def _release() -> tuple[pd.DataFrame, dict[tuple[str, str], dict[str, float]]]:
     """The release's runs and the Random (exact) / Oracle best values its table1.csv ships."""
     from leaderboard.release import resolve
-    from leaderboard.sources import load_sources
+    from leaderboard.runs.sources import load_sources
 
     runs = load_sources(None, resolve([str(RELEASE)])).runs
     references: dict[tuple[str, str], dict[str, float]] = {}

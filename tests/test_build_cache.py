@@ -23,8 +23,8 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-from leaderboard.run_charts import chart_svg, learn_chart, nice_ticks, updates_chart
-from runners.results_schema import learn_path
+from leaderboard.web.run_charts import chart_svg, learn_chart, nice_ticks, updates_chart
+from morality_gym.results.schema import learn_path
 from tests.leaderboard_data import REPO, make_results
 
 
@@ -157,7 +157,7 @@ def test_computed_reference_rows_equal_the_cached_ones(tmp_path: Path) -> None:
     """A first build's reference rows are what later builds read from the cache, in the same order
     (a per-variant mean summed in another order differed in the last bit, so the first build's
     numbers and the statistics' cache key differed from every later build's)."""
-    from leaderboard.aggregate import compute_reference
+    from leaderboard.runs.aggregate import compute_reference
 
     requests = [("Utility", "Push2OrSwitch", 0.1, 200)]
     computed = compute_reference(requests, tmp_path / "reference.json")

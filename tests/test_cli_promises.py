@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from runners.results_schema import run_files
+from morality_gym.results.schema import run_files
 
 REPO = Path(__file__).resolve().parents[1]
 SELECTION = ["--chain", "utility", "--scenario", "switch_standard", "--variant", "HumanA"]

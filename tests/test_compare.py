@@ -16,7 +16,7 @@ import pandas as pd
 import pytest
 
 from leaderboard.compare import load_side, report
-from runners.results_schema import write_updates
+from morality_gym.results.schema import write_updates
 from tests.leaderboard_data import REPO, make_results
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from runners.results_schema import read_runs
+from morality_gym.results.schema import read_runs
 from tests.sweep_tools import run_files
 
 REPO = Path(__file__).resolve().parents[1]

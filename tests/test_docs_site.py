@@ -144,7 +144,7 @@ def test_site_has_every_generated_page(site: Path) -> None:
     config = (site / "reference" / "configuration.html").read_text()
     assert "fleet_size" in config and "rollout_cap" in config and "array_parallelism" in config
     schema = (site / "reference" / "results-schema.html").read_text()
-    from runners.results_schema import RUN_COLUMNS, UPDATE_COLUMNS
+    from morality_gym.results.schema import RUN_COLUMNS, UPDATE_COLUMNS
 
     assert all(f"<code>{c}</code>" in schema for c in RUN_COLUMNS + UPDATE_COLUMNS)
 

@@ -18,7 +18,7 @@ from scipy import stats
 
 from leaderboard.engines import load_results, paired_runs, report, wilcoxon_p
 from morality_gym.norms.metric import bind_chain
-from runners.results_schema import write_run
+from morality_gym.results.schema import write_run
 from tests.leaderboard_data import REPO, make_results
 
 #: The cell whose runs differ between the engines, and by how much per seed.

@@ -15,8 +15,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from runners.identity import configuration_key
-from runners.results_schema import read_runs
+from morality_gym.results.identity import configuration_key
+from morality_gym.results.schema import read_runs
 
 REPO = Path(__file__).resolve().parents[1]
 SCRIPT = REPO / "examples" / "ppo_lag_torch" / "ppo_lag.py"

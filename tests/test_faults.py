@@ -20,8 +20,8 @@ from pathlib import Path
 
 import pytest
 
-from runners.manifest import read_manifests
-from runners.results_schema import read_runs
+from morality_gym.results.manifest import read_manifests
+from morality_gym.results.schema import read_runs
 from tests.sweep_tools import run_files, wait_for_results
 from tests.test_scenario_files import _tiny
 
@@ -147,7 +147,7 @@ def test_02_a_user_chain_cannot_take_a_builtin_chains_name(tmp_path: Path) -> No
 def test_02_results_are_keyed_by_what_a_chain_is() -> None:
     """Runs recorded under a built-in name with other norms (e.g. before this check existed) never
     pass for the built-in chain: they get their own label."""
-    from leaderboard.aggregate import chain_label
+    from leaderboard.runs.aggregate import chain_label
     from morality_gym.norms.chain import builtin_chains, chain_fingerprint
 
     utility = builtin_chains()["Utility"]
@@ -485,7 +485,7 @@ def test_11_slurm_without_a_controller_says_make_slurm_up(tmp_path: Path) -> Non
 # ---------------------------------------------------------------------------------------- case 12
 def test_12_a_dry_run_plans_nothing_the_leaderboard_counts(tmp_path: Path) -> None:
     from leaderboard.build import load
-    from runners.manifest import planned_runs
+    from morality_gym.results.manifest import planned_runs
 
     results = tmp_path / "r"
     args = [*SMOKE, "scenario=[switch_standard]", "variant=[HumanA,HumanB]", "mlflow=false", "gif=false"]

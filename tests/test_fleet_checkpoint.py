@@ -251,7 +251,7 @@ def _sweep_config(tmp_path: Path, *overrides: str) -> Any:
 
 def _recorded(results: Path) -> dict[str, Any]:
     """Every run's row, learn-time evaluations and diagnostics, without the timing columns."""
-    from runners.results_schema import read_learn, read_runs, read_updates
+    from morality_gym.results.schema import read_learn, read_runs, read_updates
 
     runs = read_runs(results).drop(columns=TIMING).sort_values("run_id").reset_index(drop=True)
     learn = read_learn(results).drop(columns=["wall_time_s"]).sort_values(["run_id", "step"]).reset_index(drop=True)
@@ -305,7 +305,7 @@ def test_a_fleet_killed_while_recording_resumes_at_the_end_of_training(
     assert "fleet of 3 runs resumed at 8,192 of 8,192 steps from" in caplog.text
     assert_same_records(expected, _recorded(results))
     assert not list((results / "checkpoints").iterdir())
-    from runners.results_schema import read_runs
+    from morality_gym.results.schema import read_runs
 
     assert read_runs(results).started_at.nunique() == 1  # the resumed runs started when the fleet did
 
@@ -404,7 +404,7 @@ def test_stale_checkpoints_are_removed_and_only_those(tmp_path: Path) -> None:
 def test_a_resumed_fleet_counts_the_time_spent_before_the_kill() -> None:
     """A run's ``wall_time_s`` and ``cpu_time_s`` (compute accounting) include the training before
     the checkpoint: the time spent travels in the checkpoint's extra data."""
-    from runners.execute import RunClock
+    from morality_gym.results.recording import RunClock
     from runners.jobs import FleetTraining
 
     runs = [("a", {}), ("b", {})]

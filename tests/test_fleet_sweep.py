@@ -15,11 +15,11 @@ from pathlib import Path
 
 import pytest
 
+from morality_gym.results.recording import RunLock, finished_status
+from morality_gym.results.schema import read_runs, read_updates
 from runners.config import validate
-from runners.execute import RunLock, finished_status
 from runners.jobs import dispatch_order, execute_job, fleet_speedup, fleet_trains, jobs_estimate, make_jobs, makespan
 from runners.plan import plan
-from runners.results_schema import read_runs, read_updates
 from tests.sweep_tools import run_files, wait_for_results
 
 REPO = Path(__file__).resolve().parents[1]
@@ -289,7 +289,7 @@ def test_the_recorded_commit_is_the_one_the_worker_loaded(monkeypatch: pytest.Mo
     """A sweep runs for hours: a commit made while a worker trains must not be recorded for runs of
     the code it loaded before (git_commit is asked once per process, at the worker's start)."""
 
-    from runners import execute
+    from morality_gym.results import recording as execute
 
     execute.git_commit.cache_clear()
     first = execute.git_commit()

@@ -19,7 +19,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from runners.results_schema import SCHEMA_VERSION, read_runs
+from morality_gym.results.schema import SCHEMA_VERSION, read_runs
 from tests.sweep_tools import run_files
 
 REPO = Path(__file__).resolve().parents[1]

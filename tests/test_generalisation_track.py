@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from leaderboard.precision import stable_decimals
+from leaderboard.outputs.precision import stable_decimals
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.oracle import oracle
 from morality_gym.generalisation.mixture import DilemmaMixtureEnv

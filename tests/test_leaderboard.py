@@ -19,10 +19,10 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-from leaderboard.aggregate import CSV_COLUMNS, aggregate, compute_reference, reference_requests
+from leaderboard.runs.aggregate import CSV_COLUMNS, aggregate, compute_reference, reference_requests
 from morality_gym.paper import table1
-from runners.manifest import planned_runs, write_manifest
-from runners.results_schema import read_runs
+from morality_gym.results.manifest import planned_runs, write_manifest
+from morality_gym.results.schema import read_runs
 from tests.leaderboard_data import BOTH_PROTOCOLS, LEARNERS, ROWS, BuiltSite, run_build, shared_build, snapshot
 
 PAPER = {(r.chain, r.scenario): r.paper for r in table1()}
@@ -110,7 +110,7 @@ def test_runs_of_an_earlier_configuration_are_superseded_not_averaged() -> None:
     n1 counts. Slot HumanB/41 has two runs that no manifest plans: the newer ok one counts, even
     though the older one is listed first. HumanA/42 has only an old run: it still counts.
     """
-    from leaderboard.tables import superseded_markdown
+    from leaderboard.outputs.tables import superseded_markdown
 
     base = {"status": "ok", "error": None, "chain": "Utility", "scenario": "SwitchStandard", "protocol": "paper",
             "preset": "quick", "beta": 0.1, "max_steps": 200, "learner": "CPO", "relevant_norms": ["n_human_harm"],
@@ -232,7 +232,7 @@ def test_paper_and_delta_columns(built: BuiltSite) -> None:
 
 def test_delta_only_at_the_papers_budget_and_for_complete_cells() -> None:
     """Issue 36: Δ only where the runs are the paper's: preset paper and complete (else the reason)."""
-    from leaderboard.table_cells import delta_note
+    from leaderboard.runs.cells import delta_note
 
     cell = {"kind": "learner", "preset": "paper", "complete": True, "paper": 0.5}
     assert delta_note(cell) == ""
@@ -453,8 +453,8 @@ def test_the_index_opens_on_the_newest_own_sweep_beside_the_releases() -> None:
     theirs), the release's sweep of the same protocol beside it; without own runs, the primary."""
     from types import SimpleNamespace
 
-    from leaderboard.aggregate import Group
-    from leaderboard.opening import opening_groups, primary_choice
+    from leaderboard.runs.aggregate import Group
+    from leaderboard.runs.opening import opening_groups, primary_choice
 
     sweeps = {("paper", "paper"): ("paper-table1-v1", "2026-11-20T10:00:00+00:00"),
               ("corrected", "paper"): ("paper-table1-v1", "2026-11-20T11:00:00+00:00"),
@@ -496,8 +496,8 @@ def test_ranking_page_says_which_rows_each_statistic_leaves_out(built: BuiltSite
     from the rows the statistics were computed over (data/ranking_rows.csv), never written by hand."""
     import html
 
-    from leaderboard.aggregate import Group
-    from leaderboard.ranking_page import left_out
+    from leaderboard.runs.aggregate import Group
+    from leaderboard.web.ranking_page import left_out
 
     ranking = (built.site / "ranking.html").read_text()
     rows = pd.read_csv(built.site / "data" / "ranking_rows.csv", keep_default_na=False)

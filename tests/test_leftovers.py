@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from runners.execute import RunLock
+from morality_gym.results.recording import RunLock
 from runners.fleet_checkpoints import fleet_name
 
 REPO = Path(__file__).resolve().parents[1]

@@ -26,7 +26,7 @@ from morality_gym.llm.inspect_tasks import EPISODE_KEY, morality_gym_task, selec
 from morality_gym.llm.settings import SettingsError
 from morality_gym.norms.metric import bind_chain
 from morality_gym.paper import table1
-from runners.results_schema import run_files
+from morality_gym.results.schema import run_files
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = "SwitchStandard-HumanA-v1"

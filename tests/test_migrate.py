@@ -23,8 +23,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from runners.identity import config_key, run_id_of
-from runners.manifest import manifest_name, read_manifests
+from morality_gym.results.identity import config_key, run_id_of
+from morality_gym.results.manifest import manifest_name, read_manifests
+from morality_gym.results.schema import learn_path, run_path, runs_dir, updates_path
 from runners.migrate import MigrateError, migrate, read_journal
 from runners.rename_history import (
     LEARNER_TARGET,
@@ -35,7 +36,6 @@ from runners.rename_history import (
     unmigrate_sidecar,
     vocabulary_only,
 )
-from runners.results_schema import learn_path, run_path, runs_dir, updates_path
 from tests.sweep_tools import run_files
 
 REPO = Path(__file__).resolve().parents[1]
@@ -228,8 +228,8 @@ def test_old_directory_is_planned_again_then_migrated_counts(dirs: dict[str, Any
     assert_migrated(dirs, old)
     after = sweep(old, *SELECTION, "dry_run=true", "mlflow=false")
     assert after.returncode == 0 and "(2 done, 0 to run)" in after.stderr, after.stderr
-    from leaderboard.aggregate import aggregate
     from leaderboard.build import load
+    from leaderboard.runs.aggregate import aggregate
 
     runs, planned, skipped = load(old)
     board = aggregate(runs, planned)
@@ -313,7 +313,7 @@ def test_a_run_done_again_at_the_current_code_is_a_duplicate(dirs: dict[str, Any
 
 
 def test_refuses_while_a_sweep_holds_run_locks_and_bad_input(dirs: dict[str, Any], tmp_path: Path) -> None:
-    from runners.execute import RunLock
+    from morality_gym.results.recording import RunLock
 
     results = fresh(dirs, "locked", mlflow=False)
     lock = RunLock(results, "0123456789abcdef")

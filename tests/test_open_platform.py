@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from runners.manifest import read_manifests
+from morality_gym.results.manifest import read_manifests
 
 REPO = Path(__file__).resolve().parents[1]
 

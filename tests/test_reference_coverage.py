@@ -17,7 +17,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from leaderboard.aggregate import compute_reference
+from leaderboard.runs.aggregate import compute_reference
 from leaderboard.stats.ranking import ranking_rows
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.oracle import oracle

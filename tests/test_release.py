@@ -14,7 +14,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from leaderboard.release import RELEASE_FORMAT, load, verify
-from runners.results_schema import RUN_COLUMNS, run_files
+from morality_gym.results.schema import RUN_COLUMNS, run_files
 
 REPO = Path(__file__).resolve().parents[1]
 SELECTION = ["chain=utility", "scenario=[switch_standard]", "variant=[HumanA,HumanB]", "preset=smoke", "mlflow=false"]

@@ -14,8 +14,8 @@ import pytest
 from PIL import Image
 
 from morality_gym import TrolleyEnv, list_envs
+from morality_gym.evaluation.gif import record_episode, write_gif
 from morality_gym.render import window
-from morality_gym.render.gif import record_episode, write_gif
 from morality_gym.render.rgb import AGENT_FOUND, HARM, HARM_TILE, SWITCH_ON, frame_shape, grid_cell_pixels, render_rgb
 from morality_gym.render.window import NoDisplay, show_frame
 from morality_gym.world.rules import DOWN, INTERACT, LEFT, RIGHT, STAY, UP

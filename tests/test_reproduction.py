@@ -10,8 +10,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from leaderboard.aggregate import aggregate, compute_reference, reference_requests, with_reference
-from leaderboard.intervals import with_intervals
+from leaderboard.outputs.intervals import with_intervals
 from leaderboard.reproduction import (
     CORRECTED,
     PAPER,
@@ -26,7 +25,8 @@ from leaderboard.reproduction import (
     table1_claims,
     verdict,
 )
-from leaderboard.sources import load_sources
+from leaderboard.runs.aggregate import aggregate, compute_reference, reference_requests, with_reference
+from leaderboard.runs.sources import load_sources
 from leaderboard.stats import compute_stats
 from morality_gym.clitools import UserError
 from morality_gym.norms.chain import builtin_chains

@@ -7,8 +7,8 @@ import time
 import pandas as pd
 import pytest
 
-from runners.execute import RunClock
-from runners.results_schema import RUN_COLUMNS, compute_seconds
+from morality_gym.results.recording import RunClock
+from morality_gym.results.schema import RUN_COLUMNS, compute_seconds
 
 
 def _work(cpu_seconds: float) -> None:

@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 from scipy import stats as sps
 
-from leaderboard.aggregate import aggregate, learner_cells, prepare_runs
+from leaderboard.runs.aggregate import aggregate, learner_cells, prepare_runs
 from leaderboard.stats import (
     StatsInputError,
     aggregate_intervals,
@@ -555,8 +555,8 @@ def test_everything_on_a_realistic_frame(realistic: tuple[pd.DataFrame, pd.DataF
 def test_stats_of_a_leaderboard(tmp_path: Path) -> None:
     # The leaderboard's own synthetic results directory (a failed and a missing run, two protocols):
     # the statistics take Leaderboard.runs and Leaderboard.table as they are.
-    from runners.manifest import planned_runs
-    from runners.results_schema import read_learn, read_runs
+    from morality_gym.results.manifest import planned_runs
+    from morality_gym.results.schema import read_learn, read_runs
     from tests.leaderboard_data import make_results
 
     data = make_results(tmp_path / "results")
@@ -573,6 +573,6 @@ def test_stats_of_a_leaderboard(tmp_path: Path) -> None:
 
 
 def test_references_of_the_synthetic_frame_are_the_paper_rows() -> None:
-    from leaderboard.aggregate import paper_rows
+    from leaderboard.runs.aggregate import paper_rows
 
     assert list(REFERENCES) == paper_rows()

@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-from leaderboard.paper_figures import LEARNER_COLOURS
+from leaderboard.outputs.paper_figures import LEARNER_COLOURS
 from leaderboard.stats import LeaderboardStats, StatsInputError, compute_stats
 from leaderboard.stats import plots as F
 from tests.stats_data import reference_frame, synthetic_runs

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from runners.results_schema import read_runs
+from morality_gym.results.schema import read_runs
 from tests.sweep_tools import run_files, wait_for_results
 
 REPO = Path(__file__).resolve().parents[1]

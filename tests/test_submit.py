@@ -16,7 +16,7 @@ import pytest
 from morality_gym.baselines.policy_ref import load_policy
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.montecarlo import evaluate
-from runners.results_schema import run_files, run_schema
+from morality_gym.results.schema import run_files, run_schema
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = "SwitchStandard-HumanA-v1"

@@ -13,8 +13,8 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
-from runners.manifest import read_manifests
-from runners.results_schema import RUN_COLUMNS, read_runs
+from morality_gym.results.manifest import read_manifests
+from morality_gym.results.schema import RUN_COLUMNS, read_runs
 from tests.sweep_tools import children, run_files, wait_for_results
 
 REPO = Path(__file__).resolve().parents[1]

@@ -12,7 +12,7 @@ Nothing here is committed output: every page below is made from its source of tr
 * ``reference/configuration.md`` - every configuration group and field with its default, from the
   typed schemas of :mod:`runners.config_schema` and the files of ``conf/``.
 * ``reference/results-schema.md`` - every column of the results contract, from
-  :mod:`runners.results_schema` (its fields and the comments beside them).
+  :mod:`morality_gym.results.schema` (its fields and the comments beside them).
 * ``reference/modules.md`` - every module, folder by folder, with its size and the first line of
   its docstring.
 
@@ -84,7 +84,7 @@ def _replay_policy(actions: list[int]) -> Callable[[Any], int]:
 
 
 def _gif(env_id: str, actions: list[int]) -> bytes:
-    from morality_gym.render.gif import record_episode
+    from morality_gym.evaluation.gif import record_episode
 
     with tempfile.TemporaryDirectory(prefix="docs-gif-") as tmp:
         path = Path(tmp) / "episode.gif"
@@ -424,7 +424,7 @@ def _field_comments(source: str) -> dict[str, str]:
 def results_schema_page() -> str:
     import inspect
 
-    from runners import results_schema as rs
+    from morality_gym.results import schema as rs
 
     source = inspect.getsource(rs)
     comments = _field_comments(source)
@@ -438,7 +438,7 @@ def results_schema_page() -> str:
     lines = [
         "# Results schema",
         "",
-        f"Schema version **{rs.SCHEMA_VERSION}**. Generated from `runners/results_schema.py` when the site is built.",
+        f"Schema version **{rs.SCHEMA_VERSION}**. Generated from `morality_gym/results/schema.py` when the site is built.",
         "",
         *(_cell(p) for p in doc.split("\n\n")), "",
         "## Run rows: `runs/<run_id>.parquet`",

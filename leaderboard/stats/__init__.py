@@ -1,8 +1,8 @@
 """Interval estimates and overall rankings for the leaderboard (issue 13), as pure functions of frames.
 
 Inputs are the frames the leaderboard already has: the run rows (``Leaderboard.runs``, columns of
-:data:`runners.results_schema.RUN_FIELDS` plus ``mf_<norm>``), the Table 1 frame for the reference values
-(``Leaderboard.table``) and the learn-time evaluations (:func:`runners.results_schema.read_learn`).
+:data:`morality_gym.results.schema.RUN_FIELDS` plus ``mf_<norm>``), the Table 1 frame for the reference values
+(``Leaderboard.table``) and the learn-time evaluations (:func:`morality_gym.results.schema.read_learn`).
 Outputs are tidy DataFrames (one observation per row), ready for CSV, templates and figures.
 
 * :mod:`~leaderboard.stats.cells`: 95 % intervals of the Table 1 cells and the bold rule;

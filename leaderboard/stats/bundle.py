@@ -60,7 +60,7 @@ def compute_stats(
     ``runs``: ``Leaderboard.runs``; ``references``: ``Leaderboard.table`` (its reference rows), a
     frame from :func:`~leaderboard.stats.ranking.reference_frame`, a mapping ``(chain, scenario)
     -> (random, best)``, or ``None`` (no normalised ranking: every row says "no reference values");
-    ``learn``: :func:`runners.results_schema.read_learn` of the results directory, or ``None``.
+    ``learn``: :func:`morality_gym.results.schema.read_learn` of the results directory, or ``None``.
     ``rng``: a seed or generator; each estimate derives its own generator from it, so the result
     is the same on every call with the same seed. ``n_resamples``: bootstrap resamples of every
     interval; ``None``: each statistic's own count, :data:`~leaderboard.stats.core.RESAMPLES`.

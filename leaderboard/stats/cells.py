@@ -2,7 +2,7 @@
 
 A Table 1 cell is one (protocol, preset, chain, scenario, learner); its number is the mean of the
 final evaluation's metric over every run of the cell, all variants and seeds alike (evaluation
-spec 7.2, :func:`leaderboard.aggregate.learner_cells`).
+spec 7.2, :func:`leaderboard.runs.aggregate.learner_cells`).
 
 **Interval.** A 95 % stratified percentile bootstrap over seeds: within each variant, the
 variant's runs (one per seed) are resampled with replacement, independently of the other
@@ -33,7 +33,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from leaderboard.aggregate import CELL_KEYS
+from leaderboard.runs.aggregate import CELL_KEYS
 from leaderboard.stats.core import (
     CELL_RESAMPLES,
     CONFIDENCE,
@@ -46,7 +46,7 @@ from leaderboard.stats.core import (
     usable_runs,
 )
 
-#: The keys of a Table 1 cell (same as :data:`leaderboard.aggregate.CELL_KEYS`).
+#: The keys of a Table 1 cell (same as :data:`leaderboard.runs.aggregate.CELL_KEYS`).
 ROW_KEYS = ["protocol", "preset", "chain", "scenario"]
 CELL_COLUMNS = ["mean", "ci_low", "ci_high", "ci_low_mcse", "ci_high_mcse", "n_runs", "n_variants", "min_seeds", "ci_note"]
 ONE_SEED = "1 seed"

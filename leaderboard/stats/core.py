@@ -15,7 +15,7 @@ between seeds its standard deviation (the Monte Carlo standard error, MCSE) is a
 the interval's width at 2,000 resamples and shrinks as one over the square root of their number.
 Every interval comes with the MCSE of its bounds (:func:`quantile_mcse`, read off the same draws:
 no extra resampling), and a bound is printed to the last decimal it is stable to
-(:func:`leaderboard.precision.stable_decimals`: MCSE at most a quarter of a unit of that decimal,
+(:func:`leaderboard.outputs.precision.stable_decimals`: MCSE at most a quarter of a unit of that decimal,
 so two standard errors stay within half a unit). :data:`RESAMPLES` says how many resamples each
 statistic draws and why.
 
@@ -42,7 +42,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from leaderboard.aggregate import Group, group_order, learner_order, prepare_runs, row_order, split_superseded
+from leaderboard.runs.aggregate import Group, group_order, learner_order, prepare_runs, row_order, split_superseded
 
 #: Coverage of every interval.
 CONFIDENCE = 0.95
@@ -103,15 +103,15 @@ def require_columns(frame: pd.DataFrame, columns: Iterable[str], what: str, fix:
 
 
 def usable_runs(runs: pd.DataFrame, what: str = "runs") -> pd.DataFrame:
-    """The runs that count: ``ok`` ones, one per slot, as :func:`leaderboard.aggregate.aggregate` counts them.
+    """The runs that count: ``ok`` ones, one per slot, as :func:`leaderboard.runs.aggregate.aggregate` counts them.
 
     Pass ``Leaderboard.runs`` (prepared, superseded runs already removed, column ``ok``). A raw
-    frame from :func:`runners.results_schema.read_runs` (no ``ok`` column) is prepared and de-duplicated
+    frame from :func:`morality_gym.results.schema.read_runs` (no ``ok`` column) is prepared and de-duplicated
     here with the aggregator's own functions (without manifests, a slot keeps its newest usable
     run), so the rules for "ok" and "superseded" stay defined once.
     """
     require_columns(runs, ["chain", "scenario", "learner", "metric"], what,
-                    "pass run rows as runners.results_schema.read_runs or Leaderboard.runs return them")
+                    "pass run rows as morality_gym.results.schema.read_runs or Leaderboard.runs return them")
     if "ok" not in runs.columns:
         runs, _ = split_superseded(prepare_runs(runs), {})
     return runs.loc[runs["ok"].astype(bool)].copy()

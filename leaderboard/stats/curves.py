@@ -27,7 +27,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from leaderboard.aggregate import CELL_KEYS
+from leaderboard.runs.aggregate import CELL_KEYS
 from leaderboard.stats.core import (
     CONFIDENCE,
     DEFAULT_RESAMPLES,
@@ -80,14 +80,14 @@ def pooled_learning_curves(
     """Mean curve and 95 % band per (protocol, preset, chain, scenario, learner) and grid step.
 
     ``runs``: run rows (only ``ok`` runs count); ``learn``: learn-time evaluations (as
-    :func:`runners.results_schema.read_learn` returns them), joined to the runs by ``run_id``. Columns:
+    :func:`morality_gym.results.schema.read_learn` returns them), joined to the runs by ``run_id``. Columns:
     the cell keys, ``measure`` (= ``column``), ``step``, ``mean``, ``ci_low``, ``ci_high``,
     ``ci_low_mcse``, ``ci_high_mcse`` (Monte Carlo standard error of each bound), ``n_runs`` (curves pooled), ``n_cell_runs`` (usable runs of the cell, with or without a
     curve), ``aligned`` (``shared`` | ``interpolated``). Evaluations whose value is missing are
     ignored; a run evaluated twice at a step counts with the mean of both.
     """
     keys = list(CELL_KEYS)
-    require_columns(learn, ["run_id", "step", column], "learn", "pass runners.results_schema.read_learn(results_dir)")
+    require_columns(learn, ["run_id", "step", column], "learn", "pass morality_gym.results.schema.read_learn(results_dir)")
     ok = usable_runs(runs)
     require_columns(ok, keys + ["run_id"], "runs", "pass Leaderboard.runs")
     cell_sizes = ok.groupby(keys, sort=True).size()

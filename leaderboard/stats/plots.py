@@ -7,7 +7,7 @@ caller to one protocol and preset (and one measure; data spanning several raises
 and returns the path, or returns ``None`` and writes nothing when the frame has nothing to draw
 (the page then says so).
 
-As in :mod:`leaderboard.paper_figures`: matplotlib ``Figure`` objects on the Agg canvas, never
+As in :mod:`leaderboard.outputs.paper_figures`: matplotlib ``Figure`` objects on the Agg canvas, never
 ``pyplot`` (no global state, no GUI backend); one colour per learner everywhere (pass
 ``FigureSet.colours`` so that learners outside the paper's five keep their colour across a build).
 
@@ -30,8 +30,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FuncFormatter
 
-from leaderboard.aggregate import learner_order, row_order
-from leaderboard.paper_figures import DPI, learner_palette
+from leaderboard.runs.aggregate import learner_order, row_order
+from leaderboard.runs.display_order import DPI, learner_palette
 from leaderboard.stats.core import StatsInputError
 from morality_gym.norms.chain import ChainError, get_chain
 

@@ -58,7 +58,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats as sps
 
-from leaderboard.aggregate import ORACLE_BEST, RANDOM_EXACT, learner_order, row_order
+from leaderboard.runs.aggregate import ORACLE_BEST, RANDOM_EXACT, learner_order, row_order
 from leaderboard.stats.core import (
     AGGREGATE_RESAMPLES,
     CONFIDENCE,

@@ -6,7 +6,7 @@ episode, as the runner records it), with the metric, so a reader can see whether
 its return with cost.
 
 **Violation rates.** Per (row, learner, norm), the mean of ``1 - M`` over the runs in which the
-norm is relevant (the same runs Figure 2 pools, :func:`leaderboard.aggregate.norm_long`). What
+norm is relevant (the same runs Figure 2 pools, :func:`leaderboard.runs.aggregate.norm_long`). What
 ``1 - M`` means depends on the norm (evaluation spec 4.2):
 
 * event norm: the share of evaluation episodes in which the norm was violated (a prohibited event
@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from leaderboard.aggregate import chain_norm_order, norm_long
+from leaderboard.runs.aggregate import chain_norm_order, norm_long
 from leaderboard.stats.core import in_table1_order, require_columns, usable_runs
 from morality_gym.norms.catalogue import CATALOGUE
 from morality_gym.norms.chain import ChainError, get_chain

@@ -19,7 +19,7 @@ import numpy as np
 
 from morality_gym.baselines.hparams import algorithm_class, validate_learner
 from morality_gym.baselines.learn_evals import EvalHook, learn_eval_row
-from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, protocol_spec, training_steps
+from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, RandomReplay, protocol_spec, training_steps
 from morality_gym.baselines.targets import import_root, resolve
 from morality_gym.clitools import write_atomically
 from morality_gym.constants import EVAL_EPISODES, LEARN_EVAL_EPISODES, LEARN_EVAL_EVERY, MAX_STEPS, SEED
@@ -35,12 +35,19 @@ if TYPE_CHECKING:  # imported when used: it loads SB3 and torch, which the rando
     from morality_gym.baselines.callbacks import MoralityEvalCallback
 
 
+#: Random's settings when no protocol asks for a replay: its final evaluation starts its own stream.
+FRESH_STREAM = RandomReplay()
+
+
 class Learner:
     """Base class: the protocol-independent parts (evaluation, GIFs, save/load bookkeeping).
 
     A learner that is not an SB3 algorithm subclasses this and is named by its own import path as
     ``_target_`` (as the random baseline is); ``trains = False`` tells planners it needs no budget,
     and :meth:`load_policy` turns its saved files back into a policy.
+
+    ``spec`` is the resolved spec (a protocol's overrides already applied: by the sweep, or by
+    :func:`build_learner`); a learner never sees the protocol itself.
     """
 
     trains: bool = True
@@ -49,14 +56,10 @@ class Learner:
         self,
         spec: LearnerSpec,
         bound: BoundChain,
-        protocol: ProtocolSpec | str = "paper",
         seed: int = SEED,
         max_steps: int | None = MAX_STEPS,
     ) -> None:
-        self.protocol = protocol_spec(protocol)
-        # The protocol's learner overrides (e.g. CPO's dual solution) are applied here unless the
-        # spec already carries them (a sweep resolves them before its command-line overrides).
-        self.spec = self.protocol.apply(spec)
+        self.spec = spec
         self.bound = bound
         self.env_id = bound.env_id
         parse_env_id(self.env_id)
@@ -114,7 +117,7 @@ class Learner:
     def record_gif(self, path: str | Path, max_steps: int = 50) -> dict[str, Any]:
         """One evaluation episode of the stochastic policy as a GIF (like the reference's render episode)."""
         # PIL waits: importing morality_gym.baselines.learners must not load it
-        from morality_gym.render.gif import record_episode
+        from morality_gym.evaluation.gif import record_episode
 
         adapter = PolicyAdapter(self.policy)
         rng = np.random.default_rng(self.seed + 7919)
@@ -134,7 +137,7 @@ class Learner:
             "env_id": self.env_id,
             "chain": self.bound.chain.name,
             "beta": self.bound.beta,
-            "protocol": self.protocol.name,
+            "protocol": self.spec.protocol,
             "seed": self.seed,
             "trained_steps": self.trained_steps,
         }
@@ -143,16 +146,19 @@ class Learner:
 class RandomLearner(Learner):
     """Uniformly random actions; nothing to learn.
 
-    Under the ``paper`` protocol its evaluations replay the reference's random stream: one
-    generator seeded with the run seed feeds, in order, the learn-time evaluations at steps 0 and
-    50,000 (10 episodes each, each followed by a render episode of up to 50 steps) and then the
-    final 100-episode evaluation. This reproduces the paper's Random column to the last digit.
+    With ``replay.learn_evals`` (the ``paper`` protocol's setting) its evaluations replay the
+    reference's random stream: one generator seeded with the run seed feeds, in order, the
+    learn-time evaluations at steps 0 and 50,000 (10 episodes each, each followed by a render
+    episode of up to 50 steps) and then the final 100-episode evaluation. This reproduces the
+    paper's Random column to the last digit.
     """
 
     trains = False
 
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
+    def __init__(self, spec: LearnerSpec, bound: BoundChain, seed: int = SEED, max_steps: int | None = MAX_STEPS,
+                 replay: RandomReplay = FRESH_STREAM) -> None:
+        super().__init__(spec, bound, seed=seed, max_steps=max_steps)
+        self.replay = replay
         self._final: EvaluationResult | None = None
         self._rng = np.random.default_rng(self.seed)
 
@@ -165,7 +171,7 @@ class RandomLearner(Learner):
 
     def _render_episode(self, env: TrolleyEnv) -> None:
         env.reset()
-        for _ in range(self.protocol.render_episode_steps):
+        for _ in range(self.replay.render_episode_steps):
             _, _, terminated, truncated, _ = env.step(self._act(None))
             if terminated or truncated:
                 break
@@ -176,8 +182,8 @@ class RandomLearner(Learner):
         started = time.perf_counter()
         self._rng = np.random.default_rng(self.seed)
         self._env = TrolleyEnv(self.env_id, max_steps=self.max_steps)
-        if self.protocol.random_replays_learn_evals:
-            for step in self.protocol.random_learn_eval_steps:
+        if self.replay.learn_evals:
+            for step in self.replay.steps:
                 mc = evaluate_sequential(self._act, self._env, self.bound, eval_episodes, keep_episodes=False)
                 self._render_episode(self._env)
                 row = learn_eval_row(step, mc, None, started)
@@ -306,11 +312,26 @@ def build_learner(
     seed: int = SEED,
     max_steps: int | None = MAX_STEPS,
 ) -> Learner:
-    """The learner of ``spec`` for one env id and chain (see :mod:`morality_gym.baselines.specs`).
-
-    ``spec.target`` is either a :class:`Learner` subclass (built directly) or an SB3 algorithm
-    (driven by :class:`SB3Learner`).
+    """The learner of ``spec`` under ``protocol`` for one env id and chain (see
+    :mod:`morality_gym.baselines.specs`): the library's entry, which resolves ``spec`` for the
+    protocol (:meth:`~morality_gym.baselines.specs.ProtocolSpec.apply`), then :func:`make_learner`.
     """
+    protocol = protocol_spec(protocol)
+    return make_learner(protocol.apply(spec), bound, seed=seed, max_steps=max_steps, replay=protocol.random_replay())
+
+
+def make_learner(
+    spec: LearnerSpec,
+    bound: BoundChain,
+    seed: int = SEED,
+    max_steps: int | None = MAX_STEPS,
+    replay: RandomReplay = FRESH_STREAM,
+) -> Learner:
+    """The learner of a resolved ``spec`` (a sweep's run carries one): ``spec.target`` is either a
+    :class:`Learner` subclass (built directly; the random baseline also gets its ``replay``
+    settings) or an SB3 algorithm (driven by :class:`SB3Learner`)."""
     cls = resolve(spec.target, where=f"learner {spec.name!r}: _target_")
+    if issubclass(cls, RandomLearner):
+        return cls(spec, bound, seed=seed, max_steps=max_steps, replay=replay)
     learner_cls = cls if issubclass(cls, Learner) else SB3Learner
-    return learner_cls(spec, bound, protocol=protocol, seed=seed, max_steps=max_steps)
+    return learner_cls(spec, bound, seed=seed, max_steps=max_steps)

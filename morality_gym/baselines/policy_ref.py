@@ -5,7 +5,7 @@ need the same three things from it: the policy object the evaluators accept (:cl
 the file whose bytes define it (so a submission can be hashed and re-submitted idempotently), and a
 one-line error naming what is wrong when it cannot be used. This module is that one place. It sits
 with the baselines because a saved model is loaded by :mod:`morality_gym.baselines.io`; code below
-that layer (:func:`morality_gym.render.gif.record_episode`, the evaluators) takes the resolved
+that layer (:func:`morality_gym.evaluation.gif.record_episode`, the evaluators) takes the resolved
 policy object, ``load_policy(ref).policy``.
 
 Accepted references:

@@ -53,7 +53,7 @@ class SpecError(ValueError):
     """A learner or protocol setting is invalid; the message names the key and the valid choices."""
 
 
-def _check_keys(where: str, given: Mapping[str, Any], allowed: list[str]) -> None:
+def check_keys(where: str, given: Mapping[str, Any], allowed: list[str]) -> None:
     allowed_here = [("target" if a == "_target_" else a) for a in allowed]
     for key in given:
         if key not in allowed_here:
@@ -132,7 +132,7 @@ class LearnerSpec:
         """
         overrides = _rename_target(overrides)
         where = where or f"learner {self.name!r}"
-        _check_keys(where, overrides, _settable(LearnerSpec))
+        check_keys(where, overrides, _settable(LearnerSpec))
         if not isinstance(overrides.get("hparams", {}), Mapping):
             raise SpecError(f"{where}: hparams must be a mapping, got {overrides['hparams']!r}")
         return _typed(LearnerSpec, dataclasses.asdict(self), overrides, where=where)
@@ -143,7 +143,7 @@ class LearnerSpec:
         takes this class's default, ``label`` defaults to ``name``)."""
         values = _rename_target(values)
         where = where or f"learner {name!r}"
-        _check_keys(where, values, _settable(cls))
+        check_keys(where, values, _settable(cls))
         if "target" not in values:
             raise SpecError(f"{where}: no _target_; name the algorithm class, e.g. _target_: stable_baselines3.A2C")
         if not isinstance(values.get("hparams") or {}, Mapping):
@@ -202,6 +202,21 @@ def learner_spec(name: str, overrides: Mapping[str, Any] | None = None) -> Learn
 
 
 @dataclass(frozen=True)
+class RandomReplay:
+    """How the random baseline draws its evaluations from its one random stream (the random
+    learner's own settings, which a protocol sets: :meth:`ProtocolSpec.random_replay`).
+
+    ``learn_evals``: before the final evaluation, play the learn-time evaluations at ``steps``
+    (each followed by a render episode of up to ``render_episode_steps`` steps) from the same
+    stream, as the reference's runs did; off, the final evaluation starts the stream afresh.
+    """
+
+    learn_evals: bool = False
+    steps: tuple[int, ...] = (0, LEARN_EVAL_EVERY)
+    render_episode_steps: int = 50
+
+
+@dataclass(frozen=True)
 class ProtocolSpec:
     """What a protocol changes (docs/protocols.md; the reasons are in ``conf/protocol/*.yaml``).
 
@@ -216,7 +231,8 @@ class ProtocolSpec:
 
     ``random_replays_learn_evals``: Random's final evaluation continues the random stream of its
     learn-time evaluations (each followed by a render episode of up to ``render_episode_steps``
-    steps), which is what reproduces the paper's Random column exactly.
+    steps), which is what reproduces the paper's Random column exactly. The random learner gets
+    these three as its own settings (:meth:`random_replay`), never the protocol.
     """
 
     name: str
@@ -230,7 +246,7 @@ class ProtocolSpec:
             if not isinstance(override, Mapping):
                 raise SpecError(f"protocol {self.name!r}: learner_overrides.{algo} must be a mapping")
             allowed = [f.name for f in dataclasses.fields(LearnerSpec) if f.name not in ("name", "label", "target", "protocol")]
-            _check_keys(f"protocol {self.name!r}: learner_overrides.{algo}", override, allowed)
+            check_keys(f"protocol {self.name!r}: learner_overrides.{algo}", override, allowed)
         if isinstance(self.render_episode_steps, bool) or not isinstance(self.render_episode_steps, int) or self.render_episode_steps < 0:
             raise SpecError(f"protocol {self.name!r}: render_episode_steps must be an integer >= 0, got {self.render_episode_steps!r}")
 
@@ -238,12 +254,19 @@ class ProtocolSpec:
     def from_mapping(cls, values: Mapping[str, Any], where: str = "") -> ProtocolSpec:
         """A protocol from a protocol file's values over this class's defaults."""
         where = where or f"protocol {values.get('name', '?')!r}"
-        _check_keys(where, values, typed.valid_keys(cls))
+        check_keys(where, values, typed.valid_keys(cls))
         return _typed(cls, values, where=where)
+
+    def random_replay(self) -> RandomReplay:
+        """The random learner's settings under this protocol (its only effect on that learner)."""
+        return RandomReplay(self.random_replays_learn_evals, tuple(self.random_learn_eval_steps), self.render_episode_steps)
 
     def apply(self, spec: LearnerSpec) -> LearnerSpec:
         """``spec`` with this protocol's overrides for its algorithm name, stamped with the protocol.
 
+        Called once per learner: by a sweep where it resolves its runs (``runners.config``), or by
+        the library's :func:`~morality_gym.baselines.learners.build_learner` and
+        :func:`~morality_gym.baselines.fleet.build_fleet` for a spec no protocol has touched yet.
         A spec already stamped with this protocol is returned unchanged (so that settings changed
         after the protocol, e.g. on a sweep's command line, are not overwritten); one stamped with
         another protocol is an error, never a silent mix of the two.

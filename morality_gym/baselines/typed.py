@@ -74,6 +74,14 @@ def _writable_value(value: Any) -> Any:
     return value
 
 
+def _omegaconf() -> Any:
+    """The ``omegaconf`` package, imported when first needed, in this one place: it costs ~80 ms,
+    and readers of presets (the leaderboard's ``--help``) import this module without using it."""
+    import omegaconf  # OmegaConf waits (see the docstring)
+
+    return omegaconf
+
+
 class TypedConfigError(ValueError):
     """A value or key the schema refuses; the message is one line (see :func:`explain`)."""
 
@@ -92,18 +100,16 @@ def explain(exc: BaseException, where: str = "", schemas: Mapping[str, type] | N
 
     ``schemas`` maps an OmegaConf ``object_type`` name to its class, for the list of valid keys.
     """
-    # OmegaConf waits: importing morality_gym.baselines.typed must not load it
-    from omegaconf.errors import ConfigKeyError, OmegaConfBaseException
-
+    errors = _omegaconf().errors
     cause: BaseException | None = exc
-    while cause is not None and not isinstance(cause, OmegaConfBaseException):
+    while cause is not None and not isinstance(cause, errors.OmegaConfBaseException):
         cause = cause.__cause__ or cause.__context__
     if cause is None:
         return " ".join(str(exc).split())
     full_key = str(getattr(cause, "full_key", "") or "")
     msg = str(cause).splitlines()[0].strip() if str(cause) else type(cause).__name__
     prefix = f"{full_key}" + (f" ({where})" if where else "")
-    if isinstance(cause, ConfigKeyError) or "not in" in msg or "is not in struct" in msg:
+    if isinstance(cause, errors.ConfigKeyError) or "not in" in msg or "is not in struct" in msg:
         key = str(getattr(cause, "key", None) or full_key.rsplit(".", 1)[-1])
         keys = _schema_keys(getattr(cause, "object_type", None), schemas)
         valid = f"; valid keys: {', '.join(keys)}" if keys else ""
@@ -124,16 +130,13 @@ def _schema_keys(object_type: Any, schemas: Mapping[str, type] | None) -> list[s
 
 def merge(cls: type, *layers: Any, where: str = "") -> Any:
     """The layers (mappings, lowest first) merged over ``cls``'s schema: an OmegaConf node, typed."""
-    # OmegaConf waits: importing morality_gym.baselines.typed must not load it
-    from omegaconf import OmegaConf
-    from omegaconf.errors import OmegaConfBaseException
-
-    node = OmegaConf.structured(schema(cls))
+    omegaconf = _omegaconf()
+    node = omegaconf.OmegaConf.structured(schema(cls))
     try:
         for layer in layers:
             if layer:
-                node = OmegaConf.merge(node, layer)
-    except OmegaConfBaseException as exc:
+                node = omegaconf.OmegaConf.merge(node, layer)
+    except omegaconf.errors.OmegaConfBaseException as exc:
         raise TypedConfigError(explain(exc, where)) from exc
     return node
 
@@ -141,13 +144,10 @@ def merge(cls: type, *layers: Any, where: str = "") -> Any:
 def build(cls: type, node: Any, where: str = "", **extra: Any) -> Any:
     """The frozen ``cls`` from a merged node (its ``__post_init__`` checks the values); a required
     field left unset is named."""
-    # OmegaConf waits: importing morality_gym.baselines.typed must not load it
-    from omegaconf import OmegaConf
-    from omegaconf.errors import MissingMandatoryValue
-
+    omegaconf = _omegaconf()
     try:
-        values = OmegaConf.to_container(node, resolve=True, throw_on_missing=True)
-    except MissingMandatoryValue as exc:
+        values = omegaconf.OmegaConf.to_container(node, resolve=True, throw_on_missing=True)
+    except omegaconf.errors.MissingMandatoryValue as exc:
         key = str(getattr(exc, "full_key", "") or "?")
         raise TypedConfigError(f"{key}{f' ({where})' if where else ''}: required, and not set") from exc
     assert isinstance(values, dict)

@@ -21,6 +21,7 @@ cached as JSON under ``$MORALITY_GYM_CACHE/track/``.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
@@ -35,6 +36,7 @@ from morality_gym.evaluation.oracle import oracle
 from morality_gym.generator.scoring import DILEMMA_GAP
 from morality_gym.generator.splits import cache_root, load_split, split_manifest
 from morality_gym.norms.chain import ChainError, builtin_chains
+from morality_gym.norms.metric import bind_chain
 from morality_gym.paper import table1_pairs
 
 SETS: Final[tuple[str, ...]] = ("seen", "test", "builtin")
@@ -103,7 +105,6 @@ def seen_sample(train_ids: Sequence[str], size: int = SEEN_SAMPLE, seed: int = S
 def training_chain(env_id: str) -> str:
     """The chain a training episode of ``env_id`` is bound to (for the cost and the shaped reward):
     the first built-in chain (in their fixed order) that has a relevant norm there."""
-    from morality_gym.norms.metric import bind_chain
 
     for name in builtin_chains():
         try:
@@ -162,7 +163,6 @@ def compute_values(
 
 def builtin_digest() -> str:
     """A digest of the built-in set's pairs (the env ids and chains, not their files)."""
-    import hashlib
 
     text = "\n".join(f"{c} {e}" for c, e in table1_pairs())
     return hashlib.sha256(text.encode()).hexdigest()

@@ -15,6 +15,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+#: The key under which the Inspect task's solver leaves the episode for its scorer, and its log
+#: keeps it (:mod:`morality_gym.llm.inspect_tasks`, read back by ``leaderboard.llm``).
+EPISODE_KEY = "morality_gym_episode"
+
 from morality_gym.evaluation.montecarlo import episode_metrics
 from morality_gym.norms.metric import BoundChain
 from morality_gym.world.vocab import UTILITIES, mask_to_names, names_to_mask

@@ -43,7 +43,7 @@ from morality_gym.constants import BETA
 from morality_gym.envs.registry import UnknownEnvError, parse_env_id, scenario_named, scenarios
 from morality_gym.envs.trolley import TrolleyEnv
 from morality_gym.llm.agent import EpisodeLog, Message, Reply, play_episode
-from morality_gym.llm.episode import EpisodeOutcome, score_episode
+from morality_gym.llm.episode import EPISODE_KEY, EpisodeOutcome, score_episode
 from morality_gym.llm.settings import DEFAULT_PRESET, AgentSettings, preset_named
 from morality_gym.llm.text import render_view
 from morality_gym.norms.chain import ChainError, MoralityChain, get_chain
@@ -52,8 +52,6 @@ from morality_gym.paper import table1
 from morality_gym.world.rules import ACTION_NAMES
 from morality_gym.world.vocab import names_to_mask
 
-#: The key under which the solver leaves the episode for the scorer (and the log keeps it).
-EPISODE_KEY = "morality_gym_episode"
 _DEFAULTS = AgentSettings()
 
 ACT_TOOL = ToolInfo(

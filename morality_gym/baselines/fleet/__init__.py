@@ -33,7 +33,7 @@ from morality_gym.baselines.fleet.base import FleetRun, FleetTrainer
 from morality_gym.baselines.fleet.checkpoint import FleetCheckpoint
 from morality_gym.baselines.fleet.env import Simulator
 from morality_gym.baselines.fleet.ppo import FleetPPO
-from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError
+from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError, protocol_spec
 from morality_gym.baselines.targets import resolve
 from morality_gym.constants import MAX_STEPS
 
@@ -77,8 +77,23 @@ def build_fleet(
     rollouts and updates on ``device`` (``cpu``, or ``cuda`` when torch sees a GPU). ``simulator``:
     ``auto`` steps the envs on the device on a GPU and with numpy on the CPU (the faster there;
     both give the same bits), ``host`` or ``device`` force one (:mod:`.env`). The sampling streams
-    and the single-run learners it hands back stay on the CPU."""
+    and the single-run learners it hands back stay on the CPU. The library's entry: ``spec`` is
+    resolved for the protocol here (:meth:`~morality_gym.baselines.specs.ProtocolSpec.apply`), then
+    :func:`make_fleet`."""
+    protocol = protocol_spec(protocol)
+    return make_fleet(protocol.apply(spec), runs, protocol, max_steps=max_steps, device=device, simulator=simulator)
+
+
+def make_fleet(
+    spec: LearnerSpec,
+    runs: Sequence[FleetRun],
+    protocol: ProtocolSpec,
+    max_steps: int | None = MAX_STEPS,
+    device: str = "cpu",
+    simulator: Simulator = "auto",
+) -> FleetTrainer:
+    """The fleet trainer of a ``spec`` already resolved for ``protocol`` (a sweep's runs carry one)."""
     return fleet_class(spec.target)(spec, runs, protocol=protocol, max_steps=max_steps, device=device, simulator=simulator)
 
 
-__all__ = ["FleetCheckpoint", "FleetRun", "FleetTrainer", "build_fleet", "fleet_class"]
+__all__ = ["FleetCheckpoint", "FleetRun", "FleetTrainer", "build_fleet", "fleet_class", "make_fleet"]

@@ -45,7 +45,7 @@ from morality_gym.baselines.fleet.optim import BatchedAdam
 from morality_gym.baselines.fleet.rollout import Rollout, RolloutCollector, RolloutSettings
 from morality_gym.baselines.fleet.state import CheckpointMismatch, identity_difference, plain_data
 from morality_gym.baselines.fleet.streams import RunStreams
-from morality_gym.baselines.learners import SB3Learner, build_learner
+from morality_gym.baselines.learners import SB3Learner, make_learner
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError, protocol_spec, training_steps
 from morality_gym.baselines.targets import resolve
 from morality_gym.constants import LEARN_EVAL_EPISODES, MAX_STEPS
@@ -112,8 +112,11 @@ class FleetTrainer:
         simulator: Simulator = "auto",
     ) -> None:
         self.device = fleet_device(device)
-        self.protocol = protocol_spec(protocol)
-        self.spec = self.protocol.apply(spec)
+        self.protocol = protocol_spec(protocol)  # what its checkpoints are keyed by
+        if spec.protocol != self.protocol.name:
+            raise SpecError(f"learner {spec.name!r} is not resolved for protocol {self.protocol.name!r} "
+                            f"(it carries {spec.protocol!r}); use build_fleet, which applies the protocol")
+        self.spec = spec
         if resolve(self.spec.target) is not resolve(self.algorithm):
             raise SpecError(
                 f"learner {self.spec.name!r} is trained by {self.spec.target!r}, "
@@ -158,7 +161,7 @@ class FleetTrainer:
         streams = RunStreams()
         try:
             for run in self.runs:
-                learner = build_learner(self.spec, run.bound, self.protocol, seed=run.seed, max_steps=self.max_steps)
+                learner = make_learner(self.spec, run.bound, seed=run.seed, max_steps=self.max_steps)
                 assert isinstance(learner, SB3Learner)
                 learners.append(learner)
                 streams.capture()

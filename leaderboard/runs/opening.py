@@ -1,0 +1,66 @@
+"""Which sweep a build shows first: the user's newest, with a release's sweep beside it.
+
+Why: after ``make reproduce-table1 PRESET=smoke`` the user wants their 630 runs, not the release
+that ships with the code (issue 36): the index opened on the release's ``paper · paper`` sweep and
+``results/table1.csv`` held the release's numbers. So with runs of their own, the build's primary
+sweep (``table1.csv``, ``table1.tex``, the first table of ``table1.md``) and the index's grid are
+the sweep of the user's newest run; the release's sweep of the same protocol is shown beside it.
+Without own runs, :func:`leaderboard.runs.aggregate.choose_primary` decides as before. Kept apart from
+the site's modules so that the build can ask before anything heavy is imported.
+"""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from leaderboard.runs.aggregate import Group, Leaderboard, choose_primary
+from leaderboard.runs.sources import RESULTS_SOURCE
+
+
+def _own_runs(lb: Leaderboard) -> pd.DataFrame:
+    if "source" not in lb.runs.columns:
+        return lb.runs
+    return lb.runs.loc[lb.runs["source"] == RESULTS_SOURCE]
+
+
+def newest_own_group(lb: Leaderboard) -> Group | None:
+    """The sweep the user ran last: among the groups of the preset of their newest run, the one
+    :func:`choose_primary` prefers (most rows, then protocol paper). None without runs of their own."""
+    own = _own_runs(lb)
+    if own.empty:
+        return None
+    when = pd.to_datetime(own["finished_at"].fillna(own["started_at"]), utc=True, errors="coerce")
+    newest = own.loc[when.fillna(pd.Timestamp(0, tz="UTC")).idxmax()]
+    presets = {(str(p), str(s)) for p, s in zip(own["protocol"], own["preset"]) if str(s) == str(newest["preset"])}
+    candidates = [g for g in lb.groups if (g.protocol, g.preset) in presets]
+    return choose_primary(lb.table, candidates) if candidates else None
+
+
+def release_match(lb: Leaderboard, mine: Group) -> Group | None:
+    """The release's sweep to compare ``mine`` with: same protocol, a group holding released runs,
+    the paper's budget preferred (:func:`choose_primary`). None when no release has that protocol."""
+    if "source" not in lb.runs.columns:
+        return None
+    released = lb.runs.loc[lb.runs["source"] != RESULTS_SOURCE]
+    have = {(str(p), str(s)) for p, s in zip(released["protocol"], released["preset"])}
+    candidates = [g for g in lb.groups if g != mine and g.protocol == mine.protocol and (g.protocol, g.preset) in have]
+    return choose_primary(lb.table, candidates) if candidates else None
+
+
+def opening_groups(lb: Leaderboard) -> tuple[Group | None, Group | None]:
+    """(the sweep the index opens on, the sweep shown beside it or None)."""
+    mine = newest_own_group(lb)
+    if mine is None:
+        return lb.primary, None
+    return mine, release_match(lb, mine)
+
+
+
+
+def primary_choice(lb: Leaderboard, protocol: str | None, preset: str | None) -> tuple[str | None, str | None]:
+    """The primary sweep's protocol and preset: as asked (``--protocol``/``--preset``), else those of
+    the user's newest sweep, else (None, None): :func:`choose_primary`'s rule."""
+    if protocol is not None or preset is not None:
+        return protocol, preset
+    mine = newest_own_group(lb)
+    return (mine.protocol, mine.preset) if mine is not None else (None, None)

@@ -1,0 +1,80 @@
+"""What the site says about language-model entries: model, framing, temperature, episodes, tokens.
+
+A language-model entry (``python -m leaderboard.llm``) is a submitted learner whose run configs say
+``policy.kind == "llm"``; each run is one episode. Its Table 1 cells are computed like every other
+learner's; this module gathers, per entry and sweep, the settings and costs that make its number
+interpretable (and a run priceable): the episodes per variant it used (fewer than the baselines'
+100 with the ``paid`` preset), tokens and model calls per episode, fallback steps, and the Inspect
+logs holding the transcripts.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import pandas as pd
+
+from leaderboard.runs.aggregate import LLM_POLICY_KIND
+from morality_gym.results.identity import PROVENANCE_KEY, SUBMITTED_ALGO
+
+
+def llm_entries(runs: pd.DataFrame) -> list[dict[str, Any]]:
+    """One dict per (learner, protocol, preset, model, framing, temperature) of counted LLM runs."""
+    if runs.empty or "algo" not in runs.columns:
+        return []
+    part = runs.loc[runs["algo"].astype(object) == SUBMITTED_ALGO]
+    groups: dict[tuple[Any, ...], dict[str, Any]] = {}
+    for row in part.to_dict("records"):
+        found = _llm_config(row)
+        if found is None:
+            continue
+        policy, prov = found
+        key = (row["learner"], row["protocol"], row["preset"], policy.get("model"), policy.get("framing"),
+               policy.get("temperature"), policy.get("answer"))
+        entry = groups.setdefault(key, _new_entry(row, policy))
+        entry["episodes"] += 1
+        for k in ("calls", "input_tokens", "output_tokens", "fallbacks"):
+            entry[k] += int(prov.get(k) or 0)
+        entry["chains"].add(str(row["chain"]))
+        if prov.get("log"):
+            entry["logs"].add(str(prov["log"]))
+        if prov.get("submitter"):
+            entry["submitters"].add(str(prov["submitter"]))
+    return sorted((_finished(entry) for entry in groups.values()), key=lambda e: (e["protocol"], e["preset"], e["learner"]))
+
+
+def _llm_config(row: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]] | None:
+    """(policy, provenance) of a run's config when the policy is a language model; else None."""
+    try:
+        config = json.loads(row["config"]) if isinstance(row.get("config"), str) else {}
+    except ValueError:
+        return None
+    policy = config.get("policy") or {}
+    if not isinstance(policy, dict) or policy.get("kind") != LLM_POLICY_KIND:
+        return None
+    return policy, config.get(PROVENANCE_KEY) or {}
+
+
+def _new_entry(row: dict[str, Any], policy: dict[str, Any]) -> dict[str, Any]:
+    """An entry's settings, with zero counts and empty sets for the runs to add up."""
+    return {
+        "learner": str(row["learner"]), "protocol": str(row["protocol"]), "preset": str(row["preset"]),
+        "model": str(policy.get("model")), "framing": str(policy.get("framing")),
+        "temperature": policy.get("temperature"), "answer": str(policy.get("answer")),
+        "window": policy.get("window"), "llm_preset": str(policy.get("llm_preset")),
+        "episodes_per_variant": int(policy.get("episodes_per_variant") or 0),
+        "episodes": 0, "calls": 0, "input_tokens": 0, "output_tokens": 0, "fallbacks": 0,
+        "chains": set(), "logs": set(), "submitters": set(),
+    }
+
+
+def _finished(entry: dict[str, Any]) -> dict[str, Any]:
+    """The entry as the page shows it: sets joined, tokens and calls per episode."""
+    n = max(entry["episodes"], 1)
+    return entry | {
+        "chains": ", ".join(sorted(entry["chains"])), "logs": sorted(entry["logs"]),
+        "submitters": ", ".join(sorted(entry["submitters"])) or "unknown",
+        "tokens_per_episode": round((entry["input_tokens"] + entry["output_tokens"]) / n),
+        "calls_per_episode": round(entry["calls"] / n, 1),
+    }
