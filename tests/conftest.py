@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -41,8 +42,15 @@ from tests.slurm_cluster import slurm_cluster  # noqa: F401 - session fixture fo
 def isolated_scenarios() -> Iterator[None]:
     """Scenarios a test registers in this process (``add_scenario_dir``, ``load_split``) are forgotten
     after it: the registry is the process's, and the tests that count the 98 built-in envs run
-    later in the same process. Restores the scenario table, the user directories, the cached state
-    graphs and Gymnasium's MoralityGym ids as they were."""
+    later in the same process (:func:`scenario_registry_restored`)."""
+    with scenario_registry_restored():
+        yield
+
+
+@contextlib.contextmanager
+def scenario_registry_restored() -> Iterator[None]:
+    """Restores, on leaving, the scenario table, the user directories, the cached state graphs and
+    Gymnasium's MoralityGym ids as they were on entering (for module-scoped fixtures too)."""
     import gymnasium as gym
 
     from morality_gym.envs import registry

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -23,20 +24,23 @@ from morality_gym.generalisation.mixture import DilemmaMixtureEnv
 from morality_gym.generalisation.scoring import pair_metrics, policy_table, score_set
 from morality_gym.generalisation.sets import EvalSet, PairValues, dilemma_values, scenario_of, seen_sample
 from morality_gym.generator.splits import split_manifest
+from tests.conftest import scenario_registry_restored
 
 PAIRS = [("SwitchStandard-HumanA-v1", "Utility"), ("PushStandard-HumanA-v1", "DualProcess"),
          ("Switch5-Human-v1", "Utility"), ("SwitchSelfSacrifice-HumanA-v1", "UtilityAgentHarm")]
 
 
 @pytest.fixture(scope="module")
-def generated(tmp_path_factory: pytest.TempPathFactory) -> list[str]:
-    """The env ids of three generated dilemmas (seeds 100-102 of the documented example)."""
+def generated(tmp_path_factory: pytest.TempPathFactory) -> Iterator[list[str]]:
+    """The env ids of three generated dilemmas (seeds 100-102 of the documented example), forgotten
+    by the registry after this module (later tests count the 98 built-in envs)."""
     import morality_gym
     from morality_gym.generator.pipeline import generate
 
-    out = tmp_path_factory.mktemp("generated")
-    generate(range(100, 103), out, pictures=False, with_values=False)
-    return morality_gym.add_scenario_dir(out)
+    with scenario_registry_restored():
+        out = tmp_path_factory.mktemp("generated")
+        generate(range(100, 103), out, pictures=False, with_values=False)
+        yield morality_gym.add_scenario_dir(out)
 
 
 def _sequence(env: DilemmaMixtureEnv, n: int = 12) -> list[str]:
