@@ -58,7 +58,13 @@ def scenario_registry_restored() -> Iterator[None]:
     registry.scenarios()  # loaded before the snapshot, so the snapshot is the whole table
     scenarios, dirs, graphs = dict(registry._scenarios), list(registry._extra_dirs), dict(registry._graphs)
     gym_ids = {k for k in gym.envs.registry if k.startswith("MoralityGym/")}
+    # loading a folder also lists it for child processes (sweeps, builds): forget that too
+    listed = os.environ.get(registry.SCENARIOS_ENV)
     yield
+    if listed is None:
+        os.environ.pop(registry.SCENARIOS_ENV, None)
+    else:
+        os.environ[registry.SCENARIOS_ENV] = listed
     with registry._lock:
         registry._scenarios.clear()
         registry._scenarios.update(scenarios)
