@@ -41,6 +41,7 @@ from morality_gym.baselines.fleet.cpo_math import (
     Operator,
     conjugate_gradient,
     fisher_product,
+    judge_candidate,
     new_search,
 )
 from morality_gym.baselines.fleet.dedup import DistinctStates
@@ -50,7 +51,6 @@ from morality_gym.baselines.safe.cpo_dual import (
     CPOScalars,
     CPOStep,
     exact_direction,
-    line_search_accepts,
     omnisafe_direction,
 )
 from morality_gym.baselines.specs import CPO
@@ -182,26 +182,16 @@ class FleetCPO(FleetCostTrainer):
         expected = (g @ step.direction).item()
         result = new_search()
         fraction = 1.0
-        shrink = float(m.line_search_shrinking_factor)
         for j in range(int(m.line_search_max_iter)):
             theta.copy_(theta_old + fraction * direction)
-            result["tried"] = j + 1
             new = self._evaluate(data)
-            if not new.valid:
-                fraction *= shrink
-                continue
-            kl = self._mean_kl(data, old, new.policy)
-            d_reward, d_cost = new.reward - start.reward, new.cost - start.cost
-            result.update(kl=kl, d_reward=d_reward, d_cost=d_cost)
-            if not math.isfinite(kl):
-                if m.line_search_accept != "omnisafe":
-                    fraction *= shrink
-                continue  # OmniSafe retries the same fraction
-            if line_search_accepts(m.line_search_accept, m.target_kl, step, d_reward, d_cost, kl, c, expected):
-                result.update(accept_step=j + 1, fraction=fraction)
+            kl = self._mean_kl(data, old, new.policy) if new.valid else math.nan
+            accepted, next_fraction = judge_candidate(m, step, result, j, fraction, new.valid, kl,
+                                                      new.reward - start.reward, new.cost - start.cost, c, expected)
+            if accepted:
                 theta.copy_(theta_old + fraction * direction)
                 return result
-            fraction *= shrink
+            fraction = next_fraction
         theta.copy_(theta_old)
         result.update(d_reward=0.0, d_cost=0.0)
         return result

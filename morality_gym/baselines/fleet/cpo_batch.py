@@ -25,7 +25,6 @@ cases, line-search decisions and parameters within float tolerance, on the CPU.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -38,6 +37,7 @@ from morality_gym.baselines.fleet.cpo_math import (
     Operator,
     conjugate_gradient,
     fisher_product,
+    judge_candidate,
     new_search,
 )
 from morality_gym.baselines.fleet.dedup import DistinctStates
@@ -47,7 +47,6 @@ from morality_gym.baselines.safe.cpo_dual import (
     CPOScalars,
     CPOStep,
     exact_direction,
-    line_search_accepts,
     omnisafe_direction,
 )
 
@@ -95,7 +94,7 @@ class BatchedActorStep:
         self.device = actions.device
 
     # ------------------------------------------------------------------ pieces
-    def _cells(self, n_actions: int) -> th.Tensor:
+    def _cells(self) -> th.Tensor:
         """``[K, M]``: each transition's (action, state) cell in a flattened ``[A, U]`` policy."""
         return self.actions * self.states.n + self.states.inverse
 
@@ -105,7 +104,7 @@ class BatchedActorStep:
     def _evaluate(self) -> tuple[Policy, th.Tensor, th.Tensor, th.Tensor]:
         """Every run's current actor: its policy, ``L_r`` and ``L_c`` (``[K]``) and whether its log-probabilities are all numbers."""
         policy = Policy.of(self.nets("pi", self.states.obs))
-        ratio = th.exp(self._log_prob(policy, self._cells(policy.p.shape[1])) - self.old_log_prob)
+        ratio = th.exp(self._log_prob(policy, self._cells()) - self.old_log_prob)
         valid = ~th.isnan(policy.logp).flatten(1).any(dim=1)
         return policy, (ratio * self.advantages).mean(dim=1), (ratio * self.cost_advantages).mean(dim=1), valid
 
@@ -115,7 +114,7 @@ class BatchedActorStep:
     def _gradients(self, actor2: Trace, policy2: Policy) -> th.Tensor:
         """``[2K, D]``: rows ``2k``, ``2k + 1`` are run ``k``'s ``g`` and ``b`` (:meth:`.cpo.FleetCPO._gradients`)."""
         n_actions, n_states = policy2.p.shape[1], self.states.n
-        cells = self._cells(n_actions).repeat_interleave(2, dim=0)
+        cells = self._cells().repeat_interleave(2, dim=0)
         ratio = th.exp(self._log_prob(policy2, cells) - self.old_log_prob.repeat_interleave(2, dim=0))
         advantages = th.stack([self.advantages, self.cost_advantages], dim=1).reshape(2 * self.k, self.m)
         coef = ratio * advantages / self.m
@@ -191,7 +190,11 @@ class BatchedActorStep:
             kl = self._mean_kl(old, policy)
             read = th.stack([reward.double(), cost.double(), kl.double(), valid.double()]).cpu().numpy()
             for i in np.flatnonzero(searching):
-                self._decide(i, j, read[:, i], start[:, i], fraction, searching, results[i], steps[i], float(c[i]), float(expected[i]))
+                reward, cost, kl, valid = read[:, i]
+                accepted, fraction[i] = judge_candidate(
+                    self.model, steps[i], results[i], j, float(fraction[i]), bool(valid), float(kl),
+                    float(reward - start[0, i]), float(cost - start[1, i]), float(c[i]), float(expected[i]))
+                searching[i] = not accepted
         accepted = th.from_numpy(np.array([r["accept_step"] > 0 for r in results])).to(self.device).unsqueeze(1)
         chosen = th.from_numpy(np.array([r["fraction"] for r in results], dtype=np.float32)).to(self.device).unsqueeze(1)
         theta.copy_(th.where(accepted, theta_old + chosen * direction, theta_old))
@@ -199,28 +202,6 @@ class BatchedActorStep:
             if not r["accept_step"]:
                 r.update(d_reward=0.0, d_cost=0.0)
         return results
-
-    def _decide(self, i: int, j: int, read: np.ndarray, start: np.ndarray, fraction: np.ndarray, searching: np.ndarray,
-                result: dict[str, float], step: CPOStep, c: float, expected: float) -> None:
-        """Run ``i``'s verdict on its ``j``-th candidate, as the per-run search decides it."""
-        m = self.model
-        shrink = float(m.line_search_shrinking_factor)
-        reward, cost, kl, valid = read
-        result["tried"] = j + 1
-        if not valid:
-            fraction[i] *= shrink
-            return
-        d_reward, d_cost = float(reward - start[0]), float(cost - start[1])
-        result.update(kl=float(kl), d_reward=d_reward, d_cost=d_cost)
-        if not math.isfinite(kl):
-            if m.line_search_accept != "omnisafe":
-                fraction[i] *= shrink
-            return  # OmniSafe retries the same fraction
-        if line_search_accepts(m.line_search_accept, m.target_kl, step, d_reward, d_cost, float(kl), c, expected):
-            result.update(accept_step=j + 1, fraction=float(fraction[i]))
-            searching[i] = False
-            return
-        fraction[i] *= shrink
 
     def run(self, c: np.ndarray) -> list[ActorStep]:
         """Every run's actor step: its record for the diagnostics rows, the actors moved."""

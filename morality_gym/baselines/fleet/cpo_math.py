@@ -11,13 +11,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch as th
 
 from morality_gym.baselines.fleet.losses import Policy
 from morality_gym.baselines.fleet.nets import FleetNetworks, Trace
-from morality_gym.baselines.safe.cpo_dual import CPOScalars, CPOStep
+from morality_gym.baselines.safe.cpo_dual import CPOScalars, CPOStep, line_search_accepts
 
 Operator = Callable[[th.Tensor], th.Tensor]
 
@@ -107,6 +108,28 @@ def new_search() -> dict[str, float]:
     return {"accept_step": 0, "fraction": 0.0, "kl": math.nan, "tried": 0, "d_reward": 0.0, "d_cost": 0.0}
 
 
+def judge_candidate(
+    model: object, step: CPOStep, result: dict[str, float], j: int, fraction: float, valid: bool,
+    kl: float, d_reward: float, d_cost: float, c: float, expected: float,
+) -> tuple[bool, float]:
+    """One run's verdict on its ``j``-th line-search candidate (``CPO._line_search``), for both
+    actor steps: records it in ``result`` and returns (accepted, the fraction to try next). A
+    candidate without a distribution shrinks the step; a non-finite KL shrinks it too, except
+    under OmniSafe's rule, which retries the same fraction."""
+    m: Any = model
+    shrink = float(m.line_search_shrinking_factor)
+    result["tried"] = j + 1
+    if not valid:
+        return False, fraction * shrink
+    result.update(kl=kl, d_reward=d_reward, d_cost=d_cost)
+    if not math.isfinite(kl):
+        return False, fraction if m.line_search_accept == "omnisafe" else fraction * shrink
+    if line_search_accepts(m.line_search_accept, m.target_kl, step, d_reward, d_cost, kl, c, expected):
+        result.update(accept_step=j + 1, fraction=fraction)
+        return True, fraction
+    return False, fraction * shrink
+
+
 @dataclass(frozen=True)
 class ActorStep:
     """One run's actor step as its diagnostics row reports it."""
@@ -120,4 +143,4 @@ class ActorStep:
     expected_reward_change: float
 
 
-__all__ = ["ActorStep", "FlatActor", "Operator", "conjugate_gradient", "fisher_product", "new_search"]
+__all__ = ["ActorStep", "FlatActor", "Operator", "conjugate_gradient", "fisher_product", "judge_candidate", "new_search"]
