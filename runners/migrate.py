@@ -49,6 +49,7 @@ from typing import Any
 
 import pyarrow as pa
 import pyarrow.parquet as pq
+from rich.markup import escape
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
@@ -57,7 +58,7 @@ from rich.progress import (
     TimeElapsedColumn,
     TimeRemainingColumn,
 )
-from rich.table import Table  # rich waits: importing runners.migrate (its --help too) must not load it
+from rich.table import Table
 
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
 from morality_gym.clitools import console as make_console
@@ -596,7 +597,8 @@ def migrate(results: str | Path, dry_run: bool = False, on_step: Step | None = N
                    f"{', '.join(held[:3])}); let it finish or stop it, then migrate")
         if not dry_run:
             raise MigrateError(message)
-        console.print(f"[yellow]warning:[/yellow] {message}")
+        # one line, however long the path: a warning is grepped for, not read in a terminal only
+        console.print(f"[yellow]warning:[/yellow] {escape(message)}", soft_wrap=True)
     if dry_run:
         journal = read_journal(results)
         moves = plan_moves(results, journal)

@@ -394,6 +394,13 @@ class _Outcomes:
             self.lines.run_finished(summary["status"] == "ok")
 
     def fail(self, run: PlannedRun, error: str) -> None:
+        """A run whose worker (or SLURM task) died before reporting it. If the run wrote its result
+        before the death (a kill between the write and the report), that result stands and is
+        counted as what it says; otherwise the run is recorded as failed with ``error``."""
+        status = finished_status(Path(self.sweep.results_dir), run.run_id)
+        if status is not None:
+            self.finish(run, {"status": status, "error": None if status == "ok" else error})
+            return
         record_failure(run.config, run.run_id, self.sweep.results_dir, error)
         self.finish(run, {"status": "failed", "error": error})
 

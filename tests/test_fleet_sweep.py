@@ -300,3 +300,28 @@ def test_the_recorded_commit_is_the_one_the_worker_loaded(monkeypatch: pytest.Mo
 
     monkeypatch.setattr(execute.subprocess, "run", later_commit)
     assert execute.git_commit() == first
+
+
+def test_a_run_written_before_its_worker_died_counts_as_written(tmp_path: Path) -> None:
+    # A worker killed between writing a run's result and reporting it: the result on disk stands;
+    # the sweep neither overwrites it with a failure nor counts the run as failed.
+    from rich.console import Console
+    from rich.progress import Progress
+
+    from runners.sweep import _Outcomes
+
+    sweep = _sweep_config(tmp_path, "algo=random", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
+                          "seed=[1]", "variant=[HumanA,HumanB]")
+    written, unwritten = plan(sweep)
+    results = tmp_path / "r"
+    assert [s["status"] for s in execute_job([(written.run_id, written.config)], results, gif=False)] == ["ok"]
+    console = Console(file=open(os.devnull, "w"))  # noqa: SIM115 - closed with the test's process
+    with Progress(console=console) as progress:
+        outcomes = _Outcomes(sweep, None, progress, console, 2)
+        outcomes.fail(written, "worker process died (signal 9) while running this configuration")
+        outcomes.fail(unwritten, "worker process died (signal 9) while running this configuration")
+    assert list(outcomes.failures) == [unwritten.run_id]
+    df = read_runs(results).set_index("run_id")
+    assert df.loc[written.run_id, "status"] == "ok" and df.loc[written.run_id, "metric"] is not None
+    assert df.loc[unwritten.run_id, "status"] == "failed"
+    assert df.loc[unwritten.run_id, "error"].startswith("worker process died (signal 9)")

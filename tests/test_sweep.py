@@ -191,6 +191,24 @@ def _busy_worker(sweep_pid: int) -> tuple[int, str] | None:
     return None
 
 
+def _frozen_mid_run(results: Path, sweep_pid: int) -> tuple[int, str]:
+    """A worker of the sweep stopped (SIGSTOP) while it holds a run whose result is not written yet.
+
+    Why freeze first: a worker holds its run's lock a moment after writing the result; a kill in
+    that moment loses nothing (the run is ok, see test_fleet_sweep), so the test would see no
+    failure. Frozen, the worker cannot write while the test looks."""
+    deadline = time.monotonic() + 60
+    while True:
+        assert time.monotonic() < deadline, "no worker was caught mid-run"
+        busy = _busy_worker(sweep_pid)
+        if busy is not None:
+            os.kill(busy[0], signal.SIGSTOP)
+            if busy[1] not in run_files(results) and _busy_worker(sweep_pid) == busy:
+                return busy
+            os.kill(busy[0], signal.SIGCONT)
+        time.sleep(0.05)
+
+
 @pytest.mark.slow
 def test_sigkill_of_a_worker_fails_one_run_and_resume_finishes(tmp_path: Path) -> None:
     # one run per worker, so that a killed worker takes exactly one run (a fleet's: test_fleet_sweep.py)
@@ -198,11 +216,7 @@ def test_sigkill_of_a_worker_fails_one_run_and_resume_finishes(tmp_path: Path) -
             "gif=false", "engine=single"]
     proc = sweep(tmp_path, *args, background=True)
     wait_for_results(tmp_path, 1, proc, timeout=180)
-    deadline = time.monotonic() + 60
-    while (busy := _busy_worker(proc.pid)) is None:
-        assert time.monotonic() < deadline
-        time.sleep(0.05)
-    victim, victim_run = busy
+    victim, victim_run = _frozen_mid_run(tmp_path, proc.pid)
     os.kill(victim, signal.SIGKILL)
     output, _ = proc.communicate(timeout=600)
     assert proc.returncode == 1, output  # the killed worker's run failed, the sweep carried on
