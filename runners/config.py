@@ -42,7 +42,7 @@ from morality_gym.clitools import did_you_mean
 from morality_gym.envs.registry import scenarios as all_scenarios
 from morality_gym.norms.chain import ChainError, MoralityChain, check_name_collision, get_chain, parse_chain
 from morality_gym.norms.metric import bind_chain
-from runners.config_schema import ENGINES, LAUNCHERS, Planning, Preset, Sweep, register
+from runners.config_schema import ENGINES, LAUNCHERS, DeviceRate, Planning, Preset, Sweep, register
 from runners.paths import CONF_DIR, config_roots, find_config, group_options  # noqa: F401 - re-exported: CONF_DIR is defined once
 
 register()  # the schemas conf/config.yaml names (sweep_schema, schema/launcher/*): Hydra needs them stored
@@ -82,6 +82,7 @@ class AlgoChoice:
     steps_per_s: float  # planning estimate per worker
     overhead_s: float
     fleet_speedup: float = 1.0  # measured speed-up of the fleet engine at K >= 12 (planning only)
+    device_rates: Mapping[str, DeviceRate] = field(default_factory=dict)  # by device type, scaled to this spec
 
 
 @dataclass(frozen=True)
@@ -311,7 +312,9 @@ def _algo(option: str, node: Mapping[str, Any], preset: Preset, protocol: Protoc
         raise ConfigError(f"{where}: {exc}") from exc
     planning = dict(node.get("planning") or {})
     steps_per_s, overhead, speedup = _planning_rate(where, planning, file_values, spec, protocol.name)
-    return AlgoChoice(spec, steps_per_s, overhead, speedup)
+    factor = _epoch_factor(file_values, spec, planning, protocol.name, where)
+    devices = _device_rates(where, _planning_for(where, planning, protocol.name), factor)
+    return AlgoChoice(spec, steps_per_s, overhead, speedup, devices)
 
 
 _PLANNING_KEYS = set(typed.valid_keys(Planning)) - {"protocols"}
@@ -333,14 +336,41 @@ def _planning_rate(where: str, planning: Mapping[str, Any], file_values: Mapping
     after one pass under ``paper`` and after up to 40 under ``corrected``). ``fleet_speedup`` is
     the fleet engine's measured gain at K >= 12 (BENCHMARKS.md), used by :mod:`runners.jobs`.
     """
-    steps_per_s, share, overhead, speedup = _planning_values(where, _planning_for(where, planning, protocol))
+    steps_per_s, _, overhead, speedup = _planning_values(where, _planning_for(where, planning, protocol))
+    return steps_per_s / _epoch_factor(file_values, spec, planning, protocol, where), overhead, speedup
+
+
+def _epoch_factor(file_values: Mapping[str, Any], spec: LearnerSpec, planning: Mapping[str, Any], protocol: str | None,
+                  where: str) -> float:
+    """How much longer a training step takes with ``spec``'s update epochs than with the algo
+    file's, at which the rates were measured: only the update's share of a step scales."""
+    share = _planning_values(where, _planning_for(where, planning, protocol))[1]
     ratio = 1.0
     for key in ("n_epochs", "n_critic_updates"):
         reference, actual = file_values.get("hparams", {}).get(key), spec.hparams.get(key)
         if reference and actual:
             ratio *= actual / reference
-    seconds_per_step = ((1.0 - share) + share * ratio) / steps_per_s
-    return 1.0 / seconds_per_step, overhead, speedup
+    return (1.0 - share) + share * ratio
+
+
+def _device_rates(where: str, planning: Mapping[str, Any], factor: float) -> dict[str, DeviceRate]:
+    """``planning.devices`` checked (sizes and process counts >= 1, rates > 0), each rate divided
+    by the epoch ``factor`` as the CPU rate is (the GPU's update share is not measured apart)."""
+    out: dict[str, DeviceRate] = {}
+    for device, given in dict(planning.get("devices") or {}).items():
+        at = f"{where}: planning.devices.{device}"
+        try:
+            rates = {int(k): float(v) for k, v in dict(given.get("fleet_steps_per_s") or {}).items()}
+            processes = {int(k): float(v) for k, v in dict(given.get("processes") or {}).items()}
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise ConfigError(f"{at}: fleet sizes, process counts and rates must be numbers ({exc})") from exc
+        if not rates or min(rates) < 1 or min(rates.values()) <= 0:
+            raise ConfigError(f"{at}.fleet_steps_per_s needs at least one fleet size >= 1 with a rate > 0, got {rates}")
+        if processes and (min(processes) < 1 or min(processes.values()) <= 0):
+            raise ConfigError(f"{at}.processes needs process counts >= 1 with aggregate factors > 0, got {processes}")
+        out[str(device)] = DeviceRate(str(given.get("measured_on") or ""), {k: v / factor for k, v in sorted(rates.items())},
+                                      dict(sorted(processes.items())))
+    return out
 
 
 def _planning_for(where: str, planning: Mapping[str, Any], protocol: str | None) -> dict[str, Any]:
@@ -353,7 +383,9 @@ def _planning_for(where: str, planning: Mapping[str, Any], protocol: str | None)
         chosen = by_protocol[protocol]
         if not isinstance(chosen, Mapping):
             raise ConfigError(f"{where}: planning.protocols.{protocol} must be a mapping, got {chosen!r}")
+        devices = {**dict(planning.get("devices") or {}), **dict(chosen.get("devices") or {})}  # per device
         planning.update({k: v for k, v in chosen.items() if v is not None})  # unset: the algo's own value
+        planning["devices"] = devices
     unknown = set(planning) - _PLANNING_KEYS
     if unknown:
         raise ConfigError(f"{where}: unknown planning key(s) {sorted(unknown)}; valid: {sorted(_PLANNING_KEYS | {'protocols'})}")
@@ -588,8 +620,10 @@ def _engine(cfg: DictConfig) -> tuple[str, int, str]:
         # Imported here: the fleet engine imports torch (seconds), which a CPU sweep's checks never need.
         from morality_gym.baselines.fleet.base import fleet_device
 
+        # the GPU must be here unless nothing trains here: a dry run plans, SLURM trains on its nodes
+        here = not cfg.get("dry_run") and (cfg.get("launcher") or {}).get("name") != "slurm"
         try:
-            fleet_device(device)
+            fleet_device(device, here=here)
         except SpecError as exc:
             raise ConfigError(str(exc)) from exc
     return str(engine), fleet_size, device

@@ -37,6 +37,24 @@ from morality_gym.results.presets import Preset
 
 
 @dataclass(frozen=True)
+class DeviceRate:
+    """How fast one learner's fleets train on an accelerator, as measured (benchmarks/gpu_check.sh).
+
+    Why its own table and not a factor on the CPU rate: on a GPU a fleet's rate grows with its
+    size (one process is bound by launching small kernels, not by arithmetic), and several
+    processes sharing the device add up to less than their sum. ``fleet_steps_per_s``: env steps
+    per second of one process training a fleet of K runs, by K, with the algo file's settings;
+    ``processes``: the aggregate rate of N processes sharing the device over one process's, by N
+    (1 process: 1); ``measured_on``: the card and the date, printed with the estimate, since
+    another card trains at another speed.
+    """
+
+    measured_on: str = ""
+    fleet_steps_per_s: Mapping[int, float] = field(default_factory=dict)
+    processes: Mapping[int, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
 class PlanningOverride:
     """Some of :class:`Planning`'s values, replaced under one protocol (unset: the algo's own)."""
 
@@ -44,6 +62,7 @@ class PlanningOverride:
     update_share: float | None = None
     overhead_s: float | None = None
     fleet_speedup: float | None = None
+    devices: Mapping[str, DeviceRate] | None = None  # per device, replacing the algo's rate on that device
 
 
 @dataclass(frozen=True)
@@ -53,7 +72,9 @@ class Planning:
     ``steps_per_s``: training steps per second with the algo file's own settings, one thread;
     ``update_share``: the part of a step's time that is gradient work (scales with the epochs);
     ``overhead_s``: what every run pays regardless of its budget; ``fleet_speedup``: the fleet
-    engine's measured gain at K >= 12 over single runs (1: no gain assumed). The defaults are a
+    engine's measured gain at K >= 12 over single runs (1: no gain assumed); ``devices``: the
+    fleets' measured rates on an accelerator, by device type (``cuda``), for ``device=`` sweeps
+    (a learner without one is priced at its CPU rate, and the plan says so). The defaults are a
     guess for a learner nobody measured; each built-in algo file states its fitted values.
     """
 
@@ -61,6 +82,7 @@ class Planning:
     update_share: float = 1.0
     overhead_s: float = 1.0
     fleet_speedup: float = 1.0
+    devices: Mapping[str, DeviceRate] = field(default_factory=dict)
     protocols: Mapping[str, PlanningOverride] = field(default_factory=dict)
 
 
@@ -216,7 +238,7 @@ class Sweep:
 
 
 #: The schema of a class by the name OmegaConf gives it in its messages (for the valid keys).
-SCHEMAS: dict[str, type] = {cls.__name__: cls for cls in (AlgoFile, Planning, PlanningOverride, Preset, LocalLauncher,
+SCHEMAS: dict[str, type] = {cls.__name__: cls for cls in (AlgoFile, Planning, PlanningOverride, DeviceRate, Preset, LocalLauncher,
                                                           SlurmLauncher, ScenarioFile, Experiment, Sweep, ProtocolSpec,
                                                           LearnerSpec)}
 

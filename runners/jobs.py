@@ -40,7 +40,7 @@ from morality_gym.baselines.stopped import TrainingStopped
 from morality_gym.results.recording import RunClock, RunLock, finished_status, git_commit
 from morality_gym.results.run_config import RunConfig
 from runners import stopping
-from runners.config_schema import ENGINES
+from runners.config_schema import ENGINES, DeviceRate
 from runners.execute import execute_locked, limit_threads, record_outcome, training_code
 from runners.fleet_checkpoints import fleet_to_train, remove_fleet, write_fleet_runs
 from runners.plan import PlannedRun
@@ -57,12 +57,23 @@ log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
+class DeviceWork:
+    """The part of a job that trains on a shared accelerator: its seconds alone on the device, and
+    how the device's aggregate rate grows with the processes sharing it (``DeviceRate.processes``).
+    The rest of the job's ``est_seconds`` (its runs' evaluations and writes) is CPU time."""
+
+    alone_s: float
+    processes: tuple[tuple[int, float], ...] = ()  # (N, aggregate of N processes over one's), hashable
+
+
+@dataclass(frozen=True)
 class Job:
     """Runs executed together by one worker (one local process or one SLURM array task)."""
 
     runs: tuple[PlannedRun, ...]
     engine: str  # "single" (one run) | "fleet"
-    est_seconds: float
+    est_seconds: float  # alone on the machine (and on the device): what longest-first orders by
+    device: DeviceWork | None = None  # a fleet training on an accelerator that other workers share
 
     @property
     def items(self) -> list[tuple[str, RunConfig]]:
@@ -95,6 +106,39 @@ def fleet_speedup(measured: float, size: int) -> float:
     return 1.0 + (max(measured, 1.0) - 1.0) * min(1.0, (size - 1) / 11)
 
 
+def _interpolate(points: Mapping[float, float], x: float) -> float:
+    """Piecewise-linear through the measured ``points``, held flat beyond the last one."""
+    xs = sorted(points)
+    if x >= xs[-1]:
+        return points[xs[-1]]
+    upper = next(k for k in xs if k >= x)
+    lower = max((k for k in xs if k <= x), default=upper)
+    if upper == lower:
+        return points[upper]
+    return points[lower] + (points[upper] - points[lower]) * (x - lower) / (upper - lower)
+
+
+def device_fleet_rate(rate: DeviceRate, size: int) -> float:
+    """Env steps per second of one fleet of ``size`` runs alone on the device.
+
+    Between measured fleet sizes the rate is interpolated in log-log; below the smallest it falls
+    in proportion to the size (a launch-bound process steps K envs for the price of one launch),
+    above the largest it is held (no gain assumed that was not measured). An estimate for the
+    plan's time only; it never changes what runs.
+    """
+    sizes = sorted(rate.fleet_steps_per_s)
+    if size <= sizes[0]:
+        return rate.fleet_steps_per_s[sizes[0]] * size / sizes[0]
+    return math.exp(_interpolate({math.log(k): math.log(v) for k, v in rate.fleet_steps_per_s.items()}, math.log(size)))
+
+
+def device_share(processes: Mapping[int, float], sharing: int) -> float:
+    """The speed of each of ``sharing`` processes on one device, as a fraction of one alone:
+    the measured aggregate (linear between measured process counts, held beyond) split equally."""
+    n = max(1, sharing)
+    return _interpolate({1: 1.0, **processes}, n) / n
+
+
 def _group_key(config: RunConfig, free: Sequence[str] = FLEET_FREE_KEYS) -> str:
     return json.dumps({k: v for k, v in config.to_json().items() if k not in free}, sort_keys=True)
 
@@ -118,6 +162,7 @@ def make_jobs(
     speedups: Mapping[str, float] | None = None,
     checkpointed: Iterable[Sequence[str]] = (),
     mix_scenarios: bool = False,
+    device_rates: Mapping[str, DeviceRate] | None = None,
 ) -> list[Job]:
     """The plan's runs as jobs, in plan order of each job's first run.
 
@@ -134,6 +179,10 @@ def make_jobs(
     (:func:`runners.fleet_checkpoints.checkpointed_fleets`). A fleet whose runs are all among one
     group's runs is formed again first, exactly (whatever ``fleet_size`` and ``workers`` say), so
     that it resumes its training instead of starting over; the rest of the group is cut as above.
+
+    ``device_rates``: an algo name's measured fleet rate on the sweep's device
+    (``planning.devices``); its fleets are priced at it (:func:`device_fleet_rate`) instead of
+    at the CPU rate and fleet speed-up.
     """
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
@@ -153,7 +202,19 @@ def make_jobs(
         jobs += [_fleet_job(chunk, speedups or {}) for chunk in kept.get(item, [])]
         if groups[item]:
             jobs += [_fleet_job(chunk, speedups or {}) for chunk in _split(groups[item], parts[item])]
-    return jobs
+    return [_priced_on_device(job, device_rates) for job in jobs] if device_rates else jobs
+
+
+def _priced_on_device(job: Job, rates: Mapping[str, DeviceRate]) -> Job:
+    """A fleet of a learner with a device rate, priced at it: its training steps at the fleet's
+    rate alone on the device (shared with other workers' fleets in :func:`jobs_estimate`), plus its
+    runs' overheads (evaluated on the CPU, one by one, as everywhere). Other jobs keep their price."""
+    rate = rates.get(job.runs[0].config.algo.name)
+    if job.engine != "fleet" or rate is None:
+        return job
+    alone = sum(r.train_steps for r in job.runs) / device_fleet_rate(rate, len(job.runs))
+    return Job(job.runs, job.engine, sum(r.overhead_s for r in job.runs) + alone,
+               DeviceWork(alone, tuple(sorted(rate.processes.items()))))
 
 
 def _take_checkpointed(groups: dict[str, list[PlannedRun]], checkpointed: Iterable[Sequence[str]]) -> dict[str, list[list[PlannedRun]]]:
@@ -244,13 +305,46 @@ def makespan(durations: Iterable[float], workers: int) -> float:
 
 def jobs_estimate(jobs: Sequence[Job], done: set[str], workers: int) -> float:
     """Wall-time estimate of what remains: the jobs' seconds (scaled by the share of each job still
-    to run) handed to ``workers`` in :func:`dispatch_order`, as the local pool hands them out."""
+    to run) handed to ``workers`` in :func:`dispatch_order`, as the local pool hands them out;
+    fleets on a shared device train at the device's share (:func:`shared_makespan`)."""
     remaining = []
     for job in dispatch_order(jobs, workers):
         todo = sum(r.run_id not in done for r in job.runs)
         if todo:
-            remaining.append(job.est_seconds * todo / len(job.runs))
-    return makespan(remaining, workers)
+            part = todo / len(job.runs)
+            device = job.device or DeviceWork(0.0)
+            remaining.append((device.alone_s * part, (job.est_seconds - device.alone_s) * part, dict(device.processes)))
+    if not any(device_s for device_s, _, _ in remaining):
+        return makespan([device_s + cpu_s for device_s, cpu_s, _ in remaining], workers)
+    return shared_makespan(remaining, workers)
+
+
+def shared_makespan(jobs: Sequence[tuple[float, float, Mapping[int, float]]], workers: int) -> float:
+    """Wall time of jobs ``(device_s, cpu_s, processes)``, taken in order by ``workers``, each
+    training first on one shared device (``device_s`` alone on it) and then working ``cpu_s`` on
+    its own core.
+
+    Why a simulation and not one price per job: how fast a fleet trains depends on how many others
+    share the device at that moment (:func:`device_share`), and that changes as fleets finish and
+    the last ones train on a device of their own. Processor sharing, advanced from one job's phase
+    end to the next."""
+    queue = list(jobs)[::-1]
+    active: list[list[Any]] = []  # [device_s left, cpu_s left, processes]
+    clock = 0.0
+    while queue or active:
+        while queue and len(active) < max(1, workers):
+            active.append(list(queue.pop()))
+        sharing = sum(a[0] > 0 for a in active)
+        speeds = [device_share(a[2], sharing) if a[0] > 0 else 1.0 for a in active]
+        step = min(a[0] / s if a[0] > 0 else a[1] for a, s in zip(active, speeds, strict=True))
+        for a, s in zip(active, speeds, strict=True):
+            if a[0] > 0:
+                a[0] = a[0] - step * s if a[0] - step * s > 1e-9 * (1 + a[0]) else 0.0
+            else:
+                a[1] -= step
+        clock += step
+        active = [a for a in active if a[0] > 0 or a[1] > 1e-9]
+    return clock
 
 
 # ---------------------------------------------------------------------------------------------- workers

@@ -31,6 +31,7 @@ class PlannedRun:
     config: RunConfig  # the resolved run (what the worker executes; its JSON form is what the id hashes)
     est_seconds: float
     overhead_s: float = 0.0  # the part of est_seconds every run pays whatever trains it (evaluations, writes)
+    train_steps: int = 0  # the env steps it trains (what a device's fleet rate prices)
 
     @property
     def identity(self) -> dict[str, Any]:
@@ -85,7 +86,8 @@ def plan(sweep: SweepConfig) -> list[PlannedRun]:
                         continue
                     seen.add(run.run_id)
                     steps = training_steps(algo.spec, budget)
-                    runs.append(PlannedRun(run.run_id, run, algo.overhead_s + steps / max(algo.steps_per_s, 1e-9), algo.overhead_s))
+                    runs.append(PlannedRun(run.run_id, run, algo.overhead_s + steps / max(algo.steps_per_s, 1e-9), algo.overhead_s,
+                                           steps))
     return runs
 
 

@@ -59,6 +59,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
+from morality_gym.baselines.targets import learner_trains
 from morality_gym.clitools import DEBUG_ENV, debug_enabled, duration, one_line, run_cli, version_text
 from morality_gym.norms.chain import ChainError
 from morality_gym.results.manifest import manifest_body, manifest_name, write_manifest
@@ -66,10 +67,10 @@ from morality_gym.results.quarantine import Quarantined, check_run_files, read_t
 from morality_gym.results.recording import finished_status
 from morality_gym.results.schema import run_path
 from runners.config import ConfigError, SweepConfig  # also stores the schemas (runners.config_schema)
-from runners.config_schema import SweepOverheads
+from runners.config_schema import DeviceRate, SweepOverheads
 from runners.execute import record_failure
 from runners.fleet_checkpoints import fleets_to_form, remove_stale
-from runners.jobs import Job, dispatch_order, jobs_estimate, make_jobs
+from runners.jobs import Job, dispatch_order, fleet_trains, jobs_estimate, make_jobs
 from runners.leftovers import remove_leftovers
 from runners.machine_load import Estimate, MachineLoad, estimate
 from runners.plan import PlannedRun, describe, plan
@@ -156,7 +157,7 @@ def make_plan(sweep: SweepConfig) -> Plan:
     checkpointed = fleets_to_form(sweep.results_dir, [r.run_id for r in todo]) if sweep.checkpoint_every_s > 0 else []
     jobs = dispatch_order(make_jobs(todo, sweep.engine, sweep.fleet_size, workers,
                                     {a.spec.name: a.fleet_speedup for a in sweep.algos}, checkpointed,
-                                    mix_scenarios=sweep.device != "cpu"), workers)
+                                    mix_scenarios=sweep.device != "cpu", device_rates=device_rates(sweep)), workers)
     idle = jobs_estimate(jobs, done, workers) + sweep_overheads(sweep, len(todo))
     machine = None if sweep.launcher["name"] == "slurm" else MachineLoad.now()  # SLURM: other nodes' load
     return Plan(runs=tuple(runs), status=status, todo=tuple(todo), jobs=tuple(jobs), workers=workers,
@@ -189,14 +190,42 @@ def _estimate_text(plan_: Plan) -> str:
     return plan_.estimate.text() if plan_.estimate is not None else duration(plan_.estimate_s)
 
 
-def device_estimate_note(device: str) -> str | None:
-    """What the estimate is worth on ``device``: the learners' planning rates are this machine's CPU
-    rates (``planning`` in conf/algo), and no GPU rates are fitted yet, so on a GPU the figure is
-    marked rather than shown as if it were the GPU's (benchmarks/gpu_check.sh measures them)."""
-    if device == "cpu":
+def device_type(device: str) -> str:
+    """``cuda:1`` -> ``cuda``: planning rates are per kind of device, not per card index."""
+    return device.split(":", 1)[0]
+
+
+def device_rates(sweep: SweepConfig) -> dict[str, DeviceRate]:
+    """The measured fleet rates on the sweep's device, by algo name (none on the CPU)."""
+    if sweep.device == "cpu":
+        return {}
+    kind = device_type(sweep.device)
+    return {a.spec.name: a.device_rates[kind] for a in sweep.algos if kind in a.device_rates}
+
+
+def device_estimate_note(sweep: SweepConfig) -> str | None:
+    """What the estimate is worth on the sweep's device.
+
+    Fleets of learners with measured device rates (``planning.devices`` in conf/algo) are priced
+    at them, and the note names the card they were measured on: another card, or another load on
+    this one, trains at another speed. A learner the fleet engine trains without a measured rate
+    is priced at its CPU rate, and the note says which, so the figure never poses as a GPU
+    estimate it is not (benchmarks/gpu_check.sh measures rates)."""
+    if sweep.device == "cpu":
         return None
-    return (f"the estimate prices the runs at CPU rates: no {device} rates are fitted yet "
-            "(benchmarks/gpu_check.sh measures them), so it is not a GPU estimate")
+    kind = device_type(sweep.device)
+    trained = [a for a in sweep.algos if fleet_trains(a.spec.target) and learner_trains(a.spec.target)]
+    priced = [a for a in trained if kind in a.device_rates]
+    parts = []
+    if priced:
+        cards = sorted({a.device_rates[kind].measured_on or "an unnamed card" for a in priced})
+        parts.append(f"fleets of {', '.join(a.spec.label for a in priced)} are priced at {kind} rates measured on "
+                     f"{'; '.join(cards)} (another card or a shared one trains at another speed)")
+    unpriced = [a for a in trained if kind not in a.device_rates]
+    if unpriced:
+        parts.append(f"{', '.join(a.spec.label for a in unpriced)}: no {kind} rates are measured, so their runs are priced "
+                     "at CPU rates and that part is not a GPU estimate (benchmarks/gpu_check.sh measures them)")
+    return "; ".join(parts) or None
 
 
 def print_plan(plan_: Plan, sweep: SweepConfig, console: Console) -> None:
@@ -219,9 +248,9 @@ def print_plan(plan_: Plan, sweep: SweepConfig, console: Console) -> None:
         f"launcher [bold]{sweep.launcher['name']}[/bold] ({plan_.workers} parallel), results in {sweep.results_dir}; "
         f"estimated time for what remains: [bold]{escape(_estimate_text(plan_))}[/bold]"
     )
-    note = device_estimate_note(sweep.device)
+    note = device_estimate_note(sweep)
     if note:
-        _warn(console, f"warning: {note}")
+        _warn(console, f"note: {note}")
     engine = _engine_line(plan_, sweep)
     if engine:
         console.print(engine)

@@ -164,6 +164,9 @@ def test_device_is_validated_before_anything_runs(tmp_path: Path) -> None:
     if not torch.cuda.is_available():
         with pytest.raises(ConfigError, match=r"torch sees no GPU here \(torch.cuda.is_available\(\) is False\); use device=cpu"):
             _sweep_config(tmp_path, "algo=ppo", "device=cuda")
+        # nothing trains here in a dry run, nor under SLURM (its nodes have the GPUs): planned, not refused
+        assert _sweep_config(tmp_path, "algo=ppo", "device=cuda", "dry_run=true").device == "cuda"
+        assert _sweep_config(tmp_path, "algo=ppo", "device=cuda", "launcher=slurm").device == "cuda"
         done = _sweep(tmp_path / "r", "algo=ppo", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "device=cuda")
         assert done.returncode == 2 and "torch sees no GPU" in done.stderr and "Traceback" not in done.stderr
         assert not (tmp_path / "r").exists()

@@ -6,6 +6,7 @@ because creating the MLflow store of a new results directory and the workers' st
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 from pathlib import Path
@@ -49,10 +50,78 @@ def test_the_estimate_says_what_a_busy_machine_costs() -> None:
     assert MachineLoad.now(lambda: (1.0, 2.5, 0.5)).load == 2.5  # a quiet minute of a busy hour counts as busy
 
 
-def test_an_estimate_for_a_gpu_sweep_is_marked_as_priced_at_cpu_rates() -> None:
-    """No GPU planning rates are fitted: a device=cuda sweep's estimate says so instead of posing as one."""
-    from runners.sweep import device_estimate_note
+def _sweep_config(tmp_path: Path, *overrides: str):
+    from hydra import compose, initialize_config_dir
 
-    assert device_estimate_note("cpu") is None
-    note = device_estimate_note("cuda")
-    assert note is not None and "CPU rates" in note and "not a GPU estimate" in note and "gpu_check.sh" in note
+    from runners.config import validate
+    from runners.paths import CONF_DIR
+
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=[f"results_dir={tmp_path / 'r'}", "mlflow=false", "gif=false", "dry_run=true",
+                                           *overrides])
+    return validate(cfg)
+
+
+def test_a_fleet_rate_on_a_device_follows_its_measured_sizes_and_sharing() -> None:
+    """Issue 31 item 5: a GPU sweep is priced from measured fleet rates (planning.devices)."""
+    from runners.config_schema import DeviceRate
+    from runners.jobs import device_fleet_rate, device_share
+
+    rate = DeviceRate("card", {21: 50_000.0, 84: 200_000.0, 336: 400_000.0}, {8: 4.0})
+    assert device_fleet_rate(rate, 84) == pytest.approx(200_000.0)  # measured: as measured
+    assert device_fleet_rate(rate, 42) == pytest.approx(100_000.0)  # log-log: K x2 between 21 and 84 (rate ~ K)
+    assert device_fleet_rate(rate, 168) == pytest.approx(200_000.0 * 2**0.5)  # half-way in log K: the geometric mean
+    assert device_fleet_rate(rate, 7) == pytest.approx(50_000.0 / 3)  # below: proportional to the size
+    assert device_fleet_rate(rate, 1512) == pytest.approx(400_000.0)  # above: no gain that was not measured
+    assert device_share({8: 4.0}, 1) == 1.0 and device_share({8: 4.0}, 8) == pytest.approx(0.5)
+    assert device_share({8: 4.0}, 16) == pytest.approx(0.25)  # held beyond 8 processes: the device is full
+    assert device_share({}, 4) == pytest.approx(0.25)  # nothing measured: N processes split one's rate
+
+
+def test_fleets_sharing_a_device_speed_up_as_others_finish() -> None:
+    from runners.jobs import makespan, shared_makespan
+
+    # perfect sharing: as if each had its own device
+    assert shared_makespan([(10.0, 1.0, {2: 2.0}), (30.0, 1.0, {2: 2.0})], 2) == pytest.approx(31.0)
+    # no gain from sharing: the two trainings take turns in effect (20 s each side by side, then 20 s alone)
+    assert shared_makespan([(10.0, 0.0, {}), (30.0, 0.0, {})], 2) == pytest.approx(40.0)
+    # a CPU-only job never waits for the device; one worker runs jobs in turn
+    assert shared_makespan([(0.0, 5.0, {}), (0.0, 7.0, {})], 2) == pytest.approx(makespan([5.0, 7.0], 2))
+    assert shared_makespan([(10.0, 1.0, {}), (30.0, 2.0, {})], 1) == pytest.approx(43.0)
+
+
+def test_a_gpu_sweep_is_priced_at_the_measured_device_rates(tmp_path: Path) -> None:
+    """The estimate of a device=cuda plan comes from planning.devices and says on which card those
+    were measured; a learner without one is named as priced at its CPU rate."""
+    from runners.jobs import make_jobs
+    from runners.plan import plan
+    from runners.sweep import device_estimate_note, device_rates
+
+    overrides = ("algo=[random,ppo,cpo]", "chain=utility", "scenario=[switch_standard,switch5]", "preset=paper")
+    cpu = _sweep_config(tmp_path, *overrides)
+    assert device_estimate_note(cpu) is None and device_rates(cpu) == {}
+    gpu = _sweep_config(tmp_path, *overrides, "device=cuda", "launcher.workers=4")
+    rates = device_rates(gpu)
+    assert set(rates) == {"ppo", "cpo"} and rates["ppo"].measured_on.startswith("NVIDIA H200")
+    note = device_estimate_note(gpu)
+    assert note is not None and "PPO, CPO are priced at cuda rates measured on NVIDIA H200" in note and "CPU rates" not in note
+    runs = plan(gpu)
+    jobs = make_jobs(runs, "fleet", 336, 4, mix_scenarios=True, device_rates=rates)
+    fleets = [j for j in jobs if j.engine == "fleet"]
+    assert fleets and all(j.device is not None for j in fleets)
+    assert all(j.device is None for j in jobs if j.engine == "single")  # Random: evaluated on the CPU
+    for job in fleets:
+        steps = sum(r.train_steps for r in job.runs)
+        assert steps > 0 and job.est_seconds < sum(r.est_seconds for r in job.runs)  # faster than one by one on the CPU
+    # a learner without device rates is priced at its CPU rate, and the note says so
+    unpriced = dataclasses.replace(gpu, algos=tuple(dataclasses.replace(a, device_rates={}) if a.spec.name == "cpo" else a
+                                                    for a in gpu.algos))
+    note = device_estimate_note(unpriced)
+    assert "CPO: no cuda rates are measured" in note and "not a GPU estimate" in note
+
+
+def test_bad_device_rates_are_refused_with_where_they_are(tmp_path: Path) -> None:
+    from runners.config import ConfigError
+
+    with pytest.raises(ConfigError, match=r"algo=ppo .*planning\.devices\.cuda\.fleet_steps_per_s needs at least one fleet size"):
+        _sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch5]", "algo.ppo.planning.devices.cuda.fleet_steps_per_s={21: 0}")

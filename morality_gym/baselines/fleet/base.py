@@ -80,13 +80,15 @@ class FleetRun:
     seed: int
 
 
-def fleet_device(device: str | th.device) -> th.device:
-    """``device`` as a torch device, refused (:class:`SpecError`) when torch cannot use it here."""
+def fleet_device(device: str | th.device, here: bool = True) -> th.device:
+    """``device`` as a torch device, refused (:class:`SpecError`) when it is not one the fleet
+    engine runs on, or, with ``here``, when torch cannot use it in this process (a dry run, or a
+    SLURM submission whose GPUs are on the compute nodes, passes ``here=False``)."""
     try:
         dev = th.device(device)
     except RuntimeError as exc:
         raise SpecError(f"device={device!r}: not a torch device ({exc}); use cpu or cuda") from None
-    if dev.type == "cuda" and not th.cuda.is_available():
+    if here and dev.type == "cuda" and not th.cuda.is_available():
         raise SpecError(f"device={device!r}: torch sees no GPU here (torch.cuda.is_available() is False); use device=cpu")
     if dev.type not in ("cpu", "cuda"):
         raise SpecError(f"device={device!r}: the fleet engine runs on cpu or cuda")
