@@ -19,6 +19,10 @@ comma := ,
 empty :=
 space := $(empty) $(empty)
 PYTEST_ARGS ?=
+# make test's parallel test processes (pytest-xdist): each module stays on one, the SLURM tests
+# share one (tests/conftest.py); TEST_WORKERS=0 runs the suite in this process.
+TEST_WORKERS ?= 2
+XDIST_ARGS := $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist loadgroup)
 # The shipped results releases (releases/<name>/) are shown beside your own runs; RELEASES= shows none.
 RELEASES ?= all
 RELEASE_ARGS := $(foreach r,$(RELEASES),--release $(r))
@@ -74,7 +78,7 @@ $(STAMP)/system-deps:
 	@touch $@
 
 test: venv system-deps
-	$(PY) -m pytest $(PYTEST_ARGS)
+	$(PY) -m pytest $(XDIST_ARGS) --durations=25 $(PYTEST_ARGS)
 
 # The tests that need neither SLURM nor a browser nor learning (for a quick local loop).
 test-fast: venv

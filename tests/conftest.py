@@ -74,3 +74,16 @@ def scenario_registry_restored() -> Iterator[None]:
         registry._graphs.update(graphs)
     for key in [k for k in gym.envs.registry if k.startswith("MoralityGym/") and k not in gym_ids]:
         del gym.envs.registry[key]
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist's own hook, which reads the marks into node ids
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Groups for pytest-xdist (``make test`` runs ``-n 2 --dist loadgroup``).
+
+    Why groups: a module's tests stay on one worker, so its module fixtures (a trained fleet, a
+    built board) are made once, not once per worker; and every SLURM test goes to one worker,
+    because the cluster is the machine's, not the process's (two workers would start and stop the
+    same daemons under each other)."""
+    for item in items:
+        group = "slurm" if item.get_closest_marker("slurm") else item.nodeid.split("::", 1)[0]
+        item.add_marker(pytest.mark.xdist_group(group))
