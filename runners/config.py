@@ -42,7 +42,7 @@ from morality_gym.clitools import did_you_mean
 from morality_gym.envs.registry import scenarios as all_scenarios
 from morality_gym.norms.chain import ChainError, MoralityChain, check_name_collision, get_chain, parse_chain
 from morality_gym.norms.metric import bind_chain
-from runners.config_schema import ENGINES, LAUNCHERS, DeviceRate, Planning, Preset, Sweep, register
+from runners.config_schema import ENGINES, FLEET_SIZES, LAUNCHERS, DeviceRate, Planning, Preset, Sweep, register
 from runners.paths import CONF_DIR, config_roots, find_config, group_options  # noqa: F401 - re-exported: CONF_DIR is defined once
 
 register()  # the schemas conf/config.yaml names (sweep_schema, schema/launcher/*): Hydra needs them stored
@@ -612,8 +612,9 @@ def _engine(cfg: DictConfig) -> tuple[str, int, str]:
     engine = cfg.get("engine")
     if engine not in ENGINES:
         raise ConfigError(f"engine: expected fleet or single, got {engine!r}{_hint(str(engine), list(ENGINES))}")
-    fleet_size = _int("fleet_size", cfg.get("fleet_size"), 1)
     device = str(cfg.get("device"))
+    given = cfg.get("fleet_size")
+    fleet_size = _int("fleet_size", FLEET_SIZES.get(device.split(":", 1)[0], FLEET_SIZES["cpu"]) if given is None else given, 1)
     if device != "cpu":
         if engine != "fleet":
             raise ConfigError(f"device={device}: only the fleet engine trains off the CPU; use engine=fleet or device=cpu")

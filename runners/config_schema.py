@@ -35,6 +35,13 @@ from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec
 from morality_gym.constants import BETA, MAX_STEPS
 from morality_gym.results.presets import Preset
 
+#: The largest fleet a sweep forms when ``fleet_size`` is not given, by kind of device. On the CPU
+#: the fleet's gain saturates by about 12 runs (BENCHMARKS.md), and 36 leaves room for a row's
+#: variants and seeds; on a GPU a fleet's rate grows with its size (one process is bound by launching
+#: kernels), and 336 is the largest size measured (docs/engines.md: the plan of the paper Table 1
+#: with eight processes, 1h30m at 36, 39m at 336).
+FLEET_SIZES: dict[str, int] = {"cpu": 36, "cuda": 336}
+
 
 @dataclass(frozen=True)
 class DeviceRate:
@@ -202,8 +209,8 @@ class Sweep:
     terminal (``nohup``, a SLURM batch log, CI), where the live bars draw nothing, a plain progress
     line at most this often (0: none); ``name``: the manifest's sweep name (null:
     derived from the selection); ``engine``: ``fleet`` trains the runs that differ only in variant,
-    chain and seed together, up to ``fleet_size`` per fleet (the gain saturates by about 12,
-    BENCHMARKS.md), ``single`` trains one run per process (:mod:`runners.jobs`); ``device``: where
+    chain and seed together, up to ``fleet_size`` per fleet (null: :data:`FLEET_SIZES` for the
+    device), ``single`` trains one run per process (:mod:`runners.jobs`); ``device``: where
     a fleet's networks and updates run (``cpu``, or ``cuda`` when torch sees a GPU; single runs and
     every run's evaluation stay on the CPU); ``checkpoint_every_s``: a fleet writes its training
     state to ``<results_dir>/checkpoints/`` at most every so many seconds (and when its training
@@ -232,7 +239,7 @@ class Sweep:
     progress_every_s: float = 60.0
     name: str | None = None
     engine: str = "fleet"
-    fleet_size: int = 36
+    fleet_size: int | None = None
     device: str = "cpu"
     checkpoint_every_s: float = 300.0
 

@@ -171,6 +171,10 @@ def test_device_is_validated_before_anything_runs(tmp_path: Path) -> None:
         assert done.returncode == 2 and "torch sees no GPU" in done.stderr and "Traceback" not in done.stderr
         assert not (tmp_path / "r").exists()
     assert _sweep_config(tmp_path, "algo=ppo").device == "cpu"
+    # fleets grow with the device: 36 on the CPU, 336 on a GPU, unless fleet_size says otherwise
+    assert _sweep_config(tmp_path, "algo=ppo").fleet_size == 36
+    assert _sweep_config(tmp_path, "algo=ppo", "device=cuda", "dry_run=true").fleet_size == 336
+    assert _sweep_config(tmp_path, "algo=ppo", "device=cuda", "dry_run=true", "fleet_size=50").fleet_size == 50
 
 
 def test_a_fleet_job_on_a_device_it_cannot_use_fails_its_runs_instead_of_training_elsewhere(tmp_path: Path) -> None:
