@@ -30,6 +30,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from morality_gym.baselines.learners import silent_logger
 from morality_gym.baselines.policy_ref import load_policy
 from morality_gym.baselines.specs import learner_spec
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli, write_atomically
@@ -85,6 +86,7 @@ def _train_ppo(learner: str, seed: int, budget: int, train_ids: Sequence[str], n
     arch = list(spec.net_arch)
     model = PPO("MlpPolicy", venv, seed=seed, device="cpu", verbose=0,
                 policy_kwargs={"activation_fn": activation, "net_arch": {"pi": arch, "vf": arch}, "normalize_images": False}, **hparams)
+    model.set_logger(silent_logger())  # no SB3-<date> folder left in $TMPDIR
     model.learn(total_timesteps=budget)
     model.save(out / "model.zip")
     info = {"hparams": hparams, "n_envs": n_envs, "net_arch": arch, "activation": spec.activation,

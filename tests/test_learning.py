@@ -99,3 +99,16 @@ def test_a_budget_of_zero_evaluates_the_untrained_policy_once() -> None:
     assert learner.learn(0, eval_episodes=2, on_eval=rows.append) == 0
     assert rows == learner.learn_evals and [r["step"] for r in rows] == [0]
     assert 0.0 <= rows[0]["exact_metric"] <= 1.0
+
+
+@pytest.mark.parametrize("algo", ["ppo", "ppo_lag", "cpo"])
+def test_training_leaves_no_sb3_folder_in_the_temp_dir(algo: str, tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # SB3 configures a logger that creates $TMPDIR/SB3-<date> on every learn() unless one is set
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    bound = morality_gym.bind_chain("Utility", "SwitchStandard-HumanA-v1")
+    learner = build_learner(learner_spec(algo, {"hparams": {"n_steps": 64, "batch_size": 64}}), bound, "paper", seed=1)
+    assert learner.learn(budget=512, eval_every=10**9) > 0
+    assert not list(tmp_path.glob("SB3-*"))
+    assert learner.model.logger.name_to_value is not None  # records still work, they are written nowhere

@@ -251,7 +251,7 @@ class SB3Learner(Learner):
             policy_kwargs["net_arch"] = {key: arch for key in ("pi", "vf", "cf") if key in keys}
         else:  # off-policy algorithms (DQN, ...) take one list
             policy_kwargs["net_arch"] = arch
-        return cls(
+        model = cls(
             "MlpPolicy",
             self.make_vec_env(),
             seed=self.seed,
@@ -260,6 +260,8 @@ class SB3Learner(Learner):
             policy_kwargs=policy_kwargs,
             **dict(self.spec.hparams),
         )
+        model.set_logger(silent_logger())
+        return model
 
     @property
     def policy(self) -> Any:
@@ -292,6 +294,18 @@ class SB3Learner(Learner):
         text = json.dumps(meta, indent=1)
         write_atomically(path.with_suffix(".json"), lambda fh: fh.write(text.encode()))
         return path
+
+
+def silent_logger() -> Any:
+    """An SB3 logger that writes nothing anywhere.
+
+    Why: SB3's ``learn()`` configures its own logger unless one is set, and even at ``verbose=0``
+    that creates a directory ``$TMPDIR/SB3-<date>`` and leaves it behind: one per run, thousands
+    per sweep. Our learners record what they report themselves (``update_log``, the run files)."""
+    # SB3 waits: importing morality_gym.baselines.learners must not load torch
+    from stable_baselines3.common.logger import Logger
+
+    return Logger(folder=None, output_formats=[])
 
 
 def _net_arch_keys(cls: type) -> set[str]:
