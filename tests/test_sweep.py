@@ -148,8 +148,6 @@ def test_failing_run_is_recorded_and_does_not_stop_others(tmp_path: Path) -> Non
     assert kept.returncode == 1 and "0 to run" in kept.stderr
 
 
-
-
 @pytest.mark.slow
 def test_sigkill_of_the_sweep_then_resume_gives_exact_run_set(tmp_path: Path) -> None:
     # 12 runs (SwitchStandard's variants): the kill after 3 lands with most of them still to do
