@@ -6,11 +6,18 @@ Imported by tests/conftest.py. The fixture
 * reuses a cluster that is already up and healthy (e.g. after ``make slurm-up``) and leaves it
   running afterwards;
 * otherwise starts one with runners/slurm/slurm_up.sh and stops it with slurm_down.sh at the end
-  of the session; a failed or hung bring-up fails with the tail of the daemons' logs.
+  of the session; a failed or hung bring-up fails with the tail of the daemons' logs;
+* never stops a cluster that another test session on the machine is still using: every session
+  holds a shared lock on :data:`USERS_LOCK` while it uses the cluster, and the cluster a test
+  session started (:data:`STARTED_BY_TESTS`) is stopped by the last session to leave it.
+  slurm_down.sh cancels every job, so a second ``pytest`` run (a targeted one beside the full
+  suite) used to stop the first one's running array task when it ended:
+  ``test_fleet_sweep_through_real_slurm`` then saw its fleet's task stopped by a signal.
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
 import shutil
 import signal
@@ -19,6 +26,7 @@ import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import IO
 
 import pytest
 
@@ -27,6 +35,8 @@ SCRIPTS = REPO / "runners" / "slurm"
 PARTITION = "debug"  # defined by slurm_up.sh
 NODE = "localhost"
 SLURMD_PID = "/run/slurmd.pid"  # SlurmdPidFile in the slurm.conf written by slurm_up.sh
+USERS_LOCK = Path("/run/morality-gym-slurm-tests.lock")  # shared by every test session using the cluster
+STARTED_BY_TESTS = Path("/run/morality-gym-slurm-tests.started")  # absent for a `make slurm-up` cluster
 # slurm_up.sh stops on its own after SLURM_UP_TIMEOUT; the subprocess timeout is the backstop.
 UP_TIMEOUT_S = 120
 DOWN_TIMEOUT_S = 90
@@ -144,6 +154,15 @@ def _node_resources() -> tuple[int, int]:
     return int(out[0]), int(out[1])
 
 
+def _last_user(users: IO[str]) -> bool:
+    """Whether no other session holds the cluster: our shared lock becomes exclusive only then."""
+    try:
+        fcntl.flock(users, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    return True
+
+
 @pytest.fixture(scope="session")
 def slurm_cluster() -> Iterator[SlurmCluster]:
     if os.geteuid() != 0:
@@ -156,6 +175,10 @@ def slurm_cluster() -> Iterator[SlurmCluster]:
             f"install with `make system-deps` or `apt-get install {packages}`"
         )
 
+    users = USERS_LOCK.open("a")
+    # Exclusive while checking and starting, so two sessions never both run slurm_up.sh; shared
+    # (a user among others) from then on.
+    fcntl.flock(users, fcntl.LOCK_EX)
     started_here = False
     if not _healthy():
         # The script gets a slightly smaller budget so that it fails by itself, with its own message
@@ -167,14 +190,23 @@ def slurm_cluster() -> Iterator[SlurmCluster]:
             logs = "" if "----- last lines of" in output else _log_tails()
             # Do not leave a half-started cluster behind.
             _script("slurm_down.sh", DOWN_TIMEOUT_S)
+            STARTED_BY_TESTS.unlink(missing_ok=True)
+            users.close()
             pytest.fail(f"SLURM bring-up failed (runners/slurm/slurm_up.sh):\n{_clip(output)}\n{logs}", pytrace=False)
         started_here = True
+        STARTED_BY_TESTS.touch()
+    fcntl.flock(users, fcntl.LOCK_SH)
 
     try:
         cpus, memory_mb = _node_resources()
         yield SlurmCluster(PARTITION, NODE, cpus, memory_mb, started_here)
     finally:
-        if started_here:
-            ok, output = _script("slurm_down.sh", DOWN_TIMEOUT_S)
-            if not ok:
-                pytest.fail(f"SLURM teardown failed.\n{_clip(output)}\n{_log_tails()}", pytrace=False)
+        try:
+            # Stopped under the exclusive lock, so no session starts using it meanwhile.
+            if _last_user(users) and STARTED_BY_TESTS.exists():
+                ok, output = _script("slurm_down.sh", DOWN_TIMEOUT_S)
+                STARTED_BY_TESTS.unlink(missing_ok=True)
+                if not ok:
+                    pytest.fail(f"SLURM teardown failed.\n{_clip(output)}\n{_log_tails()}", pytrace=False)
+        finally:
+            users.close()
