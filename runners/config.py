@@ -42,7 +42,17 @@ from morality_gym.clitools import did_you_mean
 from morality_gym.envs.registry import scenarios as all_scenarios
 from morality_gym.norms.chain import ChainError, MoralityChain, check_name_collision, get_chain, parse_chain
 from morality_gym.norms.metric import bind_chain
-from runners.config_schema import ENGINES, FLEET_SIZES, LAUNCHERS, DeviceRate, Planning, Preset, Sweep, register
+from runners.config_schema import (
+    ENGINES,
+    FLEET_SIZES,
+    LAUNCHERS,
+    DeviceRate,
+    Planning,
+    Preset,
+    Sweep,
+    device_type,
+    register,
+)
 from runners.paths import CONF_DIR, config_roots, find_config, group_options  # noqa: F401 - re-exported: CONF_DIR is defined once
 
 register()  # the schemas conf/config.yaml names (sweep_schema, schema/launcher/*): Hydra needs them stored
@@ -312,8 +322,7 @@ def _algo(option: str, node: Mapping[str, Any], preset: Preset, protocol: Protoc
         raise ConfigError(f"{where}: {exc}") from exc
     planning = dict(node.get("planning") or {})
     steps_per_s, overhead, speedup = _planning_rate(where, planning, file_values, spec, protocol.name)
-    factor = _epoch_factor(file_values, spec, planning, protocol.name, where)
-    devices = _device_rates(where, _planning_for(where, planning, protocol.name), factor)
+    devices = _device_rates(where, planning, file_values, spec, protocol.name)
     return AlgoChoice(spec, steps_per_s, overhead, speedup, devices)
 
 
@@ -336,15 +345,13 @@ def _planning_rate(where: str, planning: Mapping[str, Any], file_values: Mapping
     after one pass under ``paper`` and after up to 40 under ``corrected``). ``fleet_speedup`` is
     the fleet engine's measured gain at K >= 12 (BENCHMARKS.md), used by :mod:`runners.jobs`.
     """
-    steps_per_s, _, overhead, speedup = _planning_values(where, _planning_for(where, planning, protocol))
-    return steps_per_s / _epoch_factor(file_values, spec, planning, protocol, where), overhead, speedup
+    steps_per_s, share, overhead, speedup = _planning_values(where, _planning_for(where, planning, protocol))
+    return steps_per_s / _epoch_factor(file_values, spec, share), overhead, speedup
 
 
-def _epoch_factor(file_values: Mapping[str, Any], spec: LearnerSpec, planning: Mapping[str, Any], protocol: str | None,
-                  where: str) -> float:
+def _epoch_factor(file_values: Mapping[str, Any], spec: LearnerSpec, share: float) -> float:
     """How much longer a training step takes with ``spec``'s update epochs than with the algo
-    file's, at which the rates were measured: only the update's share of a step scales."""
-    share = _planning_values(where, _planning_for(where, planning, protocol))[1]
+    file's, at which the rates were measured: only the update's ``share`` of a step scales."""
     ratio = 1.0
     for key in ("n_epochs", "n_critic_updates"):
         reference, actual = file_values.get("hparams", {}).get(key), spec.hparams.get(key)
@@ -353,9 +360,12 @@ def _epoch_factor(file_values: Mapping[str, Any], spec: LearnerSpec, planning: M
     return (1.0 - share) + share * ratio
 
 
-def _device_rates(where: str, planning: Mapping[str, Any], factor: float) -> dict[str, DeviceRate]:
-    """``planning.devices`` checked (sizes and process counts >= 1, rates > 0), each rate divided
-    by the epoch ``factor`` as the CPU rate is (the GPU's update share is not measured apart)."""
+def _device_rates(where: str, planning: Mapping[str, Any], file_values: Mapping[str, Any], spec: LearnerSpec,
+                  protocol: str | None = None) -> dict[str, DeviceRate]:
+    """``planning.devices`` under ``protocol``, checked (sizes and process counts >= 1, rates > 0),
+    each rate scaled by the epochs as the CPU rate is (the GPU's update share is not measured apart)."""
+    planning = _planning_for(where, planning, protocol)
+    factor = _epoch_factor(file_values, spec, _planning_values(where, planning)[1])
     out: dict[str, DeviceRate] = {}
     for device, given in dict(planning.get("devices") or {}).items():
         at = f"{where}: planning.devices.{device}"
@@ -614,7 +624,7 @@ def _engine(cfg: DictConfig) -> tuple[str, int, str]:
         raise ConfigError(f"engine: expected fleet or single, got {engine!r}{_hint(str(engine), list(ENGINES))}")
     device = str(cfg.get("device"))
     given = cfg.get("fleet_size")
-    fleet_size = _int("fleet_size", FLEET_SIZES.get(device.split(":", 1)[0], FLEET_SIZES["cpu"]) if given is None else given, 1)
+    fleet_size = _int("fleet_size", FLEET_SIZES.get(device_type(device), FLEET_SIZES["cpu"]) if given is None else given, 1)
     if device != "cpu":
         if engine != "fleet":
             raise ConfigError(f"device={device}: only the fleet engine trains off the CPU; use engine=fleet or device=cpu")

@@ -43,6 +43,11 @@ from morality_gym.results.presets import Preset
 FLEET_SIZES: dict[str, int] = {"cpu": 36, "cuda": 336}
 
 
+def device_type(device: str) -> str:
+    """``cuda:1`` -> ``cuda``: fleet sizes and planning rates are per kind of device, not per card."""
+    return device.split(":", 1)[0]
+
+
 @dataclass(frozen=True)
 class DeviceRate:
     """How fast one learner's fleets train on an accelerator, as measured (benchmarks/gpu_check.sh).

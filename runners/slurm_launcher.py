@@ -14,7 +14,6 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from morality_gym.results.recording import finished_status
 from runners.jobs import Job, execute_job_all
 from runners.plan import PlannedRun
 from runners.slurm_controller import SlurmUnavailable, check_controller  # noqa: F401 - re-exported for callers
@@ -39,7 +38,7 @@ def run_on_slurm(
     while pending:
         for i in list(pending):
             if pending[i].done():
-                _collect(pending.pop(i), jobs_[i], results_dir, on_result, on_failure)
+                _collect(pending.pop(i), jobs_[i], on_result, on_failure)
         if pending:
             time.sleep(poll)
 
@@ -76,23 +75,19 @@ def _submit(jobs_: list[Job], launcher: Mapping[str, Any], results_dir: Path, gi
 def _collect(
     job: Any,
     planned: Job,
-    results_dir: Path,
     on_result: Callable[[PlannedRun, dict[str, Any]], None],
     on_failure: Callable[[PlannedRun, str], None],
 ) -> None:
     """Report every run of a finished array task: its summaries, or, for a task that died without
-    a result, what each run wrote before it died. No run is silently lost."""
+    a result, a failure for each run (``on_failure`` keeps what a run wrote before the task died).
+    No run is silently lost."""
     runs = {r.run_id: r for r in planned.runs}
     try:
         summaries = job.result()
     except Exception as exc:  # noqa: BLE001 - a lost job is recorded, whatever SLURM says
         lost = f"SLURM job {job.job_id} ended without a result: {type(exc).__name__}: {str(exc)[:500]}"
         for run in runs.values():
-            status = finished_status(results_dir, run.run_id)
-            if status is not None:  # written before the job died
-                on_result(run, {"run_id": run.run_id, "status": status, "error": None})
-            else:
-                on_failure(run, lost)
+            on_failure(run, lost)
         return
     for summary in summaries:
         run = runs.pop(summary["run_id"], None)

@@ -67,7 +67,7 @@ from morality_gym.results.quarantine import Quarantined, check_run_files, read_t
 from morality_gym.results.recording import finished_status
 from morality_gym.results.schema import run_path
 from runners.config import ConfigError, SweepConfig  # also stores the schemas (runners.config_schema)
-from runners.config_schema import DeviceRate, SweepOverheads
+from runners.config_schema import DeviceRate, SweepOverheads, device_type
 from runners.execute import record_failure
 from runners.fleet_checkpoints import fleets_to_form, remove_stale
 from runners.jobs import Job, dispatch_order, fleet_trains, jobs_estimate, make_jobs
@@ -188,11 +188,6 @@ def _engine_line(plan_: Plan, sweep: SweepConfig) -> str | None:
 def _estimate_text(plan_: Plan) -> str:
     """The estimate as printed: idle, and at the machine's load when that is noticeably longer."""
     return plan_.estimate.text() if plan_.estimate is not None else duration(plan_.estimate_s)
-
-
-def device_type(device: str) -> str:
-    """``cuda:1`` -> ``cuda``: planning rates are per kind of device, not per card index."""
-    return device.split(":", 1)[0]
 
 
 def device_rates(sweep: SweepConfig) -> dict[str, DeviceRate]:

@@ -51,15 +51,10 @@ def test_the_estimate_says_what_a_busy_machine_costs() -> None:
 
 
 def _sweep_config(tmp_path: Path, *overrides: str):
-    from hydra import compose, initialize_config_dir
+    """A validated dry-run sweep (a GPU plan needs no GPU to be priced)."""
+    from tests.test_fleet_sweep import _sweep_config as compose
 
-    from runners.config import validate
-    from runners.paths import CONF_DIR
-
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        cfg = compose("config", overrides=[f"results_dir={tmp_path / 'r'}", "mlflow=false", "gif=false", "dry_run=true",
-                                           *overrides])
-    return validate(cfg)
+    return compose(tmp_path, "dry_run=true", *overrides)
 
 
 def test_a_fleet_rate_on_a_device_follows_its_measured_sizes_and_sharing() -> None:
