@@ -20,7 +20,14 @@ Output (Markdown, to stdout or ``--out``), per (protocol, preset):
   evaluation), so an unfinished side is compared on what it did;
 * the wall-clock span of each side's sweep (first run started to last run finished).
 
-Neither directory is written to.
+Either side may also be a release (``releases/<name>``) and the two sides any two sweeps of the
+same plan: ``--names`` labels them (default ``single`` and ``fleet``). So the same report checks
+that a newer fleet engine reproduces a shipped Table 1, e.g.
+``python -m leaderboard.engines releases/paper-table1-v1 RESULTS --names release main``. Rows that
+only one side has (a release holds the whole table, a rerun a few rows) are left out and counted
+in one line.
+
+Neither side is written to.
 """
 
 from __future__ import annotations
@@ -38,9 +45,14 @@ from scipy import stats
 from leaderboard.build import load
 from leaderboard.outputs.tables import fmt, md_escape
 from leaderboard.runs.aggregate import aggregate, learner_order, row_order
+from leaderboard.runs.releases import MANIFEST, ReleaseError
+from leaderboard.runs.releases import load as load_release
+from leaderboard.runs.sources import load_sources
 from morality_gym.clitools import OneLineParser, UserError, duration, run_cli
 
 _CELL = ["protocol", "preset", "chain", "scenario", "learner"]
+#: The two sides' labels unless ``--names`` says otherwise: the comparison this tool was made for.
+NAMES = ("single", "fleet")
 #: Two metrics closer than this print the same at 3 decimals: the runs are counted as identical.
 SAME = 5e-4
 
@@ -55,10 +67,17 @@ class Results:
 
 
 def load_results(path: Path) -> Results:
-    """A results directory, aggregated by the leaderboard's own rules."""
-    if not path.is_dir():
-        raise UserError(f"{path}: not a results directory")
-    runs, planned, _skipped = load(path)
+    """A results directory or a release, aggregated by the leaderboard's own rules."""
+    if (path / MANIFEST).is_file():
+        try:
+            sources = load_sources(None, [load_release(path)])
+        except ReleaseError as exc:
+            raise UserError(str(exc)) from exc
+        runs, planned = sources.runs.drop(columns="source"), sources.planned
+    elif path.is_dir():
+        runs, planned, _skipped = load(path)
+    else:
+        raise UserError(f"{path}: not a results directory (nor a release: no {MANIFEST})")
     if runs.empty:
         raise UserError(f"{path}: no readable runs (expected run files in {path / 'runs'})")
     lb = aggregate(runs, planned)
@@ -108,36 +127,55 @@ def _span(runs: pd.DataFrame) -> float:
     return float((end - start).total_seconds())
 
 
-def group_report(single: Results, fleet: Results, protocol: str, preset: str) -> list[str]:
+def group_report(single: Results, fleet: Results, protocol: str, preset: str,
+                 names: tuple[str, str] = NAMES) -> list[str]:
     """The table, the per-learner summary and the wall times of one (protocol, preset)."""
     def select(frame: pd.DataFrame) -> pd.DataFrame:
         return frame.loc[(frame["protocol"] == protocol) & (frame["preset"] == preset)]
 
     s_cells, f_cells = select(single.cells), select(fleet.cells)
+    rows = _common_rows(s_cells, f_cells)
     pairs = paired_runs(select(single.runs), select(fleet.runs))
     learners = learner_order(set(s_cells["learner"]) | set(f_cells["learner"]))
-    lines, verdicts = _cell_table(s_cells, f_cells, pairs, learners)
+    lines, verdicts = _cell_table(s_cells, f_cells, pairs, learners, rows, names)
+    lines += _one_sided_line(s_cells, f_cells, rows, names)
     lines += ["", "Per learner (cells complete on both sides; runs paired by run id):", ""]
-    lines += _learner_table(pairs, pd.DataFrame(verdicts, columns=["learner", "diff", "spread"]), learners)
-    lines += _span_lines(select(single.runs), select(fleet.runs))
+    lines += _learner_table(pairs, pd.DataFrame(verdicts, columns=["learner", "diff", "spread"]), learners, names)
+    lines += _span_lines(select(single.runs), select(fleet.runs), names)
     return lines
 
 
-_CELL_TABLE_HEAD = [
-    "| chain | scenario | learner | single mean ± seed sd | fleet mean ± seed sd | fleet − single | runs identical | Wilcoxon p |",
-    "|---|---|---|---:|---:|---:|---:|---:|",
-]
+def _rows(cells: pd.DataFrame) -> set[tuple[str, str]]:
+    return set(zip(cells["chain"], cells["scenario"]))
 
 
-def _cell_table(s_cells: pd.DataFrame, f_cells: pd.DataFrame, pairs: pd.DataFrame,
-                learners: list[str]) -> tuple[list[str], list[dict[str, object]]]:
-    """The per-cell table, and each cell usable on both sides as ``{learner, diff, spread}``."""
+def _common_rows(s_cells: pd.DataFrame, f_cells: pd.DataFrame) -> list[tuple[str, str]]:
+    """The Table 1 rows (chain, scenario) both sides have cells of, in the table's order."""
+    return row_order(sorted(_rows(s_cells) & _rows(f_cells)))
+
+
+def _one_sided_line(s_cells: pd.DataFrame, f_cells: pd.DataFrame, rows: list[tuple[str, str]],
+                    names: tuple[str, str]) -> list[str]:
+    """One line counting the rows left out because only one side has them (none: no line)."""
+    only = [(name, len(_rows(cells) - set(rows))) for name, cells in zip(names, (s_cells, f_cells))]
+    parts = [f"{n} only in {name}" for name, n in only if n]
+    return ["", f"Rows left out, one side has none of their cells: {', '.join(parts)}."] if parts else []
+
+
+def _cell_table_head(names: tuple[str, str]) -> list[str]:
+    a, b = (md_escape(n) for n in names)
+    return [f"| chain | scenario | learner | {a} mean ± seed sd | {b} mean ± seed sd | {b} − {a} | runs identical | Wilcoxon p |",
+            "|---|---|---|---:|---:|---:|---:|---:|"]
+
+
+def _cell_table(s_cells: pd.DataFrame, f_cells: pd.DataFrame, pairs: pd.DataFrame, learners: list[str],
+                rows: list[tuple[str, str]], names: tuple[str, str] = NAMES) -> tuple[list[str], list[dict[str, object]]]:
+    """The per-cell table of ``rows``, and each cell usable on both sides as ``{learner, diff, spread}``."""
     index_s = {tuple(r[c] for c in ("chain", "scenario", "learner")): r for _, r in s_cells.iterrows()}
     index_f = {tuple(r[c] for c in ("chain", "scenario", "learner")): r for _, r in f_cells.iterrows()}
-    lines = list(_CELL_TABLE_HEAD)
+    lines = _cell_table_head(names)
     verdicts = []
-    keys = list(zip(s_cells["chain"], s_cells["scenario"])) + list(zip(f_cells["chain"], f_cells["scenario"]))
-    for chain, scenario in row_order(keys):
+    for chain, scenario in rows:
         for learner in learners:
             s, f = index_s.get((chain, scenario, learner)), index_f.get((chain, scenario, learner))
             if s is None and f is None:
@@ -163,11 +201,13 @@ def _paired_texts(mine: pd.DataFrame) -> tuple[str, str]:
     return f"{int((mine['diff'].abs() < SAME).sum())}/{len(mine)}", "–" if math.isnan(p) else f"{p:.2f}"
 
 
-def _learner_table(pairs: pd.DataFrame, table: pd.DataFrame, learners: list[str]) -> list[str]:
+def _learner_table(pairs: pd.DataFrame, table: pd.DataFrame, learners: list[str],
+                   names: tuple[str, str] = NAMES) -> list[str]:
     """One row per learner over its usable cells and all its paired runs, compute included."""
+    a, b = (md_escape(n) for n in names)
     lines = [
-        ("| learner | cells | mean abs(fleet − single) | largest | cells beyond the seed spread | runs identical | "
-         "Wilcoxon p (all runs) | single compute (paired runs) | fleet compute (paired runs) | single / fleet |"),
+        (f"| learner | cells | mean abs({b} − {a}) | largest | cells beyond the seed spread | runs identical | "
+         f"Wilcoxon p (all runs) | {a} compute (paired runs) | {b} compute (paired runs) | {a} / {b} |"),
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for learner in learners:
@@ -193,7 +233,7 @@ def _learner_table(pairs: pd.DataFrame, table: pd.DataFrame, learners: list[str]
     return lines
 
 
-def _span_lines(single_runs: pd.DataFrame, fleet_runs: pd.DataFrame) -> list[str]:
+def _span_lines(single_runs: pd.DataFrame, fleet_runs: pd.DataFrame, names: tuple[str, str] = NAMES) -> list[str]:
     """Each sweep's wall-clock span, with its run count, engines and fleet sizes."""
     engines_s = ", ".join(sorted(single_runs["engine"].dropna().unique()))
     engines_f = sorted(fleet_runs["engine"].dropna().unique())
@@ -201,8 +241,8 @@ def _span_lines(single_runs: pd.DataFrame, fleet_runs: pd.DataFrame) -> list[str
     sizes = sorted(int(e.split(":")[1]) for e in fleets)
     return [
         "",
-        f"Wall-clock span of the sweeps (first run started to last finished): single "
-        f"{duration(_span(single_runs))} ({len(single_runs)} runs; engines: {engines_s}), fleet "
+        f"Wall-clock span of the sweeps (first run started to last finished): {names[0]} "
+        f"{duration(_span(single_runs))} ({len(single_runs)} runs; engines: {engines_s}), {names[1]} "
         f"{duration(_span(fleet_runs))} ({len(fleet_runs)} runs"
         + (f"; fleets of {sizes[0]}-{sizes[-1]} runs" if sizes else "") + "). A span includes any time a sweep "
         "was paused or stopped before it was resumed; the compute columns do not.",
@@ -210,9 +250,10 @@ def _span_lines(single_runs: pd.DataFrame, fleet_runs: pd.DataFrame) -> list[str
     ]
 
 
-def report(single: Results, fleet: Results, protocols: Sequence[str] | None = None) -> str:
-    """The whole Markdown report (see the module docstring)."""
-    lines = [f"# Table 1 by engine: {single.source} (single) and {fleet.source} (fleet)", ""]
+def report(single: Results, fleet: Results, protocols: Sequence[str] | None = None,
+           names: tuple[str, str] = NAMES) -> str:
+    """The whole Markdown report (see the module docstring); ``names`` label the two sides."""
+    lines = [f"# Table 1 by engine: {single.source} ({names[0]}) and {fleet.source} ({names[1]})", ""]
     groups = pd.concat([single.cells, fleet.cells])[["protocol", "preset"]].drop_duplicates().sort_values(["protocol", "preset"])
     if protocols:
         groups = groups.loc[groups["protocol"].isin(protocols)]
@@ -220,15 +261,19 @@ def report(single: Results, fleet: Results, protocols: Sequence[str] | None = No
         raise UserError("no learner cells" + (f" for protocol {', '.join(protocols)}" if protocols else ""))
     for protocol, preset in groups.itertuples(index=False):
         lines += [f"## Protocol `{protocol}`, preset `{preset}`", ""]
-        lines += group_report(single, fleet, protocol, preset)
+        lines += group_report(single, fleet, protocol, preset, names)
     return "\n".join(lines)
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The command's parser, apart from parsing: the docs' command-line reference is generated from it."""
     parser = OneLineParser(prog="python -m leaderboard.engines", description=__doc__.split("\n\n")[0])
-    parser.add_argument("single", type=Path, help="results directory of the sweep run with engine=single")
-    parser.add_argument("fleet", type=Path, help="results directory of the same sweep run with engine=fleet")
+    parser.add_argument("single", type=Path,
+                        help="results directory (or release) of the sweep run with engine=single, or of any first sweep")
+    parser.add_argument("fleet", type=Path,
+                        help="results directory (or release) of the same sweep run with engine=fleet, or of any second one")
+    parser.add_argument("--names", nargs=2, metavar=("FIRST", "SECOND"), default=list(NAMES),
+                        help="labels of the two sides (default: single fleet), e.g. --names release main")
     parser.add_argument("--protocol", action="append", help="protocol to show (repeatable); default: all")
     parser.add_argument("--out", type=Path, help="write the Markdown here instead of stdout")
     parser.add_argument("--debug", action="store_true", help="show the traceback of an error")
@@ -240,7 +285,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 
 def run(args: argparse.Namespace) -> int:
-    text = report(load_results(args.single), load_results(args.fleet), args.protocol)
+    text = report(load_results(args.single), load_results(args.fleet), args.protocol, tuple(args.names))
     if args.out:
         args.out.write_text(text + "\n")
         print(f"wrote {args.out}")

@@ -107,3 +107,47 @@ def test_compute_compares_the_same_runs_when_one_side_is_unfinished(sides: tuple
     summary = text.split("Per learner", 1)[1]
     row = next(line for line in summary.splitlines() if line.startswith("| PPO |"))
     assert row.strip("|").split("|")[9].strip() == "4.0x"  # not 2.0x: the fleet's extra runs are left out
+
+
+def test_a_release_against_a_rerun_of_some_rows_with_names(sides: tuple[Path, Path, list[dict]], tmp_path: Path) -> None:
+    """A newer engine reruns a few rows of a shipped Table 1: the release is one side, the rows the
+    other; only the rows both have are compared, the others are counted in one line."""
+    from leaderboard.release import create
+
+    single, fleet, records = sides
+    release = create(single, "engines-test", root=tmp_path / "releases", tables=False)
+    rerun = tmp_path / "rerun"
+    kept = [r for r in records if (r["chain"], r["scenario"]) == CHANGED[:2]]
+    for record in kept:
+        row = dict(record)
+        if (row["chain"], row["scenario"], row["learner"]) == CHANGED:
+            row["metric"] = record["metric"] + SHIFT[int(row["seed"])]
+        write_run(rerun, row, bind_chain(row["chain"], row["env_id"]).chain.norm_names)
+    out = tmp_path / "engines.md"
+    done = subprocess.run([sys.executable, "-m", "leaderboard.engines", str(release), str(rerun), "--names", "release", "main",
+                           "--protocol", "paper", "--out", str(out)], check=False, cwd=REPO, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    text = out.read_text()
+    assert text.startswith(f"# Table 1 by engine: {release} (release) and {rerun} (main)")
+    assert "| release mean ± seed sd | main mean ± seed sd | main − release |" in text
+    cell_rows = [line for line in text.split("Per learner", 1)[0].splitlines()
+                 if line.startswith("| ") and not line.startswith("| chain")]
+    assert cell_rows and all(line.startswith(f"| {CHANGED[0]} | {CHANGED[1]} |") for line in cell_rows)
+    n_rows = len({(r["chain"], r["scenario"]) for r in records if r["protocol"] == "paper"})
+    assert f"Rows left out, one side has none of their cells: {n_rows - 1} only in release." in text
+    changed = next(line for line in cell_rows if line.startswith(f"| {CHANGED[0]} | {CHANGED[1]} | {CHANGED[2]} |"))
+    mean_shift = float(np.mean([SHIFT[int(r["seed"])] for r in kept if r["learner"] == CHANGED[2]]))
+    assert float(changed.strip("|").split("|")[5]) == pytest.approx(mean_shift, abs=1e-3)
+
+
+def test_a_damaged_release_is_one_line(sides: tuple[Path, Path, list[dict]], tmp_path: Path) -> None:
+    from leaderboard.release import create
+
+    single, _, _ = sides
+    release = create(single, "engines-damaged", root=tmp_path / "releases", tables=False)
+    runs = release / "runs.parquet"
+    runs.write_bytes(runs.read_bytes()[:-40])
+    bad = subprocess.run([sys.executable, "-m", "leaderboard.engines", str(release), str(single)],
+                         check=False, cwd=REPO, capture_output=True, text=True)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr, bad.stderr
+    assert "engines-damaged" in bad.stderr and "checksum" in bad.stderr.lower(), bad.stderr
