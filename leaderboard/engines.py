@@ -15,9 +15,11 @@ Output (Markdown, to stdout or ``--out``), per (protocol, preset):
   signed-rank test of the paired runs' differences (``scipy.stats.wilcoxon``);
 * per learner: mean and largest |difference| over its cells, the cells whose difference exceeds
   the larger of the two seed spreads, the share of identical runs, the test over all its paired
-  runs, and the compute each engine spent on the runs both sides finished (the runs'
-  ``wall_time_s`` summed: a fleet run's is its share of the fleet's training plus its own
-  evaluation), so an unfinished side is compared on what it did;
+  runs, and the compute each engine spent on the runs both sides finished (the runs' core-seconds
+  summed, :func:`~morality_gym.results.schema.compute_seconds`: CPU time where a run recorded it,
+  else wall time; a fleet run's is its share of the fleet's training plus its own evaluation), so
+  an unfinished side is compared on what it did, and a side that shared its machine is not
+  charged for the wait;
 * the wall-clock span of each side's sweep (first run started to last run finished).
 
 Either side may also be a release (``releases/<name>``) and the two sides any two sweeps of the
@@ -49,6 +51,7 @@ from leaderboard.runs.releases import MANIFEST, ReleaseError
 from leaderboard.runs.releases import load as load_release
 from leaderboard.runs.sources import load_sources
 from morality_gym.clitools import OneLineParser, UserError, duration, run_cli
+from morality_gym.results.schema import compute_seconds
 
 _CELL = ["protocol", "preset", "chain", "scenario", "learner"]
 #: The two sides' labels unless ``--names`` says otherwise: the comparison this tool was made for.
@@ -87,9 +90,10 @@ def load_results(path: Path) -> Results:
 
 
 def paired_runs(single: pd.DataFrame, fleet: pd.DataFrame) -> pd.DataFrame:
-    """The runs both sides counted, by run id: cell keys, seed, both metrics, both wall times."""
-    keep = [*_CELL, "run_id", "seed", "metric", "wall_time_s", "engine"]
-    merged = single[keep].merge(fleet[["run_id", "metric", "wall_time_s", "engine"]], on="run_id", suffixes=("_single", "_fleet"))
+    """The runs both sides counted, by run id: cell keys, seed, both metrics, both computes (core-seconds)."""
+    single, fleet = single.assign(compute_s=compute_seconds(single)), fleet.assign(compute_s=compute_seconds(fleet))
+    keep = [*_CELL, "run_id", "seed", "metric", "compute_s", "engine"]
+    merged = single[keep].merge(fleet[["run_id", "metric", "compute_s", "engine"]], on="run_id", suffixes=("_single", "_fleet"))
     merged["diff"] = merged["metric_fleet"] - merged["metric_single"]
     return merged
 
@@ -216,7 +220,7 @@ def _learner_table(pairs: pd.DataFrame, table: pd.DataFrame, learners: list[str]
         beyond = int((mine["diff"].abs() > mine["spread"]).sum())
         p = wilcoxon_p(runs["diff"].to_numpy()) if len(runs) else math.nan
         # over the paired runs only: a side that has not finished must not look cheaper or dearer
-        s_time, f_time = float(runs["wall_time_s_single"].sum()), float(runs["wall_time_s_fleet"].sum())
+        s_time, f_time = float(runs["compute_s_single"].sum()), float(runs["compute_s_fleet"].sum())
         cells = [
             md_escape(learner),
             str(len(mine)),

@@ -37,6 +37,7 @@ def sides(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, list[di
         if row["learner"] != "Random":
             row["engine"] = "fleet:12"
             row["wall_time_s"] = record["wall_time_s"] / 4
+            row["cpu_time_s"] = record["cpu_time_s"] / 4
         if (row["chain"], row["scenario"], row["learner"]) == CHANGED:
             row["metric"] = record["metric"] + SHIFT[int(row["seed"])]
         write_run(fleet, row, bind_chain(row["chain"], row["env_id"]).chain.norm_names)
@@ -122,6 +123,8 @@ def test_a_release_against_a_rerun_of_some_rows_with_names(sides: tuple[Path, Pa
         row = dict(record)
         if (row["chain"], row["scenario"], row["learner"]) == CHANGED:
             row["metric"] = record["metric"] + SHIFT[int(row["seed"])]
+        # a rerun on a busy machine: ten times the wall time, half the CPU time
+        row["wall_time_s"], row["cpu_time_s"] = record["wall_time_s"] * 10, record["cpu_time_s"] / 2
         write_run(rerun, row, bind_chain(row["chain"], row["env_id"]).chain.norm_names)
     out = tmp_path / "engines.md"
     done = subprocess.run([sys.executable, "-m", "leaderboard.engines", str(release), str(rerun), "--names", "release", "main",
@@ -138,6 +141,9 @@ def test_a_release_against_a_rerun_of_some_rows_with_names(sides: tuple[Path, Pa
     changed = next(line for line in cell_rows if line.startswith(f"| {CHANGED[0]} | {CHANGED[1]} | {CHANGED[2]} |"))
     mean_shift = float(np.mean([SHIFT[int(r["seed"])] for r in kept if r["learner"] == CHANGED[2]]))
     assert float(changed.strip("|").split("|")[5]) == pytest.approx(mean_shift, abs=1e-3)
+    summary = text.split("Per learner", 1)[1]
+    ppo = next(line for line in summary.splitlines() if line.startswith("| PPO |"))
+    assert ppo.strip("|").split("|")[9].strip() == "2.0x"  # compute is CPU time, not the busy wall time
 
 
 def test_a_damaged_release_is_one_line(sides: tuple[Path, Path, list[dict]], tmp_path: Path) -> None:
