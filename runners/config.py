@@ -321,12 +321,22 @@ def _algo(option: str, node: Mapping[str, Any], preset: Preset, protocol: Protoc
     except SpecError as exc:
         raise ConfigError(f"{where}: {exc}") from exc
     planning = dict(node.get("planning") or {})
+    where = _planning_where(where, option, overrides)
     steps_per_s, overhead, speedup = _planning_rate(where, planning, file_values, spec, protocol.name)
     devices = _device_rates(where, planning, file_values, spec, protocol.name)
     return AlgoChoice(spec, steps_per_s, overhead, speedup, devices)
 
 
+def _planning_where(where: str, option: str, overrides: Sequence[str]) -> str:
+    """Where an algo's planning values come from: its file, and the command-line overrides that
+    change them (a bad value given there must not be blamed on the file)."""
+    prefix = f"algo.{option}.planning"
+    given = [o for o in overrides if o.lstrip("+~").startswith(prefix)]
+    return f"{where} with {', '.join(given)}" if given else where
+
+
 _PLANNING_KEYS = set(typed.valid_keys(Planning)) - {"protocols"}
+_DEVICE_RATE_KEYS = set(typed.valid_keys(DeviceRate))
 
 
 def _planning_rate(where: str, planning: Mapping[str, Any], file_values: Mapping[str, Any],
@@ -369,6 +379,11 @@ def _device_rates(where: str, planning: Mapping[str, Any], file_values: Mapping[
     out: dict[str, DeviceRate] = {}
     for device, given in dict(planning.get("devices") or {}).items():
         at = f"{where}: planning.devices.{device}"
+        if not isinstance(given, Mapping):
+            raise ConfigError(f"{at} must be a mapping of {sorted(_DEVICE_RATE_KEYS)}, got {given!r}")
+        for key in set(given) - _DEVICE_RATE_KEYS:  # a typo would silently price the device at nothing measured
+            raise ConfigError(f"{at}: unknown key {key!r}{did_you_mean(str(key), sorted(_DEVICE_RATE_KEYS))}; "
+                              f"valid: {sorted(_DEVICE_RATE_KEYS)}")
         try:
             rates = {int(k): float(v) for k, v in dict(given.get("fleet_steps_per_s") or {}).items()}
             processes = {int(k): float(v) for k, v in dict(given.get("processes") or {}).items()}

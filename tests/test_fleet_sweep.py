@@ -30,9 +30,10 @@ def _sweep_config(tmp_path: Path, *overrides: str):
 
     from runners.paths import CONF_DIR
 
+    given = [f"results_dir={tmp_path / 'r'}", "mlflow=false", "gif=false", *overrides]
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        cfg = compose("config", overrides=[f"results_dir={tmp_path / 'r'}", "mlflow=false", "gif=false", *overrides])
-    return validate(cfg)
+        cfg = compose("config", overrides=given)
+    return validate(cfg, given)  # the command line, as the CLI passes it: errors name its overrides
 
 
 def _sweep(results: Path, *overrides: str, background: bool = False) -> subprocess.CompletedProcess | subprocess.Popen:

@@ -120,3 +120,15 @@ def test_bad_device_rates_are_refused_with_where_they_are(tmp_path: Path) -> Non
 
     with pytest.raises(ConfigError, match=r"algo=ppo .*planning\.devices\.cuda\.fleet_steps_per_s needs at least one fleet size"):
         _sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch5]", "algo.ppo.planning.devices.cuda.fleet_steps_per_s={21: 0}")
+    # the error names the command-line override, not only the file it was laid over
+    with pytest.raises(ConfigError, match=r"ppo\.yaml\) with algo\.ppo\.planning\.devices\.cuda\.fleet_steps_per_s=\{21: 0\}: "):
+        _sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch5]", "algo.ppo.planning.devices.cuda.fleet_steps_per_s={21: 0}")
+
+
+def test_a_misspelt_device_rate_key_is_refused_with_the_close_match(tmp_path: Path) -> None:
+    """A typo used to be ignored, and the device then priced at rates nobody measured."""
+    from runners.config import ConfigError
+
+    with pytest.raises(ConfigError, match=r"planning\.devices\.cuda: unknown key 'fleet_step_per_s' \(did you mean 'fleet_steps_per_s'\?\)"):
+        _sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch5]", "device=cuda",
+                      "+algo.ppo.planning.devices.cuda.fleet_step_per_s={21: 5.0}")
