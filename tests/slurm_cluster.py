@@ -9,7 +9,9 @@ Imported by tests/conftest.py. The fixture
   of the session; a failed or hung bring-up fails with the tail of the daemons' logs;
 * never stops a cluster that another test session on the machine is still using: every session
   holds a shared lock on :data:`USERS_LOCK` while it uses the cluster, and the cluster a test
-  session started (:data:`STARTED_BY_TESTS`) is stopped by the last session to leave it.
+  session started (:data:`STARTED_BY_TESTS`) is stopped by the last session to leave it. Checking,
+  starting and stopping happen one session at a time (:data:`START_LOCK`), so a second session
+  waits at most for a bring-up or a shutdown, never for the first session's tests.
   slurm_down.sh cancels every job, so a second ``pytest`` run (a targeted one beside the full
   suite) used to stop the first one's running array task when it ended:
   ``test_fleet_sweep_through_real_slurm`` then saw its fleet's task stopped by a signal.
@@ -17,6 +19,7 @@ Imported by tests/conftest.py. The fixture
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import os
 import shutil
@@ -36,6 +39,7 @@ PARTITION = "debug"  # defined by slurm_up.sh
 NODE = "localhost"
 SLURMD_PID = "/run/slurmd.pid"  # SlurmdPidFile in the slurm.conf written by slurm_up.sh
 USERS_LOCK = Path("/run/morality-gym-slurm-tests.lock")  # shared by every test session using the cluster
+START_LOCK = Path("/run/morality-gym-slurm-tests.start.lock")  # held while one session checks, starts or stops it
 STARTED_BY_TESTS = Path("/run/morality-gym-slurm-tests.started")  # absent for a `make slurm-up` cluster
 # slurm_up.sh stops on its own after SLURM_UP_TIMEOUT; the subprocess timeout is the backstop.
 UP_TIMEOUT_S = 120
@@ -154,6 +158,21 @@ def _node_resources() -> tuple[int, int]:
     return int(out[0]), int(out[1])
 
 
+@contextlib.contextmanager
+def _one_at_a_time(lock: Path) -> Iterator[None]:
+    """Held while a session checks and starts the cluster, or leaves it (and maybe stops it)."""
+    with lock.open("a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        yield
+
+
+def _join(lock: Path) -> IO[str]:
+    """A shared hold on the cluster, kept open for the session: other sessions may join too."""
+    users = lock.open("a")
+    fcntl.flock(users, fcntl.LOCK_SH)
+    return users
+
+
 def _last_user(users: IO[str]) -> bool:
     """Whether no other session holds the cluster: our shared lock becomes exclusive only then."""
     try:
@@ -175,38 +194,35 @@ def slurm_cluster() -> Iterator[SlurmCluster]:
             f"install with `make system-deps` or `apt-get install {packages}`"
         )
 
-    users = USERS_LOCK.open("a")
-    # Exclusive while checking and starting, so two sessions never both run slurm_up.sh; shared
-    # (a user among others) from then on.
-    fcntl.flock(users, fcntl.LOCK_EX)
-    started_here = False
-    if not _healthy():
-        # The script gets a slightly smaller budget so that it fails by itself, with its own message
-        # and the logs, before the subprocess timeout has to kill it.
-        ok, output = _script("slurm_up.sh", UP_TIMEOUT_S, {"SLURM_UP_TIMEOUT": str(UP_TIMEOUT_S - 15)})
-        if not ok:
-            # slurm_up.sh prints the daemon logs itself when it fails; when it had to be killed,
-            # read them here (before the teardown below adds its own lines).
-            logs = "" if "----- last lines of" in output else _log_tails()
-            # Do not leave a half-started cluster behind.
-            _script("slurm_down.sh", DOWN_TIMEOUT_S)
-            STARTED_BY_TESTS.unlink(missing_ok=True)
-            users.close()
-            pytest.fail(f"SLURM bring-up failed (runners/slurm/slurm_up.sh):\n{_clip(output)}\n{logs}", pytrace=False)
-        started_here = True
-        STARTED_BY_TESTS.touch()
-    fcntl.flock(users, fcntl.LOCK_SH)
+    with _one_at_a_time(START_LOCK):  # two sessions never both run slurm_up.sh
+        started_here = False
+        if not _healthy():
+            # The script gets a slightly smaller budget so that it fails by itself, with its own
+            # message and the logs, before the subprocess timeout has to kill it.
+            ok, output = _script("slurm_up.sh", UP_TIMEOUT_S, {"SLURM_UP_TIMEOUT": str(UP_TIMEOUT_S - 15)})
+            if not ok:
+                # slurm_up.sh prints the daemon logs itself when it fails; when it had to be killed,
+                # read them here (before the teardown below adds its own lines).
+                logs = "" if "----- last lines of" in output else _log_tails()
+                # Do not leave a half-started cluster behind.
+                _script("slurm_down.sh", DOWN_TIMEOUT_S)
+                STARTED_BY_TESTS.unlink(missing_ok=True)
+                pytest.fail(f"SLURM bring-up failed (runners/slurm/slurm_up.sh):\n{_clip(output)}\n{logs}", pytrace=False)
+            started_here = True
+            STARTED_BY_TESTS.touch()
+        users = _join(USERS_LOCK)
 
     try:
         cpus, memory_mb = _node_resources()
         yield SlurmCluster(PARTITION, NODE, cpus, memory_mb, started_here)
     finally:
-        try:
-            # Stopped under the exclusive lock, so no session starts using it meanwhile.
-            if _last_user(users) and STARTED_BY_TESTS.exists():
-                ok, output = _script("slurm_down.sh", DOWN_TIMEOUT_S)
-                STARTED_BY_TESTS.unlink(missing_ok=True)
-                if not ok:
-                    pytest.fail(f"SLURM teardown failed.\n{_clip(output)}\n{_log_tails()}", pytrace=False)
-        finally:
-            users.close()
+        # No session joins while we decide and stop: it waits, then finds the cluster down and starts it.
+        with _one_at_a_time(START_LOCK):
+            try:
+                if _last_user(users) and STARTED_BY_TESTS.exists():
+                    ok, output = _script("slurm_down.sh", DOWN_TIMEOUT_S)
+                    STARTED_BY_TESTS.unlink(missing_ok=True)
+                    if not ok:
+                        pytest.fail(f"SLURM teardown failed.\n{_clip(output)}\n{_log_tails()}", pytrace=False)
+            finally:
+                users.close()
