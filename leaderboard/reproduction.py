@@ -46,7 +46,7 @@ from leaderboard.runs.aggregate import (
 from leaderboard.runs.releases import ReleaseError, resolve
 from leaderboard.runs.sources import Sources, load_sources
 from leaderboard.stats import compute_stats
-from morality_gym.baselines.specs import learner_spec, protocol_spec
+from morality_gym.baselines.specs import learner_spec, trains_alike
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, did_you_mean, run_cli
 
 CLAIMS_FILE = Path(__file__).resolve().parents[1] / "morality_gym" / "data" / "paper" / "figure2_claims.yaml"
@@ -141,11 +141,7 @@ def protocol_neutral_learners() -> list[str]:
     protocol (conf/protocol/corrected.yaml) overrides nothing of theirs, and Random's evaluation is
     not among them (its final evaluation's random stream is a protocol setting). Their corrected
     cells are their paper-protocol cells, so the corrected sweep does not run them again."""
-    paper, corrected = protocol_spec("paper"), protocol_spec("corrected")
-    changed = set(paper.learner_overrides) | set(corrected.learner_overrides)
-    if paper.random_replays_learn_evals != corrected.random_replays_learn_evals:
-        changed.add("random")
-    return [learner_spec(name).label for name in TABLE1_LEARNERS if name not in changed]
+    return [learner_spec(name).label for name in TABLE1_LEARNERS if trains_alike(name, ("paper", "corrected"))]
 
 
 def cells_as_run(lb: Leaderboard, group: Group) -> dict[tuple[str, str, str], Cell]:

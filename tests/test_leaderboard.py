@@ -448,6 +448,36 @@ def test_index_opens_on_the_grid_of_the_users_sweep_marked_not_comparable(built:
     assert '<option value="paper-quick" selected>' in index.split('data-pane="sweep"')[1].split("</select>")[0]
 
 
+def test_a_sweep_that_leaves_out_learners_alike_under_both_protocols_says_where_they_are(built: BuiltSite) -> None:
+    """Issue 32: the corrected Table 1 runs only the learners a protocol changes; its grid says that
+    PPO and PPO Shaped (and a user's learner, which no protocol touches) train identically and
+    where their cells are, and says nothing of Random, which the protocols evaluate differently."""
+    from types import SimpleNamespace
+
+    from leaderboard.runs.aggregate import Group
+    from leaderboard.web.table1_grid import alike_note
+
+    learners = {"Random": "random", "PPO": "ppo", "PPO Shaped": "ppo_shaped", "PPO Lag": "ppo_lag", "CPO": "cpo", "A2C": "a2c"}
+    ran = {"paper": list(learners), "corrected": ["PPO Lag", "CPO"]}
+    runs = pd.DataFrame([{"protocol": p, "preset": "paper", "learner": label, "algo": learners[label]}
+                         for p, labels in ran.items() for label in labels])
+    groups = [Group("paper", "paper"), Group("corrected", "paper"), Group("corrected", "quick")]
+    lb = SimpleNamespace(runs=runs, groups=groups,
+                         group_table=lambda g: runs.loc[(runs["protocol"] == g.protocol) & (runs["preset"] == g.preset)])
+    assert alike_note(lb, Group("corrected", "paper")) == (
+        "A2C, PPO and PPO Shaped train identically under protocols corrected and paper, so this sweep does not "
+        "run them again: their cells are those of paper · paper")
+    one = SimpleNamespace(runs=runs.loc[runs["learner"] != "A2C"].loc[lambda r: r["learner"] != "PPO Shaped"], groups=groups,
+                          group_table=lb.group_table)
+    assert alike_note(one, Group("corrected", "paper")) == (
+        "PPO trains identically under protocols corrected and paper, so this sweep does not run it again: its cells "
+        "are those of paper · paper")
+    assert alike_note(lb, Group("paper", "paper")) == ""  # it ran them all
+    assert alike_note(lb, Group("corrected", "quick")) == ""  # no other sweep of preset quick
+    # the built site's corrected sweep ran every learner: no note
+    assert 'class="note alike"' not in (built.site / "index.html").read_text()
+
+
 def test_the_index_opens_on_the_newest_own_sweep_beside_the_releases() -> None:
     """Issue 36: the sweep of the user's newest run first (not the release's, not an older sweep of
     theirs), the release's sweep of the same protocol beside it; without own runs, the primary."""

@@ -30,6 +30,7 @@ from leaderboard.runs.sources import RESULTS_SOURCE, Sources
 from leaderboard.web.ranking_page import SCORE_COLOURS, group_frame, left_out_rows, matrix_cell
 from leaderboard.web.render import clean_records, is_missing, scenario_href, section_id
 from leaderboard.web.site_state import SiteBuild
+from morality_gym.baselines.specs import trains_alike
 
 
 def group_origin(lb: Leaderboard, sources: Sources, group: Group) -> str:
@@ -42,6 +43,29 @@ def group_origin(lb: Leaderboard, sources: Sources, group: Group) -> str:
         words.append(f"{n:,} of your runs in {sources.results}" if source == RESULTS_SOURCE
                      else f"{n:,} runs of release {source}")
     return " + ".join(words) or "no runs"
+
+
+def alike_note(lb: Leaderboard, group: Group) -> str:
+    """Which learners this sweep lacks because they train identically under its protocol and
+    another sweep's of the same preset, where they were run (:func:`trains_alike`): a reader of
+    the corrected Table 1 looks for PPO's column and must learn why it is not there, and where it is.
+    Empty when none."""
+    here = set(lb.group_table(group)["learner"])
+    notes = []
+    for other in lb.groups:
+        if other.preset != group.preset or other.protocol == group.protocol:
+            continue
+        runs = lb.runs.loc[(lb.runs["protocol"] == other.protocol) & (lb.runs["preset"] == other.preset)]
+        missing = runs.loc[~runs["learner"].isin(here), ["algo", "learner"]].drop_duplicates()
+        alike = [label for algo, label in missing.itertuples(index=False) if trains_alike(algo, (group.protocol, other.protocol))]
+        if alike:
+            names = sorted(set(alike))
+            one = len(names) == 1
+            listed = names[0] if one else f"{', '.join(names[:-1])} and {names[-1]}"
+            verb, pronoun, possessive = ("trains", "it", "its") if one else ("train", "them", "their")
+            notes.append(f"{listed} {verb} identically under protocols {group.protocol} and {other.protocol}, so this "
+                         f"sweep does not run {pronoun} again: {possessive} cells are those of {other.protocol} · {other.preset}")
+    return "; ".join(notes)
 
 
 # ---------------------------------------------------------------------------------------- the grid
@@ -80,7 +104,7 @@ def group_grid(sb: SiteBuild, group: Group, root: str) -> dict[str, Any]:
     return {"slug": group.slug, "label": f"{group.protocol} · {group.preset}", "origin": group_origin(lb, sb.sources, group),
             "comparable": comparable_preset(group.preset), "not_comparable": not_comparable_text(group.preset),
             "learners": [(n, sb.colour(n), lb.submitted.get(n)) for n in learners], "rows": rows,
-            "n_cells": len(cells), "grey": "; ".join(left_out_rows(ranked, "normalised"))}
+            "n_cells": len(cells), "grey": "; ".join(left_out_rows(ranked, "normalised")), "alike": alike_note(lb, group)}
 
 
 def grid_context(sb: SiteBuild, root: str) -> dict[str, Any]:

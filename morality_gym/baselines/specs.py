@@ -15,7 +15,7 @@ errors that name the key, the file and the closest valid key.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -281,6 +281,17 @@ class ProtocolSpec:
         override = self.learner_overrides.get(spec.name)
         resolved = spec.with_overrides(override) if override else spec
         return dataclasses.replace(resolved, protocol=self.name)
+
+
+def trains_alike(algo: str, protocols: Sequence[str | ProtocolSpec]) -> bool:
+    """Whether the learner of algo name ``algo`` trains and is evaluated identically under every
+    protocol of ``protocols``: none of them overrides its settings, and, for Random, whose final
+    evaluation continues a protocol's random stream, they agree on that stream. Its cells under one
+    are then its cells under the others, so a sweep of one protocol need not run it again."""
+    specs = [protocol_spec(p) for p in protocols]
+    if any(algo in spec.learner_overrides for spec in specs):
+        return False
+    return algo != "random" or len({spec.random_replay() for spec in specs}) <= 1
 
 
 def protocol_spec(name: str | ProtocolSpec, overrides: Mapping[str, Any] | None = None) -> ProtocolSpec:
