@@ -115,7 +115,7 @@ def test_a_release_against_a_rerun_of_some_rows_with_names(sides: tuple[Path, Pa
     other; only the rows both have are compared, the others are counted in one line."""
     from leaderboard.release import create
 
-    single, fleet, records = sides
+    single, _fleet, records = sides
     release = create(single, "engines-test", root=tmp_path / "releases", tables=False)
     rerun = tmp_path / "rerun"
     kept = [r for r in records if (r["chain"], r["scenario"]) == CHANGED[:2]]
