@@ -19,7 +19,7 @@ import math
 import shutil
 import sys
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -27,17 +27,26 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from leaderboard.judging.cell_evidence import curve_summary, reference_over, updates_summary, variant_records
+from leaderboard.judging.protocol_change import BASELINE_SECTION, baseline_section, corrected_section
+from leaderboard.judging.verdicts import (
+    CORRECTED,
+    PAPER,
+    RULE,
+    VERDICTS,
+    Cell,
+    cells,
+    cells_as_run,
+    protocol_neutral_learners,
+)
 from leaderboard.outputs.intervals import with_intervals
 from leaderboard.outputs.paper_figures import norm_label, write_figures
-from leaderboard.outputs.tables import interval_text
 from leaderboard.runs.aggregate import (
     Group,
     Leaderboard,
     aggregate,
     chain_definitions,
     compute_reference,
-    learner_order,
-    paper_rows,
     paper_values,
     reference_requests,
     safe_name,
@@ -46,173 +55,18 @@ from leaderboard.runs.aggregate import (
 from leaderboard.runs.releases import ReleaseError, resolve
 from leaderboard.runs.sources import Sources, load_sources
 from leaderboard.stats import compute_stats
-from morality_gym.baselines.specs import learner_spec, trains_alike
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, did_you_mean, run_cli
 
 CLAIMS_FILE = Path(__file__).resolve().parents[1] / "morality_gym" / "data" / "paper" / "figure2_claims.yaml"
 TABLE1_CLAIMS_FILE = CLAIMS_FILE.with_name("table1_claims.yaml")
-#: The learners of Table 1 by their names in conf/algo (the page speaks of their labels).
-TABLE1_LEARNERS = ("random", "ppo", "ppo_shaped", "ppo_lag", "cpo")
 NOTES_FILE = Path(__file__).resolve().parents[1] / "docs" / "reproduction_notes.yaml"
-PAPER = Group("paper", "paper")
-CORRECTED = Group("corrected", "paper")
-#: The paper prints Table 1 to three decimals: its 0.019 stands for any value in [0.0185, 0.0195].
-#: Without this a cell whose every run scores the same (an interval of width 0) never "reproduces"
-#: a rounded value, however equal: Utility / Switch2Trolley4Track / PPO scored 0.0190 in all 30 runs.
-PAPER_ROUNDING = 0.0005
-#: The rule, as printed on the page.
-RULE = ("**reproduces**: the paper's value (printed to three decimals, so ±0.0005) meets our 95% bootstrap interval "
-        "of the cell mean (its unrounded bounds: the table prints each interval to the decimals its bounds are stable "
-        "to over bootstrap seeds, three or fewer); **close**: it does not, but lies within two seed standard deviations of our mean; "
-        "**deviates**: farther; **not run**: the cell lacks runs (no verdict on a partial cell).")
-VERDICTS = ("reproduces", "close", "deviates", "not run")
 #: A learning curve still "rising" gained at least this much metric over its last quarter of training.
 RISING = 0.02
 #: A learning curve "swings" when its last quarter spans at least this much metric without rising.
 SWINGING = 0.05
 
 
-@dataclass(frozen=True)
-class Cell:
-    """One learner cell of Table 1 with its numbers and verdict."""
-
-    chain: str
-    scenario: str
-    learner: str
-    mean: float
-    ci_low: float
-    ci_high: float
-    sd: float
-    n_runs: int
-    n_expected: int
-    paper: float
-    verdict: str
-    ci_low_mcse: float = math.nan  # Monte Carlo standard error of each bound: how many decimals it is printed with
-    ci_high_mcse: float = math.nan
-
-    def interval(self) -> str:
-        """``[low, high]``, each bound to the decimals it is stable to (at most three), or a dash."""
-        return interval_text({"ci_low": self.ci_low, "ci_high": self.ci_high, "ci_low_mcse": self.ci_low_mcse,
-                              "ci_high_mcse": self.ci_high_mcse}) or "—"
-
-
-def verdict(mean: float, low: float, high: float, sd: float, paper: float, complete: bool) -> str:
-    """The cell's verdict under :data:`RULE`."""
-    if not complete or math.isnan(mean):
-        return "not run"
-    slack = PAPER_ROUNDING + 1e-12
-    if not math.isnan(low) and low - slack <= paper <= high + slack:
-        return "reproduces"
-    if not math.isnan(sd) and abs(mean - paper) <= 2 * sd + slack:
-        return "close"
-    return "deviates"
-
-
-def _num(value: Any) -> float:
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        return math.nan
-    return out
-
-
-def cells(lb: Leaderboard, group: Group) -> list[Cell]:
-    """Every (chain, scenario, learner) of the paper's Table 1 in ``group``, in the paper's order."""
-    table = lb.table.loc[(lb.table["protocol"] == group.protocol) & (lb.table["preset"] == group.preset)
-                         & (lb.table["kind"] == "learner")]
-    paper = paper_values()
-    out = []
-    for chain, scenario in paper_rows():
-        for learner in learner_order(paper[(chain, scenario)]):
-            row = table.loc[(table["chain"] == chain) & (table["scenario"] == scenario) & (table["learner"] == learner)]
-            r = row.iloc[0].to_dict() if len(row) else {}
-            mean, low, high, sd = (_num(r.get(k)) for k in ("mean", "ci_low", "ci_high", "std"))
-            value = paper[(chain, scenario)][learner]
-            complete = bool(r.get("complete", False))
-            out.append(Cell(chain, scenario, learner, mean, low, high, sd, int(_num(r.get("n_runs")) or 0) if r else 0,
-                            int(_num(r.get("n_expected")) or 0) if r else 0, value,
-                            verdict(mean, low, high, sd, value, complete),
-                            _num(r.get("ci_low_mcse")), _num(r.get("ci_high_mcse"))))
-    return out
-
-
-def protocol_neutral_learners() -> list[str]:
-    """The labels of Table 1's learners that train identically under both protocols: the corrected
-    protocol (conf/protocol/corrected.yaml) overrides nothing of theirs, and Random's evaluation is
-    not among them (its final evaluation's random stream is a protocol setting). Their corrected
-    cells are their paper-protocol cells, so the corrected sweep does not run them again."""
-    return [learner_spec(name).label for name in TABLE1_LEARNERS if trains_alike(name, ("paper", "corrected"))]
-
-
-def cells_as_run(lb: Leaderboard, group: Group) -> dict[tuple[str, str, str], Cell]:
-    """``group``'s Table 1 cells by (chain, scenario, learner); under the corrected protocol a
-    protocol-neutral learner's cells are its paper-protocol ones (:func:`protocol_neutral_learners`)."""
-    out = {(c.chain, c.scenario, c.learner): c for c in cells(lb, group)}
-    if group != PAPER:
-        neutral = set(protocol_neutral_learners())
-        out.update({(c.chain, c.scenario, c.learner): c for c in cells(lb, PAPER) if c.learner in neutral})
-    return out
-
-
 # ---------------------------------------------------------------------------------------- evidence
-def reference_over(lb: Leaderboard, chain: str, scenario: str, variants: Sequence[str]) -> dict[str, dict[str, float]]:
-    """Per variant: exact Random, oracle best and worst (``lb.reference``), for the variants a cell covers."""
-    for entry in lb.reference.values():
-        if entry.get("chain") == chain and entry.get("scenario") == scenario:
-            per = entry.get("variants", {})
-            return {v: {"random": per[v]["random_exact"], "best": per[v]["oracle_best"], "worst": per[v]["oracle_worst"]}
-                    for v in variants if v in per}
-    return {}
-
-
-def curve_summary(learn: pd.DataFrame, run_ids: Sequence[str]) -> tuple[list[tuple[int, float]], float] | None:
-    """The mean learn-time metric of the runs at each evaluation step, and its gain over the last
-    quarter of training (how much the curve still rose when training stopped)."""
-    part = learn.loc[learn["run_id"].isin(run_ids)]
-    if part.empty:
-        return None
-    column = "exact_metric" if "exact_metric" in part and part["exact_metric"].notna().any() else "metric"
-    curve = part.groupby("step")[column].mean().sort_index()
-    steps = curve.index.to_numpy()
-    last = steps[-1]
-    before = curve.loc[steps[steps <= 0.75 * last]]
-    gain = float(curve.iloc[-1] - before.iloc[-1]) if len(before) else math.nan
-    return [(int(s), float(v)) for s, v in curve.items()], gain
-
-
-def updates_summary(sources: Sources, run_ids: Sequence[str]) -> str:
-    """One line on what the constrained learner did at its updates (CPO's dual cases and accepted
-    line-search steps; PPO-Lag's passes and Lagrange multiplier), over the cell's runs.
-
-    A release keeps only every Nth update (and each run's last): shares computed from it are
-    estimates, and the line says so, so that the page and a results directory's page may differ
-    by a point or two without either looking wrong."""
-    frames = []
-    strides = set()
-    for run_id in run_ids:
-        side = sources.updates_of(run_id)
-        if side is not None:
-            frames.append(side.read())
-            release = sources.release_of(run_id)
-            strides.add(int(release.manifest.get("updates_stride", 1)) if release is not None else 1)
-    if not frames:
-        return ""
-    u = pd.concat(frames, ignore_index=True)
-    kept = f" (over one update in {max(strides)}, as the release keeps them)" if max(strides) > 1 else ""
-    if "cpo_case" in u and u["cpo_case"].notna().any():
-        cases = u["cpo_case"].value_counts(normalize=True).sort_index()
-        shares = ", ".join(f"case {int(c)} {s:.0%}" for c, s in cases.items())
-        accepted = float((u["accept_step"] > 0).mean())
-        return f"CPO updates{kept}: {shares}; a line-search step accepted in {accepted:.0%} of updates"
-    if "lagrange_multiplier" in u and u["lagrange_multiplier"].notna().any():
-        last = u.sort_values("update").groupby("run_id").tail(1)
-        one = float((u["passes"] == 1).mean()) if "passes" in u else math.nan
-        return (f"PPO-Lag updates{kept}: {one:.0%} stopped after one pass; final Lagrange multiplier "
-                f"mean {last['lagrange_multiplier'].mean():.3f} (range {last['lagrange_multiplier'].min():.3f}-"
-                f"{last['lagrange_multiplier'].max():.3f})")
-    return ""
-
-
 def diagnosis(cell: Cell, lb: Leaderboard, sources: Sources, learn: pd.DataFrame, group: Group) -> list[str]:
     """The evidence section of one deviating (or close) cell, as Markdown lines.
 
@@ -220,9 +74,7 @@ def diagnosis(cell: Cell, lb: Leaderboard, sources: Sources, learn: pd.DataFrame
     the per-variant table, the per-norm breakdown, the learning curve, the update statistics and the
     corrected protocol's value.
     """
-    v = lb.variants
-    mine = v.loc[(v["protocol"] == group.protocol) & (v["preset"] == group.preset) & (v["chain"] == cell.chain)
-                 & (v["scenario"] == cell.scenario) & (v["learner"] == cell.learner)]
+    mine = variant_records(lb, group, cell.chain, cell.scenario, cell.learner)
     refs = reference_over(lb, cell.chain, cell.scenario, list(mine["variant"]))
     lines = [f"### {cell.chain} / {cell.scenario} / {cell.learner}: {cell.verdict}", ""]
     lines.append(_headline(cell, refs))
@@ -318,50 +170,6 @@ def _corrected_lines(cell: Cell, lb: Leaderboard) -> list[str]:
     return ["", f"Corrected protocol: {c.mean:.3f} {c.interval()} ({c.verdict} against the paper)."]
 
 
-def corrected_section(lb: Leaderboard) -> list[str]:
-    """The cells run under the corrected protocol beside the same cells under the paper's.
-
-    The corrected protocol fixes only the reference's arithmetic bugs in the constrained learners
-    (``docs/protocols.md``); a cell "moved" when the two protocols' 95% intervals do not overlap,
-    which is what tells a reader whether a deviation from the paper comes from those bugs."""
-    paper_cells = {(c.chain, c.scenario, c.learner): c for c in cells(lb, PAPER)}
-    neutral = protocol_neutral_learners()
-    affected = [c for c in cells(lb, CORRECTED) if c.learner not in neutral]
-    run = [c for c in affected if c.verdict != "not run"]
-    lines = ["## The corrected protocol", "",
-             ("The `corrected` protocol fixes only the reference's arithmetic bugs in PPO-Lag and CPO "
-              "([Protocols](protocols.md)); the other learners train identically under both. Verdicts by the same rule; "
-              "**moved**: the two protocols' 95% intervals do not overlap."), "",
-             (f"{' and '.join(neutral)} train identically under both protocols (the corrected protocol changes none of "
-              "their settings), so their cells are the paper protocol's above and are not run again; the corrected "
-              f"protocol's Table 1 is the other learners' {len(affected)} cells, of which {len(run)} are run in full."), ""]
-    if not run:
-        return lines + ["No cell has been run in full under the corrected protocol yet.", ""] + _not_run_lines(affected)
-    counts = {v: sum(c.verdict == v for c in run) for v in VERDICTS}
-    lines += [(f"**{len(run)} cells run under the corrected protocol: {counts['reproduces']} reproduce, "
-               f"{counts['close']} are close, {counts['deviates']} deviate.**"), "",
-              "| chain | scenario | learner | paper protocol | corrected | 95% interval | seed sd | runs | paper | verdict | moved |",
-              "|---|---|---|---:|---:|---|---:|---:|---:|---|---|"]
-    for c in run:
-        before = paper_cells.get((c.chain, c.scenario, c.learner))
-        ran_before = before is not None and before.verdict != "not run"
-        moved = "—" if not ran_before else ("yes" if c.ci_high < before.ci_low or c.ci_low > before.ci_high else "no")
-        lines.append(f"| {c.chain} | {c.scenario} | {c.learner} | {f'{before.mean:.3f}' if ran_before else '—'} | "
-                     f"{c.mean:.3f} | {c.interval()} | {c.sd:.3f} | {c.n_runs}/{c.n_expected} | "
-                     f"{c.paper:.3f} | {c.verdict} | {moved} |")
-    return lines + [""] + _not_run_lines(affected)
-
-
-def _not_run_lines(affected: list[Cell]) -> list[str]:
-    """The corrected cells not (fully) run yet, with how many of their runs exist: no verdict on them."""
-    missing = [c for c in affected if c.verdict == "not run"]
-    if not missing:
-        return []
-    listed = "; ".join(f"{c.chain} / {c.scenario} / {c.learner} ({f'{c.n_runs}/{c.n_expected} runs' if c.n_expected else 'no runs yet'})"
-                       for c in missing)
-    return [f"*Not yet run in full under the corrected protocol ({len(missing)} of {len(affected)} cells; no verdict):* {listed}.", ""]
-
-
 def check_notes(notes: dict[tuple[str, str, str], str], path: Path) -> None:
     """Refuse a curated reading keyed to no Table 1 cell: a typo would silently drop it from the page."""
     known = {(chain, scenario, learner) for (chain, scenario), row in paper_values().items() for learner in row}
@@ -450,21 +258,39 @@ def _best_everywhere(table: dict[tuple[str, str, str], Cell], learner: str) -> t
 
 
 # ---------------------------------------------------------------------------------------- page
-def load_notes(path: Path) -> dict[tuple[str, str, str], str]:
-    """Curated readings keyed ``chain / scenario / learner`` (``docs/reproduction_notes.yaml``)."""
+@dataclass(frozen=True)
+class Readings:
+    """The curated readings of ``docs/reproduction_notes.yaml``: per Table 1 cell, and per section of
+    the page that ends in a reading (:data:`SECTION_READINGS`)."""
+
+    cells: dict[tuple[str, str, str], str] = field(default_factory=dict)
+    sections: dict[str, str] = field(default_factory=dict)
+
+
+#: The sections of the page a reading may be keyed to, by the key the notes file uses.
+SECTION_READINGS = (BASELINE_SECTION,)
+
+
+def load_notes(path: Path) -> Readings:
+    """Curated readings keyed ``chain / scenario / learner``, or by a section's name (:data:`SECTION_READINGS`)."""
     if not path.is_file():
-        return {}
+        return Readings()
     raw = yaml.safe_load(path.read_text()) or {}
-    out = {}
+    out = Readings()
     for key, text in raw.items():
+        if str(key) in SECTION_READINGS:
+            out.sections[str(key)] = str(text).strip()
+            continue
         parts = [p.strip() for p in str(key).split("/")]
         if len(parts) != 3:
-            raise UserError(f"{path}: key {key!r} must be 'chain / scenario / learner'")
-        out[(parts[0], parts[1], parts[2])] = str(text).strip()
+            sections = ", ".join(repr(s) for s in SECTION_READINGS)
+            raise UserError(f"{path}: key {key!r} must be 'chain / scenario / learner' or a section ({sections})"
+                            f"{did_you_mean(str(key), list(SECTION_READINGS), n=1)}")
+        out.cells[(parts[0], parts[1], parts[2])] = str(text).strip()
     return out
 
 
-def page(lb: Leaderboard, sources: Sources, learn: pd.DataFrame, figure_dir: Path, img_rel: str, notes: dict) -> str:
+def page(lb: Leaderboard, sources: Sources, learn: pd.DataFrame, figure_dir: Path, img_rel: str, notes: Readings) -> str:
     """The whole Markdown page.
 
     Kept as one template, top to bottom in the page's order; the per-cell evidence is
@@ -495,11 +321,12 @@ def page(lb: Leaderboard, sources: Sources, learn: pd.DataFrame, figure_dir: Pat
         lines.append("None among the cells run so far.")
     for c in off:
         lines += diagnosis(c, lb, sources, learn, PAPER)
-        note = notes.get((c.chain, c.scenario, c.learner))
+        note = notes.cells.get((c.chain, c.scenario, c.learner))
         if note:
             lines += ["", f"*Our reading:* {note}"]
         lines.append("")
     lines += corrected_section(lb)
+    lines += baseline_section(lb, sources, notes.sections.get(BASELINE_SECTION))
     lines += ["## Figure 2 from the same runs", "",
               ("The paper's Figure 2 shows, per chain, the mean morality function of each norm over the runs in which the norm "
               "is relevant (error bars: sd over seeds). Ours, from the runs above:"), ""]
@@ -557,7 +384,7 @@ def run(args: argparse.Namespace) -> int:
     if args.notes != NOTES_FILE and not args.notes.is_file():
         raise UserError(f"--notes {args.notes}: no such file")
     notes = load_notes(args.notes)
-    check_notes(notes, args.notes)
+    check_notes(notes.cells, args.notes)
     sources = load_sources(args.results, releases)
     lb = aggregate(sources.runs, sources.planned)
     reference = compute_reference(reference_requests(lb.table), args.cache, None, chain_definitions(lb.runs))

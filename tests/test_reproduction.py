@@ -10,21 +10,10 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from leaderboard.judging.protocol_change import corrected_section
+from leaderboard.judging.verdicts import CORRECTED, PAPER, cells, cells_as_run, protocol_neutral_learners, verdict
 from leaderboard.outputs.intervals import with_intervals
-from leaderboard.reproduction import (
-    CORRECTED,
-    PAPER,
-    cells,
-    cells_as_run,
-    check_notes,
-    corrected_section,
-    figure2_claims,
-    load_notes,
-    page,
-    protocol_neutral_learners,
-    table1_claims,
-    verdict,
-)
+from leaderboard.reproduction import Readings, check_notes, figure2_claims, load_notes, page, table1_claims
 from leaderboard.runs.aggregate import aggregate, compute_reference, reference_requests, with_reference
 from leaderboard.runs.sources import load_sources
 from leaderboard.stats import compute_stats
@@ -78,7 +67,7 @@ def test_every_cell_gets_a_verdict_and_the_page_explains_the_deviations(board, t
     cpo = next(c for c in table if (c.chain, c.scenario, c.learner) == ("Utility", "Switch5", "CPO"))
     assert cpo.verdict == "deviates" and cpo.mean < cpo.paper
     sources = load_sources(None, [])
-    text = page(lb, sources, learn, tmp_path, "img", {("Utility", "Switch5", "CPO"): "A curated reading."})
+    text = page(lb, sources, learn, tmp_path, "img", Readings(cells={("Utility", "Switch5", "CPO"): "A curated reading."}))
     counts = {v: sum(c.verdict == v for c in table) for v in ("reproduces", "close", "deviates")}
     assert f"**{counts['reproduces']} of 70 cells reproduce, {counts['close']} are close, {counts['deviates']} deviate" in text
     assert text.count("\n| ") >= 70
@@ -151,12 +140,21 @@ def test_the_corrected_section_lists_the_cells_not_yet_run(board) -> None:
 def test_notes_keys_are_checked(tmp_path: Path) -> None:
     good = tmp_path / "notes.yaml"
     good.write_text("Utility / Switch5 / CPO: text\n")
-    assert load_notes(good) == {("Utility", "Switch5", "CPO"): "text"}
+    assert load_notes(good) == Readings(cells={("Utility", "Switch5", "CPO"): "text"})
     bad = tmp_path / "bad.yaml"
     bad.write_text("Utility Switch5 CPO: text\n")
-    with pytest.raises(UserError, match="must be 'chain / scenario / learner'"):
+    with pytest.raises(UserError, match="must be 'chain / scenario / learner' or a section"):
         load_notes(bad)
-    assert load_notes(tmp_path / "absent.yaml") == {}
+    assert load_notes(tmp_path / "absent.yaml") == Readings()
+
+
+def test_a_reading_may_be_keyed_to_a_section(tmp_path: Path) -> None:
+    notes = tmp_path / "notes.yaml"
+    notes.write_text("Choosing a baseline: >-\n  In plain words.\nUtility / Switch5 / CPO: text\n")
+    assert load_notes(notes) == Readings({("Utility", "Switch5", "CPO"): "text"}, {"Choosing a baseline": "In plain words."})
+    notes.write_text("Choosing a basline: words\n")
+    with pytest.raises(UserError, match="did you mean 'Choosing a baseline'"):
+        load_notes(notes)
 
 
 def test_notes_must_name_a_cell_of_table1(tmp_path: Path) -> None:
@@ -180,7 +178,7 @@ def test_corrected_section_sets_each_corrected_cell_beside_the_paper_protocol(tm
     text = "\n".join(corrected_section(lb))
     rows = {line.split("|")[2].strip(): line for line in text.splitlines() if line.startswith("| ") and "---" not in line}
     assert "**14 cells run under the corrected protocol:" in text  # one CPO cell per Table 1 row
-    assert rows["Switch5"].rstrip().endswith("| yes |")
+    assert rows["Switch5"].rstrip().endswith("| up |")
     same = [line for name, line in rows.items() if name not in ("Switch5", "scenario")]
     assert len(same) >= 10 and all(line.rstrip().endswith("| no |") for line in same)
     empty = aggregate(runs.loc[runs["protocol"] == "paper"], {})
@@ -231,5 +229,11 @@ def test_the_committed_reproduction_page_is_what_the_shipped_release_makes(tmp_p
     committed = (ROOT / "docs" / "reproduction.md").read_text()
     assert out.read_text() == committed, "docs/reproduction.md is stale: regenerate it from the release"
     assert "as the release keeps them" in committed  # shares from thinned update diagnostics say so
+    # the reference's KL early stop (spec Q23) shows in the release's own update records: the paper
+    # protocol's PPO-Lag stops after one pass on almost every update, the corrected one rarely does
+    lag = [line.split("|") for line in committed.split("| PPO Lag: chain |")[1].split("\n\n")[0].splitlines()[2:]]
+    one_pass = {(row[1].strip(), row[2].strip()): float(row[6].strip().rstrip("%")) for row in lag}
+    assert {protocol for _, protocol in one_pass} == {"paper", "corrected"}
+    assert all(share >= 90 if protocol == "paper" else share <= 50 for (_, protocol), share in one_pass.items())
     for image in sorted((out.parent / "img" / "reproduction").iterdir()):
         assert (ROOT / "docs" / "img" / "reproduction" / image.name).is_file(), f"{image.name} is not committed"

@@ -1,0 +1,114 @@
+"""Table 1's cells as the reproduction page judges them: each learner cell's numbers beside the
+paper's value, and a verdict by one stated rule (:data:`RULE`).
+
+Why its own module: the paper-protocol table, the corrected-protocol comparison
+(:mod:`leaderboard.judging.protocol_change`) and the checks of the paper's claims all judge the same cells
+the same way; the rule and the cell model live once, below all of them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from leaderboard.outputs.tables import interval_text
+from leaderboard.runs.aggregate import Group, Leaderboard, learner_order, paper_rows, paper_values
+from morality_gym.baselines.specs import learner_spec, trains_alike
+
+#: The learners of Table 1 by their names in conf/algo (the page speaks of their labels).
+TABLE1_LEARNERS = ("random", "ppo", "ppo_shaped", "ppo_lag", "cpo")
+PAPER = Group("paper", "paper")
+CORRECTED = Group("corrected", "paper")
+#: The paper prints Table 1 to three decimals: its 0.019 stands for any value in [0.0185, 0.0195].
+#: Without this a cell whose every run scores the same (an interval of width 0) never "reproduces"
+#: a rounded value, however equal: Utility / Switch2Trolley4Track / PPO scored 0.0190 in all 30 runs.
+PAPER_ROUNDING = 0.0005
+#: The rule, as printed on the page.
+RULE = ("**reproduces**: the paper's value (printed to three decimals, so ±0.0005) meets our 95% bootstrap interval "
+        "of the cell mean (its unrounded bounds: the table prints each interval to the decimals its bounds are stable "
+        "to over bootstrap seeds, three or fewer); **close**: it does not, but lies within two seed standard deviations of our mean; "
+        "**deviates**: farther; **not run**: the cell lacks runs (no verdict on a partial cell).")
+VERDICTS = ("reproduces", "close", "deviates", "not run")
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One learner cell of Table 1 with its numbers and verdict."""
+
+    chain: str
+    scenario: str
+    learner: str
+    mean: float
+    ci_low: float
+    ci_high: float
+    sd: float
+    n_runs: int
+    n_expected: int
+    paper: float
+    verdict: str
+    ci_low_mcse: float = math.nan  # Monte Carlo standard error of each bound: how many decimals it is printed with
+    ci_high_mcse: float = math.nan
+
+    def interval(self) -> str:
+        """``[low, high]``, each bound to the decimals it is stable to (at most three), or a dash."""
+        return interval_text({"ci_low": self.ci_low, "ci_high": self.ci_high, "ci_low_mcse": self.ci_low_mcse,
+                              "ci_high_mcse": self.ci_high_mcse}) or "—"
+
+
+def verdict(mean: float, low: float, high: float, sd: float, paper: float, complete: bool) -> str:
+    """The cell's verdict under :data:`RULE`."""
+    if not complete or math.isnan(mean):
+        return "not run"
+    slack = PAPER_ROUNDING + 1e-12
+    if not math.isnan(low) and low - slack <= paper <= high + slack:
+        return "reproduces"
+    if not math.isnan(sd) and abs(mean - paper) <= 2 * sd + slack:
+        return "close"
+    return "deviates"
+
+
+def _num(value: Any) -> float:
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        return math.nan
+    return out
+
+
+def cells(lb: Leaderboard, group: Group) -> list[Cell]:
+    """Every (chain, scenario, learner) of the paper's Table 1 in ``group``, in the paper's order."""
+    table = lb.table.loc[(lb.table["protocol"] == group.protocol) & (lb.table["preset"] == group.preset)
+                         & (lb.table["kind"] == "learner")]
+    paper = paper_values()
+    out = []
+    for chain, scenario in paper_rows():
+        for learner in learner_order(paper[(chain, scenario)]):
+            row = table.loc[(table["chain"] == chain) & (table["scenario"] == scenario) & (table["learner"] == learner)]
+            r = row.iloc[0].to_dict() if len(row) else {}
+            mean, low, high, sd = (_num(r.get(k)) for k in ("mean", "ci_low", "ci_high", "std"))
+            value = paper[(chain, scenario)][learner]
+            complete = bool(r.get("complete", False))
+            out.append(Cell(chain, scenario, learner, mean, low, high, sd, int(_num(r.get("n_runs")) or 0) if r else 0,
+                            int(_num(r.get("n_expected")) or 0) if r else 0, value,
+                            verdict(mean, low, high, sd, value, complete),
+                            _num(r.get("ci_low_mcse")), _num(r.get("ci_high_mcse"))))
+    return out
+
+
+def protocol_neutral_learners() -> list[str]:
+    """The labels of Table 1's learners that train identically under both protocols: the corrected
+    protocol (conf/protocol/corrected.yaml) overrides nothing of theirs, and Random's evaluation is
+    not among them (its final evaluation's random stream is a protocol setting). Their corrected
+    cells are their paper-protocol cells, so the corrected sweep does not run them again."""
+    return [learner_spec(name).label for name in TABLE1_LEARNERS if trains_alike(name, ("paper", "corrected"))]
+
+
+def cells_as_run(lb: Leaderboard, group: Group) -> dict[tuple[str, str, str], Cell]:
+    """``group``'s Table 1 cells by (chain, scenario, learner); under the corrected protocol a
+    protocol-neutral learner's cells are its paper-protocol ones (:func:`protocol_neutral_learners`)."""
+    out = {(c.chain, c.scenario, c.learner): c for c in cells(lb, group)}
+    if group != PAPER:
+        neutral = set(protocol_neutral_learners())
+        out.update({(c.chain, c.scenario, c.learner): c for c in cells(lb, PAPER) if c.learner in neutral})
+    return out
