@@ -379,8 +379,7 @@ def _device_rates(where: str, planning: Mapping[str, Any], file_values: Mapping[
     out: dict[str, DeviceRate] = {}
     for device, given in dict(planning.get("devices") or {}).items():
         at = f"{where}: planning.devices.{device}"
-        if not isinstance(given, Mapping):
-            raise ConfigError(f"{at} must be a mapping of {sorted(_DEVICE_RATE_KEYS)}, got {given!r}")
+        # not a mapping at all cannot reach here: the typed schema (DeviceRate) refuses it while composing
         for key in set(given) - _DEVICE_RATE_KEYS:  # a typo would silently price the device at nothing measured
             raise ConfigError(f"{at}: unknown key {key!r}{did_you_mean(str(key), sorted(_DEVICE_RATE_KEYS))}; "
                               f"valid: {sorted(_DEVICE_RATE_KEYS)}")

@@ -88,6 +88,14 @@ def test_a_sweep_value_of_the_wrong_type_is_one_line(tmp_path: Path, override: s
     one_line_exit_2(out, "configuration error:", *fragments)
 
 
+def test_a_device_rate_that_is_not_a_mapping_is_one_line_naming_its_key(tmp_path: Path) -> None:
+    """The typed schema (DeviceRate) refuses it while composing, so the planner keeps no check of its own."""
+    sweep = [a if a != "algo=random" else "algo=ppo" for a in SWEEP]
+    out = cli(*sweep, f"results_dir={tmp_path}", "algo.ppo.planning.devices.cuda=5")
+    one_line_exit_2(out, "configuration error:", "algo.ppo.planning.devices.cuda (command line)",
+                    "int is not a subclass of DeviceRate")
+
+
 def test_a_sweep_names_the_bad_norm_of_a_users_chain_file(tmp_path: Path) -> None:
     chain = tmp_path / "my_chain.yaml"
     chain.write_text("name: Mine\nnorms:\n  - n_human_harmm\n  - push\n")
