@@ -30,7 +30,7 @@ from leaderboard.runs.sources import RESULTS_SOURCE, Sources
 from leaderboard.web.ranking_page import SCORE_COLOURS, group_frame, left_out_rows, matrix_cell
 from leaderboard.web.render import clean_records, is_missing, scenario_href, section_id
 from leaderboard.web.site_state import SiteBuild
-from morality_gym.baselines.specs import trains_alike
+from morality_gym.baselines.specs import protocol_spec, trains_alike
 
 
 def group_origin(lb: Leaderboard, sources: Sources, group: Group) -> str:
@@ -57,7 +57,10 @@ def alike_note(lb: Leaderboard, group: Group) -> str:
             continue
         runs = lb.runs.loc[(lb.runs["protocol"] == other.protocol) & (lb.runs["preset"] == other.preset)]
         missing = runs.loc[~runs["learner"].isin(here), ["algo", "learner"]].drop_duplicates()
-        alike = [label for algo, label in missing.itertuples(index=False) if trains_alike(algo, (group.protocol, other.protocol))]
+        if missing.empty:
+            continue
+        specs = (protocol_spec(group.protocol), protocol_spec(other.protocol))  # each file read once, not per learner
+        alike = [label for algo, label in missing.itertuples(index=False) if trains_alike(algo, specs)]
         if alike:
             names = sorted(set(alike))
             one = len(names) == 1
