@@ -201,6 +201,7 @@ def report(results_dir: Path, preset: str, protocol: str, engine: str, workers: 
     rates = measured_rates(results_dir, protocol, preset, engine, cpu_only)
     factors = scenario_factors(reference, protocol, engine, rates) if reference else {}
     lines = _measured_table(results_dir, preset, protocol, engine, rates)
+    lines += _against_plan_table(results_dir, preset, protocol, engine, workers[0], extra)
     lines += _projected_table(preset, protocol, engine, workers, extra, rates, factors)
     lines += ["", ("Each job is priced at the measured core-seconds per step of its learner times its runs' budgets "
                    "(evaluations included, as they are in each run's wall time); the workers take the jobs in the sweep's "
@@ -222,6 +223,41 @@ def _measured_table(results_dir: Path, preset: str, protocol: str, engine: str, 
         clock = "CPU" if rate.cpu_runs == rate.runs else "wall" if rate.cpu_runs == 0 else f"CPU {rate.cpu_runs}, wall {rate.runs - rate.cpu_runs}"
         lines.append(f"| {learner_spec(algo).label} | {rate.runs} | {rows} | "
                      f"{', '.join(map(str, rate.fleet_sizes)) or 'single'} | {clock} | {duration(rate.core_seconds)} | {per} |")
+    return lines
+
+
+def planned_core_seconds(jobs: Sequence[Any]) -> dict[str, float]:
+    """Each planned run's share of the planner's estimate: its own for a run trained alone, an equal
+    share of its fleet's for one trained in a fleet (the planner prices a fleet as a whole)."""
+    out: dict[str, float] = {}
+    for job in jobs:
+        for run in job.runs:
+            out[run.run_id] = run.est_seconds if job.engine == "single" else job.est_seconds / len(job.runs)
+    return out
+
+
+def _against_plan_table(results_dir: Path, preset: str, protocol: str, engine: str, workers: int,
+                        extra: Sequence[str]) -> list[str]:
+    """Per learner: the measured core time of its finished runs beside what the planner priced those
+    same runs at (alone on an idle machine), and their ratio: how far this machine, in this session,
+    is from the rates fitted in ``conf/algo``."""
+    frame = finished_runs(results_dir, protocol, preset, engine)
+    if frame.empty:
+        return []
+    with tempfile.TemporaryDirectory() as scratch:
+        jobs, _ = table1_jobs(preset, protocol, engine, workers, Path(scratch), extra)
+    priced = planned_core_seconds(jobs)
+    lines = ["", f"### Against the planner: the same runs ({workers} workers' jobs)", "",
+             "| learner | runs | measured core time | planner's estimate | measured / planned | runs not in the plan |",
+             "|---|---:|---:|---:|---:|---:|"]
+    measured = compute_seconds(frame)
+    for algo, group in frame.groupby("algo"):
+        known = group["run_id"].astype(str).isin(priced)
+        ids = group.loc[known, "run_id"].astype(str)
+        core, planned = float(measured[group.index[known]].sum()), float(sum(priced[i] for i in ids))
+        ratio = f"{core / planned:.2f}" if planned > 0 else "—"
+        lines.append(f"| {learner_spec(str(algo)).label} | {int(known.sum())} | {duration(core)} | {duration(planned)} | "
+                     f"{ratio} | {int((~known).sum())} |")
     return lines
 
 

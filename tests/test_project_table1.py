@@ -114,3 +114,28 @@ def test_cpu_time_only_prices_from_the_runs_that_recorded_it(measured: tuple[Pat
     assert (cpu["ppo"].runs, cpu["ppo"].cpu_runs) == (len(newer), len(newer))
     assert cpu["ppo"].seconds_per_step == pytest.approx(sum(r["cpu_time_s"] for r in newer) / sum(r["budget"] for r in newer))
     assert f"CPU {len(ppo) - 3}, wall 3" in "\n".join(tool._measured_table(results, "quick", "paper", "single", mixed))
+
+
+
+def test_against_the_planner_sets_each_learners_core_time_beside_the_plans_price_of_the_same_runs(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 32 asks for a sweep's time per learner against the planner: the same runs, priced by the plan.
+    Finished runs are the plan's own (ids and all), each at twice its planned price, plus one run the
+    plan does not have."""
+    import pandas as pd
+
+    import benchmarks.project_table1 as tool
+
+    jobs, _sweep = table1_jobs("quick", "paper", "fleet", 2, tmp_path / "scratch")
+    priced = tool.planned_core_seconds(jobs)
+    assert len(priced) == 630 and all(v > 0 for v in priced.values())
+    fleets = [j for j in jobs if j.engine == "fleet"]
+    assert fleets and all(priced[r.run_id] == pytest.approx(j.est_seconds / len(j.runs)) for j in fleets for r in j.runs)
+    cpo = [r for j in jobs for r in j.runs if r.config["algo"]["name"] == "cpo"][:20]
+    frame = pd.DataFrame({"run_id": [r.run_id for r in cpo] + ["not-planned"], "algo": "cpo",
+                          "cpu_time_s": [2 * priced[r.run_id] for r in cpo] + [1e6], "wall_time_s": 1.0})
+    monkeypatch.setattr(tool, "finished_runs", lambda *args: frame)
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
+            for line in tool._against_plan_table(tmp_path, "quick", "paper", "fleet", 2, ())
+            if line.startswith("| ") and not line.startswith("| learner")}
+    assert rows["CPO"][0] == "20" and rows["CPO"][3:] == ["2.00", "1"]  # the unplanned run is counted apart, not priced
