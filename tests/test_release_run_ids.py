@@ -1,6 +1,6 @@
-"""The shipped release's runs keep their ids when the configuration is resolved once (issue 34).
+"""The shipped releases' runs keep their ids when the configuration is resolved once (issue 34).
 
-``releases/paper-table1-v1/runs.parquet`` records each run's id and its resolved configuration.
+Each ``releases/<name>/runs.parquet`` records each run's id and its resolved configuration.
 A run is found on disk by its id, so the one resolved run configuration
 (:class:`morality_gym.results.run_config.RunConfig`) must give every recorded run its recorded id: read back
 from its record, and built afresh by resolving the Table 1 sweep through the layers of
@@ -20,15 +20,20 @@ from runners.config import validate
 from runners.paths import CONF_DIR
 from runners.plan import plan
 
-RELEASE = Path(__file__).resolve().parents[1] / "releases" / "paper-table1-v1" / "runs.parquet"
+#: Every release shipped in the repository: a new one is checked without editing this test.
+RELEASES = sorted((Path(__file__).resolve().parents[1] / "releases").glob("*/runs.parquet"))
 
 
 @pytest.fixture(scope="module")
 def release() -> list[tuple[str, str, dict]]:
-    """(run id, protocol, recorded config) of every run of the release."""
-    table = pq.read_table(RELEASE, columns=["run_id", "protocol", "config"])
-    return [(run_id, protocol, json.loads(config)) for run_id, protocol, config in
-            zip(table.column("run_id").to_pylist(), table.column("protocol").to_pylist(), table.column("config").to_pylist())]
+    """(run id, protocol, recorded config) of every run of every shipped release."""
+    assert RELEASES, "no release is shipped in releases/"
+    out = []
+    for path in RELEASES:
+        table = pq.read_table(path, columns=["run_id", "protocol", "config"])
+        out += [(run_id, protocol, json.loads(config)) for run_id, protocol, config in
+                zip(table.column("run_id").to_pylist(), table.column("protocol").to_pylist(), table.column("config").to_pylist())]
+    return out
 
 
 def test_a_recorded_config_reads_back_with_its_run_id(release: list[tuple[str, str, dict]]) -> None:
