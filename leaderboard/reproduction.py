@@ -345,12 +345,26 @@ def page(lb: Leaderboard, sources: Sources, learn: pd.DataFrame, figure_dir: Pat
 
 
 def _claims_table(paper: list[tuple[str, str, str]], corrected: list[tuple[str, str, str]]) -> list[str]:
-    """One row per claim: our numbers and result under the paper protocol, then under the corrected one."""
+    """One row per claim: our numbers and result under the paper protocol, then under the corrected
+    one; then, in one line, the claims whose result the corrected protocol changes."""
     lines = ["| the paper says | ours | on our runs | corrected protocol |", "|---|---|---|---|"]
     for (text, numbers, result), (_, numbers_c, result_c) in zip(paper, corrected):
         under_corrected = result_c if result_c == "not run" or numbers_c == numbers else f"{result_c}: {numbers_c}"
         lines.append(f"| {text} | {numbers} | {result} | {under_corrected} |")
-    return lines
+    return lines + ["", _claims_changed(paper, corrected)]
+
+
+def _claims_changed(paper: list[tuple[str, str, str]], corrected: list[tuple[str, str, str]]) -> str:
+    """Which statements come out differently under the corrected protocol, and how many cannot be
+    checked on it yet: the question a reader of both protocols asks first."""
+    checked = [(p, c) for p, c in zip(paper, corrected) if c[2] != "not run" and p[2] != "not run"]
+    changed = [f"\"{p[0]}\" ({p[2]} → {c[2]})" for p, c in checked if p[2] != c[2]]
+    waiting = len(paper) - len(checked)
+    pending = f"; {waiting} cannot be checked on the corrected protocol's runs yet (not run)" if waiting else ""
+    if not changed:
+        return f"**Under the corrected protocol, none of the {len(checked)} statements checked comes out differently{pending}.**"
+    return (f"**Under the corrected protocol, {len(changed)} of the {len(checked)} statements checked come"
+            f"{'s' if len(changed) == 1 else ''} out differently{pending}:** {'; '.join(changed)}.")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -233,3 +233,15 @@ def test_the_committed_reproduction_page_is_what_the_shipped_releases_make(tmp_p
     assert all(share >= 90 if protocol == "paper" else share <= 50 for (_, protocol), share in one_pass.items())
     for image in sorted((out.parent / "img" / "reproduction").iterdir()):
         assert (ROOT / "docs" / "img" / "reproduction" / image.name).is_file(), f"{image.name} is not committed"
+
+
+def test_the_claims_the_corrected_protocol_changes_are_named_in_one_line() -> None:
+    from leaderboard.reproduction import _claims_changed
+
+    paper = [("A holds", "0.9", "holds"), ("B holds", "0.2", "does not hold"), ("C", "0.5", "holds")]
+    same = [("A holds", "0.91", "holds"), ("B holds", "0.3", "does not hold"), ("C", "—", "not run")]
+    assert _claims_changed(paper, same) == ("**Under the corrected protocol, none of the 2 statements checked comes out "
+                                            "differently; 1 cannot be checked on the corrected protocol's runs yet (not run).**")
+    flipped = [("A holds", "0.4", "does not hold"), ("B holds", "0.3", "does not hold"), ("C", "0.6", "holds")]
+    assert _claims_changed(paper, flipped) == ("**Under the corrected protocol, 1 of the 3 statements checked comes out "
+                                               "differently:** \"A holds\" (holds → does not hold).")
