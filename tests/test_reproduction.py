@@ -225,7 +225,7 @@ def test_the_committed_reproduction_page_is_what_the_shipped_releases_make(tmp_p
     committed = (ROOT / "docs" / "reproduction.md").read_text()
     assert out.read_text() == committed, "docs/reproduction.md is stale: regenerate it from the release"
     assert "as the release keeps them" in committed  # shares from thinned update diagnostics say so
-    # the reference's KL early stop (spec Q23) shows in the release's own update records: the paper
+    # the reference's KL early stop (docs/protocols.md#ppo-lag-kl-early-stop-sums-over-states) shows in the release's own update records: the paper
     # protocol's PPO-Lag stops after one pass on almost every update, the corrected one rarely does
     lag = [line.split("|") for line in committed.split("| PPO Lag: chain |")[1].split("\n\n")[0].splitlines()[2:]]
     one_pass = {(row[1].strip(), row[2].strip()): float(row[6].strip().rstrip("%")) for row in lag}

@@ -94,18 +94,18 @@ def is_ppo_lag(updates: Updates) -> bool:
 
 
 def cpo_case_shares(updates: Updates) -> dict[int, float]:
-    """The share of updates that took each of OmniSafe's dual cases (spec Q26), by case number."""
+    """The share of updates that took each of OmniSafe's dual cases (docs/protocols.md#cpo-uses-omnisafes-dual-solution), by case number."""
     shares = updates.frame["cpo_case"].dropna().value_counts(normalize=True).sort_index()
     return {int(case): float(share) for case, share in shares.items()}
 
 
 def accepted_share(updates: Updates) -> float:
-    """The share of CPO updates whose line search accepted a step (the actor moved; spec Q27)."""
+    """The share of CPO updates whose line search accepted a step (the actor moved; docs/protocols.md#cpo-line-search)."""
     return float((updates.frame["accept_step"] > 0).mean())
 
 
 def one_pass_share(updates: Updates) -> float:
-    """The share of PPO-Lag updates that stopped after their first pass (the KL early stop, spec Q23)."""
+    """The share of PPO-Lag updates that stopped after their first pass (the KL early stop, docs/protocols.md#ppo-lag-kl-early-stop-sums-over-states)."""
     u = updates.frame
     return float((u["passes"] == 1).mean()) if "passes" in u else math.nan
 

@@ -246,7 +246,8 @@ def _order_table(lb: Leaderboard) -> list[str]:
 
 def _updates_tables(sources: Sources, lb: Leaderboard, pairs: Sequence[Pair]) -> list[str]:
     """What the fixed arithmetic did at the updates, per chain: PPO-Lag's passes and final multipliers
-    (the KL early stop, spec Q23), CPO's dual cases and accepted steps (spec Q26-Q27)."""
+    (the KL early stop, docs/protocols.md#ppo-lag-kl-early-stop-sums-over-states), CPO's dual cases and accepted steps
+    (docs/protocols.md#cpo-uses-omnisafes-dual-solution, docs/protocols.md#cpo-line-search)."""
     lag_rows, cpo_rows, strides = [], [], set()
     for learner, chain in dict.fromkeys((p.paper.learner, p.paper.chain) for p in pairs):
         part = [p for p in pairs if (p.paper.learner, p.paper.chain) == (learner, chain)]
@@ -268,8 +269,10 @@ def _updates_tables(sources: Sources, lb: Leaderboard, pairs: Sequence[Pair]) ->
         return []
     lines = ["### What the fixes did at the updates", "",
              ("Over the runs of the cells above, per chain and protocol. The paper protocol stops PPO-Lag's epoch after the "
-              "first pass on almost every update (its KL early stop sums the KL over the states, spec Q23) and solves "
-              "CPO's dual problem OmniSafe's way (spec Q26); the corrected protocol uses the mean KL and the exact dual solution."
+              "first pass on almost every update (its KL early stop sums the KL over the states: "
+              "[Protocols](protocols.md#ppo-lag-kl-early-stop-sums-over-states)) and solves CPO's dual problem OmniSafe's way "
+              "([Protocols](protocols.md#cpo-uses-omnisafes-dual-solution)); the corrected protocol uses the mean KL and the "
+              "exact dual solution."
               + (f" Shares are over the updates the sources keep (a release keeps one in {max(strides)})." if max(strides, default=1) > 1 else "")),
              ""]
     if lag_rows:
