@@ -201,8 +201,10 @@ def report(results_dir: Path, preset: str, protocol: str, engine: str, workers: 
     rates = measured_rates(results_dir, protocol, preset, engine, cpu_only)
     factors = scenario_factors(reference, protocol, engine, rates) if reference else {}
     lines = _measured_table(results_dir, preset, protocol, engine, rates)
-    lines += _against_plan_table(results_dir, preset, protocol, engine, workers[0], extra)
-    lines += _projected_table(preset, protocol, engine, workers, extra, rates, factors)
+    with tempfile.TemporaryDirectory() as scratch:
+        runs, sweep = table1_plan(preset, protocol, engine, Path(scratch), extra)  # composed and planned once for both tables
+        lines += _against_plan_table(results_dir, preset, protocol, engine, plan_jobs(runs, sweep, workers[0]), workers[0])
+        lines += _projected_table(preset, protocol, engine, workers, extra, rates, factors, runs, sweep)
     lines += ["", ("Each job is priced at the measured core-seconds per step of its learner times its runs' budgets "
                    "(evaluations included, as they are in each run's wall time); the workers take the jobs in the sweep's "
                    "order (longest estimated first), each as soon as it is free. The planner's estimate is what "
@@ -236,16 +238,14 @@ def planned_core_seconds(jobs: Sequence[Any]) -> dict[str, float]:
     return out
 
 
-def _against_plan_table(results_dir: Path, preset: str, protocol: str, engine: str, workers: int,
-                        extra: Sequence[str]) -> list[str]:
+def _against_plan_table(results_dir: Path, preset: str, protocol: str, engine: str, jobs: Sequence[Any],
+                        workers: int) -> list[str]:
     """Per learner: the measured core time of its finished runs beside what the planner priced those
     same runs at (alone on an idle machine), and their ratio: how far this machine, in this session,
     is from the rates fitted in ``conf/algo``."""
     frame = finished_runs(results_dir, protocol, preset, engine)
     if frame.empty:
         return []
-    with tempfile.TemporaryDirectory() as scratch:
-        jobs, _ = table1_jobs(preset, protocol, engine, workers, Path(scratch), extra)
     priced = planned_core_seconds(jobs)
     lines = ["", f"### Against the planner: the same runs ({workers} workers' jobs)", "",
              "| learner | runs | measured core time | planner's estimate | measured / planned | runs not in the plan |",
@@ -262,8 +262,9 @@ def _against_plan_table(results_dir: Path, preset: str, protocol: str, engine: s
 
 
 def _projected_table(preset: str, protocol: str, engine: str, workers: Sequence[int], extra: Sequence[str],
-                     rates: dict[str, Rate], factors: dict[tuple[str, str], float]) -> list[str]:
-    """One row per worker count: the whole Table 1's jobs priced at the measured rates."""
+                     rates: dict[str, Rate], factors: dict[tuple[str, str], float], runs: list[Any],
+                     sweep: Any) -> list[str]:
+    """One row per worker count: the whole Table 1's jobs (``runs`` of ``sweep``) priced at the measured rates."""
     # pyarrow, OmegaConf wait: only the benchmark that runs it needs them
     from runners.jobs import jobs_estimate, makespan
 
@@ -271,16 +272,14 @@ def _projected_table(preset: str, protocol: str, engine: str, workers: Sequence[
     lines = ["", f"### Projected: the whole Table 1 ({preset} preset, {protocol} protocol, engine {engine}){title}", "",
              "| workers (cores) | runs | jobs | core time | projected wall time | planner's estimate | unmeasured learners |",
              "|---:|---:|---:|---:|---:|---:|---|"]
-    with tempfile.TemporaryDirectory() as scratch:
-        runs, sweep = table1_plan(preset, protocol, engine, Path(scratch), extra)  # composed and planned once
-        for w in workers:
-            jobs = plan_jobs(runs, sweep, w)
-            priced = [job_seconds(j, rates, factors) for j in jobs]
+    for w in workers:
+        jobs = plan_jobs(runs, sweep, w)
+        priced = [job_seconds(j, rates, factors) for j in jobs]
 
-            missing = sorted({a.spec.label for a in sweep.algos if a.spec.name not in rates})
-            lines.append(f"| {w} | {sum(len(j.runs) for j in jobs):,} | {len(jobs)} | {duration(sum(p for p, _ in priced))} | "
-                         f"**{duration(makespan((p for p, _ in priced), w))}** | {duration(jobs_estimate(jobs, set(), w))} | "
-                         f"{', '.join(missing) or 'none'} |")
+        missing = sorted({a.spec.label for a in sweep.algos if a.spec.name not in rates})
+        lines.append(f"| {w} | {sum(len(j.runs) for j in jobs):,} | {len(jobs)} | {duration(sum(p for p, _ in priced))} | "
+                     f"**{duration(makespan((p for p, _ in priced), w))}** | {duration(jobs_estimate(jobs, set(), w))} | "
+                     f"{', '.join(missing) or 'none'} |")
     return lines
 
 

@@ -136,6 +136,6 @@ def test_against_the_planner_sets_each_learners_core_time_beside_the_plans_price
                           "cpu_time_s": [2 * priced[r.run_id] for r in cpo] + [1e6], "wall_time_s": 1.0})
     monkeypatch.setattr(tool, "finished_runs", lambda *args: frame)
     rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
-            for line in tool._against_plan_table(tmp_path, "quick", "paper", "fleet", 2, ())
+            for line in tool._against_plan_table(tmp_path, "quick", "paper", "fleet", jobs, 2)
             if line.startswith("| ") and not line.startswith("| learner")}
     assert rows["CPO"][0] == "20" and rows["CPO"][3:] == ["2.00", "1"]  # the unplanned run is counted apart, not priced
