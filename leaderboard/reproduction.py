@@ -27,18 +27,15 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from leaderboard.judging.cell_evidence import curve_summary, reference_over, updates_summary, variant_records
-from leaderboard.judging.protocol_change import BASELINE_SECTION, baseline_section, corrected_section
-from leaderboard.judging.verdicts import (
-    CORRECTED,
-    PAPER,
-    RULE,
-    VERDICTS,
-    Cell,
-    cells,
-    cells_as_run,
-    protocol_neutral_learners,
+from leaderboard.judging.cell_evidence import (
+    curve_summary,
+    read_updates,
+    reference_over,
+    updates_summary,
+    variant_records,
 )
+from leaderboard.judging.protocol_change import BASELINE_SECTION, baseline_section, corrected_section
+from leaderboard.judging.verdicts import CORRECTED, PAPER, RULE, Cell, CellKey, Judgement, count_verdicts, judge
 from leaderboard.outputs.intervals import with_intervals
 from leaderboard.outputs.paper_figures import norm_label, write_figures
 from leaderboard.runs.aggregate import (
@@ -67,12 +64,13 @@ SWINGING = 0.05
 
 
 # ---------------------------------------------------------------------------------------- evidence
-def diagnosis(cell: Cell, lb: Leaderboard, sources: Sources, learn: pd.DataFrame, group: Group) -> list[str]:
+def diagnosis(cell: Cell, lb: Leaderboard, sources: Sources, learn: pd.DataFrame, group: Group,
+              corrected: Cell | None = None) -> list[str]:
     """The evidence section of one deviating (or close) cell, as Markdown lines.
 
     One helper per piece of evidence, in the page's order: the headline against the reachable range,
     the per-variant table, the per-norm breakdown, the learning curve, the update statistics and the
-    corrected protocol's value.
+    corrected protocol's value (``corrected``: the same cell under it).
     """
     mine = variant_records(lb, group, cell.chain, cell.scenario, cell.learner)
     refs = reference_over(lb, cell.chain, cell.scenario, list(mine["variant"]))
@@ -82,10 +80,10 @@ def diagnosis(cell: Cell, lb: Leaderboard, sources: Sources, learn: pd.DataFrame
     lines += _norm_lines(cell, lb, group)
     all_ids = [i for ids in mine["run_ids"] for i in ids]
     lines += _curve_lines(learn, all_ids, cell.paper, cell.mean)
-    updates = updates_summary(sources, all_ids)
+    updates = updates_summary(read_updates(sources, all_ids))
     if updates:
         lines += ["", updates + "."]
-    lines += _corrected_lines(cell, lb)
+    lines += _corrected_lines(corrected)
     return lines
 
 
@@ -161,13 +159,11 @@ def _curve_lines(learn: pd.DataFrame, run_ids: list[str], paper: float, mean: fl
             + ", ".join(f"{s // 1000}k: {m:.3f}" for s, m in shown) + trend + final]
 
 
-def _corrected_lines(cell: Cell, lb: Leaderboard) -> list[str]:
+def _corrected_lines(corrected: Cell | None) -> list[str]:
     """The same cell under the corrected protocol, when it was run."""
-    corrected = [c for c in cells(lb, CORRECTED) if (c.chain, c.scenario, c.learner) == (cell.chain, cell.scenario, cell.learner)]
-    if not corrected or corrected[0].verdict == "not run":
+    if corrected is None or corrected.verdict == "not run":
         return []
-    c = corrected[0]
-    return ["", f"Corrected protocol: {c.mean:.3f} {c.interval()} ({c.verdict} against the paper)."]
+    return ["", f"Corrected protocol: {corrected.mean:.3f} {corrected.interval()} ({corrected.verdict} against the paper)."]
 
 
 def check_notes(notes: dict[tuple[str, str, str], str], path: Path) -> None:
@@ -182,12 +178,12 @@ def check_notes(notes: dict[tuple[str, str, str], str], path: Path) -> None:
 
 
 # ---------------------------------------------------------------------------------------- figure 2
-def figure2_claims(lb: Leaderboard, group: Group) -> list[tuple[str, str, str]]:
+def figure2_claims(lb: Leaderboard, judged: Judgement, group: Group) -> list[tuple[str, str, str]]:
     """(claim, our numbers, holds / does not hold / not run) for each statement of the paper about Figure 2."""
     data = yaml.safe_load(CLAIMS_FILE.read_text())["claims"]
     frame = lb.norms_by_chain
-    neutral = set(protocol_neutral_learners()) if group != PAPER else set()
-    table = cells_as_run(lb, group)
+    neutral = set(judged.neutral) if group != PAPER else set()
+    table = judged.as_run(group)
     out = []
     for claim in data:
         learners = [claim["learner"], *claim.get("than", [])]
@@ -196,7 +192,7 @@ def figure2_claims(lb: Leaderboard, group: Group) -> list[tuple[str, str, str]]:
             out.append((claim["text"], "—", "not run"))
             continue
         def value(learner: str, claim: dict[str, Any] = claim) -> float:
-            # a protocol-neutral learner's bars are its paper-protocol ones (cells_as_run)
+            # a protocol-neutral learner's bars are its paper-protocol ones (Judgement.as_run)
             protocol = PAPER.protocol if learner in neutral else group.protocol
             row = frame.loc[(frame["protocol"] == protocol) & (frame["preset"] == group.preset) & (frame["chain"] == claim["chain"])
                             & (frame["learner"] == learner) & (frame["norm"] == claim["norm"])]
@@ -220,10 +216,10 @@ def figure2_claims(lb: Leaderboard, group: Group) -> list[tuple[str, str, str]]:
     return out
 
 
-def table1_claims(lb: Leaderboard, group: Group) -> list[tuple[str, str, str]]:
+def table1_claims(judged: Judgement, group: Group) -> list[tuple[str, str, str]]:
     """(claim, our numbers, holds / does not hold / not run) for each statement of the paper about
-    its Table 1 (``table1_claims.yaml``), on ``group``'s cells (:func:`cells_as_run`)."""
-    table = cells_as_run(lb, group)
+    its Table 1 (``table1_claims.yaml``), on ``group``'s cells (:meth:`Judgement.as_run`)."""
+    table = judged.as_run(group)
     out = []
     for claim in yaml.safe_load(TABLE1_CLAIMS_FILE.read_text())["claims"]:
         if claim["kind"] == "best_everywhere":
@@ -240,7 +236,7 @@ def table1_claims(lb: Leaderboard, group: Group) -> list[tuple[str, str, str]]:
     return out
 
 
-def _best_everywhere(table: dict[tuple[str, str, str], Cell], learner: str) -> tuple[str, str]:
+def _best_everywhere(table: dict[CellKey, Cell], learner: str) -> tuple[str, str]:
     """(numbers, result) of "``learner`` scores highest in every row": the rows where it does not, by how much."""
     rows: dict[tuple[str, str], dict[str, Cell]] = {}
     for (chain, scenario, name), cell in table.items():
@@ -290,14 +286,15 @@ def load_notes(path: Path) -> Readings:
     return out
 
 
-def page(lb: Leaderboard, sources: Sources, learn: pd.DataFrame, figure_dir: Path, img_rel: str, notes: Readings) -> str:
+def page(lb: Leaderboard, judged: Judgement, sources: Sources, learn: pd.DataFrame, figure_dir: Path, img_rel: str,
+         notes: Readings) -> str:
     """The whole Markdown page.
 
     Kept as one template, top to bottom in the page's order; the per-cell evidence is
     :func:`diagnosis`'s and the Figure 2 checks are :func:`figure2_claims`'s.
     """
-    table = cells(lb, PAPER)
-    counts = {v: sum(c.verdict == v for c in table) for v in VERDICTS}
+    table = judged.paper
+    counts = count_verdicts(table)
     marks = {"reproduces": "✓", "close": "≈", "deviates": "✗", "not run": "…"}
     lines = ["# Reproducing Table 1", "",
              "Generated by `python -m leaderboard.reproduction` from " + sources.name + "; do not edit by hand "
@@ -320,13 +317,13 @@ def page(lb: Leaderboard, sources: Sources, learn: pd.DataFrame, figure_dir: Pat
     if not off:
         lines.append("None among the cells run so far.")
     for c in off:
-        lines += diagnosis(c, lb, sources, learn, PAPER)
+        lines += diagnosis(c, lb, sources, learn, PAPER, judged.cell(CORRECTED, c.key))
         note = notes.cells.get((c.chain, c.scenario, c.learner))
         if note:
             lines += ["", f"*Our reading:* {note}"]
         lines.append("")
-    lines += corrected_section(lb)
-    lines += baseline_section(lb, sources, notes.sections.get(BASELINE_SECTION))
+    lines += corrected_section(judged)
+    lines += baseline_section(lb, judged, sources, notes.sections.get(BASELINE_SECTION))
     lines += ["## Figure 2 from the same runs", "",
               ("The paper's Figure 2 shows, per chain, the mean morality function of each norm over the runs in which the norm "
               "is relevant (error bars: sd over seeds). Ours, from the runs above:"), ""]
@@ -336,11 +333,11 @@ def page(lb: Leaderboard, sources: Sources, learn: pd.DataFrame, figure_dir: Pat
             lines.append(f"![Figure 2, {chain}]({img_rel}/{src.name})")
     lines += ["", ("The paper's description of Figure 2, statement by statement, against our bars (the last column: the "
                    "same statement on the corrected protocol's runs, where they differ):"), ""]
-    lines += _claims_table(figure2_claims(lb, PAPER), figure2_claims(lb, CORRECTED))
+    lines += _claims_table(figure2_claims(lb, judged, PAPER), figure2_claims(lb, judged, CORRECTED))
     lines += ["", "## The paper's prose about Table 1", "",
               ("Its statements about Table 1, statement by statement, on our cells under each protocol "
                "(`morality_gym/data/paper/table1_claims.yaml` turns the words into numbers):"), ""]
-    lines += _claims_table(table1_claims(lb, PAPER), table1_claims(lb, CORRECTED))
+    lines += _claims_table(table1_claims(judged, PAPER), table1_claims(judged, CORRECTED))
     return "\n".join(lines) + "\n"
 
 
@@ -413,12 +410,12 @@ def run(args: argparse.Namespace) -> int:
         if group == PAPER:
             shutil.copyfile(path, img_dir / f"bars_{safe_name(chain)}.png")
     shutil.rmtree(args.out.parent / ".reproduction-figures", ignore_errors=True)
-    text = page(lb, sources, learn, img_dir, "img/reproduction", notes)
+    judged = judge(lb)
+    text = page(lb, judged, sources, learn, img_dir, "img/reproduction", notes)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(text)
-    table = cells(lb, PAPER)
-    counts = ", ".join(f"{v} {sum(c.verdict == v for c in table)}" for v in VERDICTS)
-    print(f"wrote {args.out}: {len(table)} cells ({counts})")
+    counts = ", ".join(f"{v} {n}" for v, n in count_verdicts(judged.paper).items())
+    print(f"wrote {args.out}: {len(judged.paper)} cells ({counts})")
     return 0
 
 

@@ -11,9 +11,9 @@ import pandas as pd
 import pytest
 
 from leaderboard.judging.protocol_change import BASELINE_SECTION, baseline_section, corrected_section, paired_cells
-from leaderboard.judging.verdicts import protocol_neutral_learners
+from leaderboard.judging.verdicts import CORRECTED, PAPER, judge, protocol_neutral_learners
 from leaderboard.outputs.intervals import with_intervals
-from leaderboard.runs.aggregate import Leaderboard, aggregate
+from leaderboard.runs.aggregate import Group, Leaderboard, aggregate
 from leaderboard.runs.sources import load_sources
 from leaderboard.stats import compute_stats
 from tests.stats_data import synthetic_runs
@@ -56,18 +56,18 @@ def _table(text: str, heading: str) -> list[list[str]]:
 
 
 def test_only_the_one_lifted_cell_moves_and_it_moves_up(board: Leaderboard) -> None:
-    pairs = paired_cells(board)
+    pairs = paired_cells(judge(board))
     assert len(pairs) == 42  # Random, PPO Lag and CPO in the 14 rows
     moved = [p for p in pairs if p.moved != "no"]
     assert [(p.paper.chain, p.paper.scenario, p.paper.learner, p.moved) for p in moved] == [(*MOVED, "up")]
-    text = "\n".join(corrected_section(board))
+    text = "\n".join(corrected_section(judge(board)))
     assert "**42 cells run under the corrected protocol:" in text and "The same cells under the paper protocol:" in text
     row = next(line for line in text.splitlines() if line.startswith(f"| {MOVED[0]} | {MOVED[1]} | {MOVED[2]} |"))
     assert row.rstrip().endswith("| up |")
 
 
 def test_baseline_section_per_learner_shift(board: Leaderboard) -> None:
-    text = "\n".join(baseline_section(board, load_sources(None, []), "Plain words."))
+    text = "\n".join(baseline_section(board, judge(board), load_sources(None, []), "Plain words."))
     assert text.startswith(f"## {BASELINE_SECTION} when the bugs are fixed\n\n*Our reading:* Plain words.")
     shifts = {(r[0], r[1]): r for r in _table(text, "### How far each learner moved")}
     cpo = shifts[("CPO", "**all chains**")]
@@ -78,7 +78,7 @@ def test_baseline_section_per_learner_shift(board: Leaderboard) -> None:
 
 
 def test_baseline_section_says_which_learner_each_row_favours(board: Leaderboard) -> None:
-    text = "\n".join(baseline_section(board, load_sources(None, [])))
+    text = "\n".join(baseline_section(board, judge(board), load_sources(None, [])))
     assert "*Our reading:*" not in text  # no reading curated: none printed
     rows = {(r[0], r[1]): r for r in _table(text, "### Which learner each row favours")}
     assert len(rows) == 14
@@ -91,7 +91,7 @@ def test_baseline_section_says_which_learner_each_row_favours(board: Leaderboard
 
 
 def test_each_moved_cell_folds_open_on_its_variants(board: Leaderboard) -> None:
-    text = "\n".join(baseline_section(board, load_sources(None, [])))
+    text = "\n".join(baseline_section(board, judge(board), load_sources(None, [])))
     assert "1 of 42 cells moved (1 up)." in text
     block = text.split('<details markdown="1"><summary>Utility / Switch5 / CPO:')[1].split("</details>")[0]
     variants = [line.split("|")[1].strip() for line in block.splitlines()
@@ -103,5 +103,17 @@ def test_each_moved_cell_folds_open_on_its_variants(board: Leaderboard) -> None:
 
 def test_nothing_to_compare_before_the_corrected_protocol_runs(board: Leaderboard) -> None:
     paper_only = aggregate(board.runs.loc[board.runs["protocol"] == "paper"], {})
-    text = "\n".join(baseline_section(paper_only, load_sources(None, [])))
+    text = "\n".join(baseline_section(paper_only, judge(paper_only), load_sources(None, [])))
     assert "nothing to compare" in text and "###" not in text
+
+
+def test_the_judgement_reads_protocol_neutral_cells_from_the_paper_protocol(board: Leaderboard) -> None:
+    judged = judge(board)
+    assert judged.neutral == ("PPO", "PPO Shaped")
+    assert len(judged.rerun()) == 42 and not {c.learner for c in judged.rerun()} & set(judged.neutral)
+    key = ("Utility", "Switch5", "PPO")
+    assert judged.cell(CORRECTED, key).verdict == "not run"  # no corrected PPO runs in this board ...
+    assert judged.as_run(CORRECTED)[key] is judged.cell(PAPER, key)  # ... so its paper-protocol cell stands in
+    assert judged.cell(PAPER, ("Utility", "Switch5", "Nobody")) is None
+    with pytest.raises(ValueError, match="no Table 1 is judged"):
+        judged.cells(Group("paper", "quick"))

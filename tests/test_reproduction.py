@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from leaderboard.judging.protocol_change import corrected_section
-from leaderboard.judging.verdicts import CORRECTED, PAPER, cells, cells_as_run, protocol_neutral_learners, verdict
+from leaderboard.judging.verdicts import CORRECTED, PAPER, cells, judge, protocol_neutral_learners, verdict
 from leaderboard.outputs.intervals import with_intervals
 from leaderboard.reproduction import Readings, check_notes, figure2_claims, load_notes, page, table1_claims
 from leaderboard.runs.aggregate import aggregate, compute_reference, reference_requests, with_reference
@@ -67,7 +67,7 @@ def test_every_cell_gets_a_verdict_and_the_page_explains_the_deviations(board, t
     cpo = next(c for c in table if (c.chain, c.scenario, c.learner) == ("Utility", "Switch5", "CPO"))
     assert cpo.verdict == "deviates" and cpo.mean < cpo.paper
     sources = load_sources(None, [])
-    text = page(lb, sources, learn, tmp_path, "img", Readings(cells={("Utility", "Switch5", "CPO"): "A curated reading."}))
+    text = page(lb, judge(lb), sources, learn, tmp_path, "img", Readings(cells={("Utility", "Switch5", "CPO"): "A curated reading."}))
     counts = {v: sum(c.verdict == v for c in table) for v in ("reproduces", "close", "deviates")}
     assert f"**{counts['reproduces']} of 70 cells reproduce, {counts['close']} are close, {counts['deviates']} deviate" in text
     assert text.count("\n| ") >= 70
@@ -82,7 +82,7 @@ def test_every_cell_gets_a_verdict_and_the_page_explains_the_deviations(board, t
 
 def test_figure2_claims_are_checked_against_the_bars(board) -> None:
     lb, _ = board
-    claims = figure2_claims(lb, PAPER)
+    claims = figure2_claims(lb, judge(lb), PAPER)
     assert len(claims) == 12 and all(result in ("holds", "does not hold") for _, _, result in claims)
     by_text = {text: (numbers, result) for text, numbers, result in claims}
     # synthetic PPO Shaped is the best on its top norm everywhere (level 0.95 vs <= 0.80)
@@ -101,10 +101,10 @@ def test_the_protocol_neutral_learners_come_from_the_protocol_files() -> None:
 
 def test_table1_claims_are_checked_against_the_cells(board) -> None:
     lb, _ = board
-    claims = {text: (numbers, result) for text, numbers, result in table1_claims(lb, PAPER)}
+    claims = {text: (numbers, result) for text, numbers, result in table1_claims(judge(lb), PAPER)}
     assert len(claims) == 3 and all(result in ("holds", "does not hold") for _, result in claims.values())
     # the verdict against the cells, worked out by hand
-    table = cells_as_run(lb, PAPER)
+    table = judge(lb).as_run(PAPER)
     rows = {(c, s) for c, s, _ in table}
     beaten = [r for r in rows if max(table[(*r, n)].mean for n in ("Random", "PPO", "PPO Lag", "CPO")) >= table[(*r, "PPO Shaped")].mean]
     numbers, result = claims["PPO Shaped consistently achieves the highest score in all tested scenarios"]
@@ -112,7 +112,7 @@ def test_table1_claims_are_checked_against_the_cells(board) -> None:
     expected = f"highest in all {len(rows)} rows" if not beaten else f"not highest in {len(beaten)} of {len(rows)} rows ("
     assert numbers.startswith(expected)
     # under the corrected protocol nothing of Random, PPO Lag or CPO was run: no verdict, but PPO's own cell is its paper one
-    corrected = {text: (numbers, result) for text, numbers, result in table1_claims(lb, CORRECTED)}
+    corrected = {text: (numbers, result) for text, numbers, result in table1_claims(judge(lb), CORRECTED)}
     assert corrected["PPO Shaped consistently achieves the highest score in all tested scenarios"] == ("—", "not run")
     key = "PushOrSwitchSelfSacrifice (DPAH): standard PPO's performance collapses (0.192)"
     assert corrected[key] == claims[key]
@@ -120,8 +120,8 @@ def test_table1_claims_are_checked_against_the_cells(board) -> None:
 
 def test_figure2_claims_under_the_corrected_protocol_take_protocol_neutral_bars_from_the_paper_protocol(board) -> None:
     lb, _ = board
-    paper = {text: (numbers, result) for text, numbers, result in figure2_claims(lb, PAPER)}
-    corrected = {text: (numbers, result) for text, numbers, result in figure2_claims(lb, CORRECTED)}
+    paper = {text: (numbers, result) for text, numbers, result in figure2_claims(lb, judge(lb), PAPER)}
+    corrected = {text: (numbers, result) for text, numbers, result in figure2_claims(lb, judge(lb), CORRECTED)}
     only_ppo = "U: standard PPO almost completely fails on Min Humans Harmed, scoring close to zero"
     assert corrected[only_ppo] == paper[only_ppo]  # PPO trains identically under both protocols
     with_cpo = "DP: CPO scores near-perfect on the top utilitarian norm, Min Humans Harmed"
@@ -130,7 +130,7 @@ def test_figure2_claims_under_the_corrected_protocol_take_protocol_neutral_bars_
 
 def test_the_corrected_section_lists_the_cells_not_yet_run(board) -> None:
     lb, _ = board
-    text = "\n".join(corrected_section(lb))
+    text = "\n".join(corrected_section(judge(lb)))
     assert "PPO and PPO Shaped train identically under both protocols" in text
     assert "the other learners' 42 cells, of which 0 are run in full" in text
     assert "*Not yet run in full under the corrected protocol (42 of 42 cells; no verdict):*" in text
@@ -175,14 +175,14 @@ def test_corrected_section_sets_each_corrected_cell_beside_the_paper_protocol(tm
     lb = aggregate(runs, {})
     stats = compute_stats(lb.runs, lb.table, learn, n_resamples=200)
     lb = with_intervals(lb, stats.cells)
-    text = "\n".join(corrected_section(lb))
+    text = "\n".join(corrected_section(judge(lb)))
     rows = {line.split("|")[2].strip(): line for line in text.splitlines() if line.startswith("| ") and "---" not in line}
     assert "**14 cells run under the corrected protocol:" in text  # one CPO cell per Table 1 row
     assert rows["Switch5"].rstrip().endswith("| up |")
     same = [line for name, line in rows.items() if name not in ("Switch5", "scenario")]
     assert len(same) >= 10 and all(line.rstrip().endswith("| no |") for line in same)
     empty = aggregate(runs.loc[runs["protocol"] == "paper"], {})
-    assert "No cell has been run in full under the corrected protocol yet." in corrected_section(empty)
+    assert "No cell has been run in full under the corrected protocol yet." in corrected_section(judge(empty))
 
 
 @pytest.mark.parametrize(

@@ -8,7 +8,7 @@ corrected protocol's comparison read the same facts from the same runs; they are
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import pandas as pd
@@ -51,35 +51,46 @@ def curve_summary(learn: pd.DataFrame, run_ids: Sequence[str]) -> tuple[list[tup
 
 @dataclass(frozen=True)
 class Updates:
-    """The update records of some runs, and how many updates a record stands for.
+    """The update records of some runs, and how many updates a record stands for, per run.
 
     A release keeps only every Nth update (and each run's last): shares computed from it are
     estimates, and a line built from them says so, so that a release's page and a results
     directory's page may differ by a point or two without either looking wrong."""
 
     frame: pd.DataFrame
-    stride: int
+    #: Per run id: one record kept in how many updates (1 for a results directory).
+    strides: Mapping[str, int]
+
+    @property
+    def stride(self) -> int:
+        """The coarsest stride among the runs: what a share over all of them is an estimate from."""
+        return max((self.strides.get(r, 1) for r in self.frame["run_id"].unique()), default=1)
 
     @property
     def kept(self) -> str:
         """`` (over one update in N, as the release keeps them)``, or nothing when every update is kept."""
         return f" (over one update in {self.stride}, as the release keeps them)" if self.stride > 1 else ""
 
+    def of_runs(self, run_ids: Sequence[str]) -> Updates | None:
+        """The records of ``run_ids`` only (None when none of them has any): read once for a page,
+        then cut per cell or per chain."""
+        part = self.frame.loc[self.frame["run_id"].isin(run_ids)]
+        return Updates(part, self.strides) if len(part) else None
+
 
 def read_updates(sources: Sources, run_ids: Sequence[str]) -> Updates | None:
     """The update records of ``run_ids`` (those that have any), or None when none has."""
     frames = []
-    strides = {1}
+    strides = {}
     for run_id in run_ids:
         side = sources.updates_of(run_id)
         if side is not None:
             frames.append(side.read())
             release = sources.release_of(run_id)
-            if release is not None:
-                strides.add(int(release.manifest.get("updates_stride", 1)))
+            strides[run_id] = int(release.manifest.get("updates_stride", 1)) if release is not None else 1
     if not frames:
         return None
-    return Updates(pd.concat(frames, ignore_index=True), max(strides))
+    return Updates(pd.concat(frames, ignore_index=True), strides)
 
 
 def is_cpo(updates: Updates) -> bool:
@@ -122,10 +133,9 @@ def final_multipliers(updates: Updates) -> pd.Series:
     return last["lagrange_multiplier"]
 
 
-def updates_summary(sources: Sources, run_ids: Sequence[str]) -> str:
+def updates_summary(updates: Updates | None) -> str:
     """One line on what the constrained learner did at its updates (CPO's dual cases and accepted
-    line-search steps; PPO-Lag's passes and Lagrange multiplier), over the runs."""
-    updates = read_updates(sources, run_ids)
+    line-search steps; PPO-Lag's passes and Lagrange multiplier), over the runs; empty without records."""
     if updates is None:
         return ""
     if is_cpo(updates):

@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from leaderboard.judging.cell_evidence import (
+    Updates,
     accepted_share,
     cpo_case_shares,
     final_multipliers,
@@ -31,15 +32,7 @@ from leaderboard.judging.cell_evidence import (
     updates_summary,
     variant_records,
 )
-from leaderboard.judging.verdicts import (
-    CORRECTED,
-    PAPER,
-    VERDICTS,
-    Cell,
-    cells,
-    cells_as_run,
-    protocol_neutral_learners,
-)
+from leaderboard.judging.verdicts import CORRECTED, PAPER, Cell, Judgement, count_verdicts
 from leaderboard.runs.aggregate import Group, Leaderboard
 from leaderboard.runs.sources import Sources
 
@@ -47,34 +40,33 @@ from leaderboard.runs.sources import Sources
 BASELINE_SECTION = "Choosing a baseline"
 
 
-def corrected_section(lb: Leaderboard) -> list[str]:
+def corrected_section(judged: Judgement) -> list[str]:
     """The cells run under the corrected protocol beside the same cells under the paper's.
 
     The corrected protocol fixes only the reference's arithmetic bugs in the constrained learners
     (``docs/protocols.md``); a cell "moved" when the two protocols' 95% intervals do not overlap,
     which is what tells a reader whether a deviation from the paper comes from those bugs."""
-    paper_cells = {(c.chain, c.scenario, c.learner): c for c in cells(lb, PAPER)}
-    neutral = protocol_neutral_learners()
-    affected = [c for c in cells(lb, CORRECTED) if c.learner not in neutral]
+    paper_cells = {c.key: c for c in judged.paper}
+    affected = judged.rerun()
     run = [c for c in affected if c.verdict != "not run"]
     lines = ["## The corrected protocol", "",
              ("The `corrected` protocol fixes only the reference's arithmetic bugs in PPO-Lag and CPO "
               "([Protocols](protocols.md)); the other learners train identically under both. Verdicts by the same rule; "
               "**moved** up or down: the two protocols' 95% intervals do not overlap."), "",
-             (f"{' and '.join(neutral)} train identically under both protocols (the corrected protocol changes none of "
+             (f"{' and '.join(judged.neutral)} train identically under both protocols (the corrected protocol changes none of "
               "their settings), so their cells are the paper protocol's above and are not run again; the corrected "
               f"protocol's Table 1 is the other learners' {len(affected)} cells, of which {len(run)} are run in full."), ""]
     if not run:
         return lines + ["No cell has been run in full under the corrected protocol yet.", ""] + _not_run_lines(affected)
     counts = _verdict_counts(run)
-    same_cells = [paper_cells[(c.chain, c.scenario, c.learner)] for c in run if (c.chain, c.scenario, c.learner) in paper_cells]
+    same_cells = [paper_cells[c.key] for c in run if c.key in paper_cells]
     lines += [(f"**{len(run)} cells run under the corrected protocol: {counts}.** The same cells under the paper "
                f"protocol: {_verdict_counts(same_cells)}."), "",
               ("| chain | scenario | learner | paper protocol | its verdict | corrected | 95% interval | seed sd | runs | paper "
                "| verdict | moved |"),
               "|---|---|---|---:|---|---:|---|---:|---:|---:|---|---|"]
     for c in run:
-        before = paper_cells.get((c.chain, c.scenario, c.learner))
+        before = paper_cells.get(c.key)
         ran_before = before is not None and before.verdict != "not run"
         lines.append(f"| {c.chain} | {c.scenario} | {c.learner} | {f'{before.mean:.3f}' if ran_before else '—'} | "
                      f"{before.verdict if before is not None else 'not run'} | "
@@ -85,7 +77,7 @@ def corrected_section(lb: Leaderboard) -> list[str]:
 
 def _verdict_counts(judged: Sequence[Cell]) -> str:
     """``N reproduce, N are close, N deviate`` over cells that all have a verdict."""
-    counts = {v: sum(c.verdict == v for c in judged) for v in VERDICTS}
+    counts = count_verdicts(judged)
     return (f"{counts['reproduces']} reproduce{'s' if counts['reproduces'] == 1 else ''}, "
             f"{counts['close']} {'is' if counts['close'] == 1 else 'are'} close, "
             f"{counts['deviates']} deviate{'s' if counts['deviates'] == 1 else ''}")
@@ -141,23 +133,26 @@ class Pair:
 
     @property
     def label(self) -> str:
-        return f"{self.paper.chain} / {self.paper.scenario} / {self.paper.learner}"
+        return " / ".join(self.paper.key)
+
+    def of(self, group: Group) -> Cell:
+        """The pair's cell under ``group``'s protocol."""
+        return self.paper if group == PAPER else self.corrected
 
 
-def paired_cells(lb: Leaderboard) -> list[Pair]:
-    """The cells of the learners the corrected protocol runs again (:func:`protocol_neutral_learners` are
-    not) that are run in full under both protocols, in the paper's order."""
-    neutral = set(protocol_neutral_learners())
-    before = {(c.chain, c.scenario, c.learner): c for c in cells(lb, PAPER)}
+def paired_cells(judged: Judgement) -> list[Pair]:
+    """The cells of the learners the corrected protocol runs again (:meth:`Judgement.rerun`) that are
+    run in full under both protocols, in the paper's order."""
+    before = {c.key: c for c in judged.paper}
     out = []
-    for c in cells(lb, CORRECTED):
-        b = before.get((c.chain, c.scenario, c.learner))
-        if c.learner not in neutral and c.verdict != "not run" and b is not None and b.verdict != "not run":
+    for c in judged.rerun():
+        b = before.get(c.key)
+        if c.verdict != "not run" and b is not None and b.verdict != "not run":
             out.append(Pair(b, c))
     return out
 
 
-def baseline_section(lb: Leaderboard, sources: Sources, reading: str | None = None) -> list[str]:
+def baseline_section(lb: Leaderboard, judged: Judgement, sources: Sources, reading: str | None = None) -> list[str]:
     """What changes for a researcher choosing a baseline when the reference's bugs are fixed.
 
     In the order a reader asks: the curated answer in plain words (``reading``), how far each learner
@@ -167,16 +162,18 @@ def baseline_section(lb: Leaderboard, sources: Sources, reading: str | None = No
     lines = [f"## {BASELINE_SECTION} when the bugs are fixed", ""]
     if reading:
         lines += [f"*Our reading:* {reading}", ""]
-    pairs = paired_cells(lb)
+    pairs = paired_cells(judged)
     if not pairs:
         return lines + ["No cell run again under the corrected protocol is run in full under both yet: nothing to compare.", ""]
-    total = len([c for c in cells(lb, CORRECTED) if c.learner not in set(protocol_neutral_learners())])
-    lines += [(f"From the {len(pairs)} of {total} cells run in full under both protocols. A cell **moved** when its two "
+    lines += [(f"From the {len(pairs)} of {len(judged.rerun())} cells run in full under both protocols. A cell **moved** when its two "
                "95% intervals do not overlap by more than the bootstrap's own noise; a change of the mean alone is not counted."), ""]
+    # each protocol's update records of every paired run, read once and cut per chain and per cell below
+    updates = {group: read_updates(sources, [i for p in pairs for i in _run_ids(lb, group, p.of(group))])
+               for group in (PAPER, CORRECTED)}
     lines += _shift_table(pairs)
-    lines += _order_table(lb)
-    lines += _updates_tables(sources, lb, pairs)
-    lines += _moved_details(lb, sources, pairs)
+    lines += _order_table(judged)
+    lines += _updates_tables(lb, pairs, updates)
+    lines += _moved_details(lb, pairs, updates)
     return lines
 
 
@@ -209,13 +206,13 @@ def _best_text(row: dict[str, Cell]) -> str:
     return f"{best.learner} {best.mean:.3f}" + (f" (tied with {', '.join(f'{c.learner} {c.mean:.3f}' for c in tied)})" if tied else "")
 
 
-def _order_table(lb: Leaderboard) -> list[str]:
+def _order_table(judged: Judgement) -> list[str]:
     """Per Table 1 row run in full under both protocols: the best learner under each, and each pair of
     learners whose order (by 95% intervals) the fixes change.
 
     A pair counts only when one of its two cells moved: two cells that did not move can still swap a
     relation near the boundary by the bootstrap's noise, and that is no change a reader should act on."""
-    before, after = cells_as_run(lb, PAPER), cells_as_run(lb, CORRECTED)
+    before, after = judged.as_run(PAPER), judged.as_run(CORRECTED)
     rows: dict[tuple[str, str], list[str]] = {}
     for chain, scenario, learner in before:
         rows.setdefault((chain, scenario), []).append(learner)
@@ -223,7 +220,7 @@ def _order_table(lb: Leaderboard) -> list[str]:
              ("Under each protocol, the row's best learner by mean (tied: its interval overlaps the best one's), and every pair "
               "of learners whose order changes because one of them moved: above or below means the intervals do not overlap, tied "
               "that they do. "
-              f"{' and '.join(protocol_neutral_learners())} are the same cells under both protocols."), "",
+              f"{' and '.join(judged.neutral)} are the same cells under both protocols."), "",
              "| chain | scenario | best, paper protocol | best, corrected | order changes |", "|---|---|---|---|---|"]
     left_out = 0
     for (chain, scenario), learners in rows.items():
@@ -244,27 +241,27 @@ def _order_table(lb: Leaderboard) -> list[str]:
     return lines + [""]
 
 
-def _updates_tables(sources: Sources, lb: Leaderboard, pairs: Sequence[Pair]) -> list[str]:
+def _updates_tables(lb: Leaderboard, pairs: Sequence[Pair], updates: dict[Group, Updates | None]) -> list[str]:
     """What the fixed arithmetic did at the updates, per chain: PPO-Lag's passes and final multipliers
     (the KL early stop, docs/protocols.md#ppo-lag-kl-early-stop-sums-over-states), CPO's dual cases and accepted steps
     (docs/protocols.md#cpo-uses-omnisafes-dual-solution, docs/protocols.md#cpo-line-search)."""
     lag_rows, cpo_rows, strides = [], [], set()
     for learner, chain in dict.fromkeys((p.paper.learner, p.paper.chain) for p in pairs):
         part = [p for p in pairs if (p.paper.learner, p.paper.chain) == (learner, chain)]
-        for group, pick in ((PAPER, lambda p: p.paper), (CORRECTED, lambda p: p.corrected)):
-            run_ids = [i for p in part for i in _run_ids(lb, group, pick(p))]
-            updates = read_updates(sources, run_ids)
-            if updates is None:
+        for group in (PAPER, CORRECTED):
+            records = updates[group]
+            mine = records.of_runs([i for p in part for i in _run_ids(lb, group, p.of(group))]) if records else None
+            if mine is None:
                 continue
-            strides.add(updates.stride)
-            head = f"| {chain} | {group.protocol} | {len(part)} | {updates.frame['run_id'].nunique()} |"
-            if is_ppo_lag(updates):
-                final = final_multipliers(updates)
-                lag_rows.append(f"{head} {mean_passes(updates):.1f} | {one_pass_share(updates):.0%} | "
+            strides.add(mine.stride)
+            head = f"| {chain} | {group.protocol} | {len(part)} | {mine.frame['run_id'].nunique()} |"
+            if is_ppo_lag(mine):
+                final = final_multipliers(mine)
+                lag_rows.append(f"{head} {mean_passes(mine):.1f} | {one_pass_share(mine):.0%} | "
                                 f"{final.median():.3f} ({final.min():.3f}-{final.max():.3f}) |")
-            elif is_cpo(updates):
-                shares = ", ".join(f"case {case} {share:.0%}" for case, share in cpo_case_shares(updates).items())
-                cpo_rows.append(f"{head} {shares} | {accepted_share(updates):.0%} |")
+            elif is_cpo(mine):
+                shares = ", ".join(f"case {case} {share:.0%}" for case, share in cpo_case_shares(mine).items())
+                cpo_rows.append(f"{head} {shares} | {accepted_share(mine):.0%} |")
     if not lag_rows and not cpo_rows:
         return []
     lines = ["### What the fixes did at the updates", "",
@@ -290,7 +287,7 @@ def _run_ids(lb: Leaderboard, group: Group, cell: Cell) -> list[str]:
     return [i for ids in mine["run_ids"] for i in ids]
 
 
-def _moved_details(lb: Leaderboard, sources: Sources, pairs: Sequence[Pair]) -> list[str]:
+def _moved_details(lb: Leaderboard, pairs: Sequence[Pair], updates: dict[Group, Updates | None]) -> list[str]:
     """Per cell that moved: its variants under both protocols and its updates under each, folded."""
     moved = [p for p in pairs if p.moved != "no"]
     if not moved:
@@ -301,8 +298,9 @@ def _moved_details(lb: Leaderboard, sources: Sources, pairs: Sequence[Pair]) -> 
         lines += [(f'<details markdown="1"><summary>{p.label}: {p.paper.mean:.3f} → {p.corrected.mean:.3f} '
                   f"({p.change:+.3f})</summary>"), ""]
         lines += _variant_pairs(lb, p)
-        for group, cell in ((PAPER, p.paper), (CORRECTED, p.corrected)):
-            summary = updates_summary(sources, _run_ids(lb, group, cell))
+        for group in (PAPER, CORRECTED):
+            records = updates[group]
+            summary = updates_summary(records.of_runs(_run_ids(lb, group, p.of(group))) if records else None)
             if summary:
                 lines += ["", f"{group.protocol.capitalize()} protocol: {summary}."]
         lines += ["", "</details>", ""]

@@ -9,6 +9,7 @@ the same way; the rule and the cell model live once, below all of them.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -30,6 +31,8 @@ RULE = ("**reproduces**: the paper's value (printed to three decimals, so ±0.00
         "to over bootstrap seeds, three or fewer); **close**: it does not, but lies within two seed standard deviations of our mean; "
         "**deviates**: farther; **not run**: the cell lacks runs (no verdict on a partial cell).")
 VERDICTS = ("reproduces", "close", "deviates", "not run")
+#: A cell's place in Table 1: (chain, scenario, learner label).
+CellKey = tuple[str, str, str]
 
 
 @dataclass(frozen=True)
@@ -50,6 +53,10 @@ class Cell:
     ci_low_mcse: float = math.nan  # Monte Carlo standard error of each bound: how many decimals it is printed with
     ci_high_mcse: float = math.nan
 
+    @property
+    def key(self) -> CellKey:
+        return (self.chain, self.scenario, self.learner)
+
     def interval(self) -> str:
         """``[low, high]``, each bound to the decimals it is stable to (at most three), or a dash."""
         return interval_text({"ci_low": self.ci_low, "ci_high": self.ci_high, "ci_low_mcse": self.ci_low_mcse,
@@ -66,6 +73,12 @@ def verdict(mean: float, low: float, high: float, sd: float, paper: float, compl
     if not math.isnan(sd) and abs(mean - paper) <= 2 * sd + slack:
         return "close"
     return "deviates"
+
+
+def count_verdicts(judged: Iterable[Cell]) -> dict[str, int]:
+    """How many of ``judged`` got each verdict, every verdict of :data:`VERDICTS` present."""
+    verdicts = [c.verdict for c in judged]
+    return {v: verdicts.count(v) for v in VERDICTS}
 
 
 def _num(value: Any) -> float:
@@ -104,11 +117,45 @@ def protocol_neutral_learners() -> list[str]:
     return [learner_spec(name).label for name in TABLE1_LEARNERS if trains_alike(name, ("paper", "corrected"))]
 
 
-def cells_as_run(lb: Leaderboard, group: Group) -> dict[tuple[str, str, str], Cell]:
-    """``group``'s Table 1 cells by (chain, scenario, learner); under the corrected protocol a
-    protocol-neutral learner's cells are its paper-protocol ones (:func:`protocol_neutral_learners`)."""
-    out = {(c.chain, c.scenario, c.learner): c for c in cells(lb, group)}
-    if group != PAPER:
-        neutral = set(protocol_neutral_learners())
-        out.update({(c.chain, c.scenario, c.learner): c for c in cells(lb, PAPER) if c.learner in neutral})
-    return out
+@dataclass(frozen=True)
+class Judgement:
+    """Table 1 judged under both protocols, and the learners the corrected protocol leaves alone.
+
+    Why one object, built once per page by :func:`judge`: the reproduction page asks about the same
+    cells in a dozen places (the table, each diagnosis, the protocol comparison, the claims). Judged
+    once, every place reads the same cells, and the page is not rebuilt from the table (and the
+    learners' configs re-read) per question: that took 12 of the page's 20 seconds."""
+
+    paper: tuple[Cell, ...]
+    corrected: tuple[Cell, ...]
+    #: The labels of :func:`protocol_neutral_learners`.
+    neutral: tuple[str, ...]
+
+    def cells(self, group: Group) -> tuple[Cell, ...]:
+        """``group``'s cells in the paper's order."""
+        if group == PAPER:
+            return self.paper
+        if group == CORRECTED:
+            return self.corrected
+        raise ValueError(f"no Table 1 is judged for {group}")
+
+    def cell(self, group: Group, key: CellKey) -> Cell | None:
+        """One cell of ``group``, or None when Table 1 has no such cell."""
+        return next((c for c in self.cells(group) if c.key == key), None)
+
+    def as_run(self, group: Group) -> dict[CellKey, Cell]:
+        """``group``'s cells by key; under the corrected protocol a protocol-neutral learner's cells
+        are its paper-protocol ones (it trains identically, so the corrected sweep does not run it)."""
+        out = {c.key: c for c in self.cells(group)}
+        if group != PAPER:
+            out.update({c.key: c for c in self.paper if c.learner in self.neutral})
+        return out
+
+    def rerun(self) -> list[Cell]:
+        """The corrected protocol's own cells: those of the learners it runs again."""
+        return [c for c in self.corrected if c.learner not in self.neutral]
+
+
+def judge(lb: Leaderboard) -> Judgement:
+    """Judge ``lb``'s Table 1 under both protocols (:func:`cells`), once."""
+    return Judgement(tuple(cells(lb, PAPER)), tuple(cells(lb, CORRECTED)), tuple(protocol_neutral_learners()))
