@@ -41,7 +41,7 @@ from leaderboard.runs.aggregate import (
 )
 from leaderboard.runs.opening import primary_choice
 from leaderboard.runs.releases import Release, ReleaseError, resolve
-from leaderboard.runs.sources import Sources, load_sources
+from leaderboard.runs.sources import RESULTS_SOURCE, Sources, load_sources
 from leaderboard.runs.stamp import StampError, source_date_epoch, stamp_text
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, did_you_mean, run_cli, writing
 from morality_gym.results.quarantine import quarantined_files
@@ -220,9 +220,15 @@ def _release_lines(lb: Leaderboard, sources: Sources, args: argparse.Namespace) 
     for release in sources.releases:
         shown = int((lb.runs["source"] == release.name).sum()) if "source" in lb.runs.columns else 0
         lines.append(f"{release.label}: {shown} of its {len(release.runs)} run(s) shown"
-                     + (f" ({len(release.runs) - shown} replaced by runs of {args.results} or superseded)"
+                     + (f" ({len(release.runs) - shown} replaced by the runs of the same configuration in "
+                        f"{' and '.join(_source_word(w, args) for w in sources.replacers(release)) or 'newer runs of the same slot'})"
                         if shown < len(release.runs) else ""))
     return lines
+
+
+def _source_word(source: str, args: argparse.Namespace) -> str:
+    """A run source as the build's log names it: the results directory's path, or ``release X``."""
+    return str(args.results) if source == RESULTS_SOURCE else f"release {source}"
 
 
 def _reference_lines(ref: Any) -> list[str]:

@@ -121,9 +121,26 @@ def test_own_copy_of_a_released_run_wins(released: tuple[Path, Path], tmp_path: 
     results, release = released
     done = build("--results", str(results), "--out", str(tmp_path / "o"), "--release", str(release))
     assert done.returncode == 0, done.stderr
-    assert "0 of its 4 run(s) shown (4 replaced by runs of" in done.stdout
+    assert f"0 of its 4 run(s) shown (4 replaced by the runs of the same configuration in {results})" in done.stdout
     table = pd.read_csv(tmp_path / "o" / "table1_all.csv")
     assert table.loc[table["learner"] == "Random", "n_runs"].iloc[0] == 2  # not 4: each run counted once
+    html = (tmp_path / "o" / "site" / "index.html").read_text()
+    assert "(4 replaced by the runs of the same configuration in your runs)" in html
+
+
+def test_a_release_listed_first_is_credited_with_the_runs_it_replaces(released: tuple[Path, Path], tmp_path: Path) -> None:
+    """Two releases sharing run ids (a new release beside an older one): the page names the release that
+    won, not the user's results, which hold no runs here."""
+    results, release = released
+    made = run("-m", "leaderboard.release", "create", "--results", str(results), "--name", "again-v1", "--root", str(tmp_path))
+    assert made.returncode == 0, made.stderr
+    done = build("--results", str(tmp_path / "none"), "--out", str(tmp_path / "o"),
+                 "--release", str(tmp_path / "again-v1"), "--release", str(release))
+    assert done.returncode == 0, done.stderr
+    assert "0 of its 4 run(s) shown (4 replaced by the runs of the same configuration in release again-v1)" in done.stdout
+    html = (tmp_path / "o" / "site" / "index.html").read_text()
+    assert "(4 replaced by the runs of the same configuration in release again-v1)" in html
+    assert "your runs" not in html.split("Where these numbers come from")[1].split("</ul>")[0]
 
 
 def test_damaged_release_is_refused_naming_the_file(released: tuple[Path, Path], tmp_path: Path) -> None:

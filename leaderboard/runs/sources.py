@@ -86,6 +86,12 @@ class Sources:
     def has_results_runs(self) -> bool:
         return RESULTS_SOURCE in self.origin.values() or self.results_planned > 0
 
+    def replacers(self, release: Release) -> list[str]:
+        """The sources that replaced some of ``release``'s runs (the results directory first, then the
+        releases listed before it), so a page credits the right one: an earlier release is not "your runs"."""
+        winners = {self.origin.get(str(i)) for i in release.runs["run_id"]} - {release.name, None}
+        return sorted(winners, key=lambda w: (w != RESULTS_SOURCE, w))
+
     def release_of(self, run_id: str) -> Release | None:
         name = self.origin.get(run_id)
         return next((r for r in self.releases if r.name == name), None)

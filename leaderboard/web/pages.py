@@ -188,7 +188,8 @@ def sources_context(sb: SiteBuild) -> list[dict[str, Any]]:
         m = release.manifest
         out.append({"kind": "release", "label": release.name, "title": str(m.get("title", "")),
                     "runs": int(counts.get(release.name, 0)), "commit": ", ".join(release.commits), "commit_word": release.commit_word,
-                    "created": str(m.get("created", ""))[:10], "shadowed": len(release.runs) - int(counts.get(release.name, 0))})
+                    "created": str(m.get("created", ""))[:10], "shadowed": len(release.runs) - int(counts.get(release.name, 0)),
+                    "shadowed_by": " and ".join(source_label(w) for w in sb.sources.replacers(release))})
     return out
 
 
