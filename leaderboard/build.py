@@ -220,9 +220,7 @@ def _release_lines(lb: Leaderboard, sources: Sources, args: argparse.Namespace) 
     for release in sources.releases:
         shown = int((lb.runs["source"] == release.name).sum()) if "source" in lb.runs.columns else 0
         lines.append(f"{release.label}: {shown} of its {len(release.runs)} run(s) shown"
-                     + (f" ({len(release.runs) - shown} replaced by the runs of the same configuration in "
-                        f"{' and '.join(_source_word(w, args) for w in sources.replacers(release)) or 'newer runs of the same slot'})"
-                        if shown < len(release.runs) else ""))
+                     + sources.replaced_note(release, shown, lambda source: _source_word(source, args)))
     return lines
 
 

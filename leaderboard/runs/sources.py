@@ -86,11 +86,18 @@ class Sources:
     def has_results_runs(self) -> bool:
         return RESULTS_SOURCE in self.origin.values() or self.results_planned > 0
 
-    def replacers(self, release: Release) -> list[str]:
-        """The sources that replaced some of ``release``'s runs (the results directory first, then the
-        releases listed before it), so a page credits the right one: an earlier release is not "your runs"."""
+    def replaced_note(self, release: Release, shown: int, name: Callable[[str], str]) -> str:
+        """Why a release shows only ``shown`` of its runs: `` (N replaced by the runs of the same
+        configuration in <who>)``, or ``""`` when it shows them all. The winners are the sources that
+        took its run ids (the results directory first, then the releases listed before it), so an
+        earlier release is never credited as "your runs"; ``name`` words a source for the reader (the
+        page says "your runs", the build log the directory's path). One wording for both."""
+        hidden = len(release.runs) - shown
+        if hidden <= 0:
+            return ""
         winners = {self.origin.get(str(i)) for i in release.runs["run_id"]} - {release.name, None}
-        return sorted(winners, key=lambda w: (w != RESULTS_SOURCE, w))
+        who = " and ".join(name(w) for w in sorted(winners, key=lambda w: (w != RESULTS_SOURCE, w)))
+        return f" ({hidden} replaced by {f'the runs of the same configuration in {who}' if who else 'newer runs of the same slot'})"
 
     def release_of(self, run_id: str) -> Release | None:
         name = self.origin.get(run_id)

@@ -182,14 +182,14 @@ def sources_context(sb: SiteBuild) -> list[dict[str, Any]]:
     out = []
     if sb.sources.has_results_runs:
         out.append({"kind": "results", "label": str(sb.sources.results), "title": "your runs",
-                    "runs": int(counts.get(RESULTS_SOURCE, 0)), "commit": "", "created": "", "shadowed": 0}
+                    "runs": int(counts.get(RESULTS_SOURCE, 0)), "commit": "", "created": "", "replaced": ""}
                    | own_sweeps(sb))
     for release in sb.sources.releases:
         m = release.manifest
         out.append({"kind": "release", "label": release.name, "title": str(m.get("title", "")),
                     "runs": int(counts.get(release.name, 0)), "commit": ", ".join(release.commits), "commit_word": release.commit_word,
-                    "created": str(m.get("created", ""))[:10], "shadowed": len(release.runs) - int(counts.get(release.name, 0)),
-                    "shadowed_by": " and ".join(source_label(w) for w in sb.sources.replacers(release))})
+                    "created": str(m.get("created", ""))[:10],
+                    "replaced": sb.sources.replaced_note(release, int(counts.get(release.name, 0)), source_label)})
     return out
 
 
