@@ -4,7 +4,7 @@ Why this exists: the sweep planner's estimate comes from per-learner rates fitte
 (``planning`` in ``conf/algo``) and a fleet speed-up measured on one scenario; at the paper's
 budget a Table 1 takes hours, so a claim such as "the paper preset fits a workstation" should rest
 on runs that were measured, not on the planner alone. This tool reads the finished runs of a
-results directory (a few Table 1 rows run at the preset in question), measures each learner's
+results directory or a results release (a few Table 1 rows run at the preset in question), measures each learner's
 core-seconds per training step (every run's ``cpu_time_s``, or its ``wall_time_s`` in files written
 before that column: its share of its fleet's training plus its own evaluations and writes), and prices every job of the full Table 1 plan with it. The
 jobs are those the sweep itself would make (:func:`runners.jobs.make_jobs`, fleets of up to
@@ -14,7 +14,7 @@ one long fleet keeps a worker busy.
 
 Usage::
 
-    python -m benchmarks.project_table1 RESULTS_DIR [--preset paper] [--protocol paper]
+    python -m benchmarks.project_table1 RESULTS_DIR|RELEASE_DIR [--preset paper] [--protocol paper]
         [--engine fleet] [--workers 2 8] [--set KEY=VALUE ...] [--relative-to RESULTS_DIR] [--out FILE.md]
 
 A learner with no measured run keeps the planner's estimate and is marked so in the output.
@@ -71,10 +71,9 @@ def finished_runs(results_dir: Path, protocol: str, preset: str | None, engine: 
     # pandas, pyarrow, OmegaConf wait: only the benchmark that runs it needs them
     import pandas as pd
 
-    from morality_gym.results.schema import read_runs
     from runners.jobs import fleet_trains
 
-    frame = read_runs(results_dir, skipped=[])
+    frame = _run_rows(results_dir)
     if frame.empty:
         return frame
     keep = (frame["status"] == "ok") & (frame["protocol"] == protocol)
@@ -85,6 +84,25 @@ def finished_runs(results_dir: Path, protocol: str, preset: str | None, engine: 
     alone = [budget <= 0 or not fleet_trains(_target(config, algo))
              for budget, config, algo in zip(frame["budget"], frame["config"], frame["algo"], strict=True)]
     return frame[(kind == engine) | pd.Series(alone, index=frame.index)]
+
+
+def readable(path: Path) -> bool:
+    """Whether ``path`` holds runs this tool reads: a results directory or a results release."""
+    from leaderboard.runs.releases import MANIFEST  # with the readers below
+
+    return (path / "runs").is_dir() or (path / MANIFEST).is_file()
+
+
+def _run_rows(results_dir: Path) -> Any:
+    """Every run row of a results directory, or of a results release (``release.json``, checked
+    against its checksums first), so a shipped sweep's cost can be re-measured from the repository."""
+    # pandas-backed readers wait like the imports above
+    from leaderboard.runs.releases import MANIFEST, load
+    from morality_gym.results.schema import read_runs
+
+    if (results_dir / MANIFEST).is_file():
+        return load(results_dir).runs
+    return read_runs(results_dir, skipped=[])
 
 
 def measured_rates(results_dir: Path, protocol: str, preset: str, engine: str, cpu_only: bool = False) -> dict[str, Rate]:
@@ -299,7 +317,8 @@ def _factors_table(reference: Path | None, factors: dict[tuple[str, str], float]
 def build_parser() -> argparse.ArgumentParser:
     """The command's parser, apart from parsing: the docs' command-line reference is generated from it."""
     parser = argparse.ArgumentParser(prog="python -m benchmarks.project_table1", description=__doc__.split("\n\n")[0])
-    parser.add_argument("results_dir", type=Path, help="a results directory holding finished runs of some Table 1 rows")
+    parser.add_argument("results_dir", type=Path,
+                        help="a results directory or a results release holding finished runs of some Table 1 rows")
     parser.add_argument("--preset", default="paper")
     parser.add_argument("--protocol", default="paper", choices=("paper", "corrected"))
     parser.add_argument("--engine", default="fleet", choices=("fleet", "single"))
@@ -318,12 +337,12 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if not (args.results_dir / "runs").is_dir():
-        parser.error(f"{args.results_dir}: no runs/ directory (not a results directory)")
+    if not readable(args.results_dir):
+        parser.error(f"{args.results_dir}: not a results directory (no runs/) nor a results release (no release.json)")
     if any(w < 1 for w in args.workers):
         parser.error("--workers: each count must be >= 1")
-    if args.reference is not None and not (args.reference / "runs").is_dir():
-        parser.error(f"--relative-to {args.reference}: no runs/ directory (not a results directory)")
+    if args.reference is not None and not readable(args.reference):
+        parser.error(f"--relative-to {args.reference}: not a results directory (no runs/) nor a results release (no release.json)")
     text = report(args.results_dir, args.preset, args.protocol, args.engine, args.workers, args.extra, args.reference,
                   args.cpu_only)
     print(text)

@@ -13,6 +13,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
+from benchmarks.project_table1 import measured_rates
 from leaderboard.release import RELEASE_FORMAT, load, verify
 from morality_gym.results.schema import RUN_COLUMNS, run_files
 
@@ -141,6 +142,14 @@ def test_a_release_listed_first_is_credited_with_the_runs_it_replaces(released: 
     html = (tmp_path / "o" / "site" / "index.html").read_text()
     assert "(4 replaced by the runs of the same configuration in release again-v1)" in html
     assert "your runs" not in html.split("Where these numbers come from")[1].split("</ul>")[0]
+
+
+def test_a_release_is_priced_like_the_results_it_was_made_from(released: tuple[Path, Path]) -> None:
+    """benchmarks.project_table1 re-measures a shipped sweep's cost from the release alone."""
+    results, release = released
+    for engine in ("fleet", "single"):
+        assert measured_rates(release, "paper", "smoke", engine) == measured_rates(results, "paper", "smoke", engine)
+    assert measured_rates(release, "paper", "smoke", "single") or measured_rates(release, "paper", "smoke", "fleet")
 
 
 def test_damaged_release_is_refused_naming_the_file(released: tuple[Path, Path], tmp_path: Path) -> None:
