@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from morality_gym.baselines.specs import learner_spec
-from morality_gym.clitools import duration
+from morality_gym.clitools import duration, write_atomically
 from morality_gym.results.schema import compute_seconds
 from runners.paths import CONF_DIR
 
@@ -347,7 +347,7 @@ def main(argv: list[str] | None = None) -> int:
                   args.cpu_only)
     print(text)
     if args.out:
-        args.out.write_text(text)
+        write_atomically(args.out, lambda fh: fh.write(text.encode()))
     return 0
 
 
