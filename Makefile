@@ -31,13 +31,14 @@ PIP_PROGRESS := { grep --line-buffered -E '^(Collecting|Successfully installed)'
 # Debian packages the tests use: a real single-node SLURM (with accounting) and headless Chromium.
 DEBIAN_PACKAGES := slurm-wlm munge slurmdbd mariadb-server chromium
 
-.PHONY: help venv system-deps test test-fast bench gpu-wheels reproduce-table1 leaderboard release reproduction mlflow-ui docs \
+.PHONY: help venv check-pins system-deps test test-fast bench gpu-wheels reproduce-table1 leaderboard release reproduction mlflow-ui docs \
         slurm-up slurm-down clean
 
 help:
 	@echo "make reproduce-table1 [PRESET=smoke|quick|paper] [LAUNCHER=local|slurm] [PROTOCOLS=\"paper corrected\"]"
 	@echo "                     [DEVICE=cpu|cuda] [WORKERS=n]"
 	@echo "                     run the Table 1 sweeps (resumable), then build table1.* and the leaderboard"
+	@echo "make check-pins      check that every dependency pin installs on Python $(PYTHON_FLOOR) (Debian 12's); CI runs it"
 	@echo "make test            install everything and run the whole test suite (it builds and checks the docs site too)"
 	@echo "make bench           measure speed; writes BENCHMARKS.md"
 	@echo "make gpu-wheels      download the wheels a GPU machine without a package index lacks (benchmarks/gpu_check.sh)"
@@ -51,7 +52,10 @@ help:
 venv: $(STAMP)/venv
 $(STAMP)/venv: pyproject.toml
 	@mkdir -p $(STAMP)
-	@test -x $(PY) || { echo "venv: creating $(VENV) with $(PYTHON)"; $(PYTHON) -m venv $(VENV); }
+	@# Debian's python3 makes a venv only with its python3-venv package (ensurepip): say so in one line.
+	@test -x $(PY) || { echo "venv: creating $(VENV) with $(PYTHON) ($$($(PYTHON) -c 'import platform; print(platform.python_version())'))"; \
+	  $(PYTHON) -m venv $(VENV) >/dev/null 2>&1 || { rm -rf $(VENV); \
+	    echo "venv: $(PYTHON) -m venv failed; on Debian/Ubuntu: apt-get install python3-venv (or PYTHON=/path/to/python3.11)" >&2; exit 2; }; }
 	@# torch first and pinned: a CPU wheel of 2.13.0 is on disk; anything else pulls GBs of CUDA.
 	@echo "venv: [1/2] installing torch==2.13.0 (CPU) into $(VENV)"
 	@set -o pipefail; $(PIP) install --progress-bar off torch==2.13.0 | $(PIP_PROGRESS)
@@ -60,6 +64,22 @@ $(STAMP)/venv: pyproject.toml
 	@set -o pipefail; $(PIP) install --progress-bar off -e '.[dev,llm,docs]' | $(PIP_PROGRESS)
 	@echo "venv: ready; run commands with $(PY) or after 'source $(VENV)/bin/activate'"
 	@touch $@
+
+# The oldest Python the README promises: Debian 12's. A pin that drops it (pymdown-extensions 13 needs
+# 3.11.5) fails here, on any machine, whatever Python is first on its PATH: pip resolves every
+# dependency for that version without installing anything. pip only checks another Python's
+# versions among wheels, so the dependencies published only as source (pure Python) are built into
+# wheels first.
+PYTHON_FLOOR ?= 3.11.2
+SDIST_ONLY := antlr4-python3-runtime==4.9.3
+check-pins: venv
+	@tmp=$$(mktemp -d); trap 'rm -rf "$$tmp"' EXIT; \
+	$(PIP) wheel -q --no-deps -w "$$tmp/wheels" $(SDIST_ONLY) 2>&1 | grep -v '^WARNING: Location' ; \
+	if $(PIP) install --dry-run --ignore-installed -q --only-binary=:all: --python-version $(PYTHON_FLOOR) \
+	     --find-links "$$tmp/wheels" --target "$$tmp/target" '.[dev,llm,docs]' > "$$tmp/log" 2>&1; then \
+	  echo "check-pins: '.[dev,llm,docs]' resolves for Python $(PYTHON_FLOOR)"; \
+	else grep -E '^ERROR' "$$tmp/log" >&2; \
+	  echo "check-pins: '.[dev,llm,docs]' does not resolve for Python $(PYTHON_FLOOR) (pyproject.toml; pip's errors above)" >&2; exit 1; fi
 
 system-deps: $(STAMP)/system-deps
 $(STAMP)/system-deps:
