@@ -122,6 +122,29 @@ def writing(path: str | os.PathLike[str]) -> Iterator[None]:
         raise
 
 
+def umask() -> int:
+    """This process's umask, read without changing it (``os.umask`` can only swap it, which would
+    race with another thread creating a file meanwhile)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    old = os.umask(0o022)
+    os.umask(old)
+    return old
+
+
+def public_mode(directory: bool = False) -> int:
+    """The mode ``open()`` (or ``mkdir``) gives a new file (directory) under the umask, as ``cp`` would.
+
+    ``tempfile.mkstemp`` and ``mkdtemp`` create 0600 and 0700 so that no other user can race for a
+    temporary name; renamed into place, the file keeps that mode, and a site or a results directory
+    built through them could not be served by a web server running as another user."""
+    return (0o777 if directory else 0o666) & ~umask()
+
+
 def write_atomically(path: str | os.PathLike[str], write: Callable[[Any], None]) -> Path:
     """Call ``write(binary file)`` on a temporary file beside ``path``, flush it to disk and rename
     it over ``path``: a kill or a full disk at any moment leaves the previous file or the new one,

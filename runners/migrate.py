@@ -60,7 +60,7 @@ from rich.progress import (
 )
 from rich.table import Table
 
-from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, public_mode, run_cli
 from morality_gym.clitools import console as make_console
 from morality_gym.results.identity import PER_RUN_KEYS, PROVENANCE_KEY, config_key, run_identity
 from morality_gym.results.manifest import manifests_dir, plan_hash
@@ -545,6 +545,7 @@ def _rewrite_manifest(path: Path, body: dict[str, Any], ids: dict[str, str], new
 
 def _write_json(path: Path, body: dict[str, Any]) -> None:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp", dir=path.parent)
+    os.fchmod(fd, public_mode())  # not mkstemp's 0600
     with os.fdopen(fd, "w") as fh:
         json.dump(body, fh, indent=1)
         fh.flush()

@@ -70,3 +70,22 @@ def test_source_date_epoch_sets_the_date_and_a_bad_one_is_refused(built: BuiltSi
     proc = _build(built.results, tmp_path / "bad", dict(os.environ, SOURCE_DATE_EPOCH="yesterday"))
     assert proc.returncode == 2
     assert "SOURCE_DATE_EPOCH='yesterday' is not a Unix time" in proc.stderr and "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o027])
+def test_built_files_get_the_umasks_mode_as_cp_would_give(built: BuiltSite, tmp_path: Path, umask: int) -> None:
+    """Issue 45: the site was created 0700 and its pages 0600 (mkdtemp/mkstemp kept through the rename),
+    so no web server running as another user could serve it. Every file and directory written, site,
+    tables and caches alike, gets the mode a plain ``open()``/``cp`` would give under the umask."""
+    out = tmp_path / "out"
+    (out / "cache").mkdir(parents=True)
+    shutil.copy(built.results / "cache" / "reference_rows.json", out / "cache" / "reference_rows.json")
+    proc = subprocess.run([sys.executable, "-m", "leaderboard.build", "--results", str(built.results), "--out", str(out),
+                           "--site", str(out / "site")], cwd=REPO, capture_output=True, text=True, timeout=600,
+                          check=False, preexec_fn=lambda: os.umask(umask))
+    assert proc.returncode == 0, proc.stderr
+    wrong = {str(p.relative_to(out)): oct(p.stat().st_mode & 0o777) for p in [out / "site", *(out / "site").rglob("*"),
+                                                                              *(out / "figures").rglob("*")]
+             if p.stat().st_mode & 0o777 != (0o777 if p.is_dir() else 0o666) & ~umask}
+    assert wrong == {}, sorted(wrong.items())[:10]
+    assert len(list((out / "site" / "runs").glob("*.html"))) > 10

@@ -25,6 +25,7 @@ from leaderboard.runs.display_order import (  # noqa: F401 - the reference rows'
     row_order,
 )
 from leaderboard.runs.selection import CELL_KEYS
+from morality_gym.clitools import public_mode
 from morality_gym.envs.registry import parse_env_id, scenario_named
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.oracle import oracle
@@ -145,6 +146,7 @@ def _write_json_atomic(path: Path, body: Any) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, public_mode())  # not mkstemp's 0600
         with os.fdopen(fd, "w") as fh:
             json.dump(body, fh, indent=1, sort_keys=True)
         os.replace(tmp, path)

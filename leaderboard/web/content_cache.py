@@ -21,6 +21,8 @@ from typing import Any, TypeVar
 
 import pandas as pd
 
+from morality_gym.clitools import public_mode
+
 T = TypeVar("T")
 
 
@@ -44,6 +46,7 @@ def atomic_write(path: Path, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
+        os.fchmod(fd, public_mode())  # not mkstemp's 0600: these files are linked into the site
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
         os.replace(tmp, path)

@@ -24,6 +24,7 @@ from leaderboard.outputs import tables as tables_module
 from leaderboard.web import render as render_module
 from leaderboard.web.content_cache import atomic_write, digest
 from leaderboard.web.render import TEMPLATES
+from morality_gym.clitools import public_mode
 
 
 def link_or_copy(src: Path, dst: Path) -> None:
@@ -36,6 +37,7 @@ def link_or_copy(src: Path, dst: Path) -> None:
         os.link(src, dst)
     except OSError:
         shutil.copyfile(src, dst)
+    os.chmod(dst, public_mode())  # a cache written before mkstemp's 0600 was lifted still serves readable pages
 
 
 @lru_cache(maxsize=1)

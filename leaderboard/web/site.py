@@ -45,7 +45,7 @@ from leaderboard.web.leftovers import building_in
 from leaderboard.web.page_cache import PageCache, link_or_copy
 from leaderboard.web.render import STATIC, STATIC_FILES, render
 from leaderboard.web.site_state import SiteBuild
-from morality_gym.clitools import writing
+from morality_gym.clitools import public_mode, writing
 from morality_gym.envs.registry import scenario_named
 
 SITE_MARKER = ".leaderboard-site"
@@ -190,7 +190,9 @@ def _prepare_target(site_dir: Path) -> Path:
     """A fresh temporary directory next to ``site_dir``, where the new site is assembled."""
     check_target(site_dir)
     site_dir.parent.mkdir(parents=True, exist_ok=True)
-    return Path(tempfile.mkdtemp(prefix=f".{site_dir.name}.build-", dir=site_dir.parent))
+    tmp = Path(tempfile.mkdtemp(prefix=f".{site_dir.name}.build-", dir=site_dir.parent))
+    tmp.chmod(public_mode(directory=True))  # it becomes the site: not mkdtemp's 0700, or no web server can read it
+    return tmp
 
 
 def _swap_in(tmp: Path, site_dir: Path) -> None:

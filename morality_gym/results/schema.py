@@ -30,7 +30,7 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from morality_gym.clitools import writing
+from morality_gym.clitools import public_mode, writing
 
 SCHEMA_VERSION = 1
 CHANGES = {
@@ -193,6 +193,7 @@ def atomic_write_table(table: pa.Table, path: Path) -> None:
     with writing(path):
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        os.fchmod(fd, public_mode())  # not mkstemp's 0600: a results directory is shared and released
         os.close(fd)
         try:
             pq.write_table(table, tmp)
