@@ -316,3 +316,21 @@ def test_search_finds_dualprocess(page: Any, served: str) -> None:
     assert "DualProcess" in page.locator(".md-search-result").inner_text()
     assert "matching document" in page.locator(".md-search-result__meta").inner_text()
     assert not page.errors, page.errors
+
+
+def test_reference_pages_have_every_exported_name_and_every_command() -> None:
+    """Issue 45: the API page lacked nine exported names (load_split, TrolleyVectorEnv, RewardCostSpec, ...)
+    and the command-line page two commands (runners.track, leaderboard.track). The API page is made from
+    ``morality_gym.__all__``; every module with a parser that runs as a program needs its line in COMMANDS."""
+    import morality_gym
+
+    page = hooks().api_page()
+    missing = [name for name in morality_gym.__all__ if f"heading: morality_gym.{name}\n" not in page]
+    assert missing == [], f"exported but not on the API page: {missing}"
+    described = {module for module, _ in hooks().COMMANDS}
+    commands = hooks().command_modules()
+    assert {"runners.track", "leaderboard.track", "leaderboard.build", "morality_gym"} <= set(commands)
+    gaps = [m for m in commands if m not in described]
+    assert gaps == [], f"commands without a line in docs/_hooks/generate.py COMMANDS: {gaps}"
+    cli = hooks().cli_page()
+    assert all(f"## `python -m {m}`" in cli for m in commands)

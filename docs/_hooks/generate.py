@@ -8,7 +8,9 @@ Nothing here is committed output: every page below is made from its source of tr
   exact Random value and the oracle's best and worst metric under each chain the paper ran on the
   scenario, and a GIF of the oracle's best episode. Pictures and GIFs are drawn by
   :mod:`morality_gym.render` into the build, never into ``docs/``.
-* ``reference/cli.md`` - every command line, from its argparse parser object.
+* ``reference/cli.md`` - every command line, from its argparse parser object (every module with a
+  ``build_parser()`` that runs as a program).
+* ``reference/api.md`` - every name ``morality_gym`` exports (``__all__``), from its docstring.
 * ``reference/configuration.md`` - every configuration group and field with its default, from the
   typed schemas of :mod:`runners.config_schema` and the files of ``conf/``.
 * ``reference/results-schema.md`` - every column of the results contract, from
@@ -206,9 +208,34 @@ COMMANDS: list[tuple[str, str]] = [
     ("leaderboard.llm", "language-model agents through Inspect AI"),
     ("leaderboard.screenshot", "PNG screenshots of a built leaderboard"),
     ("runners.migrate", "move an older results directory to the current run ids"),
+    ("runners.track", "train and score the generalisation track's held-out splits"),
+    ("leaderboard.track", "the generalisation track's table from a results directory"),
     ("benchmarks.run", "speed benchmarks (BENCHMARKS.md)"),
     ("benchmarks.project_table1", "price a whole Table 1 from measured runs"),
 ]
+
+
+#: The packages whose modules may be commands (``python -m package.module``).
+COMMAND_PACKAGES = ("morality_gym", "runners", "leaderboard", "benchmarks")
+
+
+def command_modules() -> list[str]:
+    """Every ``python -m`` command with an argparse parser, found in the code: a module that defines
+    ``build_parser()`` and runs as a program (``if __name__ == "__main__"``, or a package's
+    ``__main__.py``). The page lists these; :data:`COMMANDS` gives each its one-line description,
+    and a command missing there fails tests/test_docs_site.py (the page once lacked two of them)."""
+    found = []
+    for package in COMMAND_PACKAGES:
+        for path in sorted((ROOT / package).rglob("*.py")):
+            text = path.read_text(encoding="utf-8")
+            if "def build_parser(" not in text:
+                continue
+            module = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+            if path.name == "__main__.py":
+                found.append(module.removesuffix(".__main__"))
+            elif 'if __name__ == "__main__"' in text:
+                found.append(module)
+    return found
 
 
 def capture_parser(module: str) -> argparse.ArgumentParser:
@@ -287,10 +314,113 @@ def cli_page() -> str:
         "command line is the configuration, see [Configuration](configuration.md)."),
         "",
     ]
-    for module, what in COMMANDS:
+    described = dict(COMMANDS)
+    for module in [m for m, _ in COMMANDS] + [m for m in command_modules() if m not in described]:
         parser = capture_parser(module)
+        what = described.get(module) or (parser.description or module).rstrip(".")
         lines += [f"## `python -m {module}`", "", f"{what[0].upper()}{what[1:]}.", "", *_parser_markdown(parser, 2)]
     return "\n".join(lines) + "\n"
+
+
+# ------------------------------------------------------------------------------------------------
+# The Python API, from morality_gym.__all__
+# ------------------------------------------------------------------------------------------------
+
+#: The API page's sections, by the subpackage a name is defined in (the first that matches).
+API_SECTIONS: list[tuple[str, str]] = [
+    ("Environments", "morality_gym.api"),
+    ("Environments", "morality_gym.envs"),
+    ("Norms, chains, the metric and the cost", "morality_gym.norms"),
+    ("Evaluation", "morality_gym.evaluation"),
+    ("Generated dilemmas and held-out splits", "morality_gym.generator"),
+    ("The world's vocabulary", "morality_gym.world"),
+]
+#: The reading order within a section (the rest follow, alphabetically): how to make an env before its errors.
+API_FIRST = ["make", "list_envs", "env_ids", "scenarios", "parse_env_id", "add_scenario_dir", "TrolleyEnv",
+             "BatchedTrolleyEnv", "TrolleyVectorEnv", "TrolleyVecEnv", "TorchTrolleyVectorEnv", "get_chain",
+             "builtin_chains", "MoralityChain", "bind_chain", "BoundChain", "VectorCost", "RewardCostSpec",
+             "MoralityWrapper", "VecMoralityWrapper", "TorchCostWrapper", "evaluate", "exact_evaluate", "oracle"]
+#: Which members a class's entry shows (default: none, the class docstring says how to use it).
+API_MEMBERS: dict[str, list[str]] = {
+    "TrolleyEnv": ["reset", "step", "render"],
+    "TorchTrolleyVectorEnv": ["reset", "step", "utility"],
+    "TrolleyVectorEnv": ["reset", "step"],
+    "BoundChain": ["morality_functions", "metric", "weight_sum"],
+    "VectorCost": ["reset", "from_norm_events"],
+}
+#: Documented beside the exported names: what the exported functions return.
+API_EXTRAS: list[tuple[str, str]] = [
+    ("morality_gym.evaluation.result", "EvaluationResult"),
+    ("morality_gym.evaluation.oracle", "OracleResult"),
+]
+#: Subpackages without an ``__init__.py``: mkdocstrings loads them as top-level packages (mkdocs.yml paths).
+_NAMESPACE = ("envs", "norms", "evaluation")
+
+
+def api_home(name: str) -> str:
+    """The module that defines ``morality_gym.<name>`` (a lazy name: the module it is loaded from)."""
+    import morality_gym
+
+    obj = getattr(morality_gym, name)  # a lazy name is loaded here
+    module = getattr(obj, "__module__", None)
+    if isinstance(module, str) and module.startswith("morality_gym"):
+        return module
+    for path in sorted((ROOT / "morality_gym").rglob("*.py")):  # a constant: the module that assigns it
+        if re.search(rf"^{re.escape(name)}\b.*=", path.read_text(encoding="utf-8"), re.MULTILINE):
+            return ".".join(path.relative_to(ROOT).with_suffix("").parts)
+    raise RuntimeError(f"cannot tell where morality_gym.{name} is defined")
+
+
+def _identifier(module: str, name: str) -> str:
+    parts = module.split(".")
+    if len(parts) > 1 and parts[1] in _NAMESPACE:
+        parts = parts[1:]
+    return ".".join([*parts, name])
+
+
+def _api_entry(module: str, name: str, heading: str) -> list[str]:
+    import inspect
+
+    obj = getattr(importlib.import_module(module), name)
+    members = API_MEMBERS.get(name, [] if inspect.isclass(obj) else None)
+    lines = [f"::: {_identifier(module, name)}", "    options:", f"      heading: {heading}"]
+    if members is not None:
+        lines.append(f"      members: [{', '.join(members)}]" if members else "      members: false")
+    return [*lines, ""]
+
+
+def api_page() -> str:
+    """``reference/api.md``: every name of ``morality_gym.__all__``, by section, generated from the
+    docstrings; the page once lacked nine exported names (``load_split``, ``TrolleyVectorEnv``, ...)."""
+    import morality_gym
+
+    homes = {name: api_home(name) for name in morality_gym.__all__}
+    lines = ["# Python API", "",
+             ("The public API of `morality_gym` (`import morality_gym`): every name it exports "
+              "(`morality_gym.__all__`), generated from the docstrings when the site is built. The "
+              "[concepts](../concepts.md) page explains what the pieces mean."), ""]
+    placed: set[str] = set()
+    titles = list(dict.fromkeys(title for title, _ in API_SECTIONS))
+    for title in titles:
+        prefixes = tuple(prefix for t, prefix in API_SECTIONS if t == title)
+        names = sorted((n for n in morality_gym.__all__ if n not in placed
+                        and any(homes[n] == p or homes[n].startswith(p + ".") for p in prefixes)),
+                       key=lambda n: (API_FIRST.index(n) if n in API_FIRST else len(API_FIRST), n))
+        extras = [(m, n) for m, n in API_EXTRAS if any(m.startswith(p) for p in prefixes)]
+        if not names and not extras:
+            continue
+        lines += [f"## {title}", ""]
+        for name in names:
+            lines += _api_entry(homes[name], name, f"morality_gym.{name}")
+            placed.add(name)
+        for module, name in extras:
+            lines += _api_entry(module, name, f"{module}.{name}")
+    rest = [n for n in morality_gym.__all__ if n not in placed]
+    if rest:
+        lines += ["## Other", ""]
+        for name in rest:
+            lines += _api_entry(homes[name], name, f"morality_gym.{name}")
+    return "\n".join(lines).rstrip() + "\n"
 
 
 # ------------------------------------------------------------------------------------------------
@@ -516,6 +646,7 @@ def generated_files() -> dict[str, str | bytes]:
     out: dict[str, str | bytes] = {}
     for name, make in (("catalogue", lambda: {f"envs/{k}": v for k, v in catalogue().items()}),
                        ("cli", lambda: {"reference/cli.md": cli_page()}),
+                       ("api", lambda: {"reference/api.md": api_page()}),
                        ("configuration", lambda: {"reference/configuration.md": configuration_page()}),
                        ("results schema", lambda: {"reference/results-schema.md": results_schema_page()}),
                        ("module map", lambda: {"reference/modules.md": module_map_page()}),
