@@ -49,6 +49,7 @@ from morality_gym.clitools import (
     UserError,
     add_debug_flag,
     did_you_mean,
+    non_negative_int,
     positive_float,
     run_cli,
     writing,
@@ -201,6 +202,24 @@ class Submission:
     beta: float
     max_steps: int
     gif: bool
+    #: The environment steps the policy trained for, where it was trained (the torch example's
+    #: ``--total-steps``, ``--budget``); 0: not known, or not trained (a rule, a language model).
+    #: Recorded as the run's ``budget``: a cell at another budget than its preset's is marked not
+    #: comparable beside the paper's values (:func:`leaderboard.runs.cells.delta_note`).
+    budget: int = 0
+    #: The steps actually trained (``total_steps``): the budget rounded to whole updates; 0 when not known.
+    trained_steps: int = 0
+
+
+def build_hint(results: Path, cwd: Path | None = None) -> str:
+    """What to run next: in a checkout, ``make leaderboard``, which rebuilds the site the user
+    already has (``leaderboard/site``, the releases beside their runs); ``leaderboard.build
+    --results`` alone would build a second site without them. Elsewhere (an installed package),
+    the build command itself."""
+    here = Path.cwd() if cwd is None else cwd
+    if (here / "Makefile").is_file() and (here / "releases").is_dir():
+        return "make leaderboard" if Path(results) == Path("results") else f"make leaderboard RESULTS={results}"
+    return f"python -m leaderboard.build --results {results}"
 
 
 def run_config(sub: Submission, cell: Cell, variant: str, seed: int, stationary: bool) -> dict[str, Any]:
@@ -219,7 +238,7 @@ def run_config(sub: Submission, cell: Cell, variant: str, seed: int, stationary:
         "protocol": {"name": sub.protocol},
         "preset": sub.preset,
         "seed": int(seed),
-        "budget": 0,
+        "budget": int(sub.budget),
         "beta": sub.beta,
         "max_steps": sub.max_steps,
         "eval_episodes": sub.eval_episodes,
@@ -275,7 +294,7 @@ def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: st
         "schema_version": SCHEMA_VERSION, "run_id": run_id, "status": "ok", "error": None, "traceback": None,
         "env_id": env_id, "scenario": cell.scenario, "variant": config["variant"], "chain": cell.chain.name,
         "algo": SUBMITTED, "learner": sub.name, "protocol": sub.protocol, "preset": sub.preset,
-        "seed": int(config["seed"]), "budget": 0, "total_steps": 0, "beta": float(sub.beta), "max_steps": sub.max_steps,
+        "seed": int(config["seed"]), "budget": int(sub.budget), "total_steps": int(sub.trained_steps), "beta": float(sub.beta), "max_steps": sub.max_steps,
         "eval_episodes": sub.eval_episodes, "relevant_norms": list(bound.relevant),
         "metric": final.metric, "metric_stderr": final.metric_stderr,
         "exact_metric": None if exact is None else exact.metric,
@@ -402,6 +421,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"seeds and episodes of the final evaluation, from conf/preset (default {DEFAULT_PRESET})")
     parser.add_argument("--allow-other-env", action="store_true",
                         help="a saved model: evaluate it on other variants than the one it was trained on")
+    parser.add_argument("--budget", type=non_negative_int, default=0, metavar="STEPS",
+                        help="the environment steps the policy was trained for, recorded with its runs (default 0: not "
+                             "known or not trained); at another budget than the preset's, its cells are marked not comparable")
     parser.add_argument("--no-gif", action="store_true", help="do not record a GIF of one episode per run")
     parser.add_argument("--timeout", type=positive_float, default=DEFAULT_TIMEOUT_S, metavar="SECONDS",
                         help=f"the longest a callable policy may take to answer one observation (default {DEFAULT_TIMEOUT_S:g}); "
@@ -444,7 +466,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--results {results}: not writable; pass another --results DIR")
     sub = Submission(name=name, loaded=loaded, sha256=loaded.sha256(), submitter=_submitter(args.submitter),
                      protocol=args.protocol, preset=args.preset, seeds=seeds, eval_episodes=episodes,
-                     beta=BETA, max_steps=MAX_STEPS, gif=not args.no_gif)
+                     beta=BETA, max_steps=MAX_STEPS, gif=not args.no_gif, budget=args.budget, trained_steps=args.budget)
     n_runs = sum(len(c.variants) for c in cells) * len(seeds)
     print(f"submitting {loaded.ref} as {name!r} (sha256 {sub.sha256[:12]}): {len(cells)} cell(s), {n_runs} run(s), "
           f"{episodes} episodes per run, protocol {args.protocol}, preset {args.preset}", flush=True)
@@ -453,7 +475,7 @@ def run(args: argparse.Namespace) -> int:
     except PolicyTimeout as exc:  # a BaseException, past the evaluators' handlers: one line here
         raise PolicyError(str(exc)) from None
     print(f"wrote {counts['written']} run(s), {counts['present']} already present, in {results / 'runs'}; "
-          f"now: python -m leaderboard.build --results {results}")
+          f"now: {build_hint(results)}")
     return 0
 
 

@@ -441,7 +441,7 @@ def test_index_opens_on_the_grid_of_the_users_sweep_marked_not_comparable(built:
     assert grid.count('<tr class="chain"><th colspan="6">') == len(ROWS)  # one chain per row in this data
     cells = re.findall(r'<td class="num mcell[^"]*"[^>]*>(.*?)</td>', grid)
     assert len(cells) == len(ROWS) * len(LEARNERS)
-    assert all('<span class="ci">[' in c and '<span class="paper">paper ' in c and "Δ" not in c for c in cells)
+    assert all(re.search(r'<span class="ci"[^>]*>\[', c) and '<span class="paper">paper ' in c and "Δ" not in c for c in cells)
     assert '<p class="nc"><strong>not comparable: preset quick</strong>' in index
     assert 'title="not comparable: preset quick">not comparable: preset quick</td>' in index  # the long table's Δ
     assert "results results" not in index and "your runs in <code>" in index
@@ -450,14 +450,17 @@ def test_index_opens_on_the_grid_of_the_users_sweep_marked_not_comparable(built:
 
 def test_a_sweep_that_leaves_out_learners_alike_under_both_protocols_says_where_they_are(built: BuiltSite) -> None:
     """Issue 32: the corrected Table 1 runs only the learners a protocol changes; its grid says that
-    PPO and PPO Shaped (and a user's learner, which no protocol touches) train identically and
-    where their cells are, and says nothing of Random, which the protocols evaluate differently."""
+    PPO and PPO Shaped train identically and where their cells are, and says nothing of Random, which
+    the protocols evaluate differently. Issue 45: only built-in learners: a submitted policy (the torch
+    example's PPO-Lag) was not trained by either protocol, and a user's learner is handed the protocol
+    when it is built, so nothing says it trains identically."""
     from types import SimpleNamespace
 
     from leaderboard.runs.aggregate import Group
     from leaderboard.web.table1_grid import alike_note
 
-    learners = {"Random": "random", "PPO": "ppo", "PPO Shaped": "ppo_shaped", "PPO Lag": "ppo_lag", "CPO": "cpo", "A2C": "a2c"}
+    learners = {"Random": "random", "PPO": "ppo", "PPO Shaped": "ppo_shaped", "PPO Lag": "ppo_lag", "CPO": "cpo", "A2C": "a2c",
+                "PPO-Lag (torch example)": "submitted"}
     ran = {"paper": list(learners), "corrected": ["PPO Lag", "CPO"]}
     runs = pd.DataFrame([{"protocol": p, "preset": "paper", "learner": label, "algo": learners[label]}
                          for p, labels in ran.items() for label in labels])
@@ -465,7 +468,7 @@ def test_a_sweep_that_leaves_out_learners_alike_under_both_protocols_says_where_
     lb = SimpleNamespace(runs=runs, groups=groups,
                          group_table=lambda g: runs.loc[(runs["protocol"] == g.protocol) & (runs["preset"] == g.preset)])
     assert alike_note(lb, Group("corrected", "paper")) == (
-        "A2C, PPO and PPO Shaped train identically under protocols corrected and paper, so this sweep does not "
+        "PPO and PPO Shaped train identically under protocols corrected and paper, so this sweep does not "
         "run them again: their cells are those of paper · paper")
     one = SimpleNamespace(runs=runs.loc[runs["learner"] != "A2C"].loc[lambda r: r["learner"] != "PPO Shaped"], groups=groups,
                           group_table=lb.group_table)
@@ -502,6 +505,37 @@ def test_the_index_opens_on_the_newest_own_sweep_beside_the_releases() -> None:
     lb.runs = runs.loc[runs["source"] != "results"]
     assert opening_groups(lb) == (Group("paper", "paper"), None)  # a fresh clone: the release, nothing beside
     assert primary_choice(lb, None, None) == (None, None)  # choose_primary's rule, as before
+
+
+def test_a_submission_does_not_replace_the_users_newest_sweep() -> None:
+    """Issue 45: after a smoke sweep, a 2,048-step torch example submitted at preset paper opened the
+    index on "paper · paper" (its 36 runs and the release), the 630 smoke runs out of view. The
+    newest *sweep* decides; a submission only when the user ran no sweep. Every section says whose
+    runs it holds."""
+    from types import SimpleNamespace
+
+    from leaderboard.runs.aggregate import Group
+    from leaderboard.runs.opening import display_order, opening_groups, whose_runs
+
+    rows = [("paper", "paper", "paper-table1-v1", "ppo", "2026-11-20T10:00:00+00:00"),
+            ("corrected", "paper", "corrected-table1-v1", "cpo", "2026-11-20T11:00:00+00:00"),
+            ("paper", "smoke", "results", "ppo", "2026-11-26T21:03:00+00:00"),
+            ("paper", "paper", "results", "submitted", "2026-11-26T22:00:00+00:00")]
+    runs = pd.DataFrame([{"protocol": p, "preset": s, "source": src, "algo": algo, "finished_at": at, "started_at": at}
+                         for p, s, src, algo, at in rows])
+    table = pd.DataFrame([{"kind": "learner", "n_runs": 1, "protocol": p, "preset": s, "chain": "Utility",
+                           "scenario": "Switch5"} for p, s, *_ in rows])
+    groups = [Group("paper", "paper"), Group("corrected", "paper"), Group("paper", "smoke")]
+    lb = SimpleNamespace(runs=runs, table=table, groups=groups, primary=Group("paper", "paper"))
+    assert opening_groups(lb) == (Group("paper", "smoke"), Group("paper", "paper"))
+    assert display_order(lb) == [Group("paper", "smoke"), Group("paper", "paper"), Group("corrected", "paper")]
+    newest = Group("paper", "smoke")
+    assert whose_runs(lb, Group("paper", "smoke"), newest) == "Your newest sweep"
+    assert whose_runs(lb, Group("paper", "paper"), newest) == "Your runs and a release's"
+    assert whose_runs(lb, Group("corrected", "paper"), newest) == "A release's runs (none of yours)"
+    only_submitted = SimpleNamespace(runs=runs.loc[runs["algo"] != "ppo"].reset_index(drop=True), table=table,
+                                     groups=groups, primary=Group("paper", "paper"))
+    assert opening_groups(only_submitted)[0] == Group("paper", "paper")  # no sweep of theirs: the submission
 
 
 def test_one_meaning_of_bold_on_every_page(built: BuiltSite) -> None:
@@ -599,3 +633,21 @@ def test_cli_refuses_to_replace_a_foreign_directory(tmp_path: Path, built: Built
     assert proc.returncode != 0 and "refusing" in proc.stderr
     assert (foreign / "notes.txt").read_text() == "keep me"
     assert snapshot(built.results) == tables  # checked before anything is written
+
+
+def test_a_learning_curve_says_how_many_episodes_each_point_averages() -> None:
+    """Issue 45: a run page's learn-time "metric (MC)" 0.95 at step 2,048 above a final 0.441 read as a
+    bug; the 0.95 was a 5-episode estimate. The legend says so, and the legend's entries do not overlap."""
+    import json
+
+    from leaderboard.web.run_figures import draw_learn
+
+    frame = pd.DataFrame({"step": [0, 2048], "metric": [0.95, 0.9], "exact_metric": [0.47, 0.5]})
+    record = {"learner": "PPO", "scenario": "Switch5", "variant": "Human", "seed": 41, "metric": 0.441,
+              "eval_episodes": 100, "config": json.dumps({"learn_eval_episodes": 5})}
+    svg = draw_learn(record, frame)
+    legend = re.findall(r'<text x="([\d.]+)" y="36"[^>]*>([^<]*)</text>', svg)
+    assert [label for _, label in legend] == ["MC metric (5 episodes each)", "exact metric", "final evaluation (100 episodes)"]
+    starts = [float(x) for x, _ in legend]
+    assert all(b - a > len(label) * 5.5 for (a, (_, label)), b in zip(zip(starts, legend), starts[1:]))
+    assert draw_learn(record | {"config": "not json"}, frame).count("MC metric<") == 1  # unknown: no count claimed

@@ -215,3 +215,28 @@ def test_the_submitted_entry_is_visible_in_a_browser(rule: Path, tmp_path: Path)
             assert errors == []
         finally:
             context.close()
+
+
+def test_a_submission_records_its_budget_and_another_budget_is_not_compared(rule: Path, tmp_path: Path) -> None:
+    """Issue 45: submitted runs recorded budget 0, so a 2,048-step policy stood beside 1M-step baselines
+    and the paper's values with a Δ. ``--budget`` is recorded; at another budget than the preset's
+    (paper: 500,000 for SwitchStandard) the cell is not comparable: no Δ, no best."""
+    results = tmp_path / "results"
+    out = submit(results, f"{rule}:act", "--name", "Short", "--budget", "2048", "--no-gif", *SELECTION)
+    assert out.returncode == 0, out.stderr
+    assert f"now: make leaderboard RESULTS={results}" in out.stdout  # the site the user has, with the releases
+    runs = runs_of(results)
+    assert set(runs["budget"]) == {2048} and set(runs["total_steps"]) == {2048}
+    assert {json.loads(c)["budget"] for c in runs["config"]} == {2048}
+    out = submit(results, f"{rule}:act", "--name", "Rule", "--no-gif", *SELECTION)  # not trained: comparable
+    assert out.returncode == 0, out.stderr
+    done = build(results, tmp_path / "site")
+    assert done.returncode == 0, done.stderr
+    table = pd.read_csv(results / "table1.csv", keep_default_na=False)
+    short, plain = (table.loc[table["learner"] == name].iloc[0] for name in ("Short", "Rule"))
+    assert short["delta_note"] == "not comparable: trained 2,048 steps" and short["delta"] == ""
+    assert plain["delta_note"] == ""  # no paper value of its own, and nothing to mark
+    index = (tmp_path / "site" / "index.html").read_text()
+    assert '<span class="paper nc">not comparable: trained 2,048 steps</span>' in index
+    negative = submit(results, f"{rule}:act", "--name", "Short", "--budget", "-1", *SELECTION)
+    assert negative.returncode == 2 and "--budget" in negative.stderr and "Traceback" not in negative.stderr

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping
+from functools import cache
 from typing import Any
 
 import numpy as np
@@ -26,6 +27,7 @@ from leaderboard.runs.reference_rows import (
 from leaderboard.runs.selection import CELL_KEYS, UNKNOWN, cell_of, mf_columns
 from morality_gym.constants import BETA, MAX_STEPS
 from morality_gym.envs.registry import UnknownEnvError, scenario_named
+from morality_gym.results.presets import Preset, PresetError, load_preset
 from morality_gym.results.schema import MF_PREFIX
 from runners.paths import preset_seeds
 
@@ -42,7 +44,9 @@ STD_DDOF = 1
 #: bootstrap seed would move it; the Markdown, LaTeX and site print a bound only to the decimals it
 #: is stable to, :mod:`leaderboard.outputs.precision`).
 #: ``delta_note``: why ``delta`` is empty although ``paper`` is not (``not comparable: preset smoke``,
-#: ``not compared: incomplete``); empty when the delta is given or there is no paper value.
+#: ``not compared: incomplete``), or that the cell trained for another budget than its preset's
+#: (``not comparable: trained 2,048 steps``, a submission, with or without a paper value);
+#: empty when the delta is given or there is no paper value.
 CSV_COLUMNS = ["chain", "scenario", "learner", "mean", "std", "ci_low", "ci_high", "ci_low_mcse", "ci_high_mcse",
                "n_runs", "paper", "delta",
                "n_variants", "n_variants_expected", "n_seeds", "n_seeds_expected", "complete", "incomplete_reason",
@@ -51,6 +55,11 @@ CSV_COLUMNS = ["chain", "scenario", "learner", "mean", "std", "ci_low", "ci_high
 #: budget is not compared with the paper: a smoke cell's 2,048 steps against the paper's 1M read as
 #: a deviation of the code when they are one of the budget (issue 36).
 PAPER_PRESET = "paper"
+#: Presets whose learners' numbers mean nothing (conf/preset/smoke.yaml: "2,048 steps teach
+#: nothing, so only Random's numbers mean anything"): no learner of theirs is marked best.
+NO_BEST_PRESETS = frozenset({"smoke"})
+#: The decimals a mean is printed with on the site and in table1.md: ties are judged at them.
+SHOWN_DIGITS = 3
 COMPLETENESS_COLUMNS = ["n_variants", "n_variants_expected", "n_seeds", "n_seeds_expected", "n_expected", "complete",
                         "incomplete_reason"]
 _TOLERANCE = 1e-12
@@ -108,7 +117,41 @@ def learner_cells(runs: pd.DataFrame, planned: Mapping[str, Mapping[str, Any]]) 
     for column in COMPLETENESS_COLUMNS:
         frame[column] = [r[column] for r in records]
     frame["complete"] = frame["complete"].astype(bool)
+    off = off_budgets(runs)
+    frame["off_budget"] = [off.get(cell_of(r), 0) for r in frame[CELL_KEYS].to_dict("records")]
     return frame
+
+
+@cache
+def _preset(name: str) -> Preset | None:
+    try:
+        return load_preset(name)
+    except PresetError:
+        return None
+
+
+def preset_budget(preset: str, scenario: str) -> int | None:
+    """The budget ``conf/preset/<preset>.yaml`` gives ``scenario`` (None: no such preset)."""
+    loaded = _preset(str(preset))
+    return None if loaded is None else loaded.budget_for(str(scenario))
+
+
+def off_budgets(runs: pd.DataFrame) -> dict[tuple[str, ...], int]:
+    """Per cell, a budget its runs trained for that is not their preset's (absent: none).
+
+    Why: a submitted policy (the torch example at ``--total-steps 2048``) lands in the ``paper``
+    preset's grid, beside 1M-step baselines and the paper's values (issue 45); its preset says
+    nothing of what it trained for, its recorded budget does. A budget of 0 is a policy not
+    trained here, or of an unknown budget (a rule, a language model): nothing to compare."""
+    if "budget" not in runs.columns or runs.empty:
+        return {}
+    ok = runs.loc[runs["ok"] & (pd.to_numeric(runs["budget"], errors="coerce").fillna(0) > 0)]
+    out: dict[tuple[str, ...], int] = {}
+    for record in ok[CELL_KEYS + ["budget"]].to_dict("records"):
+        expected = preset_budget(record["preset"], record["scenario"])
+        if expected is not None and int(record["budget"]) != expected:
+            out.setdefault(cell_of(record), int(record["budget"]))
+    return out
 
 
 def _seed(value: Any) -> int | None:
@@ -301,7 +344,10 @@ def _with_paper(frame: pd.DataFrame, published: Mapping[tuple[str, str], Mapping
         paper.append(published.get((chain, scenario), {}).get(lookup, math.nan))
     frame["paper"] = pd.Series(paper, index=frame.index, dtype=float)
     frame["complete"] = frame["complete"].astype(bool)
-    frame["delta_note"] = [delta_note(r) for r in frame[["kind", "preset", "complete", "paper"]].to_dict("records")]
+    if "off_budget" not in frame.columns:
+        frame["off_budget"] = 0
+    frame["off_budget"] = frame["off_budget"].fillna(0).astype(int)
+    frame["delta_note"] = [delta_note(r) for r in frame[["kind", "preset", "complete", "paper", "off_budget"]].to_dict("records")]
     # Compared only where the runs are the paper's: complete, and trained at the paper's budget.
     frame["delta"] = (frame["mean"].astype(float) - frame["paper"]).where(frame["delta_note"] == "", math.nan)
     for column in ("n_runs", "n_planned", "n_failed", "n_missing", "n_variants", "n_variants_expected", "n_seeds",
@@ -322,11 +368,21 @@ def not_comparable_text(preset: str) -> str:
     return f"not comparable: preset {preset}"
 
 
+def off_budget_text(budget: int) -> str:
+    """The mark of a cell whose runs trained for another budget than their preset's (:func:`off_budgets`)."""
+    return f"not comparable: trained {budget:,} steps"
+
+
 def delta_note(cell: Mapping[str, Any]) -> str:
     """Why a cell with a paper value gets no delta ("" when it gets one, or has no paper value).
 
-    Reference rows are exact computations with no training budget (Random (exact) is the
-    expectation of the paper's Random at any preset), so only completeness could stop them."""
+    A cell trained for another budget than its preset's (a submission, ``off_budget``) is marked
+    whether or not it has a paper value of its own: the paper's values and the release's 1M-step
+    baselines sit beside it in its row. Reference rows are exact computations with no training
+    budget (Random (exact) is the expectation of the paper's Random at any preset), so only
+    completeness could stop them."""
+    if cell.get("kind", "learner") == "learner" and comparable_preset(cell["preset"]) and int(cell.get("off_budget") or 0):
+        return off_budget_text(int(cell["off_budget"]))
     if math.isnan(float(cell["paper"])):
         return ""
     if cell.get("kind", "learner") == "learner" and not comparable_preset(cell["preset"]):
@@ -337,13 +393,19 @@ def delta_note(cell: Mapping[str, Any]) -> str:
 
 
 def _best_flags(frame: pd.DataFrame) -> pd.Series:
-    """The highest mean among the row's *complete* learner cells (ties all best; incomplete: never)."""
-    learners = (frame["kind"] == "learner") & frame["complete"]
+    """The highest mean among the row's *complete* learner cells that mean something (issue 45):
+    none in a preset whose learners learn nothing (:data:`NO_BEST_PRESETS`), none for a cell trained
+    at another budget than its row's (``off_budget``). Ties are all best, at the digits the pages
+    print (:data:`SHOWN_DIGITS`): 0.8071 and 0.8068 both read 0.807, so both are outlined or neither."""
+    learners = (frame["kind"] == "learner") & frame["complete"] & ~frame["preset"].astype(str).isin(NO_BEST_PRESETS)
+    if "off_budget" in frame.columns:
+        learners &= frame["off_budget"].fillna(0).astype(int) == 0
     best = pd.Series(False, index=frame.index)
     if not learners.any():
         return best
-    row_max = frame.loc[learners].groupby(["protocol", "preset", "chain", "scenario"])["mean"].transform("max")
-    best.loc[learners] = (frame.loc[learners, "mean"] >= row_max - _TOLERANCE) & frame.loc[learners, "mean"].notna()
+    shown = frame.loc[learners, "mean"].astype(float).round(SHOWN_DIGITS)
+    row_max = shown.groupby([frame.loc[learners, k] for k in ("protocol", "preset", "chain", "scenario")]).transform("max")
+    best.loc[learners] = (shown >= row_max - _TOLERANCE) & shown.notna()
     return best.astype(bool)
 
 

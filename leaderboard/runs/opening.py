@@ -15,6 +15,7 @@ import pandas as pd
 
 from leaderboard.runs.aggregate import Group, Leaderboard, choose_primary
 from leaderboard.runs.sources import RESULTS_SOURCE
+from morality_gym.results.identity import SUBMITTED_ALGO
 
 
 def _own_runs(lb: Leaderboard) -> pd.DataFrame:
@@ -23,10 +24,22 @@ def _own_runs(lb: Leaderboard) -> pd.DataFrame:
     return lb.runs.loc[lb.runs["source"] == RESULTS_SOURCE]
 
 
+def _swept(own: pd.DataFrame) -> pd.DataFrame:
+    """The runs a sweep trained, when the user has any: a submission (``leaderboard.submit``, the torch
+    example) lands in the group of its ``--preset`` (``paper`` by default), and opened the index on
+    it, 36 runs beside the release, the user's 630 smoke runs out of view (issue 45). It is the
+    default view only when the user ran no sweep."""
+    if "algo" not in own.columns:
+        return own
+    swept = own.loc[own["algo"].astype(object) != SUBMITTED_ALGO]
+    return swept if not swept.empty else own
+
+
 def newest_own_group(lb: Leaderboard) -> Group | None:
-    """The sweep the user ran last: among the groups of the preset of their newest run, the one
-    :func:`choose_primary` prefers (most rows, then protocol paper). None without runs of their own."""
-    own = _own_runs(lb)
+    """The sweep the user ran last: among the groups of the preset of their newest sweep run (their
+    newest submission only when they ran no sweep), the one :func:`choose_primary` prefers (most
+    rows, then protocol paper). None without runs of their own."""
+    own = _swept(_own_runs(lb))
     if own.empty:
         return None
     when = pd.to_datetime(own["finished_at"].fillna(own["started_at"]), utc=True, errors="coerce")
@@ -55,6 +68,27 @@ def opening_groups(lb: Leaderboard) -> tuple[Group | None, Group | None]:
     return mine, release_match(lb, mine)
 
 
+
+
+def whose_runs(lb: Leaderboard, group: Group, newest: Group | None) -> str:
+    """Whose runs a sweep's grid holds, in a few words, above it: "Your newest sweep" over release
+    runs was a wrong caption (issue 45); this one is computed for each sweep, on every page."""
+    part = lb.runs.loc[(lb.runs["protocol"] == group.protocol) & (lb.runs["preset"] == group.preset)]
+    sources = set(part["source"]) if "source" in part.columns else {RESULTS_SOURCE}
+    mine, released = RESULTS_SOURCE in sources, bool(sources - {RESULTS_SOURCE})
+    if group == newest:
+        return "Your newest sweep" + (", with a release's runs" if released else "")
+    if mine and released:
+        return "Your runs and a release's"
+    return "Your runs" if mine else "A release's runs (none of yours)"
+
+
+def display_order(lb: Leaderboard) -> list[Group]:
+    """The sweeps in the order a page shows them: the one the index opens on, the one beside it,
+    then the others (:attr:`Leaderboard.groups`' order). The ranking and scenario pages opened on
+    the release's section, the user's own sweep further down (issue 45)."""
+    first = [g for g in opening_groups(lb) if g is not None]
+    return list(dict.fromkeys([*first, *lb.groups]))
 
 
 def primary_choice(lb: Leaderboard, protocol: str | None, preset: str | None) -> tuple[str | None, str | None]:

@@ -25,11 +25,15 @@ from leaderboard.runs.aggregate import (
     STD_DDOF,
     Group,
     chain_norm_order,
+    comparable_preset,
+    not_comparable_text,
     safe_name,
 )
+from leaderboard.runs.opening import display_order, newest_own_group, whose_runs
 from leaderboard.runs.sources import RESULTS_SOURCE
 from leaderboard.web.llm_entries import llm_entries
 from leaderboard.web.render import clean, clean_records, is_missing, run_href, scenario_href, section_id
+from leaderboard.web.run_figures import episodes_of
 from leaderboard.web.site_state import SiteBuild
 from leaderboard.web.table1_grid import grid_context, opening_groups
 from morality_gym.clitools import duration
@@ -329,6 +333,7 @@ def run_context(sb: SiteBuild, record: dict[str, Any]) -> dict[str, Any]:
         "norms": [{"name": n, "label": norm_label(n), "abbreviation": norm_abbreviation(n), "relevant": n in relevant,
                    "value": clean(record.get(f"{MF_PREFIX}{n}"))} for n in norms],
         "learn": sb.learn.get(run_id), "gif": sb.gifs.get(run_id),
+        **dict(zip(("learn_episodes", "final_episodes"), episodes_of(record))),
         "learn_error": sb.figures.learn_errors.get(run_id),
         "updates": sb.updates.get(run_id), "updates_error": sb.figures.updates_errors.get(run_id),
         "config": pretty_json(record.get("config")), "versions": pretty_json(record.get("versions")),
@@ -444,7 +449,8 @@ def scenario_context(sb: SiteBuild, scenario: str) -> dict[str, Any]:
                      "relevant": [(norm_label(n), norm_abbreviation(n)) for n in variant.relevant]}
                     for name, variant in spec.variants.items()]
     sections = []
-    for group in sb.lb.groups:
+    newest = newest_own_group(sb.lb)
+    for group in display_order(sb.lb):
         for chain, scen in sb.lb.pairs(group):
             if scen != scenario:
                 continue
@@ -453,7 +459,8 @@ def scenario_context(sb: SiteBuild, scenario: str) -> dict[str, Any]:
             row_figures = sb.row_figures.get((group, chain, scenario), {})
             sections.append({
                 "id": section_id(group, chain), "chain": chain, "chain_title": chain_title(chain),
-                "group_label": group.label,
+                "group_label": group.label, "whose": whose_runs(sb.lb, group, newest),
+                "not_comparable": "" if comparable_preset(group.preset) else not_comparable_text(group.preset),
                 "summary": summary_rows(sb, group, chain, scenario),
                 "radar": f"figures/{group.slug}/{radar.name}" if radar is not None else None,
                 "curves": row_figures.get("curves"), "curves_note": row_figures.get("curves_note", ""),

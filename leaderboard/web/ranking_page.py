@@ -14,7 +14,9 @@ import pandas as pd
 from leaderboard.outputs.precision import DIGITS_RULE
 from leaderboard.outputs.stats_figures import RANKING_FIGURES
 from leaderboard.outputs.tables import fmt, interval_text
-from leaderboard.runs.aggregate import ORACLE_BEST, RANDOM_EXACT, Group
+from leaderboard.runs.aggregate import ORACLE_BEST, RANDOM_EXACT, Group, comparable_preset, not_comparable_text
+from leaderboard.runs.cells import NO_BEST_PRESETS
+from leaderboard.runs.opening import display_order, newest_own_group, whose_runs
 from leaderboard.stats.cells import intervals_overlap
 from leaderboard.stats.ranking import MIN_HEADROOM
 from leaderboard.web.render import clean, clean_records, is_missing, scenario_href, section_id
@@ -91,22 +93,23 @@ def _matrix_tip(c: dict[str, Any], ref: dict[str, Any] | None, score: float | No
 
 
 # ---------------------------------------------------------------------------------------- ranking
-def _measure_rows(sb: SiteBuild, aggregates: pd.DataFrame, measure: str) -> list[dict[str, Any]]:
+def _measure_rows(sb: SiteBuild, aggregates: pd.DataFrame, measure: str, marks: bool = True) -> list[dict[str, Any]]:
     """Per learner, each statistic with its interval, shaded when best and bold when also separated
-    from every other learner's interval: the one meaning of the marks (:mod:`leaderboard.outputs.marks`)."""
+    from every other learner's interval: the one meaning of the marks (:mod:`leaderboard.outputs.marks`).
+    ``marks`` False: none (a sweep whose learners learn nothing, :data:`NO_BEST_PRESETS`)."""
     part = aggregates.loc[aggregates["measure"] == measure] if not aggregates.empty else aggregates
     if part.empty:
         return []
     learners = [n for n in sb.lb.learners if n in set(part["learner"])]
-    marks = {statistic: _column_marks(part.loc[part["statistic"] == statistic], pick)
-             for statistic, _, pick in STATISTICS}
+    marks_of = {statistic: _column_marks(part.loc[part["statistic"] == statistic], pick) if marks else {}
+                for statistic, _, pick in STATISTICS}
     rows = []
     for learner in learners:
         mine = {r["statistic"]: r for r in clean_records(part.loc[part["learner"] == learner])}
         stats = []
         for statistic, _, _ in STATISTICS:
             r = mine.get(statistic)
-            best, bold = marks[statistic].get(learner, (False, False))
+            best, bold = marks_of[statistic].get(learner, (False, False))
             stats.append({"value": None if r is None else r["value"],
                           "ci": interval(r), "top": best, "bold": bold})
         first = next(iter(mine.values()))
@@ -198,7 +201,8 @@ def footnote(rows: list[dict[str, Any]]) -> str:
 def ranking_context(sb: SiteBuild) -> dict[str, Any]:
     stats = sb.stats
     groups = []
-    for group in sb.lb.groups:
+    newest = newest_own_group(sb.lb)
+    for group in display_order(sb.lb):
         if stats is None:
             break
         aggregates = group_frame(stats.aggregates, group)
@@ -209,7 +213,8 @@ def ranking_context(sb: SiteBuild) -> dict[str, Any]:
             empty = ("No row can be normalised (no reference values, or too little headroom): see the rows below."
                      if measure == "score" else "No row where every learner has a usable run.")
             measures.append({"measure": measure, "title": MEASURE_TITLES[measure],
-                             "rows": _measure_rows(sb, aggregates, measure), "empty": empty,
+                             "rows": _measure_rows(sb, aggregates, measure, marks=group.preset not in NO_BEST_PRESETS),
+                             "empty": empty,
                              "left_out": left_out(rows, measure)})
         learners, improvement = _improvement(sb, group_frame(stats.improvement, group))
         captions = dict(RANKING_FIGURES)
@@ -218,7 +223,9 @@ def ranking_context(sb: SiteBuild) -> dict[str, Any]:
                                                       left_out(rows, FIGURE_MEASURES[kind]) if kind in FIGURE_MEASURES
                                                       else ""]))}
                    for kind, path in sb.ranking_figures.get(group, [])]
-        groups.append({"slug": group.slug, "label": group.label, "measures": measures, "learners": learners,
+        groups.append({"slug": group.slug, "label": group.label, "whose": whose_runs(sb.lb, group, newest),
+                       "not_comparable": "" if comparable_preset(group.preset) else not_comparable_text(group.preset),
+                       "marks": group.preset not in NO_BEST_PRESETS, "measures": measures, "learners": learners,
                        "improvement": improvement, "improvement_left_out": left_out(rows, "metric"),
                        "figures": figures, "rows": rows, "footnote": footnote(rows)})
     n_rows = {len(g["rows"]) for g in groups}

@@ -54,6 +54,16 @@ def int_text(value: Any) -> str:
         return "—"
 
 
+def count_text(value: Any, noun: str = "run") -> str:
+    """``1 run`` / ``1,890 runs``: a count written one way on every page (a box once said "1,890 runs"
+    and "1890 run(s)")."""
+    try:
+        n = int(value)
+    except (TypeError, ValueError):
+        return f"— {noun}s"
+    return f"{n:,} {noun}" + ("" if n == 1 else "s")
+
+
 def clean(value: Any) -> Any:
     """NaN / NA -> None, numpy scalars -> Python (templates test ``is none`` and print plainly)."""
     if is_missing(value) and not isinstance(value, str):
@@ -106,7 +116,7 @@ def environment() -> jinja2.Environment:
         keep_trailing_newline=True,
         finalize=finalize,
     )
-    env.filters.update(fmt=fmt, sortkey=sort_key, intstr=int_text, missing=is_missing, run_href=run_href)
+    env.filters.update(fmt=fmt, sortkey=sort_key, intstr=int_text, missing=is_missing, run_href=run_href, counted=count_text)
     return env
 
 

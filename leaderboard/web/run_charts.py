@@ -173,8 +173,12 @@ def _column(frame: pd.DataFrame, name: str) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------- charts
-def learn_chart(learn: pd.DataFrame, final_metric: float | None, title: str) -> Chart:
-    """Monte Carlo and exact metric against environment steps, with the final evaluation's line."""
+def learn_chart(learn: pd.DataFrame, final_metric: float | None, title: str, episodes: int | None = None,
+                final_episodes: int | None = None) -> Chart:
+    """Monte Carlo and exact metric against environment steps, with the final evaluation's line.
+
+    The legend says how many episodes each estimate averages (``episodes``, ``final_episodes``): a
+    learn-time 0.95 from 5 episodes above a final 0.441 from 100 read as a bug (issue 45)."""
     data = learn.sort_values("step", kind="stable")
     steps, mc, exact = _column(data, "step"), _column(data, "metric"), _column(data, "exact_metric")
     panel = Panel(58, 48, 540, 262, xlabel="environment steps", ylabel="morality metric")
@@ -184,7 +188,7 @@ def learn_chart(learn: pd.DataFrame, final_metric: float | None, title: str) -> 
     panel.yticks = sy.ticks(values=[0, 0.2, 0.4, 0.6, 0.8, 1.0])
     mc_line = Series("line", line_path(sx(steps), sy(mc)), BLUE)
     panel.series = [mc_line, Series("dots", dots_path(sx(steps), sy(mc)), BLUE, width=5.5)]
-    legend = [("metric (MC)", mc_line)]
+    legend = [(f"MC metric ({episodes} episodes each)" if episodes else "MC metric", mc_line)]
     if np.isfinite(exact).any():
         exact_line = Series("line", line_path(sx(steps), sy(exact)), ORANGE, dash="5 3", width=1.2)
         panel.series.append(exact_line)
@@ -193,7 +197,7 @@ def learn_chart(learn: pd.DataFrame, final_metric: float | None, title: str) -> 
         y = float(sy(np.array(final_metric)))
         final = Series("line", f"M{panel.x0:.1f} {y:.1f}H{panel.x1:.1f}", GREY, dash="1.5 2.5", width=1.0)
         panel.series.append(final)
-        legend.append(("final evaluation", final))
+        legend.append((f"final evaluation ({final_episodes} episodes)" if final_episodes else "final evaluation", final))
     return Chart(552, 300, title, [panel], legend)
 
 

@@ -11,6 +11,7 @@ side table is reported on its run page, never fatal.
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -44,8 +45,22 @@ def final_metric(record: dict[str, Any]) -> float:
         return math.nan
 
 
+def episodes_of(record: dict[str, Any]) -> tuple[int | None, int | None]:
+    """(episodes per learn-time estimate, episodes of the final evaluation) from the run's recorded
+    config and row; None where not recorded."""
+    try:
+        config = json.loads(str(record.get("config") or "{}"))
+    except ValueError:
+        config = {}
+    learn = config.get("learn_eval_episodes") if isinstance(config, dict) else None
+    final = record.get("eval_episodes")
+    as_int = (lambda v: int(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+              else None)
+    return as_int(learn), as_int(final)
+
+
 def draw_learn(record: dict[str, Any], frame: pd.DataFrame) -> str:
-    return run_charts.chart_svg(run_charts.learn_chart(frame, final_metric(record), run_title(record)))
+    return run_charts.chart_svg(run_charts.learn_chart(frame, final_metric(record), run_title(record), *episodes_of(record)))
 
 
 def draw_updates(record: dict[str, Any], frame: pd.DataFrame) -> str:
@@ -58,7 +73,7 @@ def code_digest() -> str:
 
 
 def chart_key(code: str, kind: str, source: SideFile, record: dict[str, Any]) -> str:
-    return digest([code, kind, source.digest(), run_title(record), repr(final_metric(record))])
+    return digest([code, kind, source.digest(), run_title(record), repr(final_metric(record)), repr(episodes_of(record))])
 
 
 def _charts(lb: Leaderboard, source_of: Callable[[str], SideFile | None], out_dir: Path, suffix: str, kind: str,
@@ -66,7 +81,9 @@ def _charts(lb: Leaderboard, source_of: Callable[[str], SideFile | None], out_di
             code: str, label: str, progress: Progress | None) -> int:
     """Draw the charts of one kind whose key changed; returns how many were drawn."""
     todo: list[tuple[dict[str, Any], SideFile, Path, str]] = []
-    for record in lb.runs[["run_id", "metric", "scenario", "variant", "learner", "seed"]].to_dict("records"):
+    columns = [c for c in ("run_id", "metric", "scenario", "variant", "learner", "seed", "config", "eval_episodes")
+               if c in lb.runs.columns]
+    for record in lb.runs[columns].to_dict("records"):
         run_id = str(record["run_id"])
         source = source_of(run_id)
         if source is None:

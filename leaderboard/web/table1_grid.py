@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from leaderboard.outputs.precision import DIGITS_RULE
 from leaderboard.outputs.tables import fmt, interval_text
 from leaderboard.runs.aggregate import (
     ORACLE_BEST,
@@ -25,12 +26,15 @@ from leaderboard.runs.aggregate import (
     comparable_preset,
     not_comparable_text,
 )
-from leaderboard.runs.opening import newest_own_group, opening_groups
+from leaderboard.runs.opening import newest_own_group, opening_groups, whose_runs
 from leaderboard.runs.sources import RESULTS_SOURCE, Sources
 from leaderboard.web.ranking_page import SCORE_COLOURS, group_frame, left_out_rows, matrix_cell
 from leaderboard.web.render import clean_records, is_missing, scenario_href, section_id
 from leaderboard.web.site_state import SiteBuild
-from morality_gym.baselines.specs import protocol_spec, trains_alike
+from morality_gym.baselines.specs import CONF_DIR, protocol_spec, trains_alike
+
+#: The protocol the paper's Table 1 values were obtained under (conf/protocol/paper.yaml).
+PAPER_PROTOCOL = "paper"
 
 
 def group_origin(lb: Leaderboard, sources: Sources, group: Group) -> str:
@@ -56,7 +60,8 @@ def alike_note(lb: Leaderboard, group: Group) -> str:
         if other.preset != group.preset or other.protocol == group.protocol:
             continue
         runs = lb.runs.loc[(lb.runs["protocol"] == other.protocol) & (lb.runs["preset"] == other.preset)]
-        missing = runs.loc[~runs["learner"].isin(here), ["algo", "learner"]].drop_duplicates()
+        # built-in learners only: a submitted policy or a user's algo is not the protocol's to change or leave alone
+        missing = runs.loc[~runs["learner"].isin(here) & runs["algo"].isin(builtin_algos()), ["algo", "learner"]].drop_duplicates()
         if missing.empty:
             continue
         specs = (protocol_spec(group.protocol), protocol_spec(other.protocol))  # each file read once, not per learner
@@ -71,15 +76,23 @@ def alike_note(lb: Leaderboard, group: Group) -> str:
     return "; ".join(notes)
 
 
+def builtin_algos() -> set[str]:
+    """The learners that ship with the project (``conf/algo``); a user's come from plugins."""
+    return {p.stem for p in (CONF_DIR / "algo").glob("*.yaml")}
+
+
 # ---------------------------------------------------------------------------------------- the grid
 def grid_cell(record: dict[str, Any] | None, ref: dict[str, Any] | None, learner: str, chain: str,
               scenario: str) -> dict[str, Any]:
     """One grid cell: the matrix cell's colour and tooltip, plus its interval and the paper's value."""
     cell = matrix_cell(record, ref, learner, chain, scenario)
     if record is None or record.get("mean") is None:
-        return cell | {"best": False, "ci": "", "paper": "", "delta": "", "delta_off": False}
+        return cell | {"best": False, "ci": "", "paper": "", "delta": "", "delta_off": False, "off_budget": ""}
     delta = record.get("delta")
+    off = int(record.get("off_budget") or 0)
     return cell | {
+        # a cell whose runs trained for another budget than its sweep's (a submission): said in the cell itself
+        "off_budget": str(record.get("delta_note") or "") if off else "",
         "best": bool(record.get("best")),
         "ci": interval_text(record),
         "paper": "" if is_missing(record.get("paper")) else fmt(record["paper"]),
@@ -105,6 +118,7 @@ def group_grid(sb: SiteBuild, group: Group, root: str) -> dict[str, Any]:
                      "cells": [grid_cell(cells.get((chain, scenario, n)), ref, n, chain, scenario) for n in learners]})
         previous = chain
     return {"slug": group.slug, "label": f"{group.protocol} · {group.preset}", "origin": group_origin(lb, sb.sources, group),
+            "whose": whose_runs(lb, group, newest_own_group(lb)), "paper_protocol": group.protocol == PAPER_PROTOCOL,
             "comparable": comparable_preset(group.preset), "not_comparable": not_comparable_text(group.preset),
             "learners": [(n, sb.colour(n), lb.submitted.get(n)) for n in learners], "rows": rows,
             "n_cells": len(cells), "grey": "; ".join(left_out_rows(ranked, "normalised")), "alike": alike_note(lb, group)}
@@ -118,4 +132,4 @@ def grid_context(sb: SiteBuild, root: str) -> dict[str, Any]:
             "own": newest_own_group(sb.lb) is not None,
             "sweeps": [(g["slug"], f"{g['label']} ({g['origin']})") for g in grids],
             "oracle_worst": ORACLE_WORST,
-            "legend": SCORE_COLOURS, "random_exact": RANDOM_EXACT, "oracle_best": ORACLE_BEST}
+            "legend": SCORE_COLOURS, "random_exact": RANDOM_EXACT, "oracle_best": ORACLE_BEST, "digits_rule": DIGITS_RULE}
