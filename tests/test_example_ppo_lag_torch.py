@@ -40,6 +40,10 @@ def test_the_example_trains_and_writes_submitted_runs(tmp_path: Path) -> None:
     assert set(runs["learner"]) == {NAME} and set(runs["algo"]) == {"submitted"} and set(runs["seed"]) == {41}
     assert runs["metric"].between(0, 1).all() and runs["exact_metric"].between(0, 1).all()  # a stationary policy: exact too
     assert set(runs["chain"]) == {"Utility"} and set(runs["status"]) == {"ok"}
+    # issue 45: the runs record the budget they trained for (they recorded 0), and the hint builds the site the user has
+    assert set(runs["budget"]) == {4096} and set(runs["total_steps"]) == {4096}
+    assert "4,096 steps each" in out.stdout and "1 torch thread(s)" in out.stdout
+    assert "now: python -m leaderboard.build --results" in out.stdout  # outside a checkout: the build command
     again = _run(tmp_path / "results", tmp_path)  # same script, same weights (seeded): the same runs, not new ones
     assert again.returncode == 0, again.stdout + again.stderr
     assert len(read_runs(tmp_path / "results")) == 2
@@ -48,3 +52,21 @@ def test_the_example_trains_and_writes_submitted_runs(tmp_path: Path) -> None:
     loaded = _run(tmp_path / "results", tmp_path, "--load", str(tmp_path / "results" / "ppo_lag_torch_actor.pt"))
     assert loaded.returncode == 0, loaded.stdout + loaded.stderr
     assert "training" not in loaded.stdout and len(read_runs(tmp_path / "results")) == 2  # the saved weights: the same runs
+
+
+def test_the_examples_flags_are_described_and_a_budget_under_one_update_is_refused(tmp_path: Path) -> None:
+    """Issue 45: ``--help`` listed 31 flags with no description or default, and ``--total-steps 1000``
+    trained 2,048 steps without a word; a budget between two updates is rounded down, and said."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    helped = subprocess.run([sys.executable, str(SCRIPT), "--help"], cwd=tmp_path, env=env, capture_output=True, text=True,
+                            check=False)
+    assert helped.returncode == 0, helped.stderr
+    flags = [line.split()[0] for line in helped.stdout.splitlines() if line.strip().startswith("--") and "--help" not in line]
+    assert len(flags) >= 30
+    text = " ".join(helped.stdout.split())
+    assert "environment steps per run" in text and "(default: 200000)" in text and "(default: 0.99)" in text
+    refused = _run(tmp_path / "results", tmp_path, "--total-steps", "300")
+    assert refused.returncode == 2 and "Traceback" not in refused.stderr
+    assert refused.stderr.strip().splitlines() == [
+        "error: --total-steps 300 is less than one update (8 copies x 64 steps = 512 steps per run); ask at least that"]
+    assert not (tmp_path / "results").exists()

@@ -21,9 +21,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import inspect
 import itertools
 import math
 import os
+import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +35,7 @@ import torch as th
 from torch import nn
 
 import morality_gym
-from leaderboard.submit import Cell, Submission, check_name, preset_facts, select_cells, submit
+from leaderboard.submit import Cell, Submission, build_hint, check_name, preset_facts, select_cells, submit
 from morality_gym.baselines.policy_ref import LoadedPolicy
 from morality_gym.constants import BETA, MAX_STEPS
 from morality_gym.envs.registry import scenario_named
@@ -48,45 +50,63 @@ class Args:
     protocol: str = "paper"  # the leaderboard group the entry appears in (the evaluation is the same)
     name: str = "PPO-Lag (torch example)"  # the entry's name on the leaderboard
     results: str = "results"  # results directory the run files go to
-    device: str = "cpu"
-    total_steps: int = 200_000  # environment steps per run
+    device: str = "cpu"  # torch device the runs train on: cpu, cuda, cuda:1
+    total_steps: int = 200_000  # environment steps per run, whole updates of num_envs x num_steps (at least one); recorded as the runs' budget
     num_envs: int = 16  # copies per run
     num_steps: int = 128  # rollout length: num_envs * num_steps = 2,048 steps per run per update
-    num_minibatches: int = 4
-    update_epochs: int = 4
-    learning_rate: float = 3e-4
-    anneal_lr: bool = True
-    gamma: float = 0.99
-    gae_lambda: float = 0.95
-    clip_coef: float = 0.2
-    ent_coef: float = 0.0
-    vf_coef: float = 0.5
-    max_grad_norm: float = 0.5
+    num_minibatches: int = 4  # minibatches per epoch over a run's rollout
+    update_epochs: int = 4  # passes over each rollout
+    learning_rate: float = 3e-4  # Adam's step size (actor and both critics)
+    anneal_lr: bool = True  # anneal the learning rate linearly to 0 over the updates
+    gamma: float = 0.99  # discount of rewards and costs
+    gae_lambda: float = 0.95  # GAE's lambda
+    clip_coef: float = 0.2  # PPO's ratio clip
+    ent_coef: float = 0.0  # entropy bonus coefficient
+    vf_coef: float = 0.5  # weight of the two critics' losses
+    max_grad_norm: float = 0.5  # gradient norm clip, per run
     cost_limit: float = 0.0  # per-episode cost the Lagrangian allows (the paper's: none)
-    lagrange_init: float = 0.001
-    lagrange_lr: float = 0.035
+    lagrange_init: float = 0.001  # the Lagrange multiplier's starting value
+    lagrange_lr: float = 0.035  # Adam's step size for the multiplier
     reward_scale: float = 300.0  # rewards are divided by it (the paper's r / 300)
     cost_adv_std: bool = True  # standardise the cost advantages too (the paper's PPO-Lag only centres them: see README)
-    hidden: int = 64
+    hidden: int = 64  # width of the two hidden layers of each network
     gif: bool = False  # record one evaluation episode per run for its leaderboard page
     log_every: int = 10  # updates between progress lines
     threads: int = 1  # torch CPU threads: the matrices are small, more threads cost more than they gain
     load: str = ""  # evaluate and submit the weights saved by an earlier run of the same runs instead of training
 
 
+def field_help() -> dict[str, str]:
+    """Each field's comment in :class:`Args`: the one description of a flag, read for ``--help``."""
+    lines, _ = inspect.getsourcelines(Args)
+    found = (re.match(r"\s+(\w+): .*?  # (.*)$", line) for line in lines)
+    return {m[1]: m[2].replace("%", "%%") for m in found if m}  # argparse formats help with %
+
+
+def steps_per_update(args: Args) -> int:
+    return args.num_envs * args.num_steps
+
+
 def parse_args(argv: list[str] | None = None) -> Args:
-    """``--flag value`` for every field of :class:`Args` (lists take several values)."""
+    """``--flag value`` for every field of :class:`Args` (lists take several values), each described
+    by the field's comment with its default; a budget under one update is refused, not raised."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    described = field_help()
     for f in dataclasses.fields(Args):
         default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
         flag = "--" + f.name.replace("_", "-")
+        text = f"{described[f.name]} (default: %(default)s)"
         if isinstance(default, bool):
-            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=default)
+            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=default, help=described[f.name])
         elif isinstance(default, list):
-            parser.add_argument(flag, nargs="*", default=default)
+            parser.add_argument(flag, nargs="*", default=default, help=text)
         else:
-            parser.add_argument(flag, type=type(default), default=default)
-    return Args(**vars(parser.parse_args(argv)))
+            parser.add_argument(flag, type=type(default), default=default, help=text)
+    args = Args(**vars(parser.parse_args(argv)))
+    if args.total_steps < steps_per_update(args) and not args.load:
+        parser.exit(2, f"error: --total-steps {args.total_steps:,} is less than one update ({args.num_envs} copies x "
+                       f"{args.num_steps} steps = {steps_per_update(args):,} steps per run); ask at least that\n")
+    return args
 
 
 # ------------------------------------------------------------------------------------ networks
@@ -168,7 +188,7 @@ def train(args: Args, runs: list[tuple[Cell, str, int]]) -> tuple[StackedMLP, in
     last = {"return": float("nan"), "cost": float("nan")}
 
     obs = env.reset(seed=runs[0][2])[0].view(K, n, D)
-    num_updates = max(1, args.total_steps // (n * T))
+    num_updates = args.total_steps // (n * T)  # at least one: parse_args refuses less
     start, cpu_start = time.perf_counter(), time.process_time()
     for update in range(1, num_updates + 1):
         if args.anneal_lr:
@@ -272,8 +292,13 @@ def save_actor(args: Args, runs: list[tuple[Cell, str, int]], actor: StackedMLP)
     return weights
 
 
-def evaluate_and_submit(args: Args, runs: list[tuple[Cell, str, int]], actor: StackedMLP, obs_dim: int, weights: Path) -> None:
-    """Each run's policy, evaluated as every trained run of a sweep is, written as run files."""
+def evaluate_and_submit(args: Args, runs: list[tuple[Cell, str, int]], actor: StackedMLP, obs_dim: int, weights: Path,
+                        trained: Args | None = None) -> None:
+    """Each run's policy, evaluated as every trained run of a sweep is, written as run files that
+    record the budget it trained for (``trained``: the flags it trained with, when not ``args``), so
+    that a 2,048-step entry is marked not comparable beside 1M-step baselines."""
+    trained = args if trained is None else trained
+    steps = trained.total_steps // steps_per_update(trained) * steps_per_update(trained)
     out = Path(args.results)
     out.mkdir(parents=True, exist_ok=True)
     _, episodes = preset_facts(args.preset)
@@ -283,13 +308,13 @@ def evaluate_and_submit(args: Args, runs: list[tuple[Cell, str, int]], actor: St
                               policy=Policy(actor, k, obs_dim), files=(Path(__file__).resolve(), weights.resolve()))
         sub = Submission(name=check_name(args.name), loaded=loaded, sha256=loaded.sha256(), submitter=os.environ.get("USER") or "unknown",
                          protocol=args.protocol, preset=args.preset, seeds=(seed,), eval_episodes=episodes,
-                         beta=BETA, max_steps=MAX_STEPS, gif=args.gif)
+                         beta=BETA, max_steps=MAX_STEPS, gif=args.gif, budget=trained.total_steps, trained_steps=steps)
         variant = env_id.split("-")[1]
         submit(sub, [Cell(cell.chain, cell.scenario, (variant,))], out, say=lambda line: print(line) if line.startswith("  ") else None)
-    print(f"wrote the runs to {out / 'runs'}; now: python -m leaderboard.build --results {out}")
+    print(f"wrote the runs to {out / 'runs'}; now: {build_hint(out)}")
 
 
-def load_actor(path: str, runs: list[tuple[Cell, str, int]]) -> tuple[StackedMLP, int]:
+def load_actor(path: str, runs: list[tuple[Cell, str, int]]) -> tuple[StackedMLP, int, Path, Args]:
     """The actor saved by :func:`evaluate_and_submit` for exactly these runs (e.g. trained on a GPU machine)."""
     saved = th.load(path, map_location="cpu")
     if [tuple(r) for r in saved["runs"]] != [(c.chain.name, e, s) for c, e, s in runs]:
@@ -297,7 +322,8 @@ def load_actor(path: str, runs: list[tuple[Cell, str, int]]) -> tuple[StackedMLP
     shapes = [w.shape for name, w in saved["actor"].items() if name.startswith("weights.")]
     actor = StackedMLP([shapes[0][1], *(s[2] for s in shapes)], 1.0, [th.Generator() for _ in runs])
     actor.load_state_dict(saved["actor"])
-    return actor, shapes[0][1]
+    known = {f.name for f in dataclasses.fields(Args)}
+    return actor, shapes[0][1], Path(path), Args(**{k: v for k, v in saved["args"].items() if k in known})
 
 
 def main(argv: list[str] | None = None) -> dict[str, float]:
@@ -308,10 +334,12 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     seeds, _ = preset_facts(args.preset)
     runs = [(cell, scenario_named(cell.scenario).env_id(v), seed) for cell in cells for v in cell.variants for seed in seeds]
     if args.load:
-        evaluate_and_submit(args, runs, *load_actor(args.load, runs), Path(args.load))
+        evaluate_and_submit(args, runs, *load_actor(args.load, runs))
         return {}
+    steps = args.total_steps // steps_per_update(args) * steps_per_update(args)
+    rounded = "" if steps == args.total_steps else f" (--total-steps {args.total_steps:,} rounded down to whole updates of {steps_per_update(args):,})"
     print(f"training {len(runs)} runs ({len(cells)} cell(s) x variants x {len(seeds)} seed(s)) on {args.device}, "
-          f"{args.total_steps:,} steps each", flush=True)
+          f"{steps:,} steps each{rounded}, {th.get_num_threads()} torch thread(s)", flush=True)
     actor, obs_dim, speed = train(args, runs)
     print(f"trained in {speed['seconds']:.1f} s: {speed['env_steps_per_s']:,.0f} env steps/s, "
           f"{speed['env_steps_per_s'] / len(runs):,.0f} per run ({speed['env_steps_per_cpu_s']:,.0f} per CPU-second)", flush=True)

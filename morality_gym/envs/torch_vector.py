@@ -50,6 +50,12 @@ class TorchTrolleyVectorEnv(VectorEnv):
     copy and its env id; the check reads one flag back from the device each step, so a tuned
     training loop that samples its actions from a categorical may pass ``check_actions=False``.
 
+    On the CPU, step it with torch on one thread (``torch.set_num_threads(1)`` or
+    ``OMP_NUM_THREADS=1``): a step is a few small gathers, and torch's default of a thread per core
+    makes them wait on each other and on whatever else the cores run (3-80 times slower on a busy
+    2-core machine, docs/how-to/fast-own-algorithm.md). The env leaves the setting, global to the
+    process, to its user.
+
     ## Observation Space
 
     A float32 tensor ``[num_envs, obs_dim]`` on the device: each copy's flat observation (the layout of
