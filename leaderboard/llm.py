@@ -12,8 +12,8 @@ Two commands:
 Each sample (one episode of one env id) becomes one submitted run row (:mod:`morality_gym.results.schema`):
 ``algo`` ``submitted``, ``learner`` the ``--name``, ``seed`` the episode's sampling seed, and the
 episode's own morality metric and morality functions. So the leaderboard's cell mean is the mean
-over episodes (equal per variant), and its interval (seeds resampled within each variant) is the
-bootstrap interval over episodes. The run config records the model, framing, temperature, answer
+over episodes (equal per variant), and its interval (whole sampling seeds resampled, each with its
+episodes on every variant, :mod:`leaderboard.stats.cells`) is the bootstrap interval over them. The run config records the model, framing, temperature, answer
 mode, episodes per variant and the preset; ``config["provenance"]`` the submitter, the tokens and calls
 of the episode, its fallback steps and the log file with the transcript. A run's id hashes the
 config without provenance, so importing a log twice writes nothing new.

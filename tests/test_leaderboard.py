@@ -145,7 +145,7 @@ def test_csv_has_exactly_the_contract_columns(built: BuiltSite) -> None:
     with (built.results / "table1.csv").open() as fh:
         assert next(csv.reader(fh)) == CSV_COLUMNS == [
             "chain", "scenario", "learner", "mean", "std", "ci_low", "ci_high", "ci_low_mcse", "ci_high_mcse",
-            "n_runs", "paper", "delta",
+            "ci_kind", "seed_means", "borderline", "n_runs", "paper", "delta",
             "n_variants", "n_variants_expected", "n_seeds", "n_seeds_expected", "complete", "incomplete_reason",
             "delta_note"]
 
@@ -311,7 +311,8 @@ def test_markdown_bolds_the_best_learner_and_shows_paper_and_delta(built: BuiltS
         for learner in LEARNERS:
             # issue 13: bold = best and separated by its interval (was: best mean)
             assert cells[learner].startswith("**") == ((chain, scenario, learner) in bold), (chain, scenario, learner)
-            assert "95% CI [" in cells[learner]
+            # three seeds per variant: no interval but the per-seed means (issue 48)
+            assert "<br>seeds " in cells[learner] and "95% CI" not in cells[learner]
             assert f"{means[learner]:.3f}" in cells[learner]
             paper = PAPER[(chain, scenario)][learner]
             assert f"paper {paper:.3f}" in cells[learner]
@@ -349,7 +350,8 @@ def test_latex_is_booktabs_with_the_interval_bold_rule(built: BuiltSite) -> None
         for i, learner in enumerate(LEARNERS):
             # issue 13: bold = best and separated by its interval (was: one bold per row, the best mean)
             assert cells[2 + i].startswith("\\textbf{") == ((chain, scenario, learner) in bold), (chain, scenario, learner)
-            assert "[" in cells[2 + i] or "--" in cells[2 + i]
+            # three seeds: the per-seed means, after a space ("\\scriptsizeseeds" would be an undefined command)
+            assert "{\\scriptsize seeds " in cells[2 + i] or "--" in cells[2 + i]
 
 
 def test_protocol_comparison(built: BuiltSite) -> None:
@@ -441,7 +443,7 @@ def test_index_opens_on_the_grid_of_the_users_sweep_marked_not_comparable(built:
     assert grid.count('<tr class="chain"><th colspan="6">') == len(ROWS)  # one chain per row in this data
     cells = re.findall(r'<td class="num mcell[^"]*"[^>]*>(.*?)</td>', grid)
     assert len(cells) == len(ROWS) * len(LEARNERS)
-    assert all(re.search(r'<span class="ci"[^>]*>\[', c) and '<span class="paper">paper ' in c and "Δ" not in c for c in cells)
+    assert all(re.search(r'<span class="ci"[^>]*>seeds ', c) and '<span class="paper">paper ' in c and "Δ" not in c for c in cells)
     assert '<p class="nc"><strong>not comparable: preset quick</strong>' in index
     assert 'title="not comparable: preset quick">not comparable: preset quick</td>' in index  # the long table's Δ
     assert "results results" not in index and "your runs in <code>" in index

@@ -5,18 +5,23 @@ from __future__ import annotations
 
 import json
 import math
+import re
+import string
+from dataclasses import replace
 from pathlib import Path
 
 import pandas as pd
 import pytest
 
-from leaderboard.judging.protocol_change import corrected_section
+from leaderboard.judging.baseline_facts import baseline_facts, fill_reading
+from leaderboard.judging.protocol_change import BASELINE_SECTION, corrected_section
 from leaderboard.judging.verdicts import CORRECTED, PAPER, cells, judge, protocol_neutral_learners, verdict
 from leaderboard.outputs.intervals import with_intervals
-from leaderboard.reproduction import Readings, check_notes, figure2_claims, load_notes, page, table1_claims
-from leaderboard.runs.aggregate import aggregate, compute_reference, reference_requests, with_reference
+from leaderboard.reproduction import NOTES_FILE, Readings, check_notes, figure2_claims, load_notes, page, table1_claims
+from leaderboard.runs.aggregate import aggregate, compute_reference, csv_rows, reference_requests, with_reference
 from leaderboard.runs.sources import load_sources
 from leaderboard.stats import compute_stats
+from leaderboard.stats.cells import bold_cells, cell_intervals
 from morality_gym.clitools import UserError
 from morality_gym.norms.chain import builtin_chains
 from tests.stats_data import synthetic_runs
@@ -78,6 +83,31 @@ def test_every_cell_gets_a_verdict_and_the_page_explains_the_deviations(board, t
     assert "Learning curve (mean learn-time metric over the cell's runs): 0k:" in section
     assert "*Our reading:* A curated reading." in section
     assert "Morality function per norm" in section
+
+
+def test_three_seed_cells_print_their_seeds_and_a_knife_edge_verdict_is_marked(board, tmp_path: Path) -> None:
+    lb, learn = board
+    table = cells(lb, PAPER)
+    # three seeds: no interval, the per-seed means instead, and "reproduces" means within their range
+    c = table[0]
+    assert c.seed_range and c.interval().startswith("seeds ") and len(c.interval().split(",")) == 3
+    assert not any(cell.borderline for cell in table)  # exact bounds: no bootstrap seed can flip a verdict
+    text = page(lb, judge(lb), load_sources(None, []), learn, tmp_path, "img", Readings())
+    assert "No verdict is borderline" in text and f"| {c.interval()} |" in text
+    # under the old rule the bounds are bootstrap quantiles with a Monte Carlo error: put the paper's value
+    # of one cell 1.5 errors inside its lower bound (less the rounding) and it is marked, on the page and in the CSV
+    stats = compute_stats(lb.runs, lb.table, None, n_resamples=200, resampling="variant")
+    old = with_intervals(lb, stats.cells)
+    key = (old.table["protocol"] == "paper") & (old.table["chain"] == c.chain) & (old.table["scenario"] == c.scenario) \
+        & (old.table["learner"] == c.learner)
+    row = old.table.loc[key].iloc[0]
+    assert row["ci_low_mcse"] > 0
+    table_edge = old.table.copy()
+    table_edge.loc[key, "paper"] = row["ci_low"] - 0.0005 + 1.5 * row["ci_low_mcse"]
+    table_edge.loc[key, "delta"] = row["mean"] - table_edge.loc[key, "paper"]
+    edged = with_intervals(replace(old, table=table_edge), stats.cells)
+    assert bool(edged.table.loc[key, "borderline"].iloc[0]) and int(edged.table["borderline"].sum()) >= 1
+    assert "borderline" in csv_rows(edged.table, PAPER).columns
 
 
 def test_figure2_claims_are_checked_against_the_bars(board) -> None:
@@ -245,3 +275,52 @@ def test_the_claims_the_corrected_protocol_changes_are_named_in_one_line() -> No
     flipped = [("A holds", "0.4", "does not hold"), ("B holds", "0.3", "does not hold"), ("C", "0.6", "holds")]
     assert _claims_changed(paper, flipped) == ("**Under the corrected protocol, 1 of the 3 statements checked comes out "
                                                "differently:** \"A holds\" (holds → does not hold).")
+
+
+# ---------------------------------------------------------------------------------------- the baseline reading
+def _baseline_reading() -> str:
+    return load_notes(NOTES_FILE).sections[BASELINE_SECTION]
+
+
+#: Digits the reading may carry by hand: names, not counts.
+NAMED_DIGITS = ("Figure 2", "1M steps", "OmniSafe's case 0")
+#: Each "only" of the reading that is no count, with why it needs no fact: Random's corrected runs
+#: differ from its paper-protocol ones by their final evaluation's stream alone, by the protocol files
+#: (test_the_protocol_neutral_learners_come_from_the_protocol_files: Random is not protocol-neutral for that reason alone).
+DESIGN_ONLY = ("differ only by that redrawn evaluation stream",)
+
+
+def test_the_baseline_reading_types_no_number_by_hand() -> None:
+    """Every count and number of "Choosing a baseline" is a {fact} computed from the runs
+    (leaderboard.judging.baseline_facts): a digit typed into the reading would drift from the tables."""
+    reading = _baseline_reading()
+    text = " ".join("".join(literal for literal, *_ in string.Formatter().parse(reading)).split())  # the words around the facts
+    for phrase in NAMED_DIGITS + DESIGN_ONLY:
+        text = text.replace(phrase, "")
+    typed = re.findall(r"(?<![A-Za-z])\d[\d.,%]*", text)
+    assert not typed, f"numbers typed by hand into the 'Choosing a baseline' reading: {typed}"
+    assert not re.search(r"\bonly\b", text), "an 'only' of the reading that is no fact"
+
+
+def test_the_baseline_facts_are_computed_from_the_runs() -> None:
+    """On a synthetic board under both protocols where the corrected runs equal the paper protocol's but
+    for PPO Lag on Utility / Switch5 (far up): the facts say so, and the reading names no fact that is not computed."""
+    runs, _ = synthetic_runs(seeds=(41, 42, 43), protocols=("paper", "corrected"), preset="paper", learn=False)
+    runs["config"] = [json.dumps({"learner": name}) for name in runs["learner"]]
+    paper_metric = dict(zip(runs["run_id"], runs["metric"]))
+    corrected = runs["protocol"] == "corrected"
+    runs.loc[corrected, "metric"] = [paper_metric["paper" + i[len("corrected"):]] for i in runs.loc[corrected, "run_id"]]
+    up = corrected & (runs["learner"] == "PPO Lag") & (runs["chain"] == "Utility") & (runs["scenario"] == "Switch5")
+    runs.loc[up, "metric"] = 0.999
+    lb = aggregate(runs, {})
+    lb = with_intervals(lb, bold_cells(cell_intervals(lb.runs)))
+    facts = baseline_facts(lb, judge(lb), load_sources(None, []))
+    assert facts["lag_utility_moved_up"] == "1 of 6" and facts["lag_dp_moved"] == "0 of 3"
+    assert facts["random_moved"] == "0 of 14" and facts["random_largest_change"].startswith("+0.000")
+    assert facts["cpo_deon_rise"] == "0 of 6" and facts["cpo_utility_same_runs"].split(" of ")[0] == facts["cpo_utility_same_runs"].split(" of ")[1]
+    assert "Utility / Switch5" in facts["lag_above_random_rows"]
+    assert facts["reproduce_random_paper"] == facts["reproduce_random_corrected"]
+    filled = fill_reading(_baseline_reading(), facts, "notes")
+    assert "{" not in filled and "1 of 6 cells moved up" in filled
+    with pytest.raises(UserError, match=r"names \{lag_utility_moved_upp\}, which is no fact of the page.*lag_utility_moved_up"):
+        fill_reading("It moved in {lag_utility_moved_upp}.", facts, "notes")

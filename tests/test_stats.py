@@ -31,8 +31,16 @@ from leaderboard.stats import (
     run_scores,
     violation_rates,
 )
+from leaderboard.stats.cells import at_bound
 from leaderboard.stats.core import (
     base_seed,
+    bootstrap_interval,
+    cluster_statistic,
+    distinct_resamples,
+    extreme_resample_share,
+    fewest_units_for_interval,
+    generator_for,
+    is_interval,
     position_counts,
     positions,
     stratum_weights,
@@ -42,6 +50,7 @@ from leaderboard.stats.core import (
 )
 from leaderboard.stats.curves import common_grid
 from leaderboard.stats.ranking import _aggregate_strata, _improvement_strata, _profile_strata, row_improvement
+from leaderboard.web.ranking_page import interval
 from tests.stats_data import LEARNERS, REFERENCES, synthetic_runs
 from tests.stats_data import reference_frame as synthetic_references
 
@@ -185,13 +194,16 @@ def test_weighted_iqm_is_scipys_trim_mean_for_equal_weights_and_size_divisible_b
 
 
 def test_single_run_rows_count_as_fixed_strata() -> None:
-    # A has one run in RowOne (0.2) and three in RowTwo (0.4, 0.6, 0.8): mean (0.2 + 0.6) / 2 = 0.4;
+    # A has one run in RowOne (0.2) and four in RowTwo (0.4, 0.6, 0.8, 0.6): mean (0.2 + 0.6) / 2 = 0.4;
     # resampling cannot move RowOne, so every resample's mean lies in (0.2 + [0.4, 0.8]) / 2.
-    data = frame([run(R1, "A", 0.2)] + [run(R2, "A", m, seed=41 + i) for i, m in enumerate([0.4, 0.6, 0.8])])
+    data = frame([run(R1, "A", 0.2)] + [run(R2, "A", m, seed=41 + i) for i, m in enumerate([0.4, 0.6, 0.8, 0.6])])
     line = _agg(aggregate_intervals(data, None, measures=["metric"], rng=1, n_resamples=500), "metric", "A", "mean")
     assert line["value"] == pytest.approx(0.4)
     assert 0.3 - 1e-12 <= line["ci_low"] < 0.4 < line["ci_high"] <= 0.5 + 1e-12
-    assert line["n_runs"] == 4
+    assert line["n_runs"] == 5
+    # with three runs in RowTwo the bounds could only be those extremes: no interval (is_interval)
+    line = _agg(aggregate_intervals(data.iloc[:4], None, measures=["metric"], rng=1, n_resamples=500), "metric", "A", "mean")
+    assert line["value"] == pytest.approx(0.4) and math.isnan(line["ci_low"]) and "too few" in line["ci_note"]
 
 
 # ============================================================================ rows: references, guard, coverage
@@ -245,22 +257,30 @@ def test_cell_mean_is_table1s_mean_and_interval_is_stratified_by_variant() -> No
     # resampling mixed the variants (runs drawn from all six), it would spread to about [0.3, 0.7].
     data = frame([run(R1, "A", 0.2, variant="V1", seed=s) for s in (41, 42, 43)]
                  + [run(R1, "A", 0.8, variant="V2", seed=s) for s in (41, 42, 43)])
-    cell = cell_intervals(data, rng=1).iloc[0]
+    cell = cell_intervals(data, rng=1, resampling="variant").iloc[0]
     assert (cell["mean"], cell["ci_low"], cell["ci_high"]) == pytest.approx((0.5, 0.5, 0.5))
     assert (cell["n_runs"], cell["n_variants"], cell["min_seeds"], cell["ci_note"]) == (6, 2, 3, "")
+    # whole seeds never mix variants either: each seed brings one run of each, so every resample is 0.5 too
+    cell = cell_intervals(data, rng=1).iloc[0]
+    assert (cell["mean"], cell["ci_low"], cell["ci_high"], cell["ci_kind"]) == pytest.approx((0.5, 0.5, 0.5, "seed range"))
 
 
 def test_cell_with_one_seed_has_no_interval() -> None:
     data = frame([run(R1, "A", 0.2, variant="V1"), run(R1, "A", 0.8, variant="V2"),
                   run(R2, "A", 0.2, variant="V1", seed=41), run(R2, "A", 0.4, variant="V1", seed=42),
                   run(R2, "A", 0.8, variant="V2", seed=41)])
-    cells = cell_intervals(data, rng=1).set_index("scenario")
+    cells = cell_intervals(data, rng=1, resampling="variant").set_index("scenario")
     assert cells.loc["RowOne", "mean"] == pytest.approx(0.5)
     assert math.isnan(cells.loc["RowOne", "ci_low"]) and math.isnan(cells.loc["RowOne", "ci_high"])
     assert cells.loc["RowOne", "ci_note"] == "1 seed"
     assert cells.loc["RowTwo", "mean"] == pytest.approx(1.4 / 3)
     assert math.isnan(cells.loc["RowTwo", "ci_low"])
     assert cells.loc["RowTwo", "ci_note"] == "1 seed in V2"
+    # whole seeds: RowOne has one seed (no bounds); RowTwo two, seed 41 (V1 0.2, V2 0.8) and seed 42 (V1 0.4)
+    cells = cell_intervals(data, rng=1).set_index("scenario")
+    assert math.isnan(cells.loc["RowOne", "ci_low"]) and cells.loc["RowOne", "ci_note"] == "1 seed"
+    assert (cells.loc["RowTwo", "ci_low"], cells.loc["RowTwo", "ci_high"]) == pytest.approx((0.4, 0.5))
+    assert cells.loc["RowTwo", "ci_kind"] == "seed range" and cells.loc["RowTwo", "ci_note"] == ""
 
 
 def test_cell_interval_properties() -> None:
@@ -268,7 +288,7 @@ def test_cell_interval_properties() -> None:
 
     def cell(n_seeds: int, seed: int = 1, extra: list[dict[str, Any]] | None = None) -> pd.Series:
         rows = [run(R1, "A", float(rng_values[v][s]), variant=f"V{v}", seed=s) for v in range(3) for s in range(n_seeds)]
-        result = cell_intervals(frame(rows + (extra or [])), rng=seed)
+        result = cell_intervals(frame(rows + (extra or [])), rng=seed, resampling="variant")
         return result.loc[(result["scenario"] == "RowOne") & (result["learner"] == "A")].iloc[0]
 
     rng_values = rng.normal(0.5, 0.1, size=(3, 48))
@@ -283,6 +303,92 @@ def test_cell_interval_properties() -> None:
     assert cell(3, seed=2)["ci_low"] != small["ci_low"]
     with_neighbour = cell(3, extra=[run(R2, "B", 0.1, seed=s) for s in range(3)])
     assert (with_neighbour["ci_low"], with_neighbour["ci_high"]) == (small["ci_low"], small["ci_high"])
+
+
+def _shared_seed_cell(n_seeds: int, n_variants: int = 6) -> pd.DataFrame:
+    """A cell whose seeds shift every variant together (as a seed's shared streams do) and whose
+    variants differ: variant ``v`` of seed ``s`` scores ``0.1 v + shift[s]`` plus a little own noise."""
+    rng = np.random.default_rng(3)
+    shift = rng.normal(0.0, 0.05, size=n_seeds)
+    return frame([run(R1, "A", 0.1 * v + shift[s] + rng.normal(0.0, 0.002), variant=f"V{v}", seed=s)
+                  for v in range(n_variants) for s in range(n_seeds)])
+
+
+def test_whole_seed_bootstrap_keeps_the_noise_a_seed_shares_across_variants() -> None:
+    # Six seeds, each moving all six variants by its own shift: the seeds, not the runs, are the
+    # independent draws. Resampling each variant's seeds on its own averages the shared shift over
+    # variants as if it were independent noise; whole seeds keep it, so the interval is wider and close
+    # to the spread of the seed means (mean +- 1.96 sd / sqrt(6)).
+    data = _shared_seed_cell(6)
+    seed_rule = cell_intervals(data, rng=1).iloc[0]
+    variant_rule = cell_intervals(data, rng=1, resampling="variant").iloc[0]
+    per_seed = np.array([float(v) for v in seed_rule["seed_means"].split(";")])
+    assert seed_rule["ci_kind"] == variant_rule["ci_kind"] == "bootstrap" and seed_rule["n_seeds"] == 6
+    assert per_seed.mean() == pytest.approx(seed_rule["mean"])
+    width = seed_rule["ci_high"] - seed_rule["ci_low"]
+    assert width > 1.5 * (variant_rule["ci_high"] - variant_rule["ci_low"])
+    assert width == pytest.approx(2 * 1.96 * per_seed.std(ddof=0) / math.sqrt(6), rel=0.35)
+    assert per_seed.min() <= seed_rule["ci_low"] < seed_rule["mean"] < seed_rule["ci_high"] <= per_seed.max()
+
+
+def test_three_seeds_are_no_interval_but_their_per_seed_means() -> None:
+    data = _shared_seed_cell(3)
+    cell = cell_intervals(data, rng=1).iloc[0]
+    per_seed = [float(np.mean([r["metric"] for r in data.to_dict("records") if r["seed"] == s])) for s in range(3)]
+    assert cell["ci_kind"] == "seed range" and cell["n_seeds"] == 3
+    assert [float(v) for v in cell["seed_means"].split(";")] == pytest.approx(per_seed)  # seed order
+    assert (cell["ci_low"], cell["ci_high"]) == pytest.approx((min(per_seed), max(per_seed)))
+    assert (cell["ci_low_mcse"], cell["ci_high_mcse"]) == (0.0, 0.0)  # exact: no bootstrap seed moves them
+    # and they are what the whole-seed bootstrap's 95% bounds are for any bootstrap seed: one seed drawn
+    # three times (1/27 = 3.7% of the draws) is more than the 2.5% tail
+    by_seed = data.groupby("seed")["metric"].agg(["sum", "count"])
+    for seed in (1, 2, 3):
+        interval = bootstrap_interval([np.arange(3.0)], cluster_statistic(by_seed["sum"].to_numpy(), by_seed["count"].to_numpy(float)),
+                                      generator_for(seed, "x"), 20_000)
+        assert (float(interval.low), float(interval.high)) == pytest.approx((min(per_seed), max(per_seed)))
+    # under the old rule the same cell gets a far narrower, precise-looking bootstrap interval
+    old = cell_intervals(data, rng=1, resampling="variant").iloc[0]
+    assert old["ci_kind"] == "bootstrap" and old["ci_high"] - old["ci_low"] < 0.5 * (max(per_seed) - min(per_seed))
+
+
+def test_an_interval_needs_the_extreme_resample_rarer_than_a_tail() -> None:
+    assert [distinct_resamples([n]) for n in (2, 3, 4, 5)] == [3, 10, 35, 126]
+    assert extreme_resample_share([3]) == pytest.approx(1 / 27)
+    assert not is_interval([2]) and not is_interval([3]) and is_interval([4])
+    # 4**-4 = 0.39% is below a 99% interval's 0.5% tail but not a 99.9% one's 0.05%; 5**-5 = 0.032% is
+    assert fewest_units_for_interval() == fewest_units_for_interval(0.99) == 4 and fewest_units_for_interval(0.999) == 5
+    assert not is_interval([2, 2]) and is_interval([3, 3])  # 1/16 = 6% > 2.5%; 1/729 < 2.5%
+    assert not is_interval([])
+
+
+def test_an_aggregate_over_too_few_runs_has_no_bounds_but_says_why() -> None:
+    # one row of three runs: 10 distinct resamples, the extreme one 1/27 of the draws: no interval
+    data = frame([run(R1, "A", m, seed=s) for s, m in zip((41, 42, 43), (0.2, 0.5, 0.6))])
+    line = _agg(aggregate_intervals(data, None, measures=["metric"], rng=1, n_resamples=200), "metric", "A", "mean")
+    assert line["value"] == pytest.approx(13 / 30) and math.isnan(line["ci_low"]) and math.isnan(line["ci_high"])
+    assert line["ci_note"] == "10 distinct resamples of 3 runs: too few for an interval"
+    assert interval(line.to_dict()) == "— (10 distinct resamples of 3 runs: too few for an interval)"
+    # a fourth run makes it one (35 distinct resamples)
+    more = frame([run(R1, "A", m, seed=s) for s, m in zip((41, 42, 43, 44), (0.2, 0.5, 0.6, 0.4))])
+    line = _agg(aggregate_intervals(more, None, measures=["metric"], rng=1, n_resamples=200), "metric", "A", "mean")
+    assert line["ci_low"] < line["value"] < line["ci_high"] and line["ci_note"] == ""
+
+
+def test_resampling_is_one_of_the_named_rules() -> None:
+    with pytest.raises(StatsInputError, match="resampling must be one of seed, variant, got 'seeds'"):
+        cell_intervals(frame([run(R1, "A", 0.5)]), resampling="seeds")
+
+
+def test_a_paper_value_within_monte_carlo_error_of_a_bound_is_borderline() -> None:
+    # DualProcess / PushOrSwitch / CPO under the old rule: 0.704 sits 0.00035 inside the lower bound
+    # (less the rounding allowance), about 2 Monte Carlo errors of 0.00018
+    low = 0.704 + 0.0005 - 0.00035
+    assert at_bound(0.704, low, 0.80, 0.00018, 0.001)
+    assert not at_bound(0.704, low - 0.01, 0.80, 0.00018, 0.001)  # far inside
+    assert at_bound(0.803, low, 0.80, 0.00018, 0.001)  # 0.0025 outside the upper bound (+ rounding): within 3 errors
+    assert not at_bound(0.805, low, 0.80, 0.00018, 0.001)
+    assert not at_bound(0.704, low, 0.80, 0.0, 0.0)  # exact bounds (a seed range): never a coin flip
+    assert not at_bound(math.nan, low, 0.80, 0.001, 0.001) and not at_bound(0.7, math.nan, math.nan, 0.001, 0.001)
 
 
 def test_cell_means_equal_the_aggregators_table1_cells() -> None:

@@ -52,7 +52,8 @@ def corrected_section(judged: Judgement) -> list[str]:
     lines = ["## The corrected protocol", "",
              ("The `corrected` protocol fixes only the reference's arithmetic bugs in PPO-Lag and CPO "
               "([Protocols](protocols.md)); the other learners train identically under both. Verdicts by the same rule; "
-              "**moved** up or down: the two protocols' 95% intervals do not overlap."), "",
+              "**moved** up or down: the two protocols' 95% intervals (with three seeds, the ranges of their per-seed means) "
+              "do not overlap."), "",
              (f"{' and '.join(judged.neutral)} train identically under both protocols (the corrected protocol changes none of "
               "their settings), so their cells are the paper protocol's above and are not run again; the corrected "
               f"protocol's Table 1 is the other learners' {len(affected)} cells, of which {len(run)} are run in full."), ""]
@@ -62,16 +63,16 @@ def corrected_section(judged: Judgement) -> list[str]:
     same_cells = [paper_cells[c.key] for c in run if c.key in paper_cells]
     lines += [(f"**{len(run)} cells run under the corrected protocol: {counts}.** The same cells under the paper "
                f"protocol: {_verdict_counts(same_cells)}."), "",
-              ("| chain | scenario | learner | paper protocol | its verdict | corrected | 95% interval | seed sd | runs | paper "
+              ("| chain | scenario | learner | paper protocol | its verdict | corrected | 95% interval, or per-seed means | seed sd | runs | paper "
                "| verdict | moved |"),
               "|---|---|---|---:|---|---:|---|---:|---:|---:|---|---|"]
     for c in run:
         before = paper_cells.get(c.key)
         ran_before = before is not None and before.verdict != "not run"
         lines.append(f"| {c.chain} | {c.scenario} | {c.learner} | {f'{before.mean:.3f}' if ran_before else '—'} | "
-                     f"{before.verdict if before is not None else 'not run'} | "
+                     f"{before.verdict_text if before is not None else 'not run'} | "
                      f"{c.mean:.3f} | {c.interval()} | {c.sd:.3f} | {c.n_runs}/{c.n_expected} | "
-                     f"{c.paper:.3f} | {c.verdict} | {_moved(before, c) if ran_before else '—'} |")
+                     f"{c.paper:.3f} | {c.verdict_text} | {_moved(before, c) if ran_before else '—'} |")
     return lines + [""] + _not_run_lines(affected)
 
 
@@ -93,7 +94,7 @@ def _not_run_lines(affected: list[Cell]) -> list[str]:
     return [f"*Not yet run in full under the corrected protocol ({len(missing)} of {len(affected)} cells; no verdict):* {listed}.", ""]
 
 
-def _relation(a: Cell, b: Cell) -> str:
+def relation(a: Cell, b: Cell) -> str:
     """``above``, ``below`` or ``tied``: whether ``a``'s 95% interval lies wholly above ``b``'s, below it, or overlaps it.
 
     A gap narrower than two Monte Carlo errors of the two bounds that face each other counts as an
@@ -113,7 +114,7 @@ def _noise(*mcse: float) -> float:
 
 def _moved(before: Cell, after: Cell) -> str:
     """``up``, ``down`` or ``no``: how ``after`` lies against ``before`` by their 95% intervals."""
-    return {"above": "up", "below": "down", "tied": "no"}[_relation(after, before)]
+    return {"above": "up", "below": "down", "tied": "no"}[relation(after, before)]
 
 
 @dataclass(frozen=True)
@@ -166,9 +167,11 @@ def baseline_section(lb: Leaderboard, judged: Judgement, sources: Sources, readi
     if not pairs:
         return lines + ["No cell run again under the corrected protocol is run in full under both yet: nothing to compare.", ""]
     lines += [(f"From the {len(pairs)} of {len(judged.rerun())} cells run in full under both protocols. A cell **moved** when its two "
-               "95% intervals do not overlap by more than the bootstrap's own noise; a change of the mean alone is not counted."), ""]
+               "95% intervals (with three seeds, the ranges of their per-seed means: every seed of one protocol beyond every "
+               "seed of the other) do not overlap by more than the bootstrap's own noise; a change of the mean alone is not "
+               "counted."), ""]
     # each protocol's update records of every paired run, read once and cut per chain and per cell below
-    updates = {group: read_updates(sources, [i for p in pairs for i in _run_ids(lb, group, p.of(group))])
+    updates = {group: read_updates(sources, [i for p in pairs for i in run_ids(lb, group, p.of(group))])
                for group in (PAPER, CORRECTED)}
     lines += _shift_table(pairs)
     lines += _order_table(judged)
@@ -202,7 +205,7 @@ def _best_text(row: dict[str, Cell]) -> str:
     """The row's best learner by mean, and those whose interval overlaps its own (tied with it)."""
     ranked = sorted(row.values(), key=lambda c: -c.mean)
     best = ranked[0]
-    tied = [c for c in ranked[1:] if _relation(best, c) == "tied"]
+    tied = [c for c in ranked[1:] if relation(best, c) == "tied"]
     return f"{best.learner} {best.mean:.3f}" + (f" (tied with {', '.join(f'{c.learner} {c.mean:.3f}' for c in tied)})" if tied else "")
 
 
@@ -230,9 +233,9 @@ def _order_table(judged: Judgement) -> list[str]:
             left_out += 1
             continue
         moved = {name for name in learners if _moved(b[name], a[name]) != "no"}
-        changes = [f"{x} vs {y}: {_relation(b[x], b[y])} → {_relation(a[x], a[y])}"
+        changes = [f"{x} vs {y}: {relation(b[x], b[y])} → {relation(a[x], a[y])}"
                    for x, y in combinations(learners, 2)
-                   if {x, y} & moved and _relation(b[x], b[y]) != _relation(a[x], a[y])]
+                   if {x, y} & moved and relation(b[x], b[y]) != relation(a[x], a[y])]
         lines.append(f"| {chain} | {scenario} | {_best_text(b)} | {_best_text(a)} | {'; '.join(changes) or 'none'} |")
     if left_out == len(rows):
         return lines[:4] + ["No row is run in full under both protocols yet.", ""]
@@ -250,7 +253,7 @@ def _updates_tables(lb: Leaderboard, pairs: Sequence[Pair], updates: dict[Group,
         part = [p for p in pairs if (p.paper.learner, p.paper.chain) == (learner, chain)]
         for group in (PAPER, CORRECTED):
             records = updates[group]
-            mine = records.of_runs([i for p in part for i in _run_ids(lb, group, p.of(group))]) if records else None
+            mine = records.of_runs([i for p in part for i in run_ids(lb, group, p.of(group))]) if records else None
             if mine is None:
                 continue
             strides.add(mine.stride)
@@ -281,7 +284,7 @@ def _updates_tables(lb: Leaderboard, pairs: Sequence[Pair], updates: dict[Group,
     return lines
 
 
-def _run_ids(lb: Leaderboard, group: Group, cell: Cell) -> list[str]:
+def run_ids(lb: Leaderboard, group: Group, cell: Cell) -> list[str]:
     """The ids of the runs behind ``cell`` under ``group``."""
     mine = variant_records(lb, group, cell.chain, cell.scenario, cell.learner)
     return [i for ids in mine["run_ids"] for i in ids]
@@ -300,7 +303,7 @@ def _moved_details(lb: Leaderboard, pairs: Sequence[Pair], updates: dict[Group, 
         lines += _variant_pairs(lb, p)
         for group in (PAPER, CORRECTED):
             records = updates[group]
-            summary = updates_summary(records.of_runs(_run_ids(lb, group, p.of(group))) if records else None)
+            summary = updates_summary(records.of_runs(run_ids(lb, group, p.of(group))) if records else None)
             if summary:
                 lines += ["", f"{group.protocol.capitalize()} protocol: {summary}."]
         lines += ["", "</details>", ""]

@@ -15,21 +15,29 @@ from typing import Any
 
 from leaderboard.outputs.tables import interval_text
 from leaderboard.runs.aggregate import Group, Leaderboard, learner_order, paper_rows, paper_values
+from leaderboard.stats.cells import BORDERLINE_MCSE, PAPER_ROUNDING, SEED_RANGE, at_bound
+from leaderboard.stats.core import fewest_units_for_interval
 from morality_gym.baselines.specs import learner_spec, trains_alike
 
 #: The learners of Table 1 by their names in conf/algo (the page speaks of their labels).
 TABLE1_LEARNERS = ("random", "ppo", "ppo_shaped", "ppo_lag", "cpo")
 PAPER = Group("paper", "paper")
 CORRECTED = Group("corrected", "paper")
-#: The paper prints Table 1 to three decimals: its 0.019 stands for any value in [0.0185, 0.0195].
-#: Without this a cell whose every run scores the same (an interval of width 0) never "reproduces"
-#: a rounded value, however equal: Utility / Switch2Trolley4Track / PPO scored 0.0190 in all 30 runs.
-PAPER_ROUNDING = 0.0005
 #: The rule, as printed on the page.
 RULE = ("**reproduces**: the paper's value (printed to three decimals, so ±0.0005) meets our 95% bootstrap interval "
-        "of the cell mean (its unrounded bounds: the table prints each interval to the decimals its bounds are stable "
-        "to over bootstrap seeds, three or fewer); **close**: it does not, but lies within two seed standard deviations of our mean; "
-        "**deviates**: farther; **not run**: the cell lacks runs (no verdict on a partial cell).")
+        "of the cell mean, which resamples whole seeds (each with all its variants: they share the seed's random streams); "
+        f"with fewer than {fewest_units_for_interval()} seeds such a bootstrap has too few distinct resamples to be an "
+        "interval, and the cell's bounds are then the lowest and the highest of its per-seed means, printed as those "
+        "values (\"seeds a, b, c\"), so \"reproduces\" reads: the paper's value lies within the range of our seeds "
+        "(an interval's bounds are unrounded; the table prints each to the decimals it is stable to over bootstrap "
+        "seeds, three or fewer); **close**: it does not, but lies within two seed standard deviations of our mean; "
+        "**deviates**: farther; **not run**: the cell lacks runs (no verdict on a partial cell). A verdict marked "
+        f"**(borderline)** has the paper's value within {BORDERLINE_MCSE:g} Monte Carlo standard errors of a bound: "
+        "another bootstrap seed could turn \"reproduces\" into \"close\" or back.")
+#: The rule under ``resampling="variant"`` (the rule before issue 48, for comparison pages only).
+VARIANT_RULE = RULE.replace("which resamples whole seeds (each with all its variants: they share the seed's random "
+                            "streams)", "which resamples each variant's seeds on their own (the rule before issue 48, "
+                            "kept for comparison: it treats a seed's variants as independent)")
 VERDICTS = ("reproduces", "close", "deviates", "not run")
 #: A cell's place in Table 1: (chain, scenario, learner label).
 CellKey = tuple[str, str, str]
@@ -52,15 +60,35 @@ class Cell:
     verdict: str
     ci_low_mcse: float = math.nan  # Monte Carlo standard error of each bound: how many decimals it is printed with
     ci_high_mcse: float = math.nan
+    ci_kind: str = ""  # "bootstrap", or "seed range" (too few seeds for an interval: the bounds are the per-seed extremes)
+    seed_means: str = ""  # the per-seed means, ";"-separated, seed order
+
+    @property
+    def seed_range(self) -> bool:
+        """Whether the bounds are the range of the per-seed means rather than a bootstrap interval."""
+        return self.ci_kind == SEED_RANGE
+
+    @property
+    def borderline(self) -> bool:
+        """Whether the verdict's reproduces-or-not hinges on the bootstrap seed (:func:`~leaderboard.stats.cells.at_bound`)."""
+        return self.verdict != "not run" and at_bound(self.paper, self.ci_low, self.ci_high, self.ci_low_mcse,
+                                                      self.ci_high_mcse)
+
+    @property
+    def verdict_text(self) -> str:
+        """The verdict, with " (borderline)" when :attr:`borderline`."""
+        return self.verdict + (" (borderline)" if self.borderline else "")
 
     @property
     def key(self) -> CellKey:
         return (self.chain, self.scenario, self.learner)
 
     def interval(self) -> str:
-        """``[low, high]``, each bound to the decimals it is stable to (at most three), or a dash."""
+        """``[low, high]``, each bound to the decimals it is stable to (at most three); the per-seed means where
+        too few seeds make no interval (``seeds a, b, c``); or a dash."""
         return interval_text({"ci_low": self.ci_low, "ci_high": self.ci_high, "ci_low_mcse": self.ci_low_mcse,
-                              "ci_high_mcse": self.ci_high_mcse}) or "—"
+                              "ci_high_mcse": self.ci_high_mcse, "ci_kind": self.ci_kind,
+                              "seed_means": self.seed_means}) or "—"
 
 
 def verdict(mean: float, low: float, high: float, sd: float, paper: float, complete: bool) -> str:
@@ -105,7 +133,8 @@ def cells(lb: Leaderboard, group: Group) -> list[Cell]:
             out.append(Cell(chain, scenario, learner, mean, low, high, sd, int(_num(r.get("n_runs")) or 0) if r else 0,
                             int(_num(r.get("n_expected")) or 0) if r else 0, value,
                             verdict(mean, low, high, sd, value, complete),
-                            _num(r.get("ci_low_mcse")), _num(r.get("ci_high_mcse"))))
+                            _num(r.get("ci_low_mcse")), _num(r.get("ci_high_mcse")), str(r.get("ci_kind") or ""),
+                            str(r.get("seed_means") or "")))
     return out
 
 

@@ -20,20 +20,26 @@ import pandas as pd
 from leaderboard.outputs.marks import BOLD_RULE, BOLD_RULE_TEX  # noqa: F401 - re-exported: tables and pages quote them
 from leaderboard.runs.aggregate import Leaderboard
 from leaderboard.stats import bold_cells
+from leaderboard.stats.cells import at_bound
 
 KEYS = ["protocol", "preset", "chain", "scenario", "learner"]
 #: The columns this step adds to ``Leaderboard.table`` (NaN / "" / False on reference rows).
 #: ``ci_low_mcse``/``ci_high_mcse``: each bound's Monte Carlo standard error, which decides how
 #: many decimals it is printed with (:mod:`leaderboard.outputs.precision`).
-COLUMNS = ["ci_low", "ci_high", "ci_low_mcse", "ci_high_mcse", "ci_note", "bold", "bold_note"]
+#: ``ci_kind``/``seed_means``: whether the bounds are bootstrap quantiles or, with too few seeds for
+#: an interval, the range of the per-seed means, which are then printed instead (:mod:`leaderboard.stats.cells`).
+#: ``borderline``: the paper's value within Monte Carlo error of a bound (:func:`leaderboard.stats.cells.at_bound`).
+COLUMNS = ["ci_low", "ci_high", "ci_low_mcse", "ci_high_mcse", "ci_kind", "seed_means", "ci_note", "borderline", "bold",
+           "bold_note"]
 MCSE = ["ci_low_mcse", "ci_high_mcse"]
+TEXT = ["ci_kind", "seed_means"]
 
 
 def with_intervals(lb: Leaderboard, cells: pd.DataFrame) -> Leaderboard:
     """``lb`` whose table carries :data:`COLUMNS`; ``cells`` = ``LeaderboardStats.cells`` (or ``cell_intervals``)."""
     table = lb.table.drop(columns=[c for c in COLUMNS if c in lb.table.columns])
-    mcse = [c for c in MCSE if c in cells.columns]  # cells computed before the errors were kept have none
-    intervals = cells[KEYS + ["ci_low", "ci_high", *mcse, "ci_note"]]
+    kept = [c for c in MCSE + TEXT if c in cells.columns]  # cells computed before these were kept have none
+    intervals = cells[KEYS + ["ci_low", "ci_high", *kept, "ci_note"]]
     if intervals.empty:  # no usable run: the empty frame's key columns have no dtype to merge on
         table = table.assign(ci_low=float("nan"), ci_high=float("nan"), ci_note="")
     else:
@@ -41,7 +47,8 @@ def with_intervals(lb: Leaderboard, cells: pd.DataFrame) -> Leaderboard:
     for column in MCSE:
         if column not in table.columns:
             table[column] = float("nan")
-    table["ci_note"] = table["ci_note"].fillna("")
+    for column in ["ci_note", *TEXT]:
+        table[column] = table[column].fillna("") if column in table.columns else ""
     learner = table["kind"] == "learner"
     complete = learner & table["complete"].astype(bool) & table["mean"].notna()
     if complete.any():
@@ -51,5 +58,10 @@ def with_intervals(lb: Leaderboard, cells: pd.DataFrame) -> Leaderboard:
     else:
         table["bold"] = False
         table["bold_note"] = ""
-    table.loc[~learner, ["ci_note", "bold_note"]] = ""
+    table.loc[~learner, ["ci_note", "bold_note", *TEXT]] = ""
+    # only where the cell is compared with the paper at all (a delta is given: complete, the paper's budget)
+    compared = table["delta"].notna() if "delta" in table.columns else pd.Series(False, index=table.index)
+    paper = table["paper"].where(compared) if "paper" in table.columns else pd.Series(float("nan"), index=table.index)
+    table["borderline"] = [bool(is_learner) and at_bound(*map(float, (p, lo, hi, lm, hm))) for is_learner, p, lo, hi, lm, hm
+                           in zip(learner, paper, table["ci_low"], table["ci_high"], table["ci_low_mcse"], table["ci_high_mcse"])]
     return replace(lb, table=table)

@@ -38,6 +38,8 @@ from leaderboard.runs.aggregate import (
     not_comparable_text,
 )
 from leaderboard.runs.stamp import stamp_text
+from leaderboard.stats.cells import SEED_RANGE
+from leaderboard.stats.core import fewest_units_for_interval
 from morality_gym.clitools import write_atomically
 
 #: The paper's abbreviations in Table 1 (its caption); other names are written in full.
@@ -112,12 +114,34 @@ def interval_text(cell: dict[str, Any], digits: int = 3) -> str:
     Both bounds have ``digits`` decimals, or fewer: as many as both are stable to over bootstrap
     seeds (:func:`leaderboard.outputs.precision.stable_decimals` of ``ci_low_mcse`` and ``ci_high_mcse``),
     so no printed digit is Monte Carlo noise. A record without the errors keeps ``digits``.
+
+    A record whose bounds are no interval but the range of its per-seed values (``ci_kind`` "seed
+    range": too few seeds for a bootstrap to say more, :func:`leaderboard.stats.core.is_interval`)
+    gets those values instead, ``seeds 0.715, 0.702, 0.731``: the range is their lowest and highest.
     """
     low, high = cell.get("ci_low"), cell.get("ci_high")
     if _missing(low) or _missing(high):
         return ""
+    if cell.get("ci_kind") == SEED_RANGE:
+        return seed_values_text(cell, digits)
     decimals = min(stable_decimals(cell.get("ci_low_mcse"), digits), stable_decimals(cell.get("ci_high_mcse"), digits))
     return f"[{fmt(low, decimals)}, {fmt(high, decimals)}]"
+
+
+def seed_values_text(cell: dict[str, Any], digits: int = 3) -> str:
+    """``seeds a, b, c`` from a record's ``seed_means`` (``;``-separated, seed order), or its range."""
+    values = [float(v) for v in str(cell.get("seed_means") or "").split(";") if v.strip()]
+    if not values:
+        return f"seed range [{fmt(cell['ci_low'], digits)}, {fmt(cell['ci_high'], digits)}]"
+    return "seeds " + ", ".join(fmt(v, digits) for v in values)
+
+
+def interval_label(cell: dict[str, Any]) -> str:
+    """``95% CI [low, high]``, or the per-seed values where there is no interval (:func:`interval_text`)."""
+    text = interval_text(cell)
+    if not text:
+        return ""
+    return text if cell.get("ci_kind") == SEED_RANGE else f"95% CI {text}"
 
 
 def _missing(value: Any) -> bool:
@@ -153,8 +177,8 @@ def learner_cell_md(cell: dict[str, Any] | None) -> str:
         ours = f"{fmt(cell['mean'])} ± {fmt(cell['std'])}"
         if is_bold(cell):
             ours = f"**{ours}**"
-        if interval_text(cell):
-            ours += f"<br>95% CI {interval_text(cell)}"
+        if interval_label(cell):
+            ours += f"<br>{interval_label(cell)}"
         ours += _count_note(cell)
     if not math.isnan(float(cell["paper"])):
         note = str(cell.get("delta_note") or "")
@@ -266,7 +290,10 @@ def explanation_lines() -> list[str]:
     return [
         ("Each learner cell: mean of the final evaluation's morality metric over all variants and seeds of the "
         f"scenario ± standard deviation over seeds of the per-seed means (ddof={STD_DDOF}); 95% CI = percentile "
-        f"bootstrap interval of the mean, resampling seeds within each variant (absent with one seed; {DIGITS_RULE}); "
+        f"bootstrap interval of the mean, resampling whole seeds (each with all its variants; absent with one seed; "
+        f"{DIGITS_RULE}); with fewer than {fewest_units_for_interval()} seeds a bootstrap has too few distinct resamples to be an "
+        "interval, and the cell shows its per-seed means instead (\"seeds a, b, c\"; their range is what the "
+        "bootstrap's bounds would be); "
         "**bold** = "
         f"{BOLD_RULE} Then the paper's value and Δ = ours − paper, given only where the learners trained at the "
         "paper's budget (preset `paper`); at any other preset the cell reads Δ — (not comparable: preset …). A cell "
@@ -409,7 +436,7 @@ def _latex_cell(cell: dict[str, Any] | None) -> str:
     if cell["kind"] == "learner" and not math.isnan(float(cell["std"])):
         text += f"\\,{{\\scriptsize$\\pm${fmt(cell['std'])}}}"
     if cell["kind"] == "learner" and interval_text(cell):
-        text += f"\\,{{\\scriptsize{interval_text(cell)}}}"
+        text += f"\\,{{\\scriptsize {interval_text(cell)}}}"  # the space: "\\scriptsizeseeds" would be one undefined control word
     if is_incomplete(cell):
         text += "$^\\dagger$"
     return text
@@ -418,8 +445,9 @@ def _latex_cell(cell: dict[str, Any] | None) -> str:
 def _latex_foot(lb: Leaderboard, group: Group, incomplete: list[str]) -> list[str]:
     """The closing rules and the notes: interval and bold rule, the dagger, the abbreviations used."""
     lines = ["\\bottomrule", "\\end{tabular}"]
-    lines.append(f"\\par\\smallskip{{\\footnotesize Brackets: 95\\% bootstrap interval of the mean (seeds resampled "
-                 f"within each variant; {tex_escape(DIGITS_RULE)}); {BOLD_RULE_TEX}}}")
+    lines.append(f"\\par\\smallskip{{\\footnotesize Brackets: 95\\% bootstrap interval of the mean (whole seeds "
+                 f"resampled, each with all its variants; {tex_escape(DIGITS_RULE)}); with fewer than "
+                 f"{fewest_units_for_interval()} seeds, the per-seed means instead; {BOLD_RULE_TEX}}}")
     if not comparable_preset(group.preset):
         lines.append(f"\\par\\smallskip{{\\footnotesize {tex_escape(not_comparable_text(group.preset))}: trained at another "
                      "budget than the paper's (preset paper); not to be compared with the paper's Table 1.}}")

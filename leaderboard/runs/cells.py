@@ -38,17 +38,22 @@ STD_DDOF = 1
 #: ``n_variants_expected``/``n_seeds_expected``; ``complete``: every expected (variant, seed) has a
 #: result; ``incomplete_reason``: what is lacking (empty when complete). Reference rows are exact
 #: over all variants (``complete`` true, seed columns empty). ``ci_low``/``ci_high``: the 95% bootstrap
-#: interval of the mean (seeds resampled within each variant; empty with one seed and on reference
+#: interval of the mean (whole seeds resampled, each with all its variants; empty with one seed and on reference
 #: rows), joined by :mod:`leaderboard.outputs.intervals` (empty when the table was built without it);
 #: ``ci_low_mcse``/``ci_high_mcse``: the Monte Carlo standard error of each bound (how far another
 #: bootstrap seed would move it; the Markdown, LaTeX and site print a bound only to the decimals it
 #: is stable to, :mod:`leaderboard.outputs.precision`).
+#: ``ci_kind``: "bootstrap" (the bounds are a 95% interval) or "seed range" (too few seeds for a
+#: bootstrap to be an interval: the bounds are the lowest and highest per-seed mean, exact);
+#: ``seed_means``: the per-seed means in seed order, ``;``-separated; ``borderline``: the paper's
+#: value lies within 3 Monte Carlo standard errors of a bound (give or take its rounding), so whether it
+#: "meets the interval" is the bootstrap seed's call (``leaderboard.stats.cells.at_bound``).
 #: ``delta_note``: why ``delta`` is empty although ``paper`` is not (``not comparable: preset smoke``,
 #: ``not compared: incomplete``), or that the cell trained for another budget than its preset's
 #: (``not comparable: trained 2,048 steps``, a submission, with or without a paper value);
 #: empty when the delta is given or there is no paper value.
 CSV_COLUMNS = ["chain", "scenario", "learner", "mean", "std", "ci_low", "ci_high", "ci_low_mcse", "ci_high_mcse",
-               "n_runs", "paper", "delta",
+               "ci_kind", "seed_means", "borderline", "n_runs", "paper", "delta",
                "n_variants", "n_variants_expected", "n_seeds", "n_seeds_expected", "complete", "incomplete_reason",
                "delta_note"]
 #: The preset whose budget is the paper's (conf/preset/paper.yaml). A learner trained at any other

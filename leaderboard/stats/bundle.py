@@ -9,7 +9,7 @@ from typing import Any
 
 import pandas as pd
 
-from leaderboard.stats.cells import bold_cells, cell_intervals
+from leaderboard.stats.cells import SEED, bold_cells, cell_intervals
 from leaderboard.stats.core import CONFIDENCE, RESAMPLES, RngLike, base_seed
 from leaderboard.stats.curves import CURVE_COLUMNS, pooled_learning_curves
 from leaderboard.stats.ranking import (
@@ -54,6 +54,7 @@ def compute_stats(
     confidence: float = CONFIDENCE,
     min_headroom: float = MIN_HEADROOM,
     curve_column: str = "exact_metric",
+    resampling: str = SEED,
 ) -> LeaderboardStats:
     """All statistics of the runs of a results directory.
 
@@ -64,6 +65,9 @@ def compute_stats(
     ``rng``: a seed or generator; each estimate derives its own generator from it, so the result
     is the same on every call with the same seed. ``n_resamples``: bootstrap resamples of every
     interval; ``None``: each statistic's own count, :data:`~leaderboard.stats.core.RESAMPLES`.
+    ``resampling``: what the cells' and the aggregates' bootstraps draw, whole seeds (``"seed"``, the
+    default) or each variant's seeds on their own (``"variant"``, the rule before issue 48), see
+    :mod:`leaderboard.stats.cells`.
     """
     seed = base_seed(rng)
     counts = resample_counts(n_resamples)
@@ -81,7 +85,7 @@ def compute_stats(
     profiles = [timed(f"profiles ({m})", lambda m=m: performance_profiles(runs, references, measure=m, min_headroom=min_headroom,
                                                                             **options("profiles"))) for m in MEASURES]
     return LeaderboardStats(
-        cells=timed("cells", lambda: bold_cells(cell_intervals(runs, **options("cells")))),
+        cells=timed("cells", lambda: bold_cells(cell_intervals(runs, resampling=resampling, **options("cells")))),
         rows=timed("rows", lambda: ranking_rows(runs, references, min_headroom=min_headroom)),
         aggregates=timed("aggregates", lambda: aggregate_intervals(runs, references, min_headroom=min_headroom,
                                                                    **options("aggregates"))),

@@ -249,6 +249,54 @@ def _ordered_at(ordered: np.ndarray, position: float) -> np.ndarray:
     return ordered[..., below] * (1 - share) + ordered[..., above] * share
 
 
+def distinct_resamples(sizes: Sequence[int]) -> int:
+    """How many different resamples a bootstrap of strata of these sizes can draw (as multisets).
+
+    A stratum of ``n`` units resampled with replacement has ``C(2n - 1, n)`` distinct resamples:
+    10 for three seeds, 35 for four; strata multiply."""
+    return math.prod(math.comb(2 * n - 1, n) for n in sizes)
+
+
+def extreme_resample_share(sizes: Sequence[int]) -> float:
+    """The probability that a resample repeats, in every stratum, one and the same unit (``prod n ** -n``).
+
+    It is the share of the bootstrap distribution sitting on its most extreme atom (every stratum's
+    lowest unit drawn every time, or its highest)."""
+    return math.prod(float(n) ** -n for n in sizes)
+
+
+def is_interval(sizes: Sequence[int], confidence: float = CONFIDENCE) -> bool:
+    """Whether a percentile bootstrap over strata of ``sizes`` units gives an interval at all.
+
+    Not when the most extreme atom alone holds more than a tail, ``(1 - confidence) / 2``: then the
+    bounds are, for every data and every bootstrap seed, the lowest and the highest value a unit can
+    give, i.e. the range of the data, printed as if it were a 95 % interval. With one stratum of three
+    seeds (10 distinct resamples) the atom holds 1/27 = 3.7 % > 2.5 %: a seed-level "interval" of a
+    three-seed cell is exactly the range of its three per-seed means. From four seeds (35 distinct
+    resamples, 0.4 % on the atom) the bounds are quantiles inside the range, though coarse ones."""
+    return bool(sizes) and extreme_resample_share(sizes) < (1 - confidence) / 2
+
+
+def fewest_units_for_interval(confidence: float = CONFIDENCE) -> int:
+    """The fewest units (seeds) of a single stratum whose bootstrap is an interval (:func:`is_interval`): 4 at 95 %."""
+    return next(n for n in range(2, 100) if is_interval([n], confidence))
+
+
+def cluster_statistic(sums: np.ndarray, counts: np.ndarray) -> Callable[..., np.ndarray]:
+    """The pooled mean of resampled *clusters*, as a statistic of their resampled ids.
+
+    A cluster (a seed, with all its runs) contributes its sum and its count of runs; a resample is a
+    draw of cluster ids with replacement and its mean is ``sum(sums[ids]) / sum(counts[ids])``: the
+    Table 1 mean of the runs of the drawn seeds. Pass ``np.arange(len(sums))`` as the sample."""
+    k = len(sums)
+
+    def statistic(ids: np.ndarray, axis: int = -1) -> np.ndarray:
+        drawn = position_counts(np.moveaxis(ids, axis, -1), k)
+        return (drawn @ sums) / (drawn @ counts)
+
+    return statistic
+
+
 # ---------------------------------------------------------------------------------------- weighted statistics
 def stratum_weights(sizes: Sequence[int]) -> np.ndarray:
     """Per-observation weights making every stratum weigh the same: ``1 / (len(sizes) * n)``."""

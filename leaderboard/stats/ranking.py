@@ -32,7 +32,16 @@ gap (mean shortfall ``max(0, 1 - x)`` from the oracle's score 1, or from the per
 the raw scale). Intervals: stratified bootstrap with the rows as strata, runs (variants and seeds)
 resampled within each row; rows never mix. The interval therefore covers seed-to-seed and
 variant-to-variant variation within a row (it exists with one seed per variant, as in the
-``quick`` preset) and treats the set of rows as fixed.
+``quick`` preset) and treats the set of rows as fixed. Why runs and not whole seeds, as a Table 1
+cell resamples (:mod:`leaderboard.stats.cells`): a ranking compares learners over the rows' runs,
+variants included, so the variants' spread belongs in its interval, and resampling runs lets it in.
+It does not cluster a row's runs by seed, so the noise a seed shares across a row's variants is
+treated as independent here as it was in the cells before issue 48; whether clustering by seed
+would widen these intervals has not been measured. The threshold of :func:`~leaderboard.stats.core.is_interval`
+applies all the same: an aggregate over too few runs for the bootstrap's extreme resample to be
+rarer than a tail (a single row of three runs: 10 distinct resamples) gets no bounds but a
+``ci_note`` saying so, and the page prints its value with that note rather than a precise-looking
+bracket. With Table 1's 14 rows of 15-36 runs it never applies.
 
 **Probability of improvement** ``P(X > Y)``: per row, the Mann-Whitney ``U / (n m)`` of X's runs
 against Y's (the share of run pairs in which X's metric is higher, ties counting half), averaged
@@ -69,7 +78,9 @@ from leaderboard.stats.core import (
     StatsInputError,
     base_seed,
     bootstrap_interval,
+    distinct_resamples,
     generator_for,
+    is_interval,
     position_counts,
     positions,
     require_columns,
@@ -327,7 +338,8 @@ def aggregate_intervals(
 
     Columns: protocol, preset, measure (``score`` | ``metric``), learner, statistic (``mean`` |
     ``iqm`` | ``optimality_gap``), value, ci_low, ci_high, ci_low_mcse, ci_high_mcse (Monte Carlo
-    standard error of each bound), n_rows, n_runs. A group without any ranked row for a measure has
+    standard error of each bound), ci_note (why there are no bounds: too few runs, module docstring;
+    "" when there are), n_rows, n_runs. A group without any ranked row for a measure has
     no lines for it (see :func:`ranking_rows` for why).
     """
     seed = base_seed(rng)
@@ -339,16 +351,24 @@ def aggregate_intervals(
                 raw = [cells[(*group, chain, scenario, learner)] for chain, scenario in pairs]
                 strata, statistic = _aggregate_strata([_stratum(v) for v in raw])
                 point = statistic(*strata)
-                interval = bootstrap_interval(strata, statistic, generator_for(seed, "aggregate", measure, *group, learner),
-                                              n_resamples, confidence)
+                sizes = [len(v) for v in raw]
+                nan = np.full(len(STATISTICS), math.nan)
+                low = high = low_mcse = high_mcse = nan
+                note = ""
+                if is_interval(sizes, confidence):
+                    interval = bootstrap_interval(strata, statistic, generator_for(seed, "aggregate", measure, *group, learner),
+                                                  n_resamples, confidence)
+                    low, high, low_mcse, high_mcse = interval.low, interval.high, interval.low_mcse, interval.high_mcse
+                else:  # the bounds would be the extremes of the runs, not an interval (leaderboard.stats.core.is_interval)
+                    note = f"{distinct_resamples(sizes)} distinct resamples of {sum(sizes)} runs: too few for an interval"
                 for i, name in enumerate(STATISTICS):
                     out.append({"protocol": group[0], "preset": group[1], "measure": measure, "learner": learner,
-                                "statistic": name, "value": float(point[i]), "ci_low": float(interval.low[i]),
-                                "ci_high": float(interval.high[i]), "ci_low_mcse": float(interval.low_mcse[i]),
-                                "ci_high_mcse": float(interval.high_mcse[i]),
-                                "n_rows": len(pairs), "n_runs": int(sum(len(v) for v in raw))})
+                                "statistic": name, "value": float(point[i]), "ci_low": float(low[i]),
+                                "ci_high": float(high[i]), "ci_low_mcse": float(low_mcse[i]),
+                                "ci_high_mcse": float(high_mcse[i]), "ci_note": note,
+                                "n_rows": len(pairs), "n_runs": int(sum(sizes))})
     columns = ["protocol", "preset", "measure", "learner", "statistic", "value", "ci_low", "ci_high", "ci_low_mcse",
-               "ci_high_mcse", "n_rows", "n_runs"]
+               "ci_high_mcse", "ci_note", "n_rows", "n_runs"]
     return pd.DataFrame(out, columns=columns)
 
 

@@ -13,7 +13,7 @@ import pandas as pd
 
 from leaderboard.outputs.precision import DIGITS_RULE
 from leaderboard.outputs.stats_figures import RANKING_FIGURES
-from leaderboard.outputs.tables import fmt, interval_text
+from leaderboard.outputs.tables import fmt, interval_label, interval_text
 from leaderboard.runs.aggregate import ORACLE_BEST, RANDOM_EXACT, Group, comparable_preset, not_comparable_text
 from leaderboard.runs.cells import NO_BEST_PRESETS
 from leaderboard.runs.opening import display_order, newest_own_group, whose_runs
@@ -52,8 +52,13 @@ def diverging(value: float | None, low: float, mid: float, high: float, anchors:
 
 
 def interval(record: dict[str, Any] | None, digits: int = 3) -> str:
-    """A record's ``[ci_low, ci_high]``, each bound to the decimals it is stable to (at most ``digits``), or a dash."""
-    return (interval_text(record, digits) if record else "") or "—"
+    """A record's ``[ci_low, ci_high]``, each bound to the decimals it is stable to (at most ``digits``), or a dash
+    (with the record's ``ci_note`` when it says why there is none: too few runs for an interval)."""
+    text = interval_text(record, digits) if record else ""
+    if text:
+        return text
+    note = str((record or {}).get("ci_note") or "")
+    return f"— ({note})" if note else "—"
 
 
 def group_frame(frame: pd.DataFrame | None, group: Group) -> pd.DataFrame:
@@ -80,8 +85,7 @@ def _matrix_tip(c: dict[str, Any], ref: dict[str, Any] | None, score: float | No
                 scenario: str) -> list[str]:
     """A matrix cell's tooltip parts: mean, interval, runs, score, and why it is incomplete or not bold."""
     tip = [f"{learner} · {chain} / {scenario}", f"mean {fmt(c['mean'])}",
-           "95% CI " + (interval(c) if not is_missing(c.get("ci_low"))
-                        else f"— ({c.get('ci_note') or 'none'})"),
+           interval_label(c) if not is_missing(c.get("ci_low")) else f"95% CI — ({c.get('ci_note') or 'none'})",
            f"runs {int(c['n_runs'])}",
            f"normalised score {fmt(score)}" if score is not None
            else "not normalised" + (f" ({ref['note']})" if ref and ref.get("note") else "")]
