@@ -198,3 +198,41 @@ def test_a_checkpoint_file_has_a_digest_line_and_no_pickle_of_objects(tmp_path: 
     head = (tmp_path / "fleet.pt").read_bytes()[:200].split(b"\n")
     assert head[0] == b"MoralityGym fleet checkpoint" and len(head[1]) == 64
     assert np.all([c in b"0123456789abcdef" for c in head[1]])
+
+
+@pytest.mark.slow
+def test_the_sweep_records_the_non_finite_run_failed_with_its_own_error_and_the_others_ok(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Through runners.jobs: the poisoned run's row is failed with its own error, the other runs'
+    rows are the very rows an undamaged fleet job records (timing aside)."""
+    from morality_gym.results.schema import read_runs
+    from runners.jobs import execute_job, make_jobs
+    from runners.plan import plan
+    from tests.test_fleet_checkpoint import SWEEP, TIMING, _sweep_config
+
+    runs = plan(_sweep_config(tmp_path, *SWEEP))
+    (job,) = make_jobs(runs, "fleet", 36, 1)
+    healthy = list(execute_job(job.items, tmp_path / "healthy", gif=False, engine="fleet"))
+    assert [s["status"] for s in healthy] == ["ok"] * 3
+    check = FleetTrainer._fail_non_finite_runs  # called after every update (_train is the subclasses')
+    calls = [0]
+
+    def poisoned(self: FleetTrainer) -> None:
+        calls[0] += 1
+        if calls[0] == 1:  # the first update left run 1 with an infinite weight
+            with th.no_grad():
+                self.nets.params("pi")[0][1, 0, 0] = float("inf")
+        check(self)
+
+    monkeypatch.setattr(FleetTrainer, "_fail_non_finite_runs", poisoned)
+    summaries = list(execute_job(job.items, tmp_path / "poisoned", gif=False, engine="fleet"))
+    assert [s["status"] for s in summaries] == ["ok", "failed", "ok"]
+    rows = read_runs(tmp_path / "poisoned").set_index("run_id")
+    assert "training went non-finite" in rows.loc[summaries[1]["run_id"], "error"]
+    assert "the other runs of its fleet trained on" in rows.loc[summaries[1]["run_id"], "error"]
+    ok = [s["run_id"] for s in summaries if s["status"] == "ok"]
+    expected = read_runs(tmp_path / "healthy").set_index("run_id").loc[ok].drop(columns=TIMING)
+    import pandas as pd
+
+    pd.testing.assert_frame_equal(rows.loc[ok].drop(columns=TIMING), expected, check_exact=True)
