@@ -181,10 +181,11 @@ def import_logs(paths: Sequence[Path], name: str, results: Path, protocol: str, 
     """Write the run of every episode of ``paths`` not in ``results`` yet; returns counts."""
 
     loaded = [read_episodes(Path(p)) for p in paths]  # every log is checked before anything is written
-    counts = {"written": 0, "present": 0, "episodes": 0}
+    counts = {"written": 0, "present": 0, "episodes": 0, "fallback_only": 0}
     for episodes, meta in loaded:
         for ep in episodes:
             counts["episodes"] += 1
+            counts["fallback_only"] += fallback_only(ep)
             config = episode_config(ep, meta, name, protocol, preset, submitter)
             run_id = run_identity(config)
             lock = RunLock(results, run_id)
@@ -201,6 +202,24 @@ def import_logs(paths: Sequence[Path], name: str, results: Path, protocol: str, 
     return counts
 
 
+def fallback_only(ep: Episode) -> bool:
+    """Whether every step of the episode was played by the fallback action (no answer of the model
+    was used): its metric measures ``--fallback``, not the model."""
+    length = int(ep.record.get("length") or 0)
+    return length > 0 and int(ep.record.get("fallbacks") or 0) >= length
+
+
+def fallback_warning(counts: dict[str, int]) -> str | None:
+    """One line when some imported episodes were played by the fallback action alone, else None."""
+    n = counts.get("fallback_only", 0)
+    if not n:
+        return None
+    which = "every" if n == counts["episodes"] else f"{n} of the {counts['episodes']}"
+    return (f"warning: in {which} episode(s) no answer of the model was used (each step fell back to --fallback "
+            "after its retries): those runs measure the fallback action, not the model; check the model's answers "
+            "in the log (the format asked for, a provider error)")
+
+
 # ---------------------------------------------------------------------------------------- running Inspect
 def scripted_model(script: Path) -> Any:
     """Inspect's mock model answering from ``script``: line ``k`` at step ``k`` (the last line repeats).
@@ -213,9 +232,13 @@ def scripted_model(script: Path) -> Any:
     from inspect_ai.model import ModelOutput, ModelUsage, get_model  # the llm extra: loaded by this command only
 
     try:
-        lines = script.read_text().splitlines()
+        lines = script.read_text(encoding="utf-8").splitlines()
     except OSError as exc:
         raise UserError(f"--script {script}: cannot read it ({exc.strerror or exc})") from exc
+    except UnicodeDecodeError as exc:
+        line = script.read_bytes()[: exc.start].count(b"\n") + 1
+        raise UserError(f"--script {script}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x} on line {line}); "
+                        "save the answers as UTF-8, one per line") from exc
     if not lines:
         raise UserError(f"--script {script}: empty; write one answer per line")
 
@@ -374,6 +397,9 @@ def run(args: argparse.Namespace) -> int:
     counts = import_logs(logs, name, results, args.protocol, args.preset, _submitter(args.submitter))
     print(f"{counts['episodes']} episode(s): wrote {counts['written']} run(s), {counts['present']} already present, "
           f"in {results / 'runs'}; now: python -m leaderboard.build --results {results}")
+    warning = fallback_warning(counts)
+    if warning is not None:
+        print(warning, file=sys.stderr, flush=True)
     return 0
 
 

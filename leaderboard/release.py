@@ -178,8 +178,12 @@ def choose_gifs(runs: pd.DataFrame, results: Path) -> dict[str, str]:
 
 
 def write_tables(results: Path, out: Path) -> None:
-    """``table1.{csv,md,tex}`` of the results, as ``python -m leaderboard.build`` writes them."""
-    with tempfile.TemporaryDirectory(prefix="release-build-") as tmp:
+    """``table1.{csv,md,tex}`` of the results, as ``python -m leaderboard.build`` writes them.
+
+    The build runs in a folder inside ``out`` (the release's own ``.<name>.create-*`` folder),
+    not in ``/tmp``: a ``kill -9`` of ``release create`` left a ``/tmp/release-build-*`` of up to
+    2 MB that nothing removed, while the release's folder is removed by the next ``create``."""
+    with tempfile.TemporaryDirectory(prefix=".tables-", dir=out) as tmp:
         cmd = [sys.executable, "-m", "leaderboard.build", "--results", str(results), "--out", tmp,
                "--site", str(Path(tmp) / "site")]
         done = subprocess.run(cmd, check=False, capture_output=True, text=True)

@@ -17,9 +17,12 @@ Rows are labelled ``algo = "submitted"``, ``learner = <display name>`` and carry
 ``config["provenance"]`` (submitter, policy reference, code version) plus the usual ``git_commit``,
 ``versions``, ``hostname`` and ``started_at``/``finished_at`` columns. A run's id hashes what
 determines its numbers (cell, variant, seed, evaluation settings, display name and the SHA-256 of
-the policy's files), not the provenance: re-submitting the same file under the same name writes
-nothing new, and a changed file gives new runs whose newer configuration the leaderboard counts,
+the policy's files), not the provenance: re-submitting the same files under the same name writes
+nothing new, and a changed one gives new runs whose newer configuration the leaderboard counts,
 reporting the old ones as superseded (:func:`leaderboard.runs.aggregate.select_configurations`).
+The policy's files are its own file and every module and data file beside it that it imports or
+opens while it is loaded and answers its first observation (:mod:`morality_gym.baselines.policy_files`),
+or every file of a directory declared with ``--policy-dir`` (for a policy that reads files later).
 Files are written atomically, one per run, after the whole evaluation of the run succeeded.
 """
 
@@ -42,6 +45,7 @@ from typing import Any
 import morality_gym
 from leaderboard.runs.display_order import REFERENCE_LEARNERS
 from morality_gym.baselines.io import ModelError
+from morality_gym.baselines.policy_files import watching
 from morality_gym.baselines.policy_ref import LoadedPolicy, PolicyError, is_stationary, load_policy, probe
 from morality_gym.baselines.specs import CONF_DIR
 from morality_gym.clitools import (
@@ -419,6 +423,10 @@ def build_parser() -> argparse.ArgumentParser:
                              "the evaluation is the same for every protocol")
     parser.add_argument("--preset", default=DEFAULT_PRESET,
                         help=f"seeds and episodes of the final evaluation, from conf/preset (default {DEFAULT_PRESET})")
+    parser.add_argument("--policy-dir", type=Path, default=None, metavar="DIR",
+                        help="every file under DIR is part of the policy (its identity: a changed file is a new "
+                             "submission); default: the policy file and the modules and files beside it that it "
+                             "imports or opens while loading and answering its first observation")
     parser.add_argument("--allow-other-env", action="store_true",
                         help="a saved model: evaluate it on other variants than the one it was trained on")
     parser.add_argument("--budget", type=non_negative_int, default=0, metavar="STEPS",
@@ -457,6 +465,7 @@ def run(args: argparse.Namespace) -> int:
 
     env_ids = [scenario_named(c.scenario).env_id(v) for c in cells for v in c.variants]
     loaded = bounded(load_policy(args.policy, env_ids, args.allow_other_env), args.timeout)
+    loaded = policy_files(loaded, args.policy_dir, env_ids[0])
     results: Path = args.results
     try:
         results.mkdir(parents=True, exist_ok=True)
@@ -468,7 +477,8 @@ def run(args: argparse.Namespace) -> int:
                      protocol=args.protocol, preset=args.preset, seeds=seeds, eval_episodes=episodes,
                      beta=BETA, max_steps=MAX_STEPS, gif=not args.no_gif, budget=args.budget, trained_steps=args.budget)
     n_runs = sum(len(c.variants) for c in cells) * len(seeds)
-    print(f"submitting {loaded.ref} as {name!r} (sha256 {sub.sha256[:12]}): {len(cells)} cell(s), {n_runs} run(s), "
+    print(f"submitting {loaded.ref} as {name!r} (sha256 {sub.sha256[:12]} over {_files_text(loaded)}): "
+          f"{len(cells)} cell(s), {n_runs} run(s), "
           f"{episodes} episodes per run, protocol {args.protocol}, preset {args.preset}", flush=True)
     try:
         counts = submit(sub, cells, results, say=lambda line: print(line, flush=True))
@@ -477,6 +487,33 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {counts['written']} run(s), {counts['present']} already present, in {results / 'runs'}; "
           f"now: {build_hint(results)}")
     return 0
+
+
+def policy_files(loaded: LoadedPolicy, declared: Path | None, env_id: str) -> LoadedPolicy:
+    """``loaded`` with every file its identity covers: a declared directory's files, or the files
+    beside the policy it opens while answering its first observation on ``env_id`` (those it
+    imports were counted when it was loaded). A saved model's files are its ``.zip`` and ``.json``."""
+    if declared is not None:
+        if loaded.kind != "callable" or not loaded.files:
+            raise UserError(f"--policy-dir {declared}: only for a policy of Python code (file.py:function or module:function)")
+        if not declared.is_dir():
+            raise UserError(f"--policy-dir {declared}: not a directory")
+        return loaded.with_directory(declared)
+    if loaded.kind != "callable" or loaded.root is None:
+        return loaded
+    if isinstance(loaded.policy, Deadline):
+        loaded.policy.where = f"{env_id}, first observation"
+    with watching(loaded.root) as seen:
+        probe(loaded, env_id)
+    return loaded.with_files(seen)
+
+
+def _files_text(loaded: LoadedPolicy) -> str:
+    """``my_rule.py`` or ``my_rule.py and 2 more file(s)`` (the provenance lists them all)."""
+    if not loaded.files:
+        return "the reference"
+    more = len(loaded.files) - 1
+    return loaded.files[0].name + (f" and {more} more file(s)" if more else "")
 
 
 def user_errors() -> tuple[type[BaseException], ...]:

@@ -193,11 +193,33 @@ def silence_broken_pipe() -> None:
             pass
 
 
+#: How many SIGINTs (Ctrl-C) this process received since :func:`run_cli` began counting them.
+_SIGINTS = [0]
+
+
+def sigints() -> int:
+    """How many Ctrl-Cs reached this process: a ``KeyboardInterrupt`` raised while the count
+    did not change came from code (a user's policy), not from the user at the terminal."""
+    return _SIGINTS[0]
+
+
+def _count_sigint(signum: int, frame: Any) -> None:
+    _SIGINTS[0] += 1
+    signal.default_int_handler(signum, frame)  # raises KeyboardInterrupt, as Python's own handler
+
+
+def _count_sigints() -> None:
+    """Count Ctrl-Cs (main thread only; a handler the program set is kept)."""
+    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _count_sigint)
+
+
 def run_cli(body: Callable[[], int | None], user_errors: tuple[type[BaseException], ...] = (),
             argv: Sequence[str] | None = None) -> int:
     """Run ``body`` as an entry point and map what it raises to an exit status (module docstring)."""
     debug = debug_enabled(argv)
     _stop_on_sigterm()
+    _count_sigints()
     try:
         return int(body() or 0)
     except BrokenPipeError:

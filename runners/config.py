@@ -39,7 +39,9 @@ from morality_gym.baselines.specs import (
 )
 from morality_gym.baselines.targets import learner_trains
 from morality_gym.clitools import did_you_mean
+from morality_gym.constants import MAX_STEPS
 from morality_gym.envs.registry import scenarios as all_scenarios
+from morality_gym.evaluation.horizon import truncation_problem
 from morality_gym.norms.chain import ChainError, MoralityChain, check_name_collision, get_chain, parse_chain
 from morality_gym.norms.metric import bind_chain
 from runners.config_schema import (
@@ -591,6 +593,22 @@ def _check_coverage(pairs: list[tuple[MoralityChain, str]], variants: list[str] 
                                   "choose the variants it can score with variant=[...]") from exc
 
 
+def _check_max_steps(pairs: list[tuple[MoralityChain, str]], variants: list[str] | None, known: Mapping[str, Any],
+                     beta: float, max_steps: int | None) -> None:
+    """A ``max_steps`` too short to score every env of the sweep by its chain is refused before
+    anything trains (:func:`morality_gym.evaluation.horizon.truncation_problem`); the default,
+    under which the variants' bounds were measured, needs no check."""
+    if max_steps == MAX_STEPS:
+        return
+    for chain, scenario in pairs:
+        for variant in known[scenario].variants:
+            if variants is not None and variant not in variants:
+                continue
+            problem = truncation_problem(bind_chain(chain, known[scenario].env_id(variant), beta), max_steps)
+            if problem is not None:
+                raise ConfigError(problem)
+
+
 def _seeds(value: Any, preset: Preset) -> tuple[int, ...]:
     """``seed=`` (one or a list), else the preset's seeds."""
     if value is None:
@@ -700,6 +718,7 @@ def validate(cfg: DictConfig, overrides: Sequence[str] | None = None) -> SweepCo
     max_steps = cfg.get("max_steps")
     if max_steps is not None:
         max_steps = _int("max_steps", max_steps, 1)
+    _check_max_steps(pairs, variants, known, beta, max_steps)
     _check_budgets(algos, pairs, preset)
     warnings = tuple(w for algo in algos if (w := _rollout_warning(algo.spec, preset, pairs)))
     launcher = _launcher(_group(cfg, "launcher"))

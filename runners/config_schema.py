@@ -274,6 +274,11 @@ def composition_error(exc: BaseException, find: Callable[[str, str], Path | None
     ``find(group, option)`` gives an option's file on the search path (``runners.paths.find_config``).
     """
     text = str(exc)
+    lexer = re.search(r"LexerNoViableAltException: ([^=\s]+)=(.*?)\s+\^", text, re.DOTALL)
+    if lexer:  # Hydra's grammar takes ASCII identifiers and a few symbols unquoted: say how to quote
+        key, value = lexer.group(1), lexer.group(2)
+        return (f"{key}: the value {value!r} has characters the command line cannot take unquoted (non-ASCII "
+                f"letters, spaces, some symbols); quote it for Hydra inside shell quotes: \"{key}='{value}'\"")
     where = ""
     found = re.match(r"In '([^']+)'", text)
     if found:  # from a config file: name the file

@@ -434,6 +434,7 @@ def _train_fleet(
     # torch waits: importing runners.jobs must not load it
     from morality_gym.baselines.fleet import FleetRun, make_fleet
     from morality_gym.baselines.fleet.base import fleet_device
+    from morality_gym.baselines.fleet.state import NonFiniteTraining
 
     limit_threads()
     clock = RunClock.start()
@@ -485,6 +486,10 @@ def _train_fleet(
         if run_id not in ours:  # recorded before a kill
             continue
         own = RunClock.already_spent(training.clock.started, wall / len(trained), cpu / len(trained))
+        if k in fleet.failed:  # went non-finite: this run fails with its own error, the others are recorded
+            yield record_outcome(config, run_id, results_dir, gif, None, [], own, engine=engine,
+                                 error=NonFiniteTraining(fleet.failed[k]))
+            continue
         yield record_outcome(config, run_id, results_dir, gif, learner, training.learn_rows[k], own, engine=engine)
     if checkpoint is not None:
         remove_fleet(checkpoint.path)

@@ -82,9 +82,13 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int,
     try:
         _serve(conn, results_dir, gif, device, checkpoint_every_s)
     except TrainingStopped as exc:
+        stopping.ignore()  # stopping already: a second signal has nothing left to stop
         _send(conn, ("stopped", str(exc)))
     except DiskFullError as exc:  # the sweep stops: writing more runs (or failed rows) would fail too
+        stopping.ignore()  # the sweep's SIGTERM to its workers follows: this one is done already
         _send(conn, ("fatal", str(exc)))
+    finally:
+        stopping.ignore()  # nothing runs after this: a late SIGTERM must not raise while the process exits
 
 
 def _serve(conn: Connection, results_dir: str, gif: bool, device: str, checkpoint_every_s: float) -> None:

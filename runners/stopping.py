@@ -57,6 +57,15 @@ def install() -> None:
     _state["installed"] = True
 
 
+def ignore() -> None:
+    """Ignore :data:`STOP_SIGNALS` from now on: for a worker that has said its last word (a full
+    disk reported, its runs reported stopped) and only ends. A SIGTERM the sweep sends to every
+    worker as it stops would otherwise raise :class:`TrainingStopped` where nothing catches it any
+    more, and print its traceback under the sweep's one line."""
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, signal.SIG_IGN)
+
+
 def stop_reason() -> str | None:
     """``stopped by SIGTERM`` once a stop signal arrived, else None."""
     return _state["reason"]

@@ -412,7 +412,7 @@ class _Outcomes:
             try:
                 self.tracker.sync(run.run_id)
             except Exception as exc:  # noqa: BLE001 - tracking must never lose a result
-                self.console.print(f"[yellow]MLflow mirror of {run.run_id} failed ({exc}); it is retried next time[/yellow]")
+                self.console.print(f"[yellow]MLflow mirror of {run.run_id} failed ({escape(str(exc))}); it is retried next time[/yellow]")
         self.progress.update(self.task, advance=1, note=f"{len(self.failures)} failed")
         if self.lines is not None:
             self.lines.run_finished(summary["status"] == "ok")
@@ -457,7 +457,7 @@ def mirror_finished(plan_: Plan, sweep: SweepConfig, tracker: Tracker, console: 
             try:
                 tracker.sync(r.run_id)
             except Exception as exc:  # noqa: BLE001 - tracking must never lose a result
-                console.print(f"[yellow]MLflow mirror of {r.run_id} failed: {exc}[/yellow]")
+                console.print(f"[yellow]MLflow mirror of {r.run_id} failed: {escape(str(exc))}[/yellow]")
 
 
 def report(plan_: Plan, sweep: SweepConfig, console: Console, seconds: float) -> int:
@@ -475,7 +475,9 @@ def report(plan_: Plan, sweep: SweepConfig, console: Console, seconds: float) ->
             table = read_table_or_quarantine(sweep.results_dir, run_path(sweep.results_dir, r.run_id), columns=["error"])
             err = table.column("error")[0].as_py() if table is not None else "(result file unreadable)"
             c = r.config
-            console.print(f"  {r.run_id} {c.algo.label} {c.env_id} {c.chain['name']} seed {c.seed}: {err}")
+            # no markup: an error quotes values ("[nan, 0.5]") that rich would read as tags and drop
+            console.print(f"  {r.run_id} {c.algo.label} {c.env_id} {c.chain['name']} seed {c.seed}: {err}",
+                          markup=False, highlight=False, soft_wrap=True)
     return 0 if not failed and not missing else 1
 
 

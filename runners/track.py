@@ -126,9 +126,11 @@ def check_done(record: dict[str, Any], expected: dict[str, Any], budget: int, pa
 
 def do_run(learner: str, seed: int | None, budget: int, train_ids: Sequence[str], sets: dict[str, EvalSet],
            out_dir: Path, n_envs: int = DEFAULT_N_ENVS, n_steps: int = DEFAULT_N_STEPS,
-           batch_size: int = DEFAULT_BATCH, n_epochs: int = DEFAULT_EPOCHS, policy_ref: str | None = None) -> dict[str, Any]:
+           batch_size: int = DEFAULT_BATCH, n_epochs: int = DEFAULT_EPOCHS, policy_ref: str | None = None,
+           loaded: Any = None) -> dict[str, Any]:
     """One run: train (unless ``learner`` is ``random`` or ``policy_ref`` names a submitted grid
-    policy), evaluate on ``sets``, write its files; a done run is checked and skipped."""
+    policy, ``loaded`` if the caller loaded it already), evaluate on ``sets``, write its files; a
+    done run is checked and skipped."""
     import pandas as pd
 
     run_dir = out_dir / "runs" / run_name(learner, seed, submitted=policy_ref is not None)
@@ -145,7 +147,7 @@ def do_run(learner: str, seed: int | None, budget: int, train_ids: Sequence[str]
         info: dict[str, Any] = {"trained_steps": 0}
     elif policy_ref is not None:
 
-        policy = load_policy(policy_ref, allow_other_env=True).policy
+        policy = (loaded if loaded is not None else load_policy(policy_ref, allow_other_env=True)).policy
         info = {"trained_steps": None, "policy_ref": policy_ref, "submitted": True}
     else:
         assert seed is not None
@@ -191,14 +193,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.budget <= 0:
         raise TrackError(f"--budget must be positive, got {args.budget}")
+    # Everything the command line can get wrong is refused before the splits are generated (minutes).
+    loaded = None
+    if args.policy is not None:
+        if not args.name:
+            raise TrackError("--policy needs --name (how the page calls it)")
+        loaded = load_policy(args.policy, allow_other_env=True)
     t0 = time.perf_counter()
     train_ids, sets = load_sets(args.sets, progress=lambda m: print(m, flush=True), seen_size=args.seen_size)
     print(f"splits and values ready in {time.perf_counter() - t0:.0f} s: train {len(train_ids)} env ids, "
           + ", ".join(f"{n} {len(s.env_ids)} env ids / {len(s.pairs)} pairs" for n, s in sets.items()), flush=True)
     if args.policy is not None:
-        if not args.name:
-            raise TrackError("--policy needs --name (how the page calls it)")
-        do_run(args.name, None, 0, train_ids, sets, args.out, policy_ref=args.policy)
+        do_run(args.name, None, 0, train_ids, sets, args.out, policy_ref=args.policy, loaded=loaded)
         return 0
     for learner in args.learners:
         for seed in ([None] if learner == "random" else args.seeds):

@@ -9,8 +9,8 @@ the uninterrupted fleet ends, and a checkpoint that does not fit is never used.
   with ``torch.equal`` / ``==``. The global RNGs are set differently before each, which shows that
   training does not depend on them.
 * The comparison can fail: a resume that skips the numpy generators does not match.
-* A checkpoint of another key or fleet, or a damaged file, is discarded with a warning, and
-  training starts over.
+* A checkpoint of another key or fleet is discarded with a warning, a damaged file set aside
+  (tests/test_fleet_damage.py has the rest), and training starts over.
 * The sweep around it (runners.jobs) is tested in tests/test_fleet_sweep.py's style at the end.
 """
 
@@ -186,13 +186,15 @@ def _checkpointed(tmp_path: Path, name: str = "ppo") -> tuple[LearnerSpec, Path]
     return spec, path
 
 
-def _starts_over(spec: LearnerSpec, path: Path, caplog: pytest.LogCaptureFixture, expected: str, **learn: Any) -> None:
-    """A fleet given ``path`` discards it with one warning naming ``expected`` and trains from step 0."""
+def _starts_over(spec: LearnerSpec, path: Path, caplog: pytest.LogCaptureFixture, expected: str,
+                 outcome: str = "discarded, training from the start", **learn: Any) -> None:
+    """A fleet given ``path`` discards it (or sets it aside) with one warning naming ``expected``
+    and ``outcome``, and trains from step 0."""
     fresh = Trainer(spec, "paper", 1)
     with caplog.at_level(logging.WARNING, logger="morality_gym.baselines.fleet.checkpoint"), pytest.raises(Interrupted):
         fresh.learn(path, stop_at=ROLLOUT, **learn)
     warnings = [r.getMessage() for r in caplog.records if r.name == "morality_gym.baselines.fleet.checkpoint"]
-    assert len(warnings) == 1 and "discarded, training from the start" in warnings[0] and expected in warnings[0], warnings
+    assert len(warnings) == 1 and outcome in warnings[0] and expected in warnings[0], warnings
     assert fresh.resumed_at is None and fresh.fleet.num_timesteps == ROLLOUT
     assert [r["step"] for k, r in fresh.rows if k == 0] == [0]  # evaluated at step 0 again
 
@@ -216,7 +218,8 @@ def test_a_damaged_checkpoint_is_discarded(tmp_path: Path, caplog: pytest.LogCap
     spec, path = _checkpointed(tmp_path)
     data = path.read_bytes()
     path.write_bytes({"truncated": data[: len(data) // 2], "garbage": b"not a checkpoint" * 10, "empty": b""}[damage])
-    _starts_over(spec, path, caplog, "cannot be read")
+    _starts_over(spec, path, caplog, "cannot be read", outcome="set aside as fleet.pt.damaged, training from the start")
+    assert path.with_name("fleet.pt.damaged").exists()  # kept for a look, never read again
 
 
 def test_a_state_that_fails_half_way_leaves_the_fleet_at_step_0(tmp_path: Path) -> None:

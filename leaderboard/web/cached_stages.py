@@ -66,7 +66,7 @@ def statistics(lb: Leaderboard, with_reference: bool, sources: Sources, out_dir:
     The learn-time tables are read only when the statistics are computed (their digest is the key's part)."""
     key = stats_key(lb, with_reference, sources, resamples)
     stats, hit = cached_outputs(
-        out_dir / CACHE / "statistics.pickle", key,
+        out_dir / CACHE / "statistics.json", key,
         lambda: compute_stats(lb.runs, lb.table if with_reference else None, sources.learn(), n_resamples=resamples),
         lambda _: [])
     return stats, key, hit
@@ -82,7 +82,7 @@ def paper_figures(lb: Leaderboard, out_dir: Path, progress: Progress | None = No
     key = digest([code_digest(Path(figures_module.__file__), Path(display_module.__file__)), frame_digest(lb.norms_by_chain),
                   frame_digest(lb.norms_by_scenario), repr(lb.learners), repr(lb.groups), str(figures_dir.resolve())])
     found, hit = cached_outputs(
-        out_dir / CACHE / "figures.pickle", key, lambda: write_figures(lb, figures_dir, progress),
+        out_dir / CACHE / "figures.json", key, lambda: write_figures(lb, figures_dir, progress),
         lambda f: [*_files_of_figures(f), figures_dir / "figure2_data.csv", figures_dir / "radar_data.csv"])
     return found, hit
 
@@ -100,5 +100,5 @@ def statistics_figures(lb: Leaderboard, stats: LeaderboardStats, key: str, out_d
         return [*(p for items in found.ranking.values() for _, p in items), *found.curves.values(),
                 *found.tradeoffs.values()]
 
-    return cached_outputs(out_dir / CACHE / "stat_figures.pickle", stat_key,
+    return cached_outputs(out_dir / CACHE / "stat_figures.json", stat_key,
                           lambda: write_stat_figures(lb, stats, figures_dir, colours, progress), files)

@@ -13,7 +13,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import pickle
 import tempfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -21,6 +20,7 @@ from typing import Any, TypeVar
 
 import pandas as pd
 
+from leaderboard.web.cache_codec import CacheFormatError, NotEncodable, decode, encode_exact
 from morality_gym.clitools import public_mode
 
 T = TypeVar("T")
@@ -97,17 +97,28 @@ def cached_outputs(path: Path, key: str, produce: Callable[[], T], files_of: Cal
         return stored["value"], True
     value = produce()
     files = {str(p): _file_digest(Path(p)) for p in files_of(value)}
-    atomic_write(path, pickle.dumps({"key": key, "value": value, "files": files}, protocol=pickle.HIGHEST_PROTOCOL))
+    try:
+        body = {"key": key, "value": encode_exact(value), "files": files}
+    except NotEncodable:
+        path.unlink(missing_ok=True)  # not cached: an older entry must not stand in for this value
+        return value, False
+    atomic_write(path, json.dumps(body, allow_nan=False, separators=(",", ":")).encode("utf-8"))
     return value, False
 
 
 def _load(path: Path) -> dict[str, Any] | None:
+    """The entry stored at ``path``, or None when it is absent, damaged or not one :func:`cached_outputs` wrote.
+
+    JSON read by :func:`~leaderboard.web.cache_codec.decode`, which builds only plain data and the
+    build's own result types: a file placed in a results directory by someone else can at worst
+    make the build compute again, never run code."""
     try:
-        with open(path, "rb") as fh:
-            stored = pickle.load(fh)
-    except Exception:  # noqa: BLE001 - absent, damaged or outdated: produced again
+        body = json.loads(path.read_bytes())
+        if not isinstance(body, dict) or not isinstance(body.get("key"), str) or not isinstance(body.get("files"), dict):
+            return None
+        return {"key": body["key"], "value": decode(body.get("value")), "files": body["files"]}
+    except (OSError, ValueError, RecursionError, CacheFormatError):  # absent, damaged or outdated: produced again
         return None
-    return stored if isinstance(stored, dict) else None
 
 
 def _file_digest(path: Path) -> str:

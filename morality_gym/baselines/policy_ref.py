@@ -28,18 +28,19 @@ import importlib
 import importlib.util
 import re
 import sys
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from morality_gym.baselines.io import check_model_env, load_model
-from morality_gym.clitools import UserError, did_you_mean
+from morality_gym.baselines.policy_files import directory_files, files_digest, watching
+from morality_gym.clitools import UserError, did_you_mean, sigints
 from morality_gym.envs.registry import state_graph
 from morality_gym.envs.trolley import InvalidActionError
-from morality_gym.evaluation.policies import PolicyAdapter, PolicyFailure
+from morality_gym.evaluation.policies import PolicyAdapter, PolicyFailure, ended_by
 
 RANDOM = "random"
 #: ``module.path:attr.path`` (identifiers only) - told apart from a file path by its shape.
@@ -64,20 +65,31 @@ class LoadedPolicy:
     kind: str
     policy: Any
     files: tuple[Path, ...] = ()
+    #: The directory the files are named relative to (:mod:`.policy_files`); None: by bare name.
+    root: Path | None = None
 
     def sha256(self) -> str:
-        """SHA-256 over the defining files' bytes (of the reference itself for ``random``).
+        """SHA-256 over the defining files' names and bytes (of the reference itself for ``random``).
 
-        A changed policy file gives another hash, which is how a re-submission of an edited policy
-        is told from a repeated one.
+        A changed policy file, helper module or data file gives another hash, which is how a
+        re-submission of a changed policy is told from a repeated one.
         """
-        digest = hashlib.sha256()
         if not self.files:
-            digest.update(self.ref.encode())
-        for path in self.files:
-            digest.update(path.name.encode() + b"\0")
-            digest.update(path.read_bytes())
-        return digest.hexdigest()
+            return hashlib.sha256(self.ref.encode()).hexdigest()
+        return files_digest(self.files, self.root)
+
+    def with_files(self, extra: Iterable[Path]) -> LoadedPolicy:
+        """This policy with ``extra`` files counted too (the entry file first, the others sorted)."""
+        first = self.files[:1]
+        rest = sorted({Path(p).resolve() for p in (*self.files[1:], *extra)} - set(first))
+        return replace(self, files=(*first, *rest))
+
+    def with_directory(self, directory: Path) -> LoadedPolicy:
+        """This policy with every file of a declared ``directory`` counted, named relative to it."""
+        root = Path(directory).resolve()
+        first = self.files[:1]
+        rest = [p for p in directory_files(root) if p not in first]
+        return replace(self, files=(*first, *rest), root=root)
 
 
 def _import_file(path: Path) -> Any:
@@ -89,11 +101,18 @@ def _import_file(path: Path) -> Any:
         raise PolicyError(f"policy {path}: cannot be loaded as a Python file; {_HELP}")
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module  # dataclasses and pickling look the module up by name
+    before = sigints()
     try:
         spec.loader.exec_module(module)
     except Exception as exc:
         sys.modules.pop(name, None)
         raise PolicyError(f"policy file {path} failed to import ({type(exc).__name__}: {exc}); fix the file") from exc
+    except (SystemExit, KeyboardInterrupt) as exc:
+        sys.modules.pop(name, None)
+        if isinstance(exc, KeyboardInterrupt) and sigints() != before:
+            raise  # a real Ctrl-C
+        raise PolicyError(f"policy file {path} {ended_by(exc)} while it was imported; a policy file must define the "
+                          "policy, not run a program (put a script's part under if __name__ == '__main__':)") from exc
     return module
 
 
@@ -121,21 +140,47 @@ def _load_callable(ref: str) -> LoadedPolicy:
         path = Path(target).expanduser()
         if not path.is_file():
             raise PolicyError(f"policy {ref}: no file {target}; {_HELP}")
-        obj = _attribute(_import_file(path), attr, ref)
+        root = path.resolve().parent
+        with watching(root) as seen:
+            obj = _attribute(_import_file(path), attr, ref)
         files: tuple[Path, ...] = (path.resolve(),)
     else:
-        try:
-            module = importlib.import_module(target)
-        except ImportError as exc:
-            raise PolicyError(f"policy {ref}: cannot import module {target!r} ({exc}); put it on PYTHONPATH "
-                              "or give the file: path/to/file.py:function") from exc
-        except Exception as exc:
-            raise PolicyError(f"policy {ref}: module {target!r} failed to import ({type(exc).__name__}: {exc})") from exc
+        root = _package_root(target)
+        before = sigints()
+        with watching(root or Path.cwd()) as seen:
+            try:
+                module = importlib.import_module(target)
+            except ImportError as exc:
+                raise PolicyError(f"policy {ref}: cannot import module {target!r} ({exc}); put it on PYTHONPATH "
+                                  "or give the file: path/to/file.py:function") from exc
+            except Exception as exc:
+                raise PolicyError(f"policy {ref}: module {target!r} failed to import ({type(exc).__name__}: {exc})") from exc
+            except (SystemExit, KeyboardInterrupt) as exc:
+                if isinstance(exc, KeyboardInterrupt) and sigints() != before:
+                    raise
+                raise PolicyError(f"policy {ref}: module {target!r} {ended_by(exc)} while it was imported; a policy "
+                                  "module must define the policy, not run a program") from exc
         obj = _attribute(module, attr, ref)
         source = getattr(module, "__file__", None)
         files = (Path(source).resolve(),) if source else ()
+        if root is None:
+            seen = set()  # no package directory found: the module's own file only
     _check_object(obj, ref)
-    return LoadedPolicy(ref=ref, kind="callable", policy=obj, files=files)
+    return LoadedPolicy(ref=ref, kind="callable", policy=obj, files=files, root=root).with_files(seen)
+
+
+def _package_root(target: str) -> Path | None:
+    """The directory of ``target``'s top-level package (or of the top-level module itself), without
+    importing it; None when it cannot be found (an import error then says why)."""
+    try:
+        spec = importlib.util.find_spec(target.split(".")[0])
+    except (ImportError, ValueError):
+        return None
+    if spec is None:
+        return None
+    if spec.submodule_search_locations:
+        return Path(next(iter(spec.submodule_search_locations))).resolve()
+    return Path(spec.origin).resolve().parent if spec.origin and spec.origin not in ("built-in", "frozen") else None
 
 
 def _load_model(ref: str, env_ids: Sequence[str], allow_other_env: bool) -> LoadedPolicy:
@@ -189,6 +234,13 @@ def _cause(exc: BaseException) -> BaseException:
     return exc.__cause__ if isinstance(exc, PolicyFailure) and exc.__cause__ is not None else exc
 
 
+def _described(cause: BaseException) -> str:
+    """``KeyError: 'x'``, or ``called sys.exit(0)`` for a policy that tried to end the program."""
+    if isinstance(cause, (SystemExit, KeyboardInterrupt)):
+        return ended_by(cause)
+    return f"{type(cause).__name__}: {cause}"
+
+
 def in_context(exc: BaseException, ref: str, where: str) -> PolicyError:
     """A failure of the policy ``ref`` during an evaluation (``where``: env, seed) as one line."""
     return PolicyError(f"policy {ref} failed while evaluating {where}: {exc}")
@@ -205,7 +257,7 @@ def probe(loaded: LoadedPolicy, env_id: str) -> None:
     except Exception as exc:  # noqa: BLE001 - re-raised as PolicyError, from the policy's own exception
         cause = _cause(exc)
         raise PolicyError(f"policy {loaded.ref} failed on the first observation of {env_id} "
-                          f"({type(cause).__name__}: {cause}); it must map an observation to an action or 6 probabilities") from cause
+                          f"({_described(cause)}); it must map an observation to an action or 6 probabilities") from cause
 
 
 def is_stationary(loaded: LoadedPolicy, env_id: str) -> bool:
@@ -230,7 +282,7 @@ def is_stationary(loaded: LoadedPolicy, env_id: str) -> bool:
     except Exception as exc:  # noqa: BLE001 - re-raised as PolicyError, from the policy's own exception
         cause = _cause(exc)
         raise PolicyError(f"policy {loaded.ref} failed on a reachable state of {env_id} "
-                          f"({type(cause).__name__}: {cause}); it must answer every observation") from cause
+                          f"({_described(cause)}); it must answer every observation") from cause
     return bool(np.array_equal(first, second))
 
 

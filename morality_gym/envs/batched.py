@@ -212,6 +212,8 @@ class BatchedTrolleyEnv:
             if value.shape != current.shape:
                 raise ValueError(f"simulator {name}: expected shape {current.shape}, got {value.shape}")
             setattr(self, name, value.astype(current.dtype, copy=True))
+        _check_range("state", self.state, 0, len(self._obs) - 1)
+        _check_range("elapsed", self.elapsed, 0, int(self._limit) + 1)  # limit + 1: a copy frozen at its truncation
 
     # ------------------------------------------------------------------ helpers
     def _gather(self, states: np.ndarray) -> np.ndarray:
@@ -227,3 +229,13 @@ class BatchedTrolleyEnv:
 
     def __repr__(self) -> str:
         return f"<BatchedTrolleyEnv {self.env_id} x{self.num_envs} max_steps={self.max_steps} autoreset={self.autoreset}>"
+
+
+def _check_range(name: str, values: np.ndarray, low: int, high: int) -> None:
+    """Refuse a restored array with a value outside ``[low, high]`` (a damaged checkpoint: an
+    out-of-range state would index past the tables at the next step, or read another env's)."""
+    wide = values.astype(np.int64)
+    bad = (wide < low) | (wide > high)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"simulator {name}: copy {i} holds {int(wide[i])}, outside {low}..{high}")

@@ -97,6 +97,8 @@ class TorchTrolleySim:
         index = {e: i for i, e in enumerate(self.unique_env_ids)}
         self.copy_graph = th.tensor([index[e] for e in self.env_ids], dtype=th.int64, device=self.device)
         self._start = th.as_tensor(offsets, dtype=th.int64, device=self.device)[self.copy_graph]
+        #: One past each copy's last state in the tables (a restored state must lie in its own graph's block).
+        self._end = th.as_tensor(offsets + np.array([t.n_states for t in graphs]), dtype=th.int64, device=self.device)[self.copy_graph]
         self._limit = np.iinfo(np.int32).max if max_steps is None else max_steps
         self.state = self._start.clone()
         self.elapsed = th.zeros(self.num_envs, dtype=th.int64, device=self.device)
@@ -168,6 +170,17 @@ class TorchTrolleySim:
             if value.shape != getattr(self, name).shape:
                 raise ValueError(f"simulator {name}: expected shape {tuple(getattr(self, name).shape)}, got {tuple(value.shape)}")
             setattr(self, name, value.to(device=self.device, dtype=th.int64).clone())
+        self._check_range("state", (self.state < self._start) | (self.state >= self._end), self._start, self._end - 1)
+        self._check_range("elapsed", (self.elapsed < 0) | (self.elapsed > self._limit), th.zeros_like(self.elapsed),
+                          th.full_like(self.elapsed, self._limit))
+
+    def _check_range(self, name: str, bad: th.Tensor, low: th.Tensor, high: th.Tensor) -> None:
+        """Refuse a restored ``name`` outside each copy's ``low..high`` (a damaged checkpoint: a state
+        outside its copy's block of the tables would step another env's graph, or past the tables)."""
+        if bool(bad.any()):
+            i = int(th.nonzero(bad)[0, 0])
+            raise ValueError(f"simulator {name}: copy {i} holds {int(getattr(self, name)[i])}, "
+                             f"outside {int(low[i])}..{int(high[i])}")
 
     def __repr__(self) -> str:
         return (

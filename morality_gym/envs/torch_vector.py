@@ -203,8 +203,8 @@ class TorchTrolleyVectorEnv(VectorEnv):
         """``actions`` as an int64 tensor on the device, checked unless :attr:`check_actions` is off."""
         if not isinstance(actions, th.Tensor):
             actions = th.as_tensor(np.asarray(actions), device=self.device)
-        if actions.shape != (self.num_envs,) and actions.numel() == self.num_envs:
-            actions = actions.reshape(self.num_envs)  # (n, 1) from a policy's sample
+        if tuple(actions.shape) in ((self.num_envs, 1), () if self.num_envs == 1 else (self.num_envs, 1)):
+            actions = actions.reshape(self.num_envs)  # (n, 1) from a policy's sample; (2, 2) for 4 copies is refused
         if actions.shape != (self.num_envs,):
             raise InvalidActionError(f"expected {self.num_envs} actions (one per copy), got shape {tuple(actions.shape)}")
         if actions.dtype.is_floating_point or actions.dtype.is_complex or actions.dtype == th.bool:

@@ -192,8 +192,8 @@ class TrolleyVecEnv(VecEnv):
 
     def step_async(self, actions: np.ndarray) -> None:
         actions = np.asarray(actions)
-        if actions.size == self.num_envs:
-            actions = actions.reshape(self.num_envs)  # SB3 may hand over (n, 1) for discrete actions
+        if actions.shape in ((self.num_envs, 1), () if self.num_envs == 1 else (self.num_envs, 1)):
+            actions = actions.reshape(self.num_envs)  # SB3 may hand over (n, 1); (2, 2) for 4 copies is refused
         # No cast here: BatchedTrolleyEnv.step rejects non-integer dtypes, wrong shapes and values
         # outside 0..5 (a cast would silently turn 2.5 into 2).
         self._actions = actions

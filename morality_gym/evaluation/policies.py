@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from morality_gym.clitools import UserError
+from morality_gym.clitools import UserError, sigints
 from morality_gym.envs.trolley import InvalidActionError
 from morality_gym.world.rules import ACTION_NAMES
 
@@ -120,12 +120,29 @@ def _shown(obs: Any) -> str:
 
 
 def _ask(policy: Callable[[Any], Any], obs: np.ndarray) -> Any:
-    """``policy(obs)``; an exception of the policy's becomes a :class:`PolicyFailure` naming it."""
+    """``policy(obs)``; an exception of the policy's becomes a :class:`PolicyFailure` naming it.
+
+    ``sys.exit`` and a ``KeyboardInterrupt`` the policy raises itself (no Ctrl-C arrived meanwhile)
+    are its failures too: left to pass, the first ended a submission with exit 0, nothing written
+    and no word. A real Ctrl-C still interrupts."""
+    before = sigints()
     try:
         return policy(obs)
     except Exception as exc:
         raise PolicyFailure(f"the policy raised {type(exc).__name__}: {exc} when asked for an action on the "
                             f"observation {_shown(obs)}; fix the policy (--debug shows its traceback)") from exc
+    except (SystemExit, KeyboardInterrupt) as exc:
+        if isinstance(exc, KeyboardInterrupt) and sigints() != before:
+            raise
+        raise PolicyFailure(f"the policy {ended_by(exc)} when asked for an action on the observation {_shown(obs)}; "
+                            "a policy must return an action, not end the program") from exc
+
+
+def ended_by(exc: BaseException) -> str:
+    """How user code ended the program, in words: ``called sys.exit(0)``, ``raised KeyboardInterrupt``."""
+    if isinstance(exc, SystemExit):
+        return f"called sys.exit({exc.code!r})"
+    return f"raised {type(exc).__name__}"
 
 
 def _look_up(table: Mapping[Any, Any], obs: np.ndarray) -> Any:

@@ -23,10 +23,11 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Final
+from typing import Any, Final
 
 import numpy as np
 
@@ -146,9 +147,16 @@ def _values_file(name: str, digest: str, root: Path | None) -> Path:
 def compute_values(
     env_chains: dict[str, list[str] | None], path: Path | None = None, progress: Callable[[str], None] | None = None
 ) -> list[PairValues]:
-    """The dilemma pairs of every env id (``None``: every built-in chain), cached in ``path``."""
+    """The dilemma pairs of every env id (``None``: every built-in chain), cached in ``path``.
+
+    A cache file is used only when it is intact (:func:`_cached_values`): an edited or damaged one
+    is said in one line and computed again, never trusted as it is."""
     if path is not None and path.is_file():
-        return [PairValues(**row) for row in json.loads(path.read_text())["pairs"]]
+        cached, problem = _cached_values(path, env_chains)
+        if cached is not None:
+            return cached
+        if progress is not None:
+            progress(f"values cache {path} {problem}: computed again")
     pairs: list[PairValues] = []
     for i, (env_id, chains) in enumerate(env_chains.items()):
         pairs.extend(dilemma_values(env_id, chains))
@@ -156,9 +164,43 @@ def compute_values(
             progress(f"values: {i + 1}/{len(env_chains)} env ids")
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
-        text = json.dumps({"version": VALUES_VERSION, "pairs": [asdict(p) for p in pairs]}, indent=0)
+        rows = [asdict(p) for p in pairs]
+        text = json.dumps({"version": VALUES_VERSION, "sha256": _rows_digest(rows), "pairs": rows}, indent=0)
         write_atomically(path, lambda fh: fh.write(text.encode()))
     return pairs
+
+
+def _rows_digest(rows: list[dict[str, Any]]) -> str:
+    """SHA-256 of the pairs' rows in a canonical JSON form."""
+    return hashlib.sha256(json.dumps(rows, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+def _cached_values(path: Path, env_chains: dict[str, list[str] | None]) -> tuple[list[PairValues] | None, str]:
+    """The values stored at ``path`` and "", or None and what is wrong with the file.
+
+    Why: the values are the yardstick of every score on the track page; an edited ``best`` came
+    back as it was. A file must match its own digest, hold the env ids asked for (and, where
+    chains are named, those chains), and have ``worst <= random <= best`` in [0, 1] for every pair."""
+    try:
+        body = json.loads(path.read_text(encoding="utf-8"))
+        rows = body["pairs"]
+        if body.get("version") != VALUES_VERSION or body.get("sha256") != _rows_digest(rows):
+            return None, "does not match its digest (edited, damaged or of an older version)"
+        pairs = [PairValues(**row) for row in rows]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        return None, f"cannot be read ({type(exc).__name__})"
+    strangers = sorted({p.env_id for p in pairs} - set(env_chains))
+    if strangers:  # (an env id of the set may have no dilemma pair: a subset is fine)
+        return None, f"holds env ids outside the set ({strangers[0]}...)"
+    for p in pairs:
+        chains = env_chains.get(p.env_id)
+        if chains is not None and p.chain not in chains:
+            return None, f"holds chain {p.chain} for {p.env_id}, not one of the set's"
+        values = (p.worst, p.random, p.best)
+        if not all(isinstance(v, (int, float)) and math.isfinite(v) and -1e-9 <= v <= 1 + 1e-9 for v in values) \
+                or not p.worst - 1e-9 <= p.random <= p.best + 1e-9:
+            return None, f"holds impossible values for {p.env_id} / {p.chain} (worst {p.worst}, random {p.random}, best {p.best})"
+    return pairs, ""
 
 
 def builtin_digest() -> str:

@@ -28,21 +28,29 @@ def compute_weights(chain: MoralityChain, relevant: Iterable[str], beta: float) 
     ``w_k = (w_1 + ... + w_{k-1} + 1) / beta``, so a change of ``beta`` in a norm's morality function
     outweighs any change in all less important norms together.
     """
-    if not 0 < beta <= 1:
-        raise ValueError(f"beta must be in (0, 1], got {beta}")
     relevant = set(relevant)
+    weights = lexicographic_weights(chain.norm_names, relevant, beta)  # a bad beta is refused first
     if not relevant & set(chain.norm_names):
         raise ChainError(f"chain {chain.name} has no relevant norm among {sorted(relevant)}")
+    return weights
+
+
+def lexicographic_weights(norm_names: Iterable[str], relevant: Iterable[str], beta: float) -> dict[str, float]:
+    """:func:`compute_weights` from the chain's norm names alone, most important first (a run
+    file records its chain's names, and its consistency is checked from them)."""
+    if not 0 < beta <= 1:
+        raise ValueError(f"beta must be in (0, 1], got {beta}")
+    names, relevant = list(norm_names), set(relevant)
     weights: dict[str, float] = {}
     total = 0.0
-    for norm in reversed(chain.norms):
-        if norm.name not in relevant:
-            weights[norm.name] = 0.0
+    for name in reversed(names):
+        if name not in relevant:
+            weights[name] = 0.0
             continue
         w = 1.0 if total == 0.0 else (total + 1.0) / beta
-        weights[norm.name] = w
+        weights[name] = w
         total += w
-    return {n.name: weights[n.name] for n in chain.norms}
+    return {name: weights[name] for name in names}
 
 
 @dataclass(frozen=True)

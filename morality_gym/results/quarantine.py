@@ -29,7 +29,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from morality_gym.results.schema import read_jsonl, run_path, runs_dir, version_problem
+from morality_gym.results.schema import read_jsonl, run_path, runs_dir, table_problem, version_problem
 
 QUARANTINE = ".quarantine"
 INDEX = "index.jsonl"
@@ -109,11 +109,13 @@ def read_table_or_quarantine(results_dir: str | Path, path: Path, columns: list[
     if not path.is_file():
         return None
     try:
-        wanted = None if columns is None else list(dict.fromkeys([*columns, "schema_version"]))
+        main = is_main_run_file(path)
+        # a main run file is read whole (one row): its consistency needs its metric, functions and id
+        wanted = None if columns is None or main else list(dict.fromkeys([*columns, "schema_version"]))
         table = pq.read_table(path, columns=wanted)
-        if is_main_run_file(path) and table.num_rows != 1:
+        if main and table.num_rows != 1:
             raise ValueError(f"a run file holds one row, this one {table.num_rows}")
-        problem = version_problem(table)
+        problem = version_problem(table) or (table_problem(table, path) if main else None)
         if problem is not None:
             raise ValueError(problem)
         return table if columns is None else table.select(columns)
@@ -138,7 +140,7 @@ def check_run_files(results_dir: str | Path, run_ids: list[str]) -> list[Quarant
             if is_main_run_file(path) and (table.num_rows != 1 or "status" not in table.column_names):
                 raise ValueError(f"a run file holds one row with a status, this one {table.num_rows} row(s) "
                                  f"and columns {table.column_names[:3]}...")
-            problem = version_problem(table)
+            problem = version_problem(table) or (table_problem(table, path) if is_main_run_file(path) else None)
             if problem is not None:
                 raise ValueError(problem)
         except READ_ERRORS as exc:

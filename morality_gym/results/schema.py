@@ -31,6 +31,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from morality_gym.clitools import public_mode, writing
+from morality_gym.results.consistency import run_row_problem
 
 SCHEMA_VERSION = 1
 CHANGES = {
@@ -303,7 +304,7 @@ def read_runs(results_dir: str | Path, skipped: list[dict[str, str]] | None = No
     for path in run_files(results_dir):
         try:
             table = read_small_table(path)
-            problem = version_problem(table)
+            problem = version_problem(table) or table_problem(table, path)
             if problem is not None:
                 raise ValueError(problem)
         except (pa.ArrowException, OSError, ValueError, KeyError, IndexError) as exc:
@@ -316,6 +317,25 @@ def read_runs(results_dir: str | Path, skipped: list[dict[str, str]] | None = No
     if not tables:
         return pd.DataFrame(columns=RUN_COLUMNS)
     return concat_tables(tables)
+
+
+def table_problem(table: pa.Table, path: Path) -> str | None:
+    """What in a main run file's one row disagrees with itself or with the file's name
+    (:func:`morality_gym.results.consistency.run_row_problem`), or None."""
+    if table.num_rows != 1:
+        return None
+    # only the columns the check reads (converting the whole row cost more than reading the file)
+    row = {name: table.column(name)[0].as_py() for name in CONSISTENCY_COLUMNS if name in table.column_names}
+    if row.get("status") == "ok":
+        functions = {name[len(MF_PREFIX):]: table.column(name)[0].as_py()
+                     for name in table.column_names if name.startswith(MF_PREFIX)}
+    else:
+        functions = {}
+    return run_row_problem(row, functions, path)
+
+
+#: What :func:`table_problem` reads of a run row besides its ``mf_*`` columns.
+CONSISTENCY_COLUMNS = ("run_id", "status", "metric", "exact_metric", "eval_episodes", "beta", "relevant_norms", "chain", "config")
 
 
 def read_small_table(path: Path) -> pa.Table:

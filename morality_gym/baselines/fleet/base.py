@@ -20,6 +20,11 @@ for its bound chain and seed, and the fleet reproduces that run's arithmetic ste
   rollout's distinct observations (:mod:`.dedup`).
 * **Checkpoints**: the training state is the parts' ``state_dict()``s (:meth:`FleetTrainer.state_dict`),
   written by :mod:`.checkpoint`; a killed fleet resumes bit for bit.
+* **A run that goes non-finite** (a NaN or infinite weight, moment or multiplier after an update)
+  fails alone, as its single run would: it is listed in :attr:`FleetTrainer.failed` with its own
+  error, its slice of every network and optimiser is zeroed (so nothing non-finite is checkpointed
+  or evaluated) and it is no longer evaluated, while the other runs train on. Runs share no
+  arithmetic, so they end with the bits they would have had beside a healthy run.
 
 What the fleet cannot share with its single runs is float rounding: batched products sum in
 another order than ``addmm``, ``tanh`` is computed another way, PyTorch's fused Adam rounds as its
@@ -152,6 +157,8 @@ class FleetTrainer:
         self._distinct: list[DistinctStates] | None = None
         self._callbacks: list[MoralityEvalCallback] = []
         self._eval_every, self._eval_episodes, self._next_eval = 0, LEARN_EVAL_EPISODES, 0
+        #: Runs that went non-finite: run index -> why (see the module docstring); checkpointed.
+        self.failed: dict[int, str] = {}
         self._setup_optimisers()
 
     def _build_learners(self) -> tuple[list[SB3Learner], RunStreams]:
@@ -249,6 +256,7 @@ class FleetTrainer:
             self._distinct = None
             self.progress_remaining = 1.0 - float(self.num_timesteps) / float(self.total_timesteps)
             self._train()
+            self._fail_non_finite_runs()
             if on_progress is not None:
                 on_progress(self.num_timesteps, self.total_timesteps)
             if checkpoint is not None and checkpoint.due():
@@ -261,7 +269,35 @@ class FleetTrainer:
     def _start_training(self) -> None:
         """The state of the runs at step 0: every copy reset, no episode cost recorded yet."""
         self.num_timesteps, self.progress_remaining = 0, 1.0
+        self.failed = {}
         self.collector.start()
+
+    # ------------------------------------------------------------------ runs that go non-finite
+    def _trained_tensors(self) -> list[th.Tensor]:
+        """Every tensor an update changes, each ``[K, ...]``: the networks, and every optimiser's
+        parameters (PPO-Lag's multipliers among them) and moments."""
+        tensors = list(self.nets.params(*self.nets.heads))
+        for opt in self._optimisers().values():
+            tensors += [opt.flat, opt.exp_avg, opt.exp_avg_sq]
+        return tensors
+
+    @th.no_grad()
+    def _fail_non_finite_runs(self) -> None:
+        """Fail each run holding a non-finite value after an update (one device sync per update)."""
+        tensors = self._trained_tensors()
+        finite = th.stack([th.isfinite(t.reshape(self.n_runs, -1)).all(dim=1) for t in tensors]).all(dim=0)
+        bad = [int(k) for k in th.nonzero(~finite).flatten().tolist()]
+        for k in bad:
+            if k not in self.failed:
+                run = self.runs[k]
+                self.failed[k] = (f"training went non-finite (a NaN or infinite weight, moment or multiplier) in the update "
+                                  f"ending at step {self.num_timesteps:,} of run {k} ({run.bound.env_id}, "
+                                  f"{run.bound.chain.name}, seed {run.seed}); the other runs of its fleet trained on")
+            for t in tensors:
+                t[k].zero_()
+
+    def _evaluated(self, k: int) -> bool:
+        return k not in self.failed
 
     def _on_step(self) -> None:
         """After every simulator step of a rollout: count the steps (each run's ``n_envs``) and
@@ -303,6 +339,8 @@ class FleetTrainer:
         if not self._callbacks or self.num_timesteps < self._next_eval:
             return
         for k, (learner, callback) in enumerate(zip(self._learners, self._callbacks)):
+            if not self._evaluated(k):
+                continue  # a failed run is not evaluated (its weights are zeroed, its number would mean nothing)
             self.nets.export_run(k, learner.model.policy)
             callback.evaluate_now(self.num_timesteps)
         if self._eval_every <= 0:
@@ -386,6 +424,7 @@ class FleetTrainer:
             "update_logs": plain_data(self.update_logs),
             "evaluations": [cb.state_dict() for cb in self._callbacks],
             "learn_evals": [plain_data(learner.learn_evals) for learner in self._learners],
+            "failed": [[k, why] for k, why in sorted(self.failed.items())],
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -418,6 +457,10 @@ class FleetTrainer:
             raise ValueError(f"diagnostics rows: expected {self.n_runs} runs, got {len(state['update_logs'])}")
         self.update_logs = [[dict(row) for row in rows] for rows in state["update_logs"]]
         self._load_evaluations(state["evaluations"], state["learn_evals"])
+        failed = {int(k): str(why) for k, why in state["failed"]}
+        if any(not 0 <= k < self.n_runs for k in failed):
+            raise ValueError(f"failed runs {sorted(failed)} outside the fleet's {self.n_runs}")
+        self.failed = failed
 
     def _load_optimisers(self, saved: dict[str, Any]) -> None:
         optimisers = self._optimisers()

@@ -9,12 +9,20 @@ boundaries, at most every ``every_s`` seconds and once when training ends, and r
 file at its start. The resumed fleet ends with exactly the weights, optimiser states, diagnostics
 and learn-time evaluations of the uninterrupted one (tests/test_fleet_checkpoint.py).
 
-The file: ``torch.save`` of ``{"format", "key", "fleet", "extra"}``, where ``fleet`` is the
-trainer's state and ``extra`` what the caller asked to keep with it (e.g. the evaluation rows it
-collected and the time it had spent). Everything in it is tensors and plain Python data, read
-back with ``torch.load(weights_only=True)``, which unpickles no arbitrary object. A file is
-written to a temporary name, flushed to disk and renamed over the old one, so a kill at any
-moment leaves the previous checkpoint or the new one, never half of one.
+The file: a header line, the SHA-256 of the body, and the body, ``torch.save`` of
+``{"format", "key", "fleet", "extra"}``, where ``fleet`` is the trainer's state and ``extra``
+what the caller asked to keep with it (e.g. the evaluation rows it collected and the time it had
+spent). Everything in it is tensors and plain Python data, read back with
+``torch.load(weights_only=True)``, which unpickles no arbitrary object. A file is written to a
+temporary name, flushed to disk and renamed over the old one, so a kill at any moment leaves the
+previous checkpoint or the new one, never half of one.
+
+Why the digest: ``torch.load`` checks no checksum, so one flipped bit in a weight (a bad disk, a
+copy gone wrong) resumed silently and changed a run's number. Why the value checks: a state that
+reads but holds a non-finite weight, moment or multiplier, or a simulator state outside its tables,
+failed every run of the fleet on every rerun. Such a file, and any other damaged one, is *set
+aside* (renamed to ``<name>.damaged``, said in one line, kept for a look) and the fleet trains
+from the start; a file of another fleet or code is only stale, and is removed.
 
 A file is used only if it matches: the caller's ``key`` (e.g. the runs' ids and the code's commit:
 a fleet half-trained by other code must not be finished by this one) and the fleet's own
@@ -32,7 +40,10 @@ where it was stopped, not from its last periodic write.
 
 from __future__ import annotations
 
+import hashlib
+import io
 import logging
+import math
 import os
 import time
 from collections.abc import Callable, Mapping
@@ -50,7 +61,12 @@ if TYPE_CHECKING:
     from morality_gym.baselines.fleet.base import FleetTrainer
 
 #: Bumped when the layout of the file changes (an older file is then discarded, never misread).
-FORMAT = 2
+FORMAT = 3
+#: The first line of a checkpoint file; the second is the hex SHA-256 of the rest.
+MAGIC = b"MoralityGym fleet checkpoint\n"
+#: The parts of a fleet's state whose every float must be finite (evaluation rows and diagnostics
+#: may hold NaN by design: an undefined KL, a metric with nothing to average).
+FINITE_PARTS = ("nets", "optimisers", "extra", "env", "last_obs", "running_ep_cost")
 
 log = logging.getLogger(__name__)
 
@@ -90,19 +106,24 @@ class FleetCheckpoint:
         if not self.path.exists():
             return False
         try:
-            payload = th.load(self.path, map_location="cpu", weights_only=True)
-        except Exception as exc:  # noqa: BLE001 - any unreadable file (truncated, not ours) is discarded, never fatal
-            return self._discard(f"cannot be read ({type(exc).__name__}: {str(exc)[:200]})")
+            body = _verified_body(self.path.read_bytes())
+            payload = th.load(io.BytesIO(body), map_location="cpu", weights_only=True)
+        except Exception as exc:  # noqa: BLE001 - any unreadable file (truncated, not ours) is set aside, never fatal
+            return self._set_aside(f"cannot be read ({type(exc).__name__}: {str(exc)[:200]})")
         if not isinstance(payload, dict) or payload.get("format") != FORMAT:
-            return self._discard(f"is not of format {FORMAT}")
+            return self._set_aside(f"is not of format {FORMAT}")
         if payload.get("key") != plain_data(dict(self.key)):
             return self._discard(f"was saved for another fleet or code ({_key_difference(dict(self.key), payload.get('key'))})")
+        state = payload.get("fleet")
+        where = non_finite(state, FINITE_PARTS) if isinstance(state, dict) else None
+        if where is not None:
+            return self._set_aside(f"holds a non-finite value ({where})")
         try:
-            fleet.load_state_dict(payload["fleet"])
+            fleet.load_state_dict(state)  # type: ignore[arg-type]
         except CheckpointMismatch as exc:
             return self._discard(f"does not fit this fleet ({exc})")
         except Exception as exc:  # noqa: BLE001 - a damaged state: the fleet put its step-0 state back
-            return self._discard(f"is damaged ({type(exc).__name__}: {str(exc)[:200]})")
+            return self._set_aside(f"is damaged ({type(exc).__name__}: {str(exc)[:200]})")
         self._written_steps = fleet.num_timesteps
         log.warning("fleet of %d runs resumed at %s of %s steps from %s", fleet.n_runs, f"{fleet.num_timesteps:,}",
                     f"{fleet.total_timesteps:,}", self.path)
@@ -111,10 +132,28 @@ class FleetCheckpoint:
         return True
 
     def _discard(self, why: str) -> bool:
-        """Warn once and remove the file (training starts from step 0); False."""
+        """Warn once and remove a stale file (another fleet's or code's: training starts from step 0); False."""
         log.warning("fleet checkpoint %s %s: discarded, training from the start", self.path, why)
         self.remove()
         return False
+
+    def _set_aside(self, why: str) -> bool:
+        """Warn once and rename a damaged file to :meth:`damaged_path` (kept for a look, never read
+        again; training starts from step 0); False. Where it cannot be renamed it is removed."""
+        aside = self.damaged_path()
+        try:
+            os.replace(self.path, aside)
+        except OSError:
+            self.remove()
+            log.warning("fleet checkpoint %s %s: removed, training from the start", self.path, why)
+            return False
+        self.path.with_name(self.path.name + ".tmp").unlink(missing_ok=True)
+        log.warning("fleet checkpoint %s %s: set aside as %s, training from the start", self.path, why, aside.name)
+        return False
+
+    def damaged_path(self) -> Path:
+        """Where a damaged file is set aside (the newest damaged one replaces an older one)."""
+        return self.path.with_name(self.path.name + ".damaged")
 
     # ------------------------------------------------------------------ writing
     def due(self) -> bool:
@@ -149,8 +188,12 @@ class FleetCheckpoint:
         tmp = self.path.with_name(self.path.name + ".tmp")
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
+            buffer = io.BytesIO()
+            th.save(payload, buffer)
+            body = buffer.getvalue()
             with open(tmp, "wb") as fh:
-                th.save(payload, fh)
+                fh.write(MAGIC + hashlib.sha256(body).hexdigest().encode("ascii") + b"\n")
+                fh.write(body)
                 fh.flush()
                 os.fsync(fh.fileno())
             os.replace(tmp, self.path)
@@ -170,6 +213,42 @@ class FleetCheckpoint:
         """Delete the file (and a temporary one a kill left behind)."""
         for path in (self.path, self.path.with_name(self.path.name + ".tmp")):
             path.unlink(missing_ok=True)
+
+
+def _verified_body(data: bytes) -> bytes:
+    """The body of a checkpoint file, after its header and digest were checked (ValueError if not)."""
+    if not data.startswith(MAGIC):
+        raise ValueError("no checkpoint header")
+    digest, newline, body = data[len(MAGIC):].partition(b"\n")
+    if not newline or len(digest) != 64:
+        raise ValueError("no digest line")
+    if hashlib.sha256(body).hexdigest().encode("ascii") != digest:
+        raise ValueError("its contents do not match their SHA-256 (changed or damaged after it was written)")
+    return body
+
+
+def non_finite(state: Mapping[str, Any], parts: tuple[str, ...]) -> str | None:
+    """Where the first NaN or infinity in ``state[part]`` is (``"nets.pi[0]"``), or None."""
+    for part in parts:
+        where = _first_non_finite(state.get(part), part)
+        if where is not None:
+            return where
+    return None
+
+
+def _first_non_finite(value: Any, where: str) -> str | None:
+    if isinstance(value, th.Tensor):
+        if value.is_floating_point() and not bool(th.isfinite(value).all()):
+            return where
+        return None
+    if isinstance(value, float):
+        return None if math.isfinite(value) else where
+    items = value.items() if isinstance(value, Mapping) else enumerate(value) if isinstance(value, (list, tuple)) else ()
+    for key, item in items:
+        found = _first_non_finite(item, f"{where}.{key}" if isinstance(key, str) else f"{where}[{key}]")
+        if found is not None:
+            return found
+    return None
 
 
 def _key_difference(mine: dict[str, Any], theirs: Any) -> str:

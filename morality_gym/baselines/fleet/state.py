@@ -18,6 +18,10 @@ class CheckpointMismatch(ValueError):
     """A saved training state that belongs to another fleet (learner, runs, budget, device...)."""
 
 
+class NonFiniteTraining(ArithmeticError):
+    """One run of a fleet whose training went non-finite: that run's failure, not its fleet's."""
+
+
 def identity_difference(mine: dict[str, Any], theirs: Any) -> str:
     """The first field in which a saved identity differs from this fleet's, in words."""
     if not isinstance(theirs, dict):
