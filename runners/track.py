@@ -14,8 +14,13 @@ written last: a run with one is done and is skipped when the command runs again 
 run whose recorded budget or split digests differ from the command's is an error, not a silent
 mix. Random is not trained and its values are exact, so it has one run (seed ``exact``).
 
-``python -m leaderboard.track --results DIR`` aggregates the runs with bootstrap intervals and
-writes the leaderboard page.
+``--chain Utility`` (or ``DualProcess``) runs that chain's track instead of the mixed one: the
+training pool and every set hold only the env ids that are a dilemma under the chain, a run trains
+on the chain's cost (PPO Shaped: its shaping) and is scored under the chain alone; its runs are
+``DIR/runs/<chain>-<learner>-s<seed>/`` and record the chain.
+
+``python -m leaderboard.track --results DIR`` aggregates the runs with bootstrap intervals, per
+track, and writes the leaderboard page.
 """
 
 from __future__ import annotations
@@ -37,7 +42,7 @@ from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_
 from morality_gym.constants import MAX_STEPS
 from morality_gym.generalisation.mixture import DilemmaMixtureEnv
 from morality_gym.generalisation.scoring import score_set
-from morality_gym.generalisation.sets import SEEN_SAMPLE, SETS, EvalSet, load_sets, training_chain
+from morality_gym.generalisation.sets import SEEN_SAMPLE, SETS, TRACK_CHAINS, EvalSet, load_sets, training_chain
 from morality_gym.generator.grammar import GRAMMAR_VERSION
 from morality_gym.generator.splits import split_manifest
 
@@ -59,12 +64,14 @@ class TrackError(UserError):
     """A results directory whose done runs disagree with the command (budget, splits)."""
 
 
-def run_name(learner: str, seed: int | None, submitted: bool = False) -> str:
-    return f"{learner}-{'submitted' if submitted else 'sexact' if seed is None else f's{seed}'}"
+def run_name(learner: str, seed: int | None, submitted: bool = False, chain: str | None = None) -> str:
+    """``<learner>-s<seed>``; a chain's track prefixes the chain (``Utility-ppo-s41``)."""
+    name = f"{learner}-{'submitted' if submitted else 'sexact' if seed is None else f's{seed}'}"
+    return name if chain is None else f"{chain}-{name}"
 
 
 def _train_ppo(learner: str, seed: int, budget: int, train_ids: Sequence[str], n_envs: int, n_steps: int,
-               out: Path, batch_size: int = 256, n_epochs: int = 5) -> tuple[Any, dict[str, Any]]:
+               out: Path, batch_size: int = 256, n_epochs: int = 5, chain: str | None = None) -> tuple[Any, dict[str, Any]]:
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
@@ -74,7 +81,8 @@ def _train_ppo(learner: str, seed: int, budget: int, train_ids: Sequence[str], n
     # SB3 takes any 3-D uint8 Box for an image; the grid is not one (images are not normalised: normalize_images=False)
     warnings.filterwarnings("ignore", message="Treating image space as channels-last")
     spec = learner_spec(learner)
-    pairs = [(env_id, training_chain(env_id)) for env_id in train_ids]
+    # a chain's track trains on its cost and shaping; the mixed track on each dilemma's first chain
+    pairs = [(env_id, chain or training_chain(env_id)) for env_id in train_ids]
     reward_cost = spec.reward_cost()
 
     def factory(i: int):
@@ -108,10 +116,10 @@ def evaluate_sets(policy: Any, sets: dict[str, EvalSet]) -> list[dict[str, Any]]
     return rows
 
 
-def expected_record(budget: int, sets: dict[str, EvalSet]) -> dict[str, Any]:
-    """What every run of this command must agree on."""
+def expected_record(budget: int, sets: dict[str, EvalSet], chain: str | None = None) -> dict[str, Any]:
+    """What every run of this command must agree on (``chain``: None for the mixed track)."""
     return {"format": FORMAT, "train_split": "train", "train_digest": split_manifest("train").digest,
-            "grammar_version": GRAMMAR_VERSION, "sets": {name: s.source for name, s in sets.items()}}
+            "grammar_version": GRAMMAR_VERSION, "chain": chain, "sets": {name: s.source for name, s in sets.items()}}
 
 
 def check_done(record: dict[str, Any], expected: dict[str, Any], budget: int, path: Path) -> None:
@@ -126,13 +134,15 @@ def check_done(record: dict[str, Any], expected: dict[str, Any], budget: int, pa
 
 def do_run(learner: str, seed: int | None, budget: int, train_ids: Sequence[str], sets: dict[str, EvalSet],
            out_dir: Path, n_envs: int = DEFAULT_N_ENVS, n_steps: int = DEFAULT_N_STEPS,
-           batch_size: int = DEFAULT_BATCH, n_epochs: int = DEFAULT_EPOCHS, policy_ref: str | None = None) -> dict[str, Any]:
+           batch_size: int = DEFAULT_BATCH, n_epochs: int = DEFAULT_EPOCHS, policy_ref: str | None = None,
+           chain: str | None = None) -> dict[str, Any]:
     """One run: train (unless ``learner`` is ``random`` or ``policy_ref`` names a submitted grid
-    policy), evaluate on ``sets``, write its files; a done run is checked and skipped."""
+    policy), evaluate on ``sets``, write its files; a done run is checked and skipped. ``chain``:
+    the chain's track (``sets`` and ``train_ids`` are then that chain's, :func:`load_sets`)."""
     import pandas as pd
 
-    run_dir = out_dir / "runs" / run_name(learner, seed, submitted=policy_ref is not None)
-    expected = expected_record(budget, sets)
+    run_dir = out_dir / "runs" / run_name(learner, seed, submitted=policy_ref is not None, chain=chain)
+    expected = expected_record(budget, sets, chain)
     if (run_dir / RESULT).is_file():
         record = json.loads((run_dir / RESULT).read_text())
         check_done(record, expected, budget, run_dir / RESULT)
@@ -149,7 +159,8 @@ def do_run(learner: str, seed: int | None, budget: int, train_ids: Sequence[str]
         info = {"trained_steps": None, "policy_ref": policy_ref, "submitted": True}
     else:
         assert seed is not None
-        policy, info = _train_ppo(learner, seed, budget, train_ids, n_envs, n_steps, run_dir, batch_size, n_epochs)
+        policy, info = _train_ppo(learner, seed, budget, train_ids, n_envs, n_steps, run_dir, batch_size, n_epochs,
+                                  chain)
     t1 = time.perf_counter()
     rows = evaluate_sets(policy, sets)
     t2 = time.perf_counter()
@@ -183,6 +194,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--n-epochs", type=int, default=DEFAULT_EPOCHS)
     parser.add_argument("--seen-size", type=int, default=SEEN_SAMPLE, help="train env ids in the seen set")
     parser.add_argument("--sets", nargs="+", default=list(SETS), choices=SETS)
+    parser.add_argument("--chain", choices=TRACK_CHAINS, help="the chain's own track: train on its dilemmas and cost, "
+                        "score under it alone (default: the mixed track, every chain a dilemma is one under)")
     add_debug_flag(parser)
     return parser
 
@@ -192,18 +205,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.budget <= 0:
         raise TrackError(f"--budget must be positive, got {args.budget}")
     t0 = time.perf_counter()
-    train_ids, sets = load_sets(args.sets, progress=lambda m: print(m, flush=True), seen_size=args.seen_size)
+    train_ids, sets = load_sets(args.sets, progress=lambda m: print(m, flush=True), seen_size=args.seen_size,
+                                chain=args.chain)
     print(f"splits and values ready in {time.perf_counter() - t0:.0f} s: train {len(train_ids)} env ids, "
           + ", ".join(f"{n} {len(s.env_ids)} env ids / {len(s.pairs)} pairs" for n, s in sets.items()), flush=True)
     if args.policy is not None:
         if not args.name:
             raise TrackError("--policy needs --name (how the page calls it)")
-        do_run(args.name, None, 0, train_ids, sets, args.out, policy_ref=args.policy)
+        do_run(args.name, None, 0, train_ids, sets, args.out, policy_ref=args.policy, chain=args.chain)
         return 0
     for learner in args.learners:
         for seed in ([None] if learner == "random" else args.seeds):
             do_run(learner, seed, args.budget, train_ids, sets, args.out, args.n_envs, args.n_steps, args.batch_size,
-                   args.n_epochs)
+                   args.n_epochs, chain=args.chain)
     return 0
 
 
