@@ -11,7 +11,8 @@ process may use), so wall and CPU seconds are given, with the 1-minute load aver
 after each step: the machine is shared, and wall time depends on what else runs.
 ``python -m benchmarks.bench_splits [--code DIR] [--keep-cache DIR]`` runs the same steps alone and
 prints them (``--code``: a checkout of another revision, imported through ``PYTHONPATH``; its
-``runners.track`` may lack ``--chain``, whose steps are then skipped).
+``runners.track`` may lack ``--chain``, whose steps are then skipped). ``make bench`` runs them in a
+temporary cache, or in ``$MORALITY_GYM_BENCH_SPLITS_CACHE`` (an empty directory, kept afterwards).
 """
 
 from __future__ import annotations
@@ -30,6 +31,8 @@ from benchmarks import Context, Section, register
 
 REPO = Path(__file__).resolve().parents[1]
 TARGET_SECONDS = 30.0
+#: An empty directory to use as the steps' cache and keep afterwards (default: a temporary one).
+KEEP_ENV = "MORALITY_GYM_BENCH_SPLITS_CACHE"
 _LOAD = "from morality_gym.generator.splits import load_split; print(len(load_split({split!r})))"
 
 
@@ -110,8 +113,15 @@ def _row(step: Step) -> list[str]:
 @register("splits", "Generalisation track start: load_split (first and cached) and runners.track with every run done",
           order=88)
 def splits_speed(ctx: Context) -> Section:
-    with tempfile.TemporaryDirectory(prefix="bench-splits-") as tmp:
-        steps = measure(Path(tmp), quick=ctx.quick)
+    keep = os.environ.get(KEEP_ENV)
+    if keep:  # the populated cache is worth keeping (the exact values took minutes)
+        Path(keep).mkdir(parents=True, exist_ok=True)
+        if any(Path(keep).iterdir()):
+            raise SystemExit(f"{KEEP_ENV}={keep}: not empty; the first steps must start from an empty cache")
+        steps = measure(Path(keep), quick=ctx.quick)
+    else:
+        with tempfile.TemporaryDirectory(prefix="bench-splits-") as tmp:
+            steps = measure(Path(tmp), quick=ctx.quick)
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     cached = [s for s in steps if s.label.endswith(("cached", "every run done"))]
     worst = max(cached, key=lambda s: s.wall)
