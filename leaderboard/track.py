@@ -55,7 +55,8 @@ PAGE = "track.html"
 #: The track of runs trained and scored under every chain a dilemma is one under (no ``--chain``).
 MIXED = "mixed"
 #: How the page names a track.
-TRACK_TITLES = {MIXED: "Mixed track (every chain a dilemma is one under)"} | {c: f"{c} track" for c in TRACK_CHAINS}
+TRACK_TITLES = ({MIXED: "Mixed track (every chain a dilemma is one under)"} | {c: f"{c} track" for c in TRACK_CHAINS}
+                | {f"{c}-v2": f"{c} track, v2 splits (Random leaves headroom)" for c in TRACK_CHAINS})
 FIGURE = "track/track_scores.png"
 CSV = "track/track_summary.csv"
 
@@ -69,8 +70,13 @@ def track_results(results: Path | None) -> Path | None:
 
 
 def track_of(record: dict[str, Any]) -> str:
-    """The track a run belongs to: its chain's (``runners.track --chain``) or the mixed one."""
-    return record.get("chain") or MIXED
+    """The track a run belongs to: its chain's (``runners.track --chain``, ``Utility-v2`` on v2
+    splits) or the mixed one."""
+    chain = record.get("chain")
+    if not chain:
+        return MIXED
+    version = record.get("split_version", 1)
+    return chain if version == 1 else f"{chain}-v{version}"
 
 
 def load_runs(track_dir: Path) -> tuple[pd.DataFrame, list[dict[str, Any]]]:
@@ -147,7 +153,8 @@ def summarise(frame: pd.DataFrame, resamples: int = DEFAULT_RESAMPLES, seed: int
 def _tracks_in_order(tracks: Any) -> list[str]:
     """The chains' tracks in :data:`TRACK_CHAINS` order, then the mixed track."""
     names = set(tracks)
-    return [t for t in (*TRACK_CHAINS, MIXED) if t in names] + sorted(names - {*TRACK_CHAINS, MIXED})
+    known = [*(f"{c}-v2" for c in TRACK_CHAINS), *TRACK_CHAINS, MIXED]
+    return [t for t in known if t in names] + sorted(names - set(known))
 
 
 def _summarise_track(frame: pd.DataFrame, track: str, resamples: int, seed: int) -> list[dict[str, Any]]:
@@ -327,7 +334,8 @@ def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
             "train_pool": first["train_pool"], "hparams": trained[0].get("hparams") if trained else None,
             "n_envs": trained[0].get("n_envs") if trained else None,
             "scoring": "every built-in chain under which a dilemma is one" if track == MIXED
-            else f"the {track} chain alone, on the env ids that are a dilemma under it (trained on its cost)"})
+            else f"the {first['chain']} chain alone, on the env ids that are a dilemma under it (trained on its cost)"
+            + (", those of the v2 splits: Random leaves them headroom" if first.get("split_version", 1) != 1 else "")})
     context.update(has_runs=True, tracks=tracks, csv=CSV)
     return context
 

@@ -17,7 +17,9 @@ mix. Random is not trained and its values are exact, so it has one run (seed ``e
 ``--chain Utility`` (or ``DualProcess``) runs that chain's track instead of the mixed one: the
 training pool and every set hold only the env ids that are a dilemma under the chain, a run trains
 on the chain's cost (PPO Shaped: its shaping) and is scored under the chain alone; its runs are
-``DIR/runs/<chain>-<learner>-s<seed>/`` and record the chain.
+``DIR/runs/<chain>-<learner>-s<seed>/`` and record the chain. ``--splits v2`` (with ``--chain``)
+keeps only the pairs of the v2 splits, where Random leaves headroom under the chain
+(:mod:`~morality_gym.generalisation.headroom`); its runs are ``<chain>-v2-<learner>-s<seed>``.
 
 ``python -m leaderboard.track --results DIR`` aggregates the runs with bootstrap intervals, per
 track, and writes the leaderboard page.
@@ -64,10 +66,11 @@ class TrackError(UserError):
     """A results directory whose done runs disagree with the command (budget, splits)."""
 
 
-def run_name(learner: str, seed: int | None, submitted: bool = False, chain: str | None = None) -> str:
-    """``<learner>-s<seed>``; a chain's track prefixes the chain (``Utility-ppo-s41``)."""
+def run_name(learner: str, seed: int | None, submitted: bool = False, chain: str | None = None, version: int = 1) -> str:
+    """``<learner>-s<seed>``; a chain's track prefixes the chain (``Utility-ppo-s41``), on v2 splits
+    with the version (``Utility-v2-ppo-s41``)."""
     name = f"{learner}-{'submitted' if submitted else 'sexact' if seed is None else f's{seed}'}"
-    return name if chain is None else f"{chain}-{name}"
+    return name if chain is None else f"{chain}-{name}" if version == 1 else f"{chain}-v{version}-{name}"
 
 
 def _train_ppo(learner: str, seed: int, budget: int, train_ids: Sequence[str], n_envs: int, n_steps: int,
@@ -116,10 +119,11 @@ def evaluate_sets(policy: Any, sets: dict[str, EvalSet]) -> list[dict[str, Any]]
     return rows
 
 
-def expected_record(budget: int, sets: dict[str, EvalSet], chain: str | None = None) -> dict[str, Any]:
+def expected_record(budget: int, sets: dict[str, EvalSet], chain: str | None = None, version: int = 1) -> dict[str, Any]:
     """What every run of this command must agree on (``chain``: None for the mixed track)."""
     return {"format": FORMAT, "train_split": "train", "train_digest": split_manifest("train").digest,
-            "grammar_version": GRAMMAR_VERSION, "chain": chain, "sets": {name: s.source for name, s in sets.items()}}
+            "grammar_version": GRAMMAR_VERSION, "chain": chain, **({"split_version": version} if version != 1 else {}),
+            "sets": {name: s.source for name, s in sets.items()}}
 
 
 def check_done(record: dict[str, Any], expected: dict[str, Any], budget: int, path: Path) -> None:
@@ -135,14 +139,14 @@ def check_done(record: dict[str, Any], expected: dict[str, Any], budget: int, pa
 def do_run(learner: str, seed: int | None, budget: int, train_ids: Sequence[str], sets: dict[str, EvalSet],
            out_dir: Path, n_envs: int = DEFAULT_N_ENVS, n_steps: int = DEFAULT_N_STEPS,
            batch_size: int = DEFAULT_BATCH, n_epochs: int = DEFAULT_EPOCHS, policy_ref: str | None = None,
-           chain: str | None = None) -> dict[str, Any]:
+           chain: str | None = None, version: int = 1) -> dict[str, Any]:
     """One run: train (unless ``learner`` is ``random`` or ``policy_ref`` names a submitted grid
     policy), evaluate on ``sets``, write its files; a done run is checked and skipped. ``chain``:
     the chain's track (``sets`` and ``train_ids`` are then that chain's, :func:`load_sets`)."""
     import pandas as pd
 
-    run_dir = out_dir / "runs" / run_name(learner, seed, submitted=policy_ref is not None, chain=chain)
-    expected = expected_record(budget, sets, chain)
+    run_dir = out_dir / "runs" / run_name(learner, seed, submitted=policy_ref is not None, chain=chain, version=version)
+    expected = expected_record(budget, sets, chain, version)
     if (run_dir / RESULT).is_file():
         record = json.loads((run_dir / RESULT).read_text())
         check_done(record, expected, budget, run_dir / RESULT)
@@ -196,6 +200,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--sets", nargs="+", default=list(SETS), choices=SETS)
     parser.add_argument("--chain", choices=TRACK_CHAINS, help="the chain's own track: train on its dilemmas and cost, "
                         "score under it alone (default: the mixed track, every chain a dilemma is one under)")
+    parser.add_argument("--splits", choices=("v1", "v2"), default="v1", help="v2 (with --chain): only the pairs "
+                        "that leave Random headroom under the chain (docs/how-to/generalisation-track.md)")
     add_debug_flag(parser)
     return parser
 
@@ -205,19 +211,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.budget <= 0:
         raise TrackError(f"--budget must be positive, got {args.budget}")
     t0 = time.perf_counter()
+    version = int(args.splits.removeprefix("v"))
+    if version != 1 and args.chain is None:
+        raise TrackError(f"--splits {args.splits} selects pairs per chain: add --chain ({' or '.join(TRACK_CHAINS)})")
     train_ids, sets = load_sets(args.sets, progress=lambda m: print(m, flush=True), seen_size=args.seen_size,
-                                chain=args.chain)
+                                chain=args.chain, version=version)
     print(f"splits and values ready in {time.perf_counter() - t0:.0f} s: train {len(train_ids)} env ids, "
           + ", ".join(f"{n} {len(s.env_ids)} env ids / {len(s.pairs)} pairs" for n, s in sets.items()), flush=True)
     if args.policy is not None:
         if not args.name:
             raise TrackError("--policy needs --name (how the page calls it)")
-        do_run(args.name, None, 0, train_ids, sets, args.out, policy_ref=args.policy, chain=args.chain)
+        do_run(args.name, None, 0, train_ids, sets, args.out, policy_ref=args.policy, chain=args.chain,
+               version=version)
         return 0
     for learner in args.learners:
         for seed in ([None] if learner == "random" else args.seeds):
             do_run(learner, seed, args.budget, train_ids, sets, args.out, args.n_envs, args.n_steps, args.batch_size,
-                   args.n_epochs, chain=args.chain)
+                   args.n_epochs, chain=args.chain, version=version)
     return 0
 
 

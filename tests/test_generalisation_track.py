@@ -299,3 +299,11 @@ def test_runs_of_a_chains_track_are_named_recorded_and_summarised_apart(tmp_path
     html = write_page(site, tmp_path / "track", common, resamples=100).read_text()
     assert "Utility track: seen vs unseen" in html and 'id="track-range_score-Utility"' in html
     assert "Mixed track (every chain a dilemma is one under): seen vs unseen" in html
+
+
+def test_v2_splits_need_a_chain_before_anything_is_loaded(monkeypatch) -> None:
+    from runners import track
+
+    monkeypatch.setattr(track, "load_sets", lambda *a, **k: pytest.fail("loaded the splits first"))
+    with pytest.raises(track.TrackError, match="--splits v2 selects pairs per chain: add --chain"):
+        track.main(["--splits", "v2", "--learners", "random"])

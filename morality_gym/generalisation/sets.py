@@ -36,8 +36,9 @@ import numpy as np
 from morality_gym.clitools import OneLineWarning, write_atomically
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.oracle import oracle
+from morality_gym.generalisation.selection import VERSION, read_manifest
 from morality_gym.generator.scoring import DILEMMA_GAP
-from morality_gym.generator.splits import cache_root, load_split, split_manifest
+from morality_gym.generator.splits import SplitError, cache_root, load_split, split_manifest
 from morality_gym.norms.chain import ChainError, builtin_chains
 from morality_gym.norms.metric import bind_chain
 from morality_gym.paper import table1_pairs
@@ -249,14 +250,27 @@ def builtin_digest() -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def chain_pool(train_ids: Sequence[str], chain: str, cache_dir: Path | None = None,
-               progress: Callable[[str], None] | None = None) -> list[PairValues]:
-    """The train split's pairs under ``chain``: every train env id that is a dilemma under it, with
-    its exact values (the chain's training pool and the seen sample's source; computed once per
-    split digest and chain, then cached: minutes)."""
-    train = split_manifest("train")
-    path = _values_file(f"train-{chain}", train.digest, cache_dir)
-    return compute_values({env_id: [chain] for env_id in train_ids}, path, progress)
+def chain_values(split: str, env_ids: Sequence[str], chain: str, cache_dir: Path | None = None,
+                 progress: Callable[[str], None] | None = None) -> list[PairValues]:
+    """The pairs of split ``split`` (its ``env_ids``) under ``chain``: every env id that is a dilemma
+    under it, with its exact values (for ``train``: the chain's training pool and the seen sample's
+    source; computed once per split digest and chain, then cached: minutes)."""
+    path = _values_file(f"{split}-{chain}", split_manifest(split).digest, cache_dir)
+    return compute_values({env_id: [chain] for env_id in env_ids}, path, progress)
+
+
+def _selected(split: str, pairs: list[PairValues], chain: str) -> tuple[list[PairValues], dict[str, str]]:
+    """The pairs the v2 manifest of ``split`` keeps under ``chain`` and what a result records of it.
+    Every kept env id must be a dilemma under the chain by this code's exact values."""
+    manifest = read_manifest(split)
+    kept = manifest.env_ids(chain)
+    by_id = {p.env_id: p for p in pairs}
+    missing = [env_id for env_id in kept if env_id not in by_id]
+    if missing:
+        raise SplitError(f"{manifest.source}: {len(missing)} env ids it keeps under {chain} are not a dilemma under it "
+                         f"here (first: {missing[0]}). Fix: republish it with this code")
+    return [by_id[env_id] for env_id in kept], {"version": str(VERSION), "selection_digest": manifest.digest,
+                                                 "threshold": f"{manifest.threshold:g}"}
 
 
 def load_sets(
@@ -265,23 +279,31 @@ def load_sets(
     progress: Callable[[str], None] | None = None,
     seen_size: int = SEEN_SAMPLE,
     chain: str | None = None,
+    version: int = 1,
 ) -> tuple[list[str], dict[str, EvalSet]]:
     """Register the splits; returns the training pool's env ids and the evaluation sets asked for.
 
     ``chain=None``: the mixed track (every train env id; each set's env ids under every chain under
     which they are a dilemma). A chain's name: that chain's track (docs/how-to/generalisation-track.md):
     only the env ids that are a dilemma under the chain, in the pool and in every set, scored under
-    the chain alone; the built-in set is Table 1's pairs of the chain.
+    the chain alone; the built-in set is Table 1's pairs of the chain. ``version=2`` (a chain's track
+    only): the pool, the seen sample and the test set keep only the pairs of the v2 splits
+    (:mod:`~morality_gym.generalisation.headroom`: Random leaves headroom under the chain).
     """
     if chain is not None and chain not in TRACK_CHAINS:
         raise ValueError(f"no track for chain {chain!r}; use one of {', '.join(TRACK_CHAINS)}")
+    if version not in (1, VERSION) or (version == VERSION and chain is None):
+        raise ValueError(f"split version {version!r}: use 1, or {VERSION} with a chain (a v{VERSION} split selects "
+                         "pairs per chain)")
     train_ids = load_split("train", cache_dir)
     train = split_manifest("train")
     only: list[str] | None = None if chain is None else [chain]
-    pool = chain_pool(train_ids, chain, cache_dir, progress) if chain is not None else None
+    pool = chain_values("train", train_ids, chain, cache_dir, progress) if chain is not None else None
+    selection: dict[str, str] = {}
+    if pool is not None and version == VERSION:
+        pool, selection = _selected("train", pool, chain)  # type: ignore[arg-type]
     if pool is not None:
         train_ids = list(dict.fromkeys(p.env_id for p in pool))
-    suffix = "" if chain is None else f"-{chain}"
     sets: dict[str, EvalSet] = {}
     for name in names:
         if name == "seen":
@@ -289,26 +311,30 @@ def load_sets(
             source = {"split": "train", "split_digest": train.digest, "sample": f"{len(ids)} of {len(train_ids)}, seed {SEEN_SEED}"}
             if pool is not None:
                 chosen = set(ids)
-                sets[name] = EvalSet(name, tuple(p for p in pool if p.env_id in chosen), {**source, "chain": str(chain)})
+                sets[name] = EvalSet(name, tuple(p for p in pool if p.env_id in chosen),
+                                     {**source, "chain": str(chain), **selection})
                 continue
-            path = _values_file(f"seen{len(ids)}", train.digest, cache_dir)
-            env_chains: dict[str, list[str] | None] = dict.fromkeys(ids)
+            pairs = compute_values(dict.fromkeys(ids), _values_file(f"seen{len(ids)}", train.digest, cache_dir), progress)
         elif name == "test":
-            ids = load_split("test", cache_dir)
-            manifest = split_manifest("test")
-            source = {"split": "test", "split_digest": manifest.digest}
-            path = _values_file(f"test{suffix}", manifest.digest, cache_dir)
-            env_chains = {env_id: only for env_id in ids}
+            test_ids = load_split("test", cache_dir)
+            source = {"split": "test", "split_digest": split_manifest("test").digest}
+            if chain is None:
+                pairs = compute_values(dict.fromkeys(test_ids), _values_file("test", source["split_digest"], cache_dir),
+                                       progress)
+            else:
+                pairs = chain_values("test", test_ids, chain, cache_dir, progress)
+                if version == VERSION:
+                    pairs, chosen_test = _selected("test", pairs, chain)
+                    source |= chosen_test
         elif name == "builtin":
             chains = {env_id: [c for c in cs if only is None or c in only] for env_id, cs in builtin_pairs().items()}
-            chains = {env_id: cs for env_id, cs in chains.items() if cs}
             source = {"split": "builtin", "split_digest": builtin_digest()}
-            path = _values_file(f"builtin{suffix}", source["split_digest"], cache_dir)
-            env_chains = dict(chains)
+            suffix = "" if chain is None else f"-{chain}"
+            pairs = compute_values({env_id: cs for env_id, cs in chains.items() if cs},
+                                   _values_file(f"builtin{suffix}", source["split_digest"], cache_dir), progress)
         else:
             raise ValueError(f"unknown set {name!r}; use one of {', '.join(SETS)}")
         if chain is not None:
             source = {**source, "chain": chain}
-        pairs = compute_values(env_chains, path, progress)
         sets[name] = EvalSet(name, tuple(pairs), source)
     return train_ids, sets
