@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from morality_gym.generalisation.headroom import headroom_summary, manifest_record, manifest_text, select
-from morality_gym.generalisation.selection import manifest_path, read_manifest, selection_digest
+from morality_gym.generalisation.selection import THRESHOLD, manifest_path, read_manifest, selection_digest
 from morality_gym.generalisation.sets import PairValues
 from morality_gym.generator.splits import SplitError, split_manifest
 
@@ -48,3 +48,38 @@ def test_an_edited_or_stale_v2_manifest_is_refused(tmp_path: Path) -> None:
     path.write_text(manifest_text(stale))
     with pytest.raises(SplitError, match="selects from split test of digest 0000000000000000"):
         read_manifest("test", tmp_path)
+
+
+@pytest.mark.parametrize("split", ["train", "test"])
+def test_the_published_v2_manifests_are_consistent(split: str) -> None:
+    manifest = read_manifest(split)
+    assert manifest.threshold == THRESHOLD and manifest.base_digest == split_manifest(split).digest
+    raw = json.loads(Path(manifest.source).read_text())
+    assert Path(manifest.source).read_text() == manifest_text(raw), "republish with headroom.publish"
+    files = split_manifest(split).files
+    for chain, ids in manifest.pairs.items():
+        summary = raw["chains"][chain]
+        assert summary["kept"] == len(ids) and summary["kept"] + sum(summary["dropped"].values()) == summary["env_ids"]
+        assert all(f"{env_id.split('-')[0]}.yaml" in files for env_id in ids)
+
+
+@pytest.mark.usefixtures("isolated_scenarios")
+def test_a_kept_and_a_dropped_pair_of_the_train_manifest_are_right_exactly(tmp_path: Path) -> None:
+    """The manifest is exact values, so anyone can check it: regenerate two of its dilemmas and
+    compute their headroom under Utility."""
+    import morality_gym
+    from morality_gym.generalisation.sets import dilemma_values
+    from morality_gym.generator.pipeline import generate
+
+    manifest = read_manifest("train")
+    kept = manifest.pairs["Utility"][0]
+    seeds = [int(f.removeprefix("Gen").removesuffix(".yaml")) for f in split_manifest("train").files]
+    kept_set = set(manifest.pairs["Utility"])
+    generate(sorted(seeds)[:12], tmp_path, pictures=False, with_values=False)
+    ids = morality_gym.add_scenario_dir(tmp_path)
+    dropped = next(e for e in ids if e not in kept_set)
+    assert kept in ids, "the first kept pair comes from the first seeds"
+    for env_id, inside in [(kept, True), (dropped, False)]:
+        values = dilemma_values(env_id, ["Utility"])
+        headroom = values[0].best - values[0].random if values else None
+        assert (headroom is not None and headroom >= manifest.threshold) == inside, (env_id, headroom)

@@ -36,6 +36,8 @@ from morality_gym.generator.splits import SPLITS_DIR, load_split, split_manifest
 QUANTILES: Final[tuple[float, ...]] = (0.0, 0.1, 0.25, 0.5, 0.75, 0.9, 1.0)
 #: Thresholds whose share of pairs below a manifest records (to show where the chosen one falls).
 CUTS: Final[tuple[float, ...]] = (0.02, 0.05, 0.1, 0.15, 0.2, 0.3)
+#: Left edges of the histogram a manifest records (the last bin ends at 1).
+BINS: Final[tuple[float, ...]] = (0.0, 0.01, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.7)
 
 
 def headroom_summary(values: Sequence[PairValues]) -> dict[str, Any]:
@@ -43,9 +45,11 @@ def headroom_summary(values: Sequence[PairValues]) -> dict[str, Any]:
     headroom = np.array([p.best - p.random for p in values], dtype=float)
     if headroom.size == 0:
         return {"pairs": 0}
+    counts, _ = np.histogram(headroom, [*BINS, np.inf])
     return {"pairs": int(headroom.size),
             "quantiles": {f"{q:g}": round(float(np.quantile(headroom, q)), 4) for q in QUANTILES},
-            "below": {f"{c:g}": round(float((headroom < c).mean()), 4) for c in CUTS}}
+            "below": {f"{c:g}": round(float((headroom < c).mean()), 4) for c in CUTS},
+            "histogram": {f"{edge:g}": int(n) for edge, n in zip(BINS, counts)}}
 
 
 def select(values: Sequence[PairValues], threshold: float) -> list[str]:
