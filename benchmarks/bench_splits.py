@@ -122,12 +122,14 @@ def splits_speed(ctx: Context) -> Section:
     else:
         with tempfile.TemporaryDirectory(prefix="bench-splits-") as tmp:
             steps = measure(Path(tmp), quick=ctx.quick)
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    cpus = os.cpu_count()  # what the unpinned steps may use (this process itself is pinned to one)
     cached = [s for s in steps if s.label.endswith(("cached", "every run done"))]
     worst = max(cached, key=lambda s: s.wall)
     notes = [f"Target (issue 44): a cached split and the track's start with every run done under {TARGET_SECONDS:.0f} s "
-             f"on 2 cores. Slowest of them: {worst.label}, {worst.wall:.1f} s wall: "
-             + ("**met**" if worst.wall <= TARGET_SECONDS else "**NOT met**") + "."]
+             f"on 2 cores. Slowest of them: {worst.label}, {worst.wall:.1f} s wall at load average "
+             f"{worst.load[0]:.1f} / {worst.load[1]:.1f} ({worst.cpu:.1f} s CPU): "
+             + ("**met**" if worst.wall <= TARGET_SECONDS else "**NOT met** in wall time on this machine's load")
+             + (f"; its CPU time is under {TARGET_SECONDS:.0f} s" if worst.cpu <= TARGET_SECONDS else "") + "."]
     progress = [line for s in steps for line in s.output.splitlines() if line.startswith("generating split")]
     if progress:
         notes.append(f"Progress lines of the first generation (stderr), e.g. `{progress[0]}` ... `{progress[-1]}`.")
