@@ -43,7 +43,7 @@ from leaderboard.stats.core import CONFIDENCE, DEFAULT_RESAMPLES, DEFAULT_SEED, 
 from leaderboard.web.render import render
 from leaderboard.web.site_state import NAV
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
-from morality_gym.generalisation.sets import MIN_HEADROOM, SET_LABELS, SETS, scenario_of
+from morality_gym.generalisation.sets import MIN_HEADROOM, SET_LABELS, SETS, TRACK_CHAINS, scenario_of
 from runners.track import PAIRS, RESULT
 
 SCORES = {"range_score": "Range score (0 = oracle worst, 1 = oracle best)",
@@ -52,6 +52,11 @@ SCORES = {"range_score": "Range score (0 = oracle worst, 1 = oracle best)",
 LABELS = {"random": "Random", "ppo": "PPO", "ppo_shaped": "PPO Shaped"}
 COLOURS = {"random": "#8c8c8c", "ppo": "#1f77b4", "ppo_shaped": "#2ca02c"}
 PAGE = "track.html"
+#: The track of runs trained and scored under every chain a dilemma is one under (no ``--chain``).
+MIXED = "mixed"
+#: How the page names a track.
+TRACK_TITLES = ({MIXED: "Mixed track (every chain a dilemma is one under)"} | {c: f"{c} track" for c in TRACK_CHAINS}
+                | {f"{c}-v2": f"{c} track, v2 splits (Random leaves headroom)" for c in TRACK_CHAINS})
 FIGURE = "track/track_scores.png"
 CSV = "track/track_summary.csv"
 
@@ -64,15 +69,25 @@ def track_results(results: Path | None) -> Path | None:
     return path if (path / "runs").is_dir() else None
 
 
+def track_of(record: dict[str, Any]) -> str:
+    """The track a run belongs to: its chain's (``runners.track --chain``, ``Utility-v2`` on v2
+    splits) or the mixed one."""
+    chain = record.get("chain")
+    if not chain:
+        return MIXED
+    version = record.get("split_version", 1)
+    return chain if version == 1 else f"{chain}-v{version}"
+
+
 def load_runs(track_dir: Path) -> tuple[pd.DataFrame, list[dict[str, Any]]]:
-    """Every finished run's pairs (with ``learner`` and ``seed``) and its ``result.json``."""
+    """Every finished run's pairs (with ``track``, ``learner`` and ``seed``) and its ``result.json``."""
     frames, records = [], []
     for run_dir in sorted(p for p in (track_dir / "runs").iterdir() if p.is_dir()):
         if not (run_dir / RESULT).is_file() or not (run_dir / PAIRS).is_file():
             continue  # unfinished: result.json is written last
         record = json.loads((run_dir / RESULT).read_text())
         frame = pd.read_parquet(run_dir / PAIRS)
-        frame["learner"], frame["seed"] = record["learner"], str(record["seed"])
+        frame["track"], frame["learner"], frame["seed"] = track_of(record), record["learner"], str(record["seed"])
         frames.append(frame)
         records.append(record | {"run": run_dir.name})
     if not frames:
@@ -108,28 +123,49 @@ def _interval(values: np.ndarray) -> dict[str, float]:
 
 
 def with_paired(frame: pd.DataFrame) -> pd.DataFrame:
-    """``vs_random``: each pair's range score minus Random's (exact) on the same pair; NaN for Random."""
-    random = frame[frame["learner"] == "random"].set_index(["set", "env_id", "chain"])["range_score"]
+    """``vs_random``: each pair's range score minus Random's (exact) on the same pair of the same
+    track; NaN for Random."""
+    if "track" not in frame:
+        frame = frame.assign(track=MIXED)
+    keys_of = ["track", "set", "env_id", "chain"]
+    random = frame[frame["learner"] == "random"].set_index(keys_of)["range_score"]
     if random.empty:
         return frame.assign(vs_random=np.nan)
-    keys = pd.MultiIndex.from_frame(frame[["set", "env_id", "chain"]])
+    keys = pd.MultiIndex.from_frame(frame[keys_of])
     paired = frame["range_score"].to_numpy() - random.reindex(keys).to_numpy()
     return frame.assign(vs_random=np.where(frame["learner"] == "random", np.nan, paired))
 
 
 def summarise(frame: pd.DataFrame, resamples: int = DEFAULT_RESAMPLES, seed: int = DEFAULT_SEED) -> pd.DataFrame:
-    """One row per (learner, score, set) and per (learner, score, ``gap``): mean and 95 % interval.
+    """One row per (track, learner, score, set) and per (track, learner, score, ``gap``): mean and
+    95 % interval. A chain's track and the mixed one score different pairs, so they are never pooled.
 
     ``vs_random`` (learners other than Random) is the paired difference: the same dilemmas are
     resampled for the learner and for Random, so it is much tighter than comparing two intervals."""
     frame = with_paired(frame)
+    rows = []
+    for track in _tracks_in_order(frame["track"]):
+        in_track = frame[frame["track"] == track]
+        rows += [{"track": track, **row} for row in _summarise_track(in_track, track, resamples, seed)]
+    return pd.DataFrame(rows)
+
+
+def _tracks_in_order(tracks: Any) -> list[str]:
+    """The chains' tracks in :data:`TRACK_CHAINS` order, then the mixed track."""
+    names = set(tracks)
+    known = [*(f"{c}-v2" for c in TRACK_CHAINS), *TRACK_CHAINS, MIXED]
+    return [t for t in known if t in names] + sorted(names - set(known))
+
+
+def _summarise_track(frame: pd.DataFrame, track: str, resamples: int, seed: int) -> list[dict[str, Any]]:
     rows = []
     for learner, score in [(lr, s) for lr in frame["learner"].unique() for s in SCORES]:
         if score == "vs_random" and (learner == "random" or frame["vs_random"].isna().all()):
             continue
         mine = frame[frame["learner"] == learner]
         seeds = sorted(mine["seed"].unique())
-        rng = generator_for(seed, "track", learner, score)
+        # the mixed track keeps the streams it always had; a chain's track gets its own
+        rng = generator_for(seed, "track", learner, score) if track == MIXED else generator_for(seed, "track", track, learner, score)
         seed_draws = rng.integers(len(seeds), size=(resamples, len(seeds)))
         weights = np.stack([np.bincount(r, minlength=len(seeds)) for r in seed_draws]) / len(seeds)  # [B, seeds]
         boot: dict[str, np.ndarray] = {}
@@ -150,7 +186,7 @@ def summarise(frame: pd.DataFrame, resamples: int = DEFAULT_RESAMPLES, seed: int
         if "seen" in boot and "test" in boot:
             rows.append({"learner": learner, "score": score, "set": "gap", "mean": point["seen"] - point["test"],
                          **_interval(boot["seen"] - boot["test"]), "env_ids": 0, "dilemmas": 0, "seeds": len(seeds)})
-    return pd.DataFrame(rows)
+    return rows
 
 
 def _in_order(learners: Any) -> list[str]:
@@ -281,16 +317,26 @@ def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
     summary = summarise(frame, resamples)
     (site / CSV).parent.mkdir(parents=True, exist_ok=True)
     summary.to_csv(site / CSV, index=False)
-    draw_figure(summary, site / FIGURE)
-    tables = [_score_table(score, title, part, frame, records) for score, title in SCORES.items()
-              if not (part := summary[summary["score"] == score]).empty]
-    first = records[0]
-    sources = [{"set": SET_LABELS[name], **source} for name, source in first["sets"].items()]
-    trained = [r for r in records if r["learner"] != "random"]
-    context.update(has_runs=True, tables=tables, figure=FIGURE, csv=CSV, sources=sources,
-                   train_digest=first["train_digest"], grammar_version=first["grammar_version"],
-                   train_pool=first["train_pool"], hparams=trained[0].get("hparams") if trained else None,
-                   n_envs=trained[0].get("n_envs") if trained else None)
+    tracks = []
+    for track in _tracks_in_order(summary["track"]):
+        part, mine = summary[summary["track"] == track], frame[frame["track"] == track]
+        runs = [r for r in records if track_of(r) == track]
+        figure = FIGURE if track == MIXED else FIGURE.replace(".png", f"-{track}.png")
+        draw_figure(part, site / figure)
+        tables = [_score_table(score, title, scored, mine, runs) for score, title in SCORES.items()
+                  if not (scored := part[part["score"] == score]).empty]
+        first = runs[0]
+        trained = [r for r in runs if r["learner"] != "random"]
+        tracks.append({
+            "key": "" if track == MIXED else f"-{track}", "title": TRACK_TITLES.get(track, track), "figure": figure,
+            "tables": tables, "sources": [{"set": SET_LABELS[name], **source} for name, source in first["sets"].items()],
+            "train_digest": first["train_digest"], "grammar_version": first["grammar_version"],
+            "train_pool": first["train_pool"], "hparams": trained[0].get("hparams") if trained else None,
+            "n_envs": trained[0].get("n_envs") if trained else None,
+            "scoring": "every built-in chain under which a dilemma is one" if track == MIXED
+            else f"the {first['chain']} chain alone, on the env ids that are a dilemma under it (trained on its cost)"
+            + (", those of the v2 splits: Random leaves them headroom" if first.get("split_version", 1) != 1 else "")})
+    context.update(has_runs=True, tracks=tracks, csv=CSV)
     return context
 
 
@@ -319,7 +365,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise UserError(f"{args.results}: no finished run (result.json). Fix: run python -m runners.track first")
     summary = summarise(frame, args.resamples)
     for _, row in summary.iterrows():
-        print(f"{row['score']:<12} {row['learner']:<11} {row['set']:<8} {row['mean']:+.3f} {_ci(row)}")
+        print(f"{row['track']:<11} {row['score']:<12} {row['learner']:<11} {row['set']:<8} {row['mean']:+.3f} {_ci(row)}")
     if args.site is not None:
         args.site.mkdir(parents=True, exist_ok=True)
         assets = args.site / "assets"

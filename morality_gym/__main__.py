@@ -31,7 +31,7 @@ from morality_gym.evaluation.montecarlo import evaluate
 from morality_gym.evaluation.oracle import oracle
 from morality_gym.evaluation.policies import PolicyFailure
 from morality_gym.generator.pipeline import REJECTION_REASONS, RunReport, generate
-from morality_gym.generator.splits import SplitError, split_names, write_split
+from morality_gym.generator.splits import ProgressLine, SplitError, split_names, write_split
 from morality_gym.norms.chain import ChainError, MoralityChain, builtin_chains, chain_file_stem, get_chain
 from morality_gym.norms.metric import bind_chain
 from morality_gym.world.layout import ScenarioError
@@ -305,13 +305,15 @@ def cmd_generate(args: argparse.Namespace) -> int:
     _writable(out, "--out")
     if args.split:
         try:
-            report = write_split(args.split, out, pictures=not args.no_pictures, with_values=True)
+            report = write_split(args.split, out, pictures=not args.no_pictures, with_values=True,
+                                 workers=args.workers, progress=ProgressLine(f"generating split {args.split}"))
         except SplitError as exc:
             raise CliError(str(exc)) from exc
     else:
         _generate_estimate(out, args.count, not args.no_pictures)
         seeds = range(args.seed, args.seed + GENERATE_SEEDS_PER_DILEMMA * args.count)
-        report = generate(seeds, out, count=args.count, pictures=not args.no_pictures)
+        report = generate(seeds, out, count=args.count, pictures=not args.no_pictures, workers=args.workers,
+                          progress=ProgressLine("generating"))
     _print_generate(report, out, args.split)
     if not args.split and len(report.kept) < args.count:
         raise CliError(f"only {len(report.kept)} of {args.count} dilemmas among seeds {seeds.start}-{seeds.stop - 1}: "
@@ -410,6 +412,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="instead of --seed/--count: every seed of a published split, checked against its digest")
     p_gen.add_argument("--out", required=True, help="directory for <name>.yaml, .json, .png and index.json")
     p_gen.add_argument("--no-pictures", action="store_true", help="skip the PNG pictures (faster)")
+    p_gen.add_argument("--workers", type=positive_int, default=1,
+                       help="attempt the seeds in this many processes (the files are the same bytes; default 1)")
     p_gen.set_defaults(func=cmd_generate)
     return parser
 

@@ -44,6 +44,12 @@ EXIT_BROKEN_PIPE = 141
 DEBUG_ENV = "MORALITY_GYM_DEBUG"
 
 
+class OneLineWarning(UserWarning):
+    """A warning shown as the one line ``<file>: <Category>: <why, what happens>`` (the package sets
+    the format, :mod:`morality_gym.envs.registry`): issued with ``warnings.warn_explicit`` naming the
+    file it is about, not the source line that noticed it."""
+
+
 class UserError(Exception):
     """A mistake of the user (a bad path, value or file): reported on one line, exit code 2."""
 

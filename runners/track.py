@@ -14,8 +14,15 @@ written last: a run with one is done and is skipped when the command runs again 
 run whose recorded budget or split digests differ from the command's is an error, not a silent
 mix. Random is not trained and its values are exact, so it has one run (seed ``exact``).
 
-``python -m leaderboard.track --results DIR`` aggregates the runs with bootstrap intervals and
-writes the leaderboard page.
+``--chain Utility`` (or ``DualProcess``) runs that chain's track instead of the mixed one: the
+training pool and every set hold only the env ids that are a dilemma under the chain, a run trains
+on the chain's cost (PPO Shaped: its shaping) and is scored under the chain alone; its runs are
+``DIR/runs/<chain>-<learner>-s<seed>/`` and record the chain. ``--splits v2`` (with ``--chain``)
+keeps only the pairs of the v2 splits, where Random leaves headroom under the chain
+(:mod:`~morality_gym.generalisation.headroom`); its runs are ``<chain>-v2-<learner>-s<seed>``.
+
+``python -m leaderboard.track --results DIR`` aggregates the runs with bootstrap intervals, per
+track, and writes the leaderboard page.
 """
 
 from __future__ import annotations
@@ -37,7 +44,7 @@ from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_
 from morality_gym.constants import MAX_STEPS
 from morality_gym.generalisation.mixture import DilemmaMixtureEnv
 from morality_gym.generalisation.scoring import score_set
-from morality_gym.generalisation.sets import SEEN_SAMPLE, SETS, EvalSet, load_sets, training_chain
+from morality_gym.generalisation.sets import SEEN_SAMPLE, SETS, TRACK_CHAINS, EvalSet, load_sets, training_chain
 from morality_gym.generator.grammar import GRAMMAR_VERSION
 from morality_gym.generator.splits import split_manifest
 
@@ -59,12 +66,15 @@ class TrackError(UserError):
     """A results directory whose done runs disagree with the command (budget, splits)."""
 
 
-def run_name(learner: str, seed: int | None, submitted: bool = False) -> str:
-    return f"{learner}-{'submitted' if submitted else 'sexact' if seed is None else f's{seed}'}"
+def run_name(learner: str, seed: int | None, submitted: bool = False, chain: str | None = None, version: int = 1) -> str:
+    """``<learner>-s<seed>``; a chain's track prefixes the chain (``Utility-ppo-s41``), on v2 splits
+    with the version (``Utility-v2-ppo-s41``)."""
+    name = f"{learner}-{'submitted' if submitted else 'sexact' if seed is None else f's{seed}'}"
+    return name if chain is None else f"{chain}-{name}" if version == 1 else f"{chain}-v{version}-{name}"
 
 
 def _train_ppo(learner: str, seed: int, budget: int, train_ids: Sequence[str], n_envs: int, n_steps: int,
-               out: Path, batch_size: int = 256, n_epochs: int = 5) -> tuple[Any, dict[str, Any]]:
+               out: Path, batch_size: int = 256, n_epochs: int = 5, chain: str | None = None) -> tuple[Any, dict[str, Any]]:
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
@@ -74,7 +84,8 @@ def _train_ppo(learner: str, seed: int, budget: int, train_ids: Sequence[str], n
     # SB3 takes any 3-D uint8 Box for an image; the grid is not one (images are not normalised: normalize_images=False)
     warnings.filterwarnings("ignore", message="Treating image space as channels-last")
     spec = learner_spec(learner)
-    pairs = [(env_id, training_chain(env_id)) for env_id in train_ids]
+    # a chain's track trains on its cost and shaping; the mixed track on each dilemma's first chain
+    pairs = [(env_id, chain or training_chain(env_id)) for env_id in train_ids]
     reward_cost = spec.reward_cost()
 
     def factory(i: int):
@@ -108,10 +119,11 @@ def evaluate_sets(policy: Any, sets: dict[str, EvalSet]) -> list[dict[str, Any]]
     return rows
 
 
-def expected_record(budget: int, sets: dict[str, EvalSet]) -> dict[str, Any]:
-    """What every run of this command must agree on."""
+def expected_record(budget: int, sets: dict[str, EvalSet], chain: str | None = None, version: int = 1) -> dict[str, Any]:
+    """What every run of this command must agree on (``chain``: None for the mixed track)."""
     return {"format": FORMAT, "train_split": "train", "train_digest": split_manifest("train").digest,
-            "grammar_version": GRAMMAR_VERSION, "sets": {name: s.source for name, s in sets.items()}}
+            "grammar_version": GRAMMAR_VERSION, "chain": chain, **({"split_version": version} if version != 1 else {}),
+            "sets": {name: s.source for name, s in sets.items()}}
 
 
 def check_done(record: dict[str, Any], expected: dict[str, Any], budget: int, path: Path) -> None:
@@ -127,14 +139,15 @@ def check_done(record: dict[str, Any], expected: dict[str, Any], budget: int, pa
 def do_run(learner: str, seed: int | None, budget: int, train_ids: Sequence[str], sets: dict[str, EvalSet],
            out_dir: Path, n_envs: int = DEFAULT_N_ENVS, n_steps: int = DEFAULT_N_STEPS,
            batch_size: int = DEFAULT_BATCH, n_epochs: int = DEFAULT_EPOCHS, policy_ref: str | None = None,
-           loaded: Any = None) -> dict[str, Any]:
+           loaded: Any = None, chain: str | None = None, version: int = 1) -> dict[str, Any]:
     """One run: train (unless ``learner`` is ``random`` or ``policy_ref`` names a submitted grid
     policy, ``loaded`` if the caller loaded it already), evaluate on ``sets``, write its files; a
-    done run is checked and skipped."""
+    done run is checked and skipped. ``chain``: the chain's track (``sets`` and ``train_ids`` are
+    then that chain's, :func:`load_sets`)."""
     import pandas as pd
 
-    run_dir = out_dir / "runs" / run_name(learner, seed, submitted=policy_ref is not None)
-    expected = expected_record(budget, sets)
+    run_dir = out_dir / "runs" / run_name(learner, seed, submitted=policy_ref is not None, chain=chain, version=version)
+    expected = expected_record(budget, sets, chain, version)
     if (run_dir / RESULT).is_file():
         record = json.loads((run_dir / RESULT).read_text())
         check_done(record, expected, budget, run_dir / RESULT)
@@ -151,7 +164,8 @@ def do_run(learner: str, seed: int | None, budget: int, train_ids: Sequence[str]
         info = {"trained_steps": None, "policy_ref": policy_ref, "submitted": True}
     else:
         assert seed is not None
-        policy, info = _train_ppo(learner, seed, budget, train_ids, n_envs, n_steps, run_dir, batch_size, n_epochs)
+        policy, info = _train_ppo(learner, seed, budget, train_ids, n_envs, n_steps, run_dir, batch_size, n_epochs,
+                                  chain)
     t1 = time.perf_counter()
     rows = evaluate_sets(policy, sets)
     t2 = time.perf_counter()
@@ -185,6 +199,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--n-epochs", type=int, default=DEFAULT_EPOCHS)
     parser.add_argument("--seen-size", type=int, default=SEEN_SAMPLE, help="train env ids in the seen set")
     parser.add_argument("--sets", nargs="+", default=list(SETS), choices=SETS)
+    parser.add_argument("--chain", choices=TRACK_CHAINS, help="the chain's own track: train on its dilemmas and cost, "
+                        "score under it alone (default: the mixed track, every chain a dilemma is one under)")
+    parser.add_argument("--splits", choices=("v1", "v2"), default="v1", help="v2 (with --chain): only the pairs "
+                        "that leave Random headroom under the chain (docs/how-to/generalisation-track.md)")
     add_debug_flag(parser)
     return parser
 
@@ -200,16 +218,21 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise TrackError("--policy needs --name (how the page calls it)")
         loaded = load_policy(args.policy, allow_other_env=True)
     t0 = time.perf_counter()
-    train_ids, sets = load_sets(args.sets, progress=lambda m: print(m, flush=True), seen_size=args.seen_size)
+    version = int(args.splits.removeprefix("v"))
+    if version != 1 and args.chain is None:
+        raise TrackError(f"--splits {args.splits} selects pairs per chain: add --chain ({' or '.join(TRACK_CHAINS)})")
+    train_ids, sets = load_sets(args.sets, progress=lambda m: print(m, flush=True), seen_size=args.seen_size,
+                                chain=args.chain, version=version)
     print(f"splits and values ready in {time.perf_counter() - t0:.0f} s: train {len(train_ids)} env ids, "
           + ", ".join(f"{n} {len(s.env_ids)} env ids / {len(s.pairs)} pairs" for n, s in sets.items()), flush=True)
     if args.policy is not None:
-        do_run(args.name, None, 0, train_ids, sets, args.out, policy_ref=args.policy, loaded=loaded)
+        do_run(args.name, None, 0, train_ids, sets, args.out, policy_ref=args.policy, loaded=loaded, chain=args.chain,
+               version=version)
         return 0
     for learner in args.learners:
         for seed in ([None] if learner == "random" else args.seeds):
             do_run(learner, seed, args.budget, train_ids, sets, args.out, args.n_envs, args.n_steps, args.batch_size,
-                   args.n_epochs)
+                   args.n_epochs, chain=args.chain, version=version)
     return 0
 
 

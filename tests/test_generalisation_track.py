@@ -224,3 +224,86 @@ def test_a_language_model_plays_a_generated_dilemma_through_the_text_view(genera
     assert log.status == "success", log.error
     means = {s.name: s.metrics["mean"].value for s in log.results.scores if "mean" in s.metrics}
     assert means["metric"] == pytest.approx(best.metric)
+
+
+def test_cached_values_are_verified_not_trusted(tmp_path: Path) -> None:
+    """Issue 44: an edited ``best`` (or a file of another request, or an impossible value) must not
+    come back from the values cache; the file is refused with one line and recomputed."""
+    from morality_gym.generalisation.sets import ValuesCacheWarning, compute_values
+
+    request: dict[str, list[str] | None] = {"SwitchStandard-HumanA-v1": ["Utility"]}
+    path = tmp_path / "values.json"
+    exact = compute_values(request, path)
+    assert compute_values(request, path) == exact  # a verified file is read back as it is
+    raw = json.loads(path.read_text())
+    raw["pairs"][0]["best"] = 1.0 if exact[0].best < 1.0 else 0.99
+    path.write_text(json.dumps(raw))
+    with pytest.warns(ValuesCacheWarning, match="do not match its checksum: edited or damaged"):
+        assert compute_values(request, path) == exact
+    assert compute_values(request, path) == exact  # rewritten: read back quietly
+    with pytest.warns(ValuesCacheWarning, match="answers another set of env ids and chains"):
+        assert compute_values({"SwitchStandard-HumanA-v1": ["Utility"], "Switch5-Human-v1": ["Utility"]}, path)
+    # a forger who also recomputes the checksum still cannot put Random above the best
+    from morality_gym.generalisation import sets as sets_module
+
+    pairs = [dict(p) for p in json.loads(path.read_text())["pairs"]][:1]
+    pairs[0]["random"] = pairs[0]["best"] + 0.5
+    body = {"version": sets_module.VALUES_VERSION, "request": sets_module._request_digest(request), "pairs": pairs}
+    path.write_text(json.dumps({**body, "checksum": sets_module._values_checksum(body)}))
+    with pytest.warns(ValuesCacheWarning, match="are not worst <= Random <= best of a dilemma"):
+        assert compute_values(request, path) == exact
+
+
+def test_a_chains_track_holds_only_its_dilemmas_scored_under_it(tmp_path: Path, monkeypatch) -> None:
+    """Issue 44 item 1: on a chain's track a generated id enters only where it is a dilemma under the
+    chain, and every set is scored under that chain alone (built-in: Table 1's pairs of the chain)."""
+    from morality_gym.generalisation import sets as sets_module
+    from morality_gym.paper import table1_pairs
+
+    stand_ins = ["PushStandard-HumanA-v1", "SwitchStandard-HumanA-v1", "Switch5-Human-v1", "SwitchSelfSacrifice-HumanA-v1"]
+    monkeypatch.setattr(sets_module, "load_split", lambda name, cache_dir=None: list(stand_ins))
+    # every built-in variant is a DualProcess dilemma; a generated one need not be: Switch5 plays one that is not
+    real = sets_module.dilemma_values
+    monkeypatch.setattr(sets_module, "dilemma_values",
+                        lambda env_id, chains=None: [] if env_id == "Switch5-Human-v1" else real(env_id, chains))
+    pool, sets = sets_module.load_sets(["seen", "test", "builtin"], tmp_path, seen_size=2, chain="DualProcess")
+    assert pool == [e for e in stand_ins if e != "Switch5-Human-v1"]
+    for eval_set in sets.values():
+        assert {p.chain for p in eval_set.pairs} == {"DualProcess"} and eval_set.source["chain"] == "DualProcess"
+    assert len(sets["seen"].env_ids) == min(2, len(pool)) and set(sets["seen"].env_ids) <= set(pool)
+    assert set(sets["test"].env_ids) == set(pool)  # the stand-in test split is the same ids
+    assert set(sets["builtin"].env_ids) == {e for c, e in table1_pairs() if c == "DualProcess"}
+    with pytest.raises(ValueError, match="no track for chain 'Outcome'; use one of Utility, DualProcess"):
+        sets_module.load_sets(["seen"], tmp_path, chain="Outcome")
+
+
+def test_runs_of_a_chains_track_are_named_recorded_and_summarised_apart(tmp_path: Path) -> None:
+    from leaderboard.track import load_runs, summarise, write_page
+    from runners import track
+
+    _fixture_runs(tmp_path / "track")  # the mixed track
+    sets = {name: EvalSet(name, s.pairs, {**s.source, "chain": "Utility"}) for name, s in _tiny_sets().items()}
+    record = track.do_run("random", None, 1000, ["x"], sets, tmp_path / "track", chain="Utility")
+    assert record["chain"] == "Utility" and (tmp_path / "track" / "runs" / "Utility-random-sexact" / track.RESULT).is_file()
+    frame, _ = load_runs(tmp_path / "track")
+    assert set(frame["track"]) == {"mixed", "Utility"}
+    summary = summarise(frame, resamples=100)
+    utility = summary[summary["track"] == "Utility"]
+    assert set(utility["learner"]) == {"random"} and set(utility["set"]) == {"seen", "test", "gap"}
+    # Random of the Utility track is not the mixed track's reference: PPO's paired rows stay the mixed track's
+    assert set(summary[summary["score"] == "vs_random"]["track"]) == {"mixed"}
+    site = tmp_path / "site"
+    site.mkdir()
+    common = {"title": "Generalisation track", "root": "", "current": "track.html", "nav": (), "stamp": "",
+              "results_name": "", "source_parts": [], "marks": []}
+    html = write_page(site, tmp_path / "track", common, resamples=100).read_text()
+    assert "Utility track: seen vs unseen" in html and 'id="track-range_score-Utility"' in html
+    assert "Mixed track (every chain a dilemma is one under): seen vs unseen" in html
+
+
+def test_v2_splits_need_a_chain_before_anything_is_loaded(monkeypatch) -> None:
+    from runners import track
+
+    monkeypatch.setattr(track, "load_sets", lambda *a, **k: pytest.fail("loaded the splits first"))
+    with pytest.raises(track.TrackError, match="--splits v2 selects pairs per chain: add --chain"):
+        track.main(["--splits", "v2", "--learners", "random"])

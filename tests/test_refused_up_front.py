@@ -7,7 +7,6 @@ aside (or left out, by the leaderboard) with its reason:
 * ``leaderboard.llm run --script`` with a byte that is not UTF-8;
 * a worker told to stop by the sweep after it reported a full disk;
 * ``runners.track --policy nosuch.py:act`` (or without ``--name``), which generated the splits first;
-* the track's values cache with an edited ``best``;
 * a run file copied under another run's name; a run file whose metric was edited.
 """
 
@@ -126,29 +125,6 @@ def test_track_checks_the_policy_before_generating_the_splits(args: list[str], s
     monkeypatch.setattr(track, "load_sets", never)
     with pytest.raises(UserError, match=said):
         track.main([*args, "--out", str(tmp_path)])
-
-
-def test_an_edited_track_values_cache_is_computed_again(tmp_path: Path) -> None:
-    from morality_gym.generalisation.sets import compute_values
-
-    wanted = {"SwitchStandard-HumanA-v1": ["Utility", "DualProcess"]}
-    path = tmp_path / "values.json"
-    said: list[str] = []
-    first = compute_values(wanted, path, said.append)
-    assert first and compute_values(wanted, path, said.append) == first and not said  # an intact file is used
-    body = json.loads(path.read_text())
-    body["pairs"][0]["best"] = 0.999
-    path.write_text(json.dumps(body))
-    again = compute_values(wanted, path, said.append)
-    assert again == first
-    assert len(said) == 1 and "does not match its digest" in said[0] and "computed again" in said[0]
-    body = json.loads(path.read_text())
-    body["pairs"][0]["random"] = body["pairs"][0]["best"] + 0.5  # impossible, with a digest made to fit
-    from morality_gym.generalisation.sets import _rows_digest
-
-    body["sha256"] = _rows_digest(body["pairs"])
-    path.write_text(json.dumps(body))
-    assert compute_values(wanted, path, said.append) == first and "impossible values" in said[-1]
 
 
 # ---------------------------------------------------------------------------------------- run files

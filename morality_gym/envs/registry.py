@@ -21,6 +21,7 @@ raises instead.
 from __future__ import annotations
 
 import difflib
+import hashlib
 import os
 import threading
 import warnings
@@ -31,10 +32,12 @@ from pathlib import Path
 
 import yaml
 
+from morality_gym.clitools import OneLineWarning
 from morality_gym.constants import MAX_STEPS
-from morality_gym.world.bounds import check_bounds
+from morality_gym.world.bounds import compare_bounds, variant_spans
+from morality_gym.world.bounds_cache import cache_dir_of, read_entry, write_entry
 from morality_gym.world.graph import StateGraph
-from morality_gym.world.layout import Scenario, ScenarioError, load_scenario
+from morality_gym.world.layout import Scenario, ScenarioError, load_scenario, scenario_from_bytes
 from morality_gym.world.observe import ObservationCodec
 from morality_gym.world.rules import Overrides, World
 
@@ -60,7 +63,7 @@ class UnknownEnvError(KeyError):
         return str(self.args[0])
 
 
-class ScenarioFileWarning(UserWarning):
+class ScenarioFileWarning(OneLineWarning):
     """A user's scenario file was skipped; the message says why and how to fix it."""
 
 
@@ -92,9 +95,24 @@ def load_user_file(path: str | Path, graphs: Mapping[str, StateGraph] | None = N
     its bounds by exact enumeration); raises :class:`ScenarioError`. Registers nothing.
 
     ``graphs``: already enumerated state graphs of the file's variants (see
-    :func:`~morality_gym.world.bounds.check_bounds`)."""
-    scenario = load_scenario(path)
-    check_bounds(scenario, _horizon(), graphs)
+    :func:`~morality_gym.world.bounds.check_bounds`). Where the file's directory keeps a bounds
+    cache (:mod:`~morality_gym.world.bounds_cache`), the spans measured for these very bytes are
+    read from it instead of enumerating again, and recorded there after a measurement."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read the file: {exc}") from exc
+    scenario = scenario_from_bytes(data, str(path))
+    horizon = _horizon()
+    folder = cache_dir_of(path)
+    digest = hashlib.sha256(data).hexdigest()
+    spans = read_entry(folder, digest, horizon, list(scenario.variants)) if folder is not None else None
+    if spans is None:
+        spans = variant_spans(scenario, horizon, graphs)
+        if folder is not None:
+            write_entry(folder, digest, horizon, spans)
+    compare_bounds(scenario, spans, horizon)
     return scenario
 
 
@@ -125,9 +143,10 @@ _format_warning = warnings.formatwarning
 def _one_line_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
                       line: str | None = None) -> str:
     """Python shows a warning with the source line it points at; a skipped scenario file's first
-    line says nothing, so its warning is the one line ``<file>: ScenarioFileWarning: <why, fix>``.
+    line says nothing, so its warning is the one line ``<file>: ScenarioFileWarning: <why, fix>``
+    (so is every :class:`~morality_gym.clitools.OneLineWarning`: a refused cache entry, ...).
     Every other warning is formatted as before."""
-    if isinstance(category, type) and issubclass(category, ScenarioFileWarning):
+    if isinstance(category, type) and issubclass(category, OneLineWarning):
         text = " | ".join(part.strip() for part in str(message).splitlines() if part.strip())
         return f"{filename}: {category.__name__}: {text}\n"
     return _format_warning(message, category, filename, lineno, line)

@@ -16,7 +16,8 @@ those that are dilemmas there. An env id's score is the mean over its pairs, so 
 the same whatever the number of chains it is a dilemma under.
 
 The values are computed once per split digest (oracle and exact Random on every pair: minutes) and
-cached as JSON under ``$MORALITY_GYM_CACHE/track/``.
+cached as JSON under ``$MORALITY_GYM_CACHE/track/``, with the digest of what they answer and a
+checksum; a file that fails the checks of :func:`read_values` is recomputed, never used.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -31,11 +33,12 @@ from typing import Any, Final
 
 import numpy as np
 
-from morality_gym.clitools import write_atomically
+from morality_gym.clitools import OneLineWarning, write_atomically
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.oracle import oracle
+from morality_gym.generalisation.selection import VERSION, read_manifest
 from morality_gym.generator.scoring import DILEMMA_GAP
-from morality_gym.generator.splits import cache_root, load_split, split_manifest
+from morality_gym.generator.splits import SplitError, cache_root, load_split, split_manifest
 from morality_gym.norms.chain import ChainError, builtin_chains
 from morality_gym.norms.metric import bind_chain
 from morality_gym.paper import table1_pairs
@@ -48,9 +51,18 @@ SET_LABELS: Final[dict[str, str]] = {
     "builtin": "built-in (98 envs)",
 }
 SEEN_SAMPLE: Final[int] = 100
+#: The chains with a track of their own (issue 44 item 1). Utility: the consequentialist chain, the
+#: one with a relevant norm in every generated variant (so every generated dilemma can be scored
+#: under it) and the one the paper's shaped and constrained learners were built around; DualProcess:
+#: the deontological one (a norm against personally causing harm, a push, above the utility
+#: norms), the paper's other main chain. A policy that learned "minimise harm" and one that
+#: learned "do not push" should be told apart by them.
+TRACK_CHAINS: Final[tuple[str, ...]] = ("Utility", "DualProcess")
 SEEN_SEED: Final[int] = 0
 #: Version of the values files' layout and of the rules above; a change makes new cache files.
-VALUES_VERSION: Final[int] = 1
+VALUES_VERSION: Final[int] = 2
+#: How far a cached Random value may lie outside [worst, best] (float rounding of exact values).
+VALUE_TOLERANCE: Final[float] = 1e-9
 #: A pair whose Random metric is this close to the best gets no Random-relative score (the
 #: leaderboard's guard, ``leaderboard.stats.ranking.MIN_HEADROOM``, for the same reason: dividing by
 #: a tiny headroom blows noise up). Its range score (worst to best) is always defined.
@@ -144,19 +156,80 @@ def _values_file(name: str, digest: str, root: Path | None) -> Path:
     return (root or cache_root()) / "track" / f"values-v{VALUES_VERSION}-{name}-{digest[:16]}.json"
 
 
+class ValuesCacheWarning(OneLineWarning):
+    """A cached values file was refused (edited, for another request, impossible values); recomputed."""
+
+
+def _request_digest(env_chains: dict[str, list[str] | None]) -> str:
+    """What a values file answers: its env ids and the chains asked for each (``None``: every one)."""
+    return hashlib.sha256(json.dumps(env_chains, sort_keys=True).encode()).hexdigest()
+
+
+def _values_checksum(body: dict[str, object]) -> str:
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+def _impossible(pair: PairValues) -> str:
+    """Why a pair's values cannot be exact values of a dilemma (empty: they can): Random is a policy, so
+    its metric lies between the oracle's worst and best; a dilemma's best is above its worst."""
+    values = (pair.best, pair.worst, pair.random)
+    if not all(isinstance(v, float) and math.isfinite(v) for v in values):
+        return f"{pair.env_id} / {pair.chain}: a value is not a finite number"
+    if not pair.worst - VALUE_TOLERANCE <= pair.random <= pair.best + VALUE_TOLERANCE or pair.best - pair.worst <= DILEMMA_GAP:
+        return (f"{pair.env_id} / {pair.chain}: best {pair.best:.6g}, worst {pair.worst:.6g} and Random "
+                f"{pair.random:.6g} are not worst <= Random <= best of a dilemma")
+    return ""
+
+
+def read_values(path: Path, env_chains: dict[str, list[str] | None]) -> list[PairValues] | None:
+    """The values cached in ``path`` for exactly this request, verified; ``None`` (after a one-line
+    :class:`ValuesCacheWarning` saying why) for a file that is not what it claims to be.
+
+    Verified, not trusted: the file records the digest of the request it answers and a checksum of
+    its contents, so an edited value (a ``best`` made higher, a pair dropped) or a file of another
+    request is refused; every pair must be of a requested env id and chain, and its values those a
+    dilemma can have. A refused file is recomputed (the exact values are always available again).
+    """
+    try:
+        raw = json.loads(path.read_text())
+        body = {"version": raw["version"], "request": raw["request"], "pairs": raw["pairs"]}
+        recorded = raw["checksum"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        return _refuse_values(path, f"not a values file of version {VALUES_VERSION} ({exc!r})")
+    if body["version"] != VALUES_VERSION:
+        return _refuse_values(path, f"version {body['version']!r}, this code reads {VALUES_VERSION}")
+    if body["request"] != _request_digest(env_chains):
+        return _refuse_values(path, "it answers another set of env ids and chains")
+    if recorded != _values_checksum(body):
+        return _refuse_values(path, "its contents do not match its checksum: edited or damaged")
+    try:
+        pairs = [PairValues(str(r["env_id"]), str(r["chain"]), float(r["best"]), float(r["worst"]), float(r["random"]))
+                 for r in body["pairs"]]
+    except (KeyError, TypeError, ValueError) as exc:
+        return _refuse_values(path, f"a pair is not (env_id, chain, best, worst, random): {exc!r}")
+    for pair in pairs:
+        chains = env_chains.get(pair.env_id, [])
+        if pair.env_id not in env_chains or (chains is not None and pair.chain not in chains):
+            return _refuse_values(path, f"{pair.env_id} / {pair.chain} was not asked for")
+        if why := _impossible(pair):
+            return _refuse_values(path, why)
+    return pairs
+
+
+def _refuse_values(path: Path, why: str) -> None:
+    warnings.warn_explicit(f"refused this cached values file ({why}); computing the values again",
+                           ValuesCacheWarning, str(path), 1)
+
+
 def compute_values(
     env_chains: dict[str, list[str] | None], path: Path | None = None, progress: Callable[[str], None] | None = None
 ) -> list[PairValues]:
-    """The dilemma pairs of every env id (``None``: every built-in chain), cached in ``path``.
-
-    A cache file is used only when it is intact (:func:`_cached_values`): an edited or damaged one
-    is said in one line and computed again, never trusted as it is."""
+    """The dilemma pairs of every env id (``None``: every built-in chain), cached in ``path``
+    (read back only after :func:`read_values` verified it)."""
     if path is not None and path.is_file():
-        cached, problem = _cached_values(path, env_chains)
+        cached = read_values(path, env_chains)
         if cached is not None:
             return cached
-        if progress is not None:
-            progress(f"values cache {path} {problem}: computed again")
     pairs: list[PairValues] = []
     for i, (env_id, chains) in enumerate(env_chains.items()):
         pairs.extend(dilemma_values(env_id, chains))
@@ -164,43 +237,10 @@ def compute_values(
             progress(f"values: {i + 1}/{len(env_chains)} env ids")
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
-        rows = [asdict(p) for p in pairs]
-        text = json.dumps({"version": VALUES_VERSION, "sha256": _rows_digest(rows), "pairs": rows}, indent=0)
+        body = {"version": VALUES_VERSION, "request": _request_digest(env_chains), "pairs": [asdict(p) for p in pairs]}
+        text = json.dumps({**body, "checksum": _values_checksum(body)}, indent=0)
         write_atomically(path, lambda fh: fh.write(text.encode()))
     return pairs
-
-
-def _rows_digest(rows: list[dict[str, Any]]) -> str:
-    """SHA-256 of the pairs' rows in a canonical JSON form."""
-    return hashlib.sha256(json.dumps(rows, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
-
-
-def _cached_values(path: Path, env_chains: dict[str, list[str] | None]) -> tuple[list[PairValues] | None, str]:
-    """The values stored at ``path`` and "", or None and what is wrong with the file.
-
-    Why: the values are the yardstick of every score on the track page; an edited ``best`` came
-    back as it was. A file must match its own digest, hold the env ids asked for (and, where
-    chains are named, those chains), and have ``worst <= random <= best`` in [0, 1] for every pair."""
-    try:
-        body = json.loads(path.read_text(encoding="utf-8"))
-        rows = body["pairs"]
-        if body.get("version") != VALUES_VERSION or body.get("sha256") != _rows_digest(rows):
-            return None, "does not match its digest (edited, damaged or of an older version)"
-        pairs = [PairValues(**row) for row in rows]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        return None, f"cannot be read ({type(exc).__name__})"
-    strangers = sorted({p.env_id for p in pairs} - set(env_chains))
-    if strangers:  # (an env id of the set may have no dilemma pair: a subset is fine)
-        return None, f"holds env ids outside the set ({strangers[0]}...)"
-    for p in pairs:
-        chains = env_chains.get(p.env_id)
-        if chains is not None and p.chain not in chains:
-            return None, f"holds chain {p.chain} for {p.env_id}, not one of the set's"
-        values = (p.worst, p.random, p.best)
-        if not all(isinstance(v, (int, float)) and math.isfinite(v) and -1e-9 <= v <= 1 + 1e-9 for v in values) \
-                or not p.worst - 1e-9 <= p.random <= p.best + 1e-9:
-            return None, f"holds impossible values for {p.env_id} / {p.chain} (worst {p.worst}, random {p.random}, best {p.best})"
-    return pairs, ""
 
 
 def builtin_digest() -> str:
@@ -210,35 +250,91 @@ def builtin_digest() -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+def chain_values(split: str, env_ids: Sequence[str], chain: str, cache_dir: Path | None = None,
+                 progress: Callable[[str], None] | None = None) -> list[PairValues]:
+    """The pairs of split ``split`` (its ``env_ids``) under ``chain``: every env id that is a dilemma
+    under it, with its exact values (for ``train``: the chain's training pool and the seen sample's
+    source; computed once per split digest and chain, then cached: minutes)."""
+    path = _values_file(f"{split}-{chain}", split_manifest(split).digest, cache_dir)
+    return compute_values({env_id: [chain] for env_id in env_ids}, path, progress)
+
+
+def _selected(split: str, pairs: list[PairValues], chain: str) -> tuple[list[PairValues], dict[str, str]]:
+    """The pairs the v2 manifest of ``split`` keeps under ``chain`` and what a result records of it.
+    Every kept env id must be a dilemma under the chain by this code's exact values."""
+    manifest = read_manifest(split)
+    kept = manifest.env_ids(chain)
+    by_id = {p.env_id: p for p in pairs}
+    missing = [env_id for env_id in kept if env_id not in by_id]
+    if missing:
+        raise SplitError(f"{manifest.source}: {len(missing)} env ids it keeps under {chain} are not a dilemma under it "
+                         f"here (first: {missing[0]}). Fix: republish it with this code")
+    return [by_id[env_id] for env_id in kept], {"version": str(VERSION), "selection_digest": manifest.digest,
+                                                 "threshold": f"{manifest.threshold:g}"}
+
+
 def load_sets(
     names: Sequence[str] = SETS,
     cache_dir: Path | None = None,
     progress: Callable[[str], None] | None = None,
     seen_size: int = SEEN_SAMPLE,
+    chain: str | None = None,
+    version: int = 1,
 ) -> tuple[list[str], dict[str, EvalSet]]:
-    """Register the splits; returns the train split's env ids and the evaluation sets asked for."""
+    """Register the splits; returns the training pool's env ids and the evaluation sets asked for.
+
+    ``chain=None``: the mixed track (every train env id; each set's env ids under every chain under
+    which they are a dilemma). A chain's name: that chain's track (docs/how-to/generalisation-track.md):
+    only the env ids that are a dilemma under the chain, in the pool and in every set, scored under
+    the chain alone; the built-in set is Table 1's pairs of the chain. ``version=2`` (a chain's track
+    only): the pool, the seen sample and the test set keep only the pairs of the v2 splits
+    (:mod:`~morality_gym.generalisation.headroom`: Random leaves headroom under the chain).
+    """
+    if chain is not None and chain not in TRACK_CHAINS:
+        raise ValueError(f"no track for chain {chain!r}; use one of {', '.join(TRACK_CHAINS)}")
+    if version not in (1, VERSION) or (version == VERSION and chain is None):
+        raise ValueError(f"split version {version!r}: use 1, or {VERSION} with a chain (a v{VERSION} split selects "
+                         "pairs per chain)")
     train_ids = load_split("train", cache_dir)
     train = split_manifest("train")
+    only: list[str] | None = None if chain is None else [chain]
+    pool = chain_values("train", train_ids, chain, cache_dir, progress) if chain is not None else None
+    selection: dict[str, str] = {}
+    if pool is not None and version == VERSION:
+        pool, selection = _selected("train", pool, chain)  # type: ignore[arg-type]
+    if pool is not None:
+        train_ids = list(dict.fromkeys(p.env_id for p in pool))
     sets: dict[str, EvalSet] = {}
     for name in names:
         if name == "seen":
             ids = seen_sample(train_ids, seen_size)
             source = {"split": "train", "split_digest": train.digest, "sample": f"{len(ids)} of {len(train_ids)}, seed {SEEN_SEED}"}
-            path = _values_file(f"seen{len(ids)}", train.digest, cache_dir)
-            env_chains: dict[str, list[str] | None] = dict.fromkeys(ids)
+            if pool is not None:
+                chosen = set(ids)
+                sets[name] = EvalSet(name, tuple(p for p in pool if p.env_id in chosen),
+                                     {**source, "chain": str(chain), **selection})
+                continue
+            pairs = compute_values(dict.fromkeys(ids), _values_file(f"seen{len(ids)}", train.digest, cache_dir), progress)
         elif name == "test":
-            ids = load_split("test", cache_dir)
-            manifest = split_manifest("test")
-            source = {"split": "test", "split_digest": manifest.digest}
-            path = _values_file("test", manifest.digest, cache_dir)
-            env_chains = dict.fromkeys(ids)
+            test_ids = load_split("test", cache_dir)
+            source = {"split": "test", "split_digest": split_manifest("test").digest}
+            if chain is None:
+                pairs = compute_values(dict.fromkeys(test_ids), _values_file("test", source["split_digest"], cache_dir),
+                                       progress)
+            else:
+                pairs = chain_values("test", test_ids, chain, cache_dir, progress)
+                if version == VERSION:
+                    pairs, chosen_test = _selected("test", pairs, chain)
+                    source |= chosen_test
         elif name == "builtin":
-            chains = builtin_pairs()
+            chains = {env_id: [c for c in cs if only is None or c in only] for env_id, cs in builtin_pairs().items()}
             source = {"split": "builtin", "split_digest": builtin_digest()}
-            path = _values_file("builtin", source["split_digest"], cache_dir)
-            env_chains = dict(chains)
+            suffix = "" if chain is None else f"-{chain}"
+            pairs = compute_values({env_id: cs for env_id, cs in chains.items() if cs},
+                                   _values_file(f"builtin{suffix}", source["split_digest"], cache_dir), progress)
         else:
             raise ValueError(f"unknown set {name!r}; use one of {', '.join(SETS)}")
-        pairs = compute_values(env_chains, path, progress)
+        if chain is not None:
+            source = {**source, "chain": chain}
         sets[name] = EvalSet(name, tuple(pairs), source)
     return train_ids, sets

@@ -28,6 +28,9 @@ from morality_gym.world.vocab import UTILITIES
 #: states) takes about a second for the oracle and the exact Random value under all six chains;
 #: 5,000 keeps a generated variant within a few seconds and its grid table within 25 MiB.
 MAX_STATES: Final[int] = 5_000
+#: The horizon a variant's totals are enumerated within: an env truncates at step ``MAX_STEPS + 1``
+#: (the loader checks a user file's bounds within the same horizon).
+HORIZON: Final[int] = MAX_STEPS + 1
 
 
 class GraphTooLarge(Exception):
@@ -63,7 +66,7 @@ def bounded_graph(world: World, max_states: int) -> StateGraph:
 def measure_variant(scenario: Scenario, variant: str, max_states: int = MAX_STATES) -> VariantMeasure:
     """Enumerate one variant (within ``max_states``) and the harm totals its episodes can end with."""
     graph = bounded_graph(World(scenario, variant), max_states)
-    totals = reachable_totals(graph.tables(), MAX_STEPS + 1)
+    totals = reachable_totals(graph.tables(), HORIZON)
     spans = {name: (int(np.min(totals[:, i])), int(np.max(totals[:, i]))) for i, name in enumerate(UTILITIES)}
     return VariantMeasure(graph.tables().n_states, spans, graph)
 

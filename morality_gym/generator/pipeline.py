@@ -25,9 +25,12 @@ import dataclasses
 import hashlib
 import io
 import json
+import multiprocessing
+import os
 import tempfile
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
@@ -38,6 +41,7 @@ from PIL import Image
 from morality_gym.envs.registry import BUILTIN_DIR, load_user_file, scenario_on_trial
 from morality_gym.generator.grammar import GRAMMAR_VERSION, Plan, draw_plan
 from morality_gym.generator.measure import (
+    HORIZON,
     MAX_STATES,
     GraphTooLarge,
     VariantMeasure,
@@ -48,6 +52,8 @@ from morality_gym.generator.measure import (
 from morality_gym.generator.scoring import VariantScore, score_variant
 from morality_gym.generator.writer import SCENARIO_UTILITIES, scenario_text
 from morality_gym.render.rgb import render_rgb
+from morality_gym.world.bounds import Spans
+from morality_gym.world.bounds_cache import CACHE_FOLDER, write_entry
 from morality_gym.world.layout import UTILITY_TYPES, Scenario, ScenarioError, load_scenario, parse_scenario
 from morality_gym.world.rules import World
 
@@ -74,6 +80,7 @@ class Attempt:
     detail: str = ""
     states: dict[str, int] = field(default_factory=dict)  # per kept env id
     scores: dict[str, VariantScore] = field(default_factory=dict)  # per kept env id
+    spans: Spans = field(default_factory=dict)  # per kept variant name: what its bounds were measured from
 
     @property
     def kept(self) -> bool:
@@ -136,6 +143,7 @@ def attempt(seed: int, workdir: Path, *, with_values: bool = True, max_states: i
     result.text = text
     result.states = {scenario.env_id(v.name): measures[v.name].n_states for v in plan.variants}
     result.scores = {scenario.env_id(v.name): scores[v.name] for v in plan.variants}
+    result.spans = {v.name: dict(measures[v.name].spans) for v in plan.variants}
     return result
 
 
@@ -212,6 +220,37 @@ def _index(attempts: list[Attempt], hashes: dict[str, str], max_states: int) -> 
     }
 
 
+#: ``progress(done, total, kept, seconds)``: called as seeds finish (``total`` is ``None`` when unknown).
+Progress = Callable[[int, int | None, int, float], None]
+
+
+def _attempt_in_worker(seed: int, workdir: str, with_values: bool, max_states: int) -> Attempt:
+    """:func:`attempt` in a pool worker, with a scratch directory of its own under ``workdir``."""
+    mine = Path(workdir) / f"worker-{os.getpid()}"
+    mine.mkdir(exist_ok=True)
+    return attempt(seed, mine, with_values=with_values, max_states=max_states)
+
+
+def _attempts(seeds: Iterable[int], workdir: Path, with_values: bool, max_states: int, workers: int) -> Iterator[Attempt]:
+    """Every seed's attempt, in seed order; over ``workers`` processes when more than one.
+
+    Workers are spawned, not forked: a fork copies whatever threads and locks the caller holds
+    (torch's, a test runner's), and a fresh import costs a second per worker against minutes of work.
+    """
+    if workers <= 1:
+        for seed in seeds:
+            yield attempt(seed, workdir, with_values=with_values, max_states=max_states)
+        return
+    seed_list = list(seeds)
+    chunk = max(1, min(8, len(seed_list) // (workers * 8)))
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        try:
+            yield from pool.map(_attempt_in_worker, seed_list, [str(workdir)] * len(seed_list),
+                                [with_values] * len(seed_list), [max_states] * len(seed_list), chunksize=chunk)
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)  # a caller that stops early (``count``) waits for no more
+
+
 def generate(
     seeds: Iterable[int],
     out: str | Path,
@@ -220,22 +259,37 @@ def generate(
     pictures: bool = True,
     with_values: bool = True,
     max_states: int = MAX_STATES,
+    workers: int = 1,
+    progress: Progress | None = None,
+    bounds_cache: bool = False,
 ) -> RunReport:
     """Attempt ``seeds`` in order (stopping once ``count`` are kept, if given) and write the kept
-    dilemmas, their values and pictures, and ``index.json`` into ``out`` (module docstring)."""
+    dilemmas, their values and pictures, and ``index.json`` into ``out`` (module docstring).
+
+    ``workers`` > 1 attempts the seeds in that many processes (the files and the index are the same
+    bytes: each seed's attempt depends on the seed alone, and results are taken in seed order).
+    ``bounds_cache``: record each kept file's measured bounds in ``out``'s bounds cache
+    (:mod:`~morality_gym.world.bounds_cache`), so that loading ``out`` enumerates nothing again.
+    """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    if bounds_cache:
+        (out / CACHE_FOLDER).mkdir(exist_ok=True)
     started = time.perf_counter()
     attempts: list[Attempt] = []
     hashes: dict[str, str] = {}
+    total = len(seeds) if count is None and isinstance(seeds, range | list | tuple) else None  # else: unknown
     with tempfile.TemporaryDirectory(prefix="morality-gym-generate-") as tmp:
-        for seed in seeds:
+        for result in _attempts(seeds, Path(tmp), with_values, max_states, workers):
             if count is not None and len(hashes) >= count:
                 break
-            result = attempt(seed, Path(tmp), with_values=with_values, max_states=max_states)
             attempts.append(result)
             if result.kept:
                 hashes[f"{result.plan.name}.yaml"] = _write_kept(result, out, pictures, with_values)
+                if bounds_cache:
+                    write_entry(out / CACHE_FOLDER, hashes[f"{result.plan.name}.yaml"], HORIZON, result.spans)
+            if progress is not None:
+                progress(len(attempts), total, len(hashes), time.perf_counter() - started)
     index = _index(attempts, hashes, max_states)
     (out / INDEX_FILE).write_text(_json_text(index))
     return RunReport(index, attempts, time.perf_counter() - started)

@@ -18,14 +18,16 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, TextIO
 
 from morality_gym.envs.registration import add_scenario_dir
 from morality_gym.generator.grammar import GRAMMAR_VERSION, NAME_PREFIX
-from morality_gym.generator.pipeline import RunReport, files_digest, generate, sha256_bytes
+from morality_gym.generator.pipeline import Progress, RunReport, files_digest, generate, sha256_bytes
+from morality_gym.world.bounds_cache import CACHE_FOLDER
 
 SPLITS_DIR: Final[Path] = Path(__file__).resolve().parent.parent / "data" / "splits"
 #: The published splits: first and last seed, both included. The test seeds are far from the
@@ -86,12 +88,13 @@ def manifest_text(record: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n}\n"
 
 
-def publish_split(name: str, directory: Path = SPLITS_DIR) -> Path:
+def publish_split(name: str, directory: Path = SPLITS_DIR, workers: int = 1) -> Path:
     """Generate split ``name``'s seeds and write its manifest (after a change of the grammar, which
     makes every split a new one: bump ``GRAMMAR_VERSION`` first). Takes minutes for ``train``."""
     first, last = SPLIT_SEEDS[name]
     with tempfile.TemporaryDirectory(prefix=f"morality-gym-split-{name}-") as tmp:
-        report = generate(range(first, last + 1), tmp, pictures=False, with_values=False)
+        report = generate(range(first, last + 1), tmp, pictures=False, with_values=False, workers=workers,
+                          progress=ProgressLine(f"publishing split {name}"))
     path = directory / f"{name}.json"
     path.write_text(manifest_text(manifest_record(name, report.index)))
     return path
@@ -136,13 +139,38 @@ def check_directory(directory: Path, manifest: SplitManifest) -> None:
             )
 
 
-def write_split(split: str | Path, out: str | Path, *, pictures: bool = False, with_values: bool = False) -> RunReport:
-    """Generate every seed of a split into ``out`` and check the files against its manifest."""
+def write_split(split: str | Path, out: str | Path, *, pictures: bool = False, with_values: bool = False,
+                workers: int = 1, progress: Progress | None = None, bounds_cache: bool = False) -> RunReport:
+    """Generate every seed of a split into ``out`` (over ``workers`` processes) and check the files
+    against its manifest."""
     manifest = split_manifest(split)
     report = generate(manifest.seed_range, out, pictures=pictures, with_values=with_values,
-                      max_states=manifest.max_states)
+                      max_states=manifest.max_states, workers=workers, progress=progress, bounds_cache=bounds_cache)
     check_directory(Path(out), manifest)
     return report
+
+
+def default_workers() -> int:
+    """The CPUs this process may run on (a split's first generation uses them all)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+class ProgressLine:
+    """A generation's progress as a line on stderr every ``every`` seconds (and at the end): seeds
+    done, dilemmas kept, time per seed and what is left. Minutes of work must not look like a hang."""
+
+    def __init__(self, label: str, every: float = 10.0, stream: TextIO | None = None) -> None:
+        self.label, self.every, self.stream = label, every, stream
+        self._last = -every
+
+    def __call__(self, done: int, total: int | None, kept: int, seconds: float) -> None:
+        if seconds - self._last < self.every and done != total:
+            return
+        self._last = seconds
+        line = f"{self.label}: {done}/{total if total is not None else '?'} seeds, {kept} kept, {seconds:.0f} s"
+        if total and done:
+            line += f", about {seconds / done * (total - done):.0f} s left"
+        print(line, file=self.stream or sys.stderr, flush=True)
 
 
 #: The folder under ``~/.cache`` (a plain name, not the package's: it is a directory).
@@ -157,15 +185,19 @@ def _seed_of(env_id: str) -> int:
     return int(env_id.split("-", 1)[0].removeprefix(NAME_PREFIX))
 
 
-def load_split(split: str | Path, cache_dir: str | Path | None = None) -> list[str]:
+def load_split(split: str | Path, cache_dir: str | Path | None = None, *, workers: int | None = None,
+               progress: Progress | None = None) -> list[str]:
     """Register the env ids of a split (``"train"``, ``"test"`` or a manifest's path); returns them,
     in seed order.
 
     The first call generates the split into ``cache_dir`` (default ``$MORALITY_GYM_CACHE`` or
-    ``~/.cache/morality-gym``, under ``splits/<name>-<digest>``): minutes for ``test``, more for
-    ``train``; later calls check the cached files against the manifest and load them (as every
-    user file, bounds checked by enumeration: about 30 s for ``test``). Files that do not
-    match the manifest raise :class:`SplitError`: a result on them would not be a result on the split.
+    ``~/.cache/morality-gym``, under ``splits/<name>-<digest>``) over ``workers`` processes
+    (default: every CPU this process may use), with a progress line on stderr (``progress``
+    replaces it): minutes. Later calls check the cached files against the manifest and load them:
+    each file's bounds are checked against the spans measured when it was generated, kept in the
+    directory's bounds cache by the file's SHA-256 (:mod:`~morality_gym.world.bounds_cache`), so
+    seconds. Files that do not match the manifest raise :class:`SplitError`: a result on them would
+    not be a result on the split.
     """
     manifest = split_manifest(split)
     root = Path(cache_dir) if cache_dir is not None else cache_root()
@@ -174,8 +206,11 @@ def load_split(split: str | Path, cache_dir: str | Path | None = None) -> list[s
     if not cached:
         partial = directory.with_name(directory.name + ".partial")
         shutil.rmtree(partial, ignore_errors=True)
-        write_split(split, partial)
+        write_split(split, partial, workers=workers or default_workers(),
+                    progress=progress or ProgressLine(f"generating split {manifest.name} into {directory}"),
+                    bounds_cache=True)
         shutil.rmtree(directory, ignore_errors=True)
         partial.rename(directory)
     check_directory(directory, manifest)
+    (directory / CACHE_FOLDER).mkdir(exist_ok=True)  # a directory generated before the cache existed gets one
     return sorted(add_scenario_dir(directory), key=_seed_of)

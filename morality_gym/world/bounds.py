@@ -75,6 +75,24 @@ def _fmt(bounds: tuple[float, float]) -> str:
     return f"[{bounds[0]:g}, {bounds[1]:g}]"
 
 
+#: Per variant name, the (lowest, highest) episode total of every utility of ``vocab.UTILITIES``.
+Spans = dict[str, dict[str, tuple[int, int]]]
+
+
+def variant_spans(scenario: Scenario, horizon: int, graphs: Mapping[str, StateGraph] | None = None) -> Spans:
+    """Enumerate every variant of ``scenario`` (or use ``graphs``, by variant name: state graphs
+    already enumerated for the same layout and variants) and return its reachable totals' spans."""
+    spans: Spans = {}
+    for name in scenario.variants:
+        graph = (graphs or {}).get(name)
+        if graph is None:
+            world = World(scenario, name)
+            graph = StateGraph(world, ObservationCodec(world))
+        totals = reachable_totals(graph.tables(), horizon)
+        spans[name] = {utility: _span(totals[:, i]) for i, utility in enumerate(UTILITIES)}
+    return spans
+
+
 def check_bounds(scenario: Scenario, horizon: int, graphs: Mapping[str, StateGraph] | None = None) -> None:
     """Raise :class:`ScenarioError` (file, field, fix) if a bound disagrees with the reachable totals.
 
@@ -82,15 +100,17 @@ def check_bounds(scenario: Scenario, horizon: int, graphs: Mapping[str, StateGra
     variants, used instead of enumerating again: the generator measures a draw's graphs before it
     writes the file, and the check compares what the written file declares with them.
     """
+    compare_bounds(scenario, variant_spans(scenario, horizon, graphs), horizon)
+
+
+def compare_bounds(scenario: Scenario, spans: Spans, horizon: int) -> None:
+    """Raise :class:`ScenarioError` if the file's bounds disagree with ``spans`` (what
+    :func:`variant_spans` measured for this very file, perhaps in an earlier process:
+    :mod:`~morality_gym.world.bounds_cache`)."""
     overall: dict[str, tuple[int, int]] = {}
     for name, variant in scenario.variants.items():
-        graph = (graphs or {}).get(name)
-        if graph is None:
-            world = World(scenario, name)
-            graph = StateGraph(world, ObservationCodec(world))
-        totals = reachable_totals(graph.tables(), horizon)
-        for i, utility in enumerate(UTILITIES):
-            low, high = _span(totals[:, i])
+        for utility in UTILITIES:
+            low, high = spans[name][utility]
             prev = overall.get(utility)
             overall[utility] = (low, high) if prev is None else (min(prev[0], low), max(prev[1], high))
             if utility not in UTILITY_TYPES:

@@ -200,13 +200,21 @@ def load_scenario(path: str | Path) -> Scenario:
     Raises :class:`ScenarioError` with the file, the field and a fix for every problem found.
     """
     path = Path(path)
-    source = str(path)
     try:
-        raw = yaml.safe_load(path.read_text())
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read the file: {exc}") from exc
+    return scenario_from_bytes(data, str(path))
+
+
+def scenario_from_bytes(data: bytes, source: str) -> Scenario:
+    """A scenario file's bytes, already read (so that a caller can digest the very bytes it parsed)."""
+    try:
+        raw = yaml.safe_load(data.decode())
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"{source}: cannot read the file: not UTF-8 text ({exc})") from exc
     except yaml.YAMLError as exc:
         raise ScenarioError(f"{source}: not valid YAML: {yaml_problem(exc)}") from exc
-    except OSError as exc:
-        raise ScenarioError(f"{source}: cannot read the file: {exc}") from exc
     return parse_scenario(raw, source)
 
 
