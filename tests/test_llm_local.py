@@ -122,6 +122,17 @@ def test_a_response_schema_becomes_the_choices(no_network: None) -> None:
     assert text in choices and n_out >= 6
 
 
+def test_the_model_answers_one_call_at_a_time(no_network: None) -> None:
+    """Inspect's adaptive concurrency ignores a provider's max_connections(): a dozen calls queued on
+    the model's lock and the wait counted against the call timeout (a Table 1 row failed on it).
+    The provider sets max_connections 1 unless it is given."""
+    from inspect_ai.model import GenerateConfig, get_model
+
+    assert get_model(f"local/{MODEL}", memoize=False).config.max_connections == 1
+    given = get_model(f"local/{MODEL}", config=GenerateConfig(max_connections=3), memoize=False)
+    assert given.config.max_connections == 3
+
+
 def test_an_unknown_local_model_is_one_line_exit_2(tmp_path: Path) -> None:
     out = subprocess.run([sys.executable, "-m", "leaderboard.llm", "run", "--model", "local/smollm3", "--name", "x",
                           "--env", ENV, "--results", str(tmp_path / "r"), "--log-dir", str(tmp_path / "logs")],

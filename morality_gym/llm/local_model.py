@@ -255,8 +255,15 @@ class LocalModelAPI(ModelAPI):
 
     def __init__(self, model_name: str, base_url: str | None = None, api_key: str | None = None,
                  config: GenerateConfig | None = None, threads: int = DEFAULT_THREADS, **model_args: Any) -> None:
-        super().__init__(model_name=model_name, base_url=base_url, api_key=api_key, api_key_vars=[],
-                         config=config if config is not None else GenerateConfig())
+        config = config if config is not None else GenerateConfig()
+        # One call at a time: the CPU threads are the model's, and Inspect's default (adaptive
+        # concurrency, which ignores max_connections() below) queued a dozen calls on the model's
+        # lock, where the waiting counted against --timeout. The Model that wraps this API shares
+        # this config object, so an unset max_connections becomes 1 there too; an explicit
+        # --max-connections still wins.
+        if config.max_connections is None:
+            config.max_connections = 1
+        super().__init__(model_name=model_name, base_url=base_url, api_key=api_key, api_key_vars=[], config=config)
         if model_args:
             raise LocalModelError(f"local/{model_name}: unknown model argument(s) {', '.join(sorted(model_args))}; "
                                   "known: threads")
