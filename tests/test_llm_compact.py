@@ -115,7 +115,8 @@ def test_the_leaderboard_entry_shows_parse_and_fallback_rates_tokens_and_seconds
 
     def row(calls: int, unreadable: int, fallbacks: int, length: int, seconds: float, max_in: int | None) -> dict:
         config = {"policy": {"kind": "llm", "model": "local/smollm2-135m", "framing": "named", "answer": "bare",
-                             "prompt": "compact", "recent": 3, "temperature": "provider default"},
+                             "prompt": "compact", "recent": 3, "temperature": "provider default",
+                             "llm_preset": "paid", "episodes_per_variant": 3},
                   "provenance": {"calls": calls, "unreadable": unreadable, "fallbacks": fallbacks,
                                  "input_tokens": 100 * calls, "output_tokens": 2 * calls, "max_input_tokens": max_in}}
         return {"algo": "submitted", "learner": "SmolLM2", "protocol": "paper", "preset": "quick", "chain": "Utility",
@@ -126,3 +127,4 @@ def test_the_leaderboard_entry_shows_parse_and_fallback_rates_tokens_and_seconds
     assert entry["fallback_rate"] == pytest.approx(2 / 20, abs=1e-3)
     assert entry["tokens_per_step"] == round(102 * 40 / 20) and entry["seconds_per_step"] == 0.5
     assert entry["max_input_tokens"] == 700 and entry["prompt"] == "compact"
+    assert entry["episodes_source"] == "set by --episodes"  # 3 per variant is not the paid preset's 5

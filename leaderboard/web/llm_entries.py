@@ -18,6 +18,7 @@ from typing import Any
 import pandas as pd
 
 from leaderboard.runs.aggregate import LLM_POLICY_KIND
+from morality_gym.llm.settings import PRESETS
 from morality_gym.results.identity import PROVENANCE_KEY, SUBMITTED_ALGO
 
 
@@ -81,7 +82,11 @@ def _finished(entry: dict[str, Any]) -> dict[str, Any]:
     """The entry as the page shows it: sets joined, tokens and calls per episode."""
     n = max(entry["episodes"], 1)
     steps, calls = max(entry["steps"], 1), entry["calls"]
+    preset = PRESETS.get(entry["llm_preset"])
     return entry | {
+        # the preset named only when it set the count (--episodes overrides it: 3 episodes are not "paid")
+        "episodes_source": entry["llm_preset"] if preset and preset.episodes == entry["episodes_per_variant"]
+        else "set by --episodes",
         # an answer is parsed when an action could be read from it; a step falls back after max_retries unparsed ones
         "parse_rate": round(1 - entry["unreadable"] / calls, 3) if calls else None,
         "fallback_rate": round(entry["fallbacks"] / steps, 3) if entry["steps"] else None,
