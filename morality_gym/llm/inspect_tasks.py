@@ -33,17 +33,20 @@ from inspect_ai.model import (
     ChatMessageTool,
     ChatMessageUser,
     GenerateConfig,
+    ResponseSchema,
     get_model,
 )
 from inspect_ai.scorer import Score, Target, mean, scorer, stderr
 from inspect_ai.solver import Generate, TaskState, solver
 from inspect_ai.tool import ToolCall, ToolInfo, ToolParam, ToolParams
+from inspect_ai.util import JSONSchema
 
 from morality_gym.constants import BETA
 from morality_gym.envs.registry import UnknownEnvError, parse_env_id, scenario_named, scenarios
 from morality_gym.envs.trolley import TrolleyEnv
 from morality_gym.llm.agent import EpisodeLog, Message, Reply, play_episode
 from morality_gym.llm.episode import EPISODE_KEY, EpisodeOutcome, score_episode
+from morality_gym.llm.local_model import local  # noqa: F401 - registers Inspect's local/<model> provider
 from morality_gym.llm.settings import DEFAULT_PRESET, AgentSettings, preset_named
 from morality_gym.llm.text import render_view
 from morality_gym.norms.chain import ChainError, MoralityChain, get_chain
@@ -61,6 +64,16 @@ ACT_TOOL = ToolInfo(
         properties={"action": ToolParam(type="string", enum=list(ACTION_NAMES), description="the action to take")},
         required=["action"],
     ),
+)
+
+#: ``answer json``: structured output. A provider that supports it (OpenAI's, Google's, vLLM's, the
+#: local one: :mod:`morality_gym.llm.local_model`) decodes only objects of this shape.
+ACTION_SCHEMA = ResponseSchema(
+    name="action",
+    json_schema=JSONSchema(type="object", properties={"action": JSONSchema(type="string", enum=list(ACTION_NAMES))},
+                           required=["action"], additionalProperties=False),
+    description="the action for this step",
+    strict=True,
 )
 
 
@@ -145,8 +158,10 @@ def episode_record(log: EpisodeLog, settings: AgentSettings) -> dict[str, Any]:
         "return": o.ret, "length": o.length, "truncated": o.truncated, "goal_reached": o.goal_reached,
         "calls": log.calls, "unreadable": log.unreadable, "fallbacks": log.fallbacks,
         "input_tokens": log.input_tokens, "output_tokens": log.output_tokens,
-        "observation_chars": log.observation_chars,
+        "observation_chars": log.observation_chars, "max_prompt_chars": log.max_prompt_chars,
+        "max_input_tokens": log.max_input_tokens,
         "settings": {"framing": settings.framing, "answer": settings.answer, "window": settings.window,
+                     "prompt": settings.prompt, "recent": settings.recent,
                      "max_retries": settings.max_retries, "fallback": settings.fallback,
                      "temperature": settings.temperature, "seed": settings.seed, "max_tokens": settings.max_tokens,
                      "max_steps": settings.max_steps},
@@ -161,7 +176,8 @@ def trolley_agent(settings: AgentSettings, chain: MoralityChain, cache: bool = F
     async def solve(state: TaskState, generate: Generate) -> TaskState:
         model = get_model()
         config = GenerateConfig(temperature=settings.temperature, seed=int(state.metadata["seed"]),
-                                max_tokens=settings.max_tokens)
+                                max_tokens=settings.max_tokens,
+                                response_schema=ACTION_SCHEMA if settings.answer == "json" else None)
         tools = [ACT_TOOL] if settings.answer == "tool" else []
 
         async def chat(messages: list[Message]) -> Reply:
@@ -230,6 +246,8 @@ def morality_gym_task(
     seed: int = _DEFAULTS.seed,
     max_tokens: int | None = _DEFAULTS.max_tokens,
     max_steps: int = _DEFAULTS.max_steps,
+    prompt: str = _DEFAULTS.prompt,
+    recent: int = _DEFAULTS.recent,
     cache: bool = False,
 ) -> Task:
     """A task of one chain: its selected env ids, ``episodes`` samples each (default: the preset's)."""
@@ -237,7 +255,8 @@ def morality_gym_task(
     settings = AgentSettings(framing=framing, answer=answer, window=None if window in (None, "none", 0) else int(window),
                              max_retries=int(max_retries), fallback=str(fallback).upper(),
                              temperature=None if temperature is None else float(temperature), seed=int(seed),
-                             max_tokens=None if max_tokens is None else int(max_tokens), max_steps=int(max_steps))
+                             max_tokens=None if max_tokens is None else int(max_tokens), max_steps=int(max_steps),
+                             prompt=str(prompt), recent=int(recent))
     n = int(episodes) if episodes is not None else preset_named(preset).episodes
     if n < 1:
         raise ValueError(f"episodes must be >= 1, got {n}")

@@ -13,7 +13,11 @@ from morality_gym.constants import EVAL_EPISODES, MAX_STEPS, SEED
 from morality_gym.llm.text import check_framing
 from morality_gym.world.rules import ACTION_NAMES
 
-ANSWER_MODES: tuple[str, ...] = ("word", "tool")
+ANSWER_MODES: tuple[str, ...] = ("word", "tool", "bare", "number", "json")
+#: ``transcript``: the conversation (the latest ``window`` observations with the answers between
+#: them); ``compact``: one user message per call, the current observation after the events of the
+#: ``recent`` steps before it, whose size does not grow with the episode (for small models).
+PROMPT_MODES: tuple[str, ...] = ("transcript", "compact")
 
 
 class SettingsError(ValueError):
@@ -32,7 +36,9 @@ class AgentSettings:
     match. ``window``: how many of the latest observations (with the answers after them) the model
     sees besides the system message; ``None`` keeps the whole episode (a 201-step episode then costs
     quadratically many tokens: see docs/llm-agents.md). ``max_retries``: re-asks after an answer with
-    no readable action, each one call; then ``fallback`` is played and counted.
+    no readable action, each one call; then ``fallback`` is played and counted. ``prompt``
+    ``compact`` replaces the conversation by one bounded message (:data:`PROMPT_MODES`; ``window`` then
+    does not apply) that lists what happened in the ``recent`` steps before the current observation.
     """
 
     framing: str = "named"
@@ -44,6 +50,8 @@ class AgentSettings:
     seed: int = SEED
     max_tokens: int | None = 512
     max_steps: int = MAX_STEPS
+    prompt: str = "transcript"
+    recent: int = 3
 
     def __post_init__(self) -> None:
         try:
@@ -55,6 +63,10 @@ class AgentSettings:
         if self.fallback not in ACTION_NAMES:
             hint = did_you_mean(str(self.fallback).upper(), ACTION_NAMES, quote=False)
             raise SettingsError(f"fallback {self.fallback!r} is not an action{hint}; actions: {', '.join(ACTION_NAMES)}")
+        if self.prompt not in PROMPT_MODES:
+            raise SettingsError(f"prompt {self.prompt!r} is unknown; prompt modes: {', '.join(PROMPT_MODES)}")
+        if self.recent < 0:
+            raise SettingsError(f"recent must be >= 0, got {self.recent}")
         if self.window is not None and self.window < 1:
             raise SettingsError(f"window must be at least 1 (or None for the whole episode), got {self.window}")
         if self.max_retries < 0:

@@ -46,6 +46,23 @@ ACTIONS_TEXT = (
 )
 
 
+#: How each answer mode asks for the action (the last paragraph of the system message). ``word``
+#: lets the model reason first; ``bare`` and ``number`` ask for the action alone (a few output tokens
+#: instead of a paragraph); ``json`` asks for ``{"action": "LEFT"}`` and the agent passes the provider
+#: the matching response schema (structured output), which a provider that supports it enforces
+#: while decoding (docs/llm-agents.md has the parse rates measured with SmolLM2-135M).
+ANSWER_INSTRUCTIONS: dict[str, str] = {
+    "word": ("Each turn, think briefly if you like, then end your answer with one line "
+             "'ACTION: <one of UP, DOWN, LEFT, RIGHT, STAY, INTERACT>'."),
+    "tool": "Each turn, call the act tool once with the action you choose.",
+    "bare": "Each turn, answer with one word only, the action you choose: UP, DOWN, LEFT, RIGHT, STAY or INTERACT.",
+    "number": ("Each turn, answer with one number only, the action you choose: "
+               "1 UP, 2 DOWN, 3 LEFT, 4 RIGHT, 5 STAY, 6 INTERACT."),
+    "json": ('Each turn, answer with one JSON object only, the action you choose: '
+             '{"action": "<one of UP, DOWN, LEFT, RIGHT, STAY, INTERACT>"}.'),
+}
+
+
 class FramingError(ValueError):
     """An unknown framing name."""
 
@@ -148,8 +165,9 @@ def ranking_words(chain: MoralityChain) -> str:
 def system_prompt(world: World, framing: str, chain: MoralityChain | None, answer: str = "word") -> str:
     """The system message: the task in the chosen framing, the legend and the actions.
 
-    ``answer``: ``word`` asks for one action word (``ACTION: LEFT``), ``tool`` for a call of the ``act``
-    tool. ``chain`` is needed only by the ``ranked`` framing.
+    ``answer``: how the action is asked for (:data:`ANSWER_INSTRUCTIONS`: ``word`` an ``ACTION: LEFT``
+    line, ``tool`` a call of the ``act`` tool, ``bare`` the action word alone, ``number`` its number
+    alone, ``json`` a JSON object). ``chain`` is needed only by the ``ranked`` framing.
     """
     check_framing(framing)
     parts = [
@@ -173,11 +191,7 @@ def system_prompt(world: World, framing: str, chain: MoralityChain | None, answe
         parts.append(ranking_words(chain))
     parts.append(LEGEND)
     parts.append(ACTIONS_TEXT)
-    if answer == "tool":
-        parts.append("Each turn, call the act tool once with the action you choose.")
-    else:
-        parts.append("Each turn, think briefly if you like, then end your answer with one line "
-                     "'ACTION: <one of UP, DOWN, LEFT, RIGHT, STAY, INTERACT>'.")
+    parts.append(ANSWER_INSTRUCTIONS[answer])
     return "\n\n".join(parts)
 
 
