@@ -432,6 +432,20 @@ def test_site_table_marks_best_and_links_scenarios(built: BuiltSite) -> None:
         assert f'href="scenarios/{scenario}.html#{sweep}--{chain}"' in html
 
 
+def test_the_long_tables_paper_values_are_starred_on_rows_of_another_protocol(built: BuiltSite) -> None:
+    """Issue 45: under the corrected protocol the paper's value (and a Δ against it) was shown as if the
+    paper had run that protocol; it is marked paper* with a title saying it is the paper protocol's."""
+    index = (built.site / "index.html").read_text()
+    rows = re.findall(r'<tr data-sweep="([^"]+)" data-chain=[^>]*>(.*?)</tr>', index)
+    starred = "value, obtained under the paper protocol\">"
+    corrected = [html for sweep, html in rows if sweep.startswith("corrected-")]
+    paper = [html for sweep, html in rows if sweep.startswith("paper-")]
+    assert corrected and paper
+    assert all(starred in html and "*</td>" in html for html in corrected)
+    assert not any(starred in html for html in paper)
+    assert "paper* and Δ* are against the paper's values" in index
+
+
 def test_index_opens_on_the_grid_of_the_users_sweep_marked_not_comparable(built: BuiltSite) -> None:
     """Issue 36: Table 1 as the paper's grid first (the user's sweep, chain / scenario rows, a column
     per learner, interval and paper value per cell), the long table below it; preset quick says once
