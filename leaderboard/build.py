@@ -273,13 +273,14 @@ def _output_lines(out: dict[str, Any], args: argparse.Namespace) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     """The build, with every user error raised as :class:`UserError` (one line, exit 2)."""
-    # matplotlib, Jinja wait: importing leaderboard.build (its --help too) must not load them
-    from leaderboard.web.site import SiteError, check_target
-
     try:
         source_date_epoch()  # before scipy is imported: numpy.f2py reads the variable too and crashes on it
     except StampError as exc:
         raise UserError(str(exc)) from exc
+    # matplotlib, Jinja and SciPy wait: importing leaderboard.build (its --help too) must not load them,
+    # and SciPy only after SOURCE_DATE_EPOCH was checked (the site's cache codec loads the statistics)
+    from leaderboard.web.site import SiteError, check_target
+
     results: Path = args.results
     releases = releases_of(args)
     if not results.is_dir() and not releases:
