@@ -504,7 +504,10 @@ def policy_files(loaded: LoadedPolicy, declared: Path | None, env_id: str) -> Lo
     if isinstance(loaded.policy, Deadline):
         loaded.policy.where = f"{env_id}, first observation"
     with watching(loaded.root) as seen:
-        probe(loaded, env_id)
+        try:
+            probe(loaded, env_id)
+        except PolicyTimeout as exc:  # a BaseException, past the evaluators' handlers: one line here
+            raise PolicyError(str(exc)) from None
     return loaded.with_files(seen)
 
 
