@@ -112,7 +112,7 @@ def test_a_submitted_policy_lands_beside_the_release_baselines(released: tuple[P
     row = table.loc[(table["chain"] == "Utility") & (table["scenario"] == "SwitchStandard")]
     assert {"Random", "PPO Lag", "Lever rule"} <= set(row["learner"])
     html = (mine / "site" / "index.html").read_text()
-    assert re.search(r"<strong>your results</strong> <code>[^<]*mine</code> · 2 run\(s\)", html)
+    assert re.search(r"<strong>your results</strong> <code>[^<]*mine</code> · 2 runs", html)
     assert "<strong>release smoke-v1</strong>" in html and 'data-learner="Lever rule"' in html
     runs = (mine / "site" / "runs" / "index.html").read_text()  # issue 36: All runs opens on the user's own
     assert '<option value="results" selected>your runs</option>' in runs and "release smoke-v1</td>" in runs
