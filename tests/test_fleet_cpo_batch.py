@@ -77,8 +77,11 @@ def test_the_batched_actor_step_takes_the_per_run_steps(protocol: str) -> None:
 def test_the_batched_actor_step_matches_through_dual_steps_and_backtracking(protocol: str) -> None:
     per_run, batched = _trained(protocol, False, 4, **CPO_DUAL), _trained(protocol, True, 4, **CPO_DUAL)
     # Large dual steps amplify rounding (tests/test_fleet.py), and B = 2 delta - c^2 / s cancels to
-    # about 0.02 out of 0.4 here: its rounding differences are those of its 0.4-sized terms.
-    _assert_same_steps(per_run, batched, atol=1e-4, row_atol=1e-4)
+    # about 0.02 out of 0.4 here: its rounding differences are those of its 0.4-sized terms. How far
+    # they carry depends on the CPU's kernels: 2 of 19,794 weights 1.2e-4 apart on a 2-core EPYC
+    # (2026-11-28, the same at 90dc6b4; a diagnostic, kl, 0.17683 against 0.17664), under 1e-4 on the
+    # machine this test was written on.
+    _assert_same_steps(per_run, batched, atol=2e-4, row_atol=5e-4)
     rows = [r for log in per_run.update_logs for r in log]
     assert any(r["cpo_case"] == 1 for r in rows), "the settings must reach the dual step"
     assert any(r["accept_step"] != 1 for r in rows), "the settings must reach a rejected candidate"
