@@ -29,14 +29,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 import warnings
 from functools import cache
 from pathlib import Path
 from typing import Any, Final
 
-from morality_gym.clitools import OneLineWarning
+from morality_gym.clitools import OneLineWarning, write_atomically
 from morality_gym.world.bounds import Spans
 from morality_gym.world.vocab import UTILITIES
 
@@ -121,12 +119,5 @@ def write_entry(folder: Path, scenario_sha256: str, horizon: int, spans: Spans) 
             "variants": {name: {u: list(spans[name][u]) for u in UTILITIES} for name in spans}}
     text = json.dumps({**body, "checksum": _checksum(body)}, indent=0) + "\n"
     path = entry_path(folder, scenario_sha256, horizon)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".entry-", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomically(path, lambda fh: fh.write(text.encode()))
     return path
