@@ -63,7 +63,7 @@ from leaderboard.runs.releases import (  # noqa: F401 - re-exported: the reading
     verify,
 )
 from leaderboard.web.leftovers import building_in
-from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli, writing
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, public_mode, run_cli, writing
 from morality_gym.results.identity import config_key
 from morality_gym.results.manifest import manifests_dir, read_manifests
 from morality_gym.results.schema import SCHEMA_VERSION, compute_seconds, learn_path, read_runs, run_files, updates_path
@@ -221,7 +221,7 @@ def _create(results: Path, runs: pd.DataFrame, name: str, root: Path, title: str
         _write_contents(tmp, results, runs, stride, tables)
         body = _manifest(tmp, results, runs, name, title, stride)
         (tmp / MANIFEST).write_text(json.dumps(body, indent=1, sort_keys=True) + "\n")
-        tmp.chmod(0o755)  # mkdtemp's 0700 would make a committed release unreadable to others
+        tmp.chmod(public_mode(directory=True))  # mkdtemp's 0700 would make a committed release unreadable to others
         os.replace(tmp, target)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -35,6 +35,7 @@ import shutil
 import signal
 import sys
 import threading
+import uuid
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
@@ -151,22 +152,31 @@ def public_mode(directory: bool = False) -> int:
     return (0o777 if directory else 0o666) & ~umask()
 
 
-def write_atomically(path: str | os.PathLike[str], write: Callable[[Any], None]) -> Path:
-    """Call ``write(binary file)`` on a temporary file beside ``path``, flush it to disk and rename
-    it over ``path``: a kill or a full disk at any moment leaves the previous file or the new one,
-    never half of one, and no temporary file (a full disk raises :class:`DiskFullError`).
+def write_atomically(path: str | os.PathLike[str], write: Callable[[Any], None], *, durable: bool = True) -> Path:
+    """Call ``write(binary file)`` on a temporary file beside ``path`` and rename it over ``path``:
+    a kill or a full disk at any moment leaves the previous file or the new one, never half of one,
+    and no temporary file (a full disk raises :class:`DiskFullError`).
 
-    The temporary name (``.<name>.<pid>.tmp``, hidden) is in the same directory, so the rename is
-    atomic; it is opened with ``"xb"`` so the file gets the usual permissions, not mkstemp's 0600."""
+    This is the project's one atomic writer (Parquet tables, JSON caches, manifests, site pages,
+    GIFs). The temporary name (``.<name>.<pid>.<random>.tmp``, hidden) is in the same directory, so
+    the rename is atomic, and unique per call, so threads of one process writing the same file never
+    share one. It is opened with ``"xb"`` so the file gets the umask's permissions, as ``cp`` would
+    give, not mkstemp's 0600 (which a web server running as another user could not read).
+
+    ``durable=False`` skips the fsync before the rename: the rename is still atomic for other
+    processes, but a power cut may lose the newest content. Only rebuildable outputs (the site's
+    thousands of pages, rebuilt from the results) should take it, where a per-file fsync would cost
+    more than the rebuild it saves."""
     target = Path(path)
     with writing(target):
         target.parent.mkdir(parents=True, exist_ok=True)
-        tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+        tmp = target.with_name(f".{target.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
         try:
             with open(tmp, "xb") as fh:
                 write(fh)
-                fh.flush()
-                os.fsync(fh.fileno())
+                if durable:
+                    fh.flush()
+                    os.fsync(fh.fileno())
             os.replace(tmp, target)
         except BaseException:
             tmp.unlink(missing_ok=True)

@@ -19,11 +19,11 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from morality_gym.clitools import write_atomically
 from morality_gym.results.recording import finished_status
 from morality_gym.results.run_config import RunConfig
 
@@ -68,11 +68,8 @@ def write_fleet_runs(results_dir: str | Path, runs: Sequence[Item]) -> Path:
     """Record the fleet's runs (in its order, with their configs) next to its checkpoint,
     atomically; returns the checkpoint's path."""
     path = checkpoint_path(results_dir, [run_id for run_id, _ in runs])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    listing = _runs_path(path)
-    tmp = listing.with_name(listing.name + ".tmp")
-    tmp.write_text(json.dumps({"runs": [[run_id, config.to_json()] for run_id, config in runs]}, sort_keys=True))
-    os.replace(tmp, listing)
+    text = json.dumps({"runs": [[run_id, config.to_json()] for run_id, config in runs]}, sort_keys=True)
+    write_atomically(_runs_path(path), lambda fh: fh.write(text.encode("utf-8")))
     return path
 
 

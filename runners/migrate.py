@@ -39,7 +39,6 @@ import json
 import os
 import shutil
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -60,7 +59,7 @@ from rich.progress import (
 )
 from rich.table import Table
 
-from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, public_mode, run_cli
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli, write_atomically
 from morality_gym.clitools import console as make_console
 from morality_gym.results.identity import PER_RUN_KEYS, PROVENANCE_KEY, config_key, run_identity
 from morality_gym.results.manifest import manifests_dir, plan_hash
@@ -544,13 +543,7 @@ def _rewrite_manifest(path: Path, body: dict[str, Any], ids: dict[str, str], new
 
 
 def _write_json(path: Path, body: dict[str, Any]) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp", dir=path.parent)
-    os.fchmod(fd, public_mode())  # not mkstemp's 0600
-    with os.fdopen(fd, "w") as fh:
-        json.dump(body, fh, indent=1)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    write_atomically(path, lambda fh: fh.write(json.dumps(body, indent=1).encode("utf-8")))
 
 
 def move_manifest(results: Path, path: Path, name: str, body: dict[str, Any], step: Step) -> None:

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
 
-from morality_gym.clitools import disk_full_error, is_disk_full
+from morality_gym.clitools import disk_full_error, is_disk_full, write_atomically
 from morality_gym.results.quarantine import read_table_or_quarantine
 from morality_gym.results.schema import MF_PREFIX, UPDATE_COLUMNS, learn_path, run_path, updates_path
 
@@ -242,7 +242,5 @@ class Tracker:
 
     def _write_marker(self, marker: Path, mid: str) -> None:
         """Atomically (write then rename): a marker is either whole or absent."""
-        marker.parent.mkdir(parents=True, exist_ok=True)
-        tmp = marker.with_suffix(".tmp")
-        tmp.write_text(json.dumps({"mlflow_run_id": mid, "experiment_id": self.experiment_id, "tracking_uri": tracking_uri(self.results_dir)}))
-        os.replace(tmp, marker)
+        body = {"mlflow_run_id": mid, "experiment_id": self.experiment_id, "tracking_uri": tracking_uri(self.results_dir)}
+        write_atomically(marker, lambda fh: fh.write(json.dumps(body).encode("utf-8")))

@@ -7,8 +7,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +23,7 @@ from leaderboard.runs.display_order import (  # noqa: F401 - the reference rows'
     row_order,
 )
 from leaderboard.runs.selection import CELL_KEYS
-from morality_gym.clitools import public_mode
+from morality_gym.clitools import write_atomically
 from morality_gym.envs.registry import parse_env_id, scenario_named
 from morality_gym.evaluation.exact import exact_evaluate
 from morality_gym.evaluation.oracle import oracle
@@ -143,16 +141,7 @@ def load_reference_cache(path: Path) -> dict[str, Any]:
 
 
 def _write_json_atomic(path: Path, body: Any) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        os.fchmod(fd, public_mode())  # not mkstemp's 0600
-        with os.fdopen(fd, "w") as fh:
-            json.dump(body, fh, indent=1, sort_keys=True)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomically(path, lambda fh: fh.write(json.dumps(body, indent=1, sort_keys=True).encode("utf-8")))
 
 
 @dataclass

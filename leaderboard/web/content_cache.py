@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, TypeVar
@@ -21,7 +19,7 @@ from typing import Any, TypeVar
 import pandas as pd
 
 from leaderboard.web.cache_codec import CacheFormatError, NotEncodable, decode, encode_exact
-from morality_gym.clitools import public_mode
+from morality_gym.clitools import write_atomically
 
 T = TypeVar("T")
 
@@ -42,17 +40,10 @@ def source_digest(*modules: Any) -> str:
 
 
 def atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary sibling (a killed build never leaves half a file)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        os.fchmod(fd, public_mode())  # not mkstemp's 0600: these files are linked into the site
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Write ``data`` to ``path`` atomically (a killed build never leaves half a file). Not fsynced
+    (``durable=False``): the cache and the pages are rebuilt from the results, and the site writes
+    thousands of them."""
+    write_atomically(path, lambda fh: fh.write(data), durable=False)
 
 
 def read_index(path: Path) -> dict[str, str]:

@@ -9,7 +9,6 @@ a truncated GIF behind under the real name (a later step would otherwise happily
 from __future__ import annotations
 
 import os
-import uuid
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -17,6 +16,7 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
+from morality_gym.clitools import write_atomically
 from morality_gym.envs.trolley import TrolleyEnv
 from morality_gym.evaluation.policies import step_actor
 from morality_gym.render.rgb import render_rgb
@@ -50,18 +50,11 @@ def write_gif(frames: Iterable[np.ndarray | Image.Image], path: str | os.PathLik
     if len(sizes) > 1:
         raise ValueError(f"all frames must have the same size, got {sorted(sizes)}")
     target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
     duration_ms = max(10, round(1000 / fps / 10) * 10)
-    # A unique name next to the target (same file system, so the rename is atomic); opened with
-    # "xb" rather than tempfile.mkstemp so the file gets the usual permissions, not 0600.
-    tmp = target.with_name(f".{target.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
-    try:
-        with open(tmp, "xb") as fh:
-            images[0].save(fh, format="GIF", save_all=True, append_images=images[1:], duration=duration_ms, loop=0)
-        os.replace(tmp, target)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    write_atomically(
+        target,
+        lambda fh: images[0].save(fh, format="GIF", save_all=True, append_images=images[1:], duration=duration_ms, loop=0),
+    )
     return target
 
 

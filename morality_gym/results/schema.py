@@ -21,8 +21,6 @@ file. To use such files, read them with the version of the code that wrote them.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -30,7 +28,7 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from morality_gym.clitools import public_mode, writing
+from morality_gym.clitools import write_atomically
 from morality_gym.results.consistency import run_row_problem
 
 SCHEMA_VERSION = 1
@@ -187,24 +185,10 @@ def updates_path(results_dir: str | Path, run_id: str) -> Path:
 
 
 def atomic_write_table(table: pa.Table, path: Path) -> None:
-    """Write a Parquet file under a temporary name in the same directory, fsync, then rename.
-
-    A full disk is a :class:`~morality_gym.clitools.DiskFullError` naming ``path`` (the temporary
-    file is removed, the file under ``path`` is the previous one or none)."""
-    with writing(path):
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        os.fchmod(fd, public_mode())  # not mkstemp's 0600: a results directory is shared and released
-        os.close(fd)
-        try:
-            pq.write_table(table, tmp)
-            with open(tmp, "rb") as fh:
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+    """Write a Parquet file atomically (:func:`~morality_gym.clitools.write_atomically`): a kill or a
+    full disk leaves the previous file or none, and a full disk is a
+    :class:`~morality_gym.clitools.DiskFullError` naming ``path``."""
+    write_atomically(path, lambda fh: pq.write_table(table, fh))
 
 
 def write_run(results_dir: str | Path, row: Mapping[str, Any], norms: Iterable[str]) -> Path:
