@@ -103,8 +103,10 @@ def fleet_compiled(ctx: Context) -> Section:
     met = sum(r >= TARGET for r in ratios)
     notes = [
         (f"Target: core time per learner down {TARGET:.0f}x on the compiled engine: met by {met} of {len(ratios)} "
-         f"(whole-training speed-ups {', '.join(f'{r:.2f}x' for r in ratios)}). Measured on a representative fleet "
-         f"(K={k}, one scenario), not on whole Table 1 rows."),
+         f"(whole-training speed-ups {', '.join(f'{r:.2f}x' for r in ratios)}). Measured on one fleet of K={k} of "
+         f"one scenario, not on whole Table 1 rows"
+         + (": a quick run, whose fleets of 2 pay more Python per run than a sweep's fleets of 15-36, so these "
+            "ratios are not a sweep's." if ctx.quick else ".")),
     ]
     if shares:
         notes.append(
