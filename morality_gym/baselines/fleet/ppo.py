@@ -21,6 +21,7 @@ import numpy as np
 import torch as th
 
 from morality_gym.baselines.fleet.base import FleetTrainer
+from morality_gym.baselines.fleet.compiled import AdamConsts, Net, mark_dynamic, ppo_step
 from morality_gym.baselines.fleet.losses import Policy, clipped_surrogate, mse
 from morality_gym.baselines.fleet.optim import BatchedAdam
 from morality_gym.baselines.specs import SB3_PPO
@@ -63,6 +64,9 @@ class FleetPPO(FleetTrainer):
         ent_coef, vf_coef = float(m.ent_coef), float(m.vf_coef)
         size = ro.actions.shape[1]
         batch = int(m.batch_size)
+        if self.compiled:
+            self._train_compiled(lr, clip_range)
+            return
         for _ in range(int(m.n_epochs)):
             for obs, actions, old_log_prob, advantages, returns in ro.minibatches(
                 self.permutations(size), batch, "obs", "actions", "log_probs", "advantages", "returns"
@@ -80,3 +84,25 @@ class FleetPPO(FleetTrainer):
                 _, dvalues = mse(critic.out[:, 0], returns)
                 grads = self.nets.backward(actor, dlogits) + self.nets.backward(critic, dvalues.mul_(vf_coef))
                 self.optimizer.step(grads, lr, max_norm=float(m.max_grad_norm))  # clipped per run over all parameters
+
+    def _train_compiled(self, lr: np.ndarray, clip_range: float) -> None:
+        """The same passes with every minibatch one compiled step (:func:`~.compiled.ppo_step`)."""
+        m, ro, opt = self.model, self.rollout, self.optimizer
+        assert ro is not None
+        step = self._compile(ppo_step)
+        net = Net(tuple(self.spec.net_arch), (6, 1), self.spec.activation)
+        adam = AdamConsts(opt.beta1, opt.beta2, opt.eps, float(m.max_grad_norm), 0, 0.0)
+        lr_t, clip_t = self._runs_tensor(lr), th.tensor(clip_range, dtype=th.float32, device=self.device)
+        ent_coef, vf_coef = float(m.ent_coef), float(m.vf_coef)
+        for _ in range(int(m.n_epochs)):
+            for obs, actions, old_log_prob, advantages, returns in ro.minibatches(
+                self.permutations(ro.actions.shape[1]), int(m.batch_size), "obs", "actions", "log_probs", "advantages", "returns"
+            ):
+                mark_dynamic(obs, dims=(0, 1, 2))
+                mark_dynamic(opt.flat, opt.exp_avg, opt.exp_avg_sq, actions, old_log_prob, advantages, returns, dims=(0, 1))
+                mark_dynamic(opt._step_counts, lr_t)
+                grads = step(opt.flat, opt.exp_avg, opt.exp_avg_sq, opt._step_counts, obs, actions, old_log_prob, advantages,
+                             returns, lr_t, clip_t, net, adam if self.in_graph else None, ent_coef, vf_coef,
+                             bool(m.normalize_advantage and advantages.shape[1] > 1))
+                if grads is not None:
+                    opt.step(grads, lr, max_norm=float(m.max_grad_norm))

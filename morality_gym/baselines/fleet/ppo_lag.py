@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch as th
 
+from morality_gym.baselines.fleet.compiled import AdamConsts, Net, lag_step, mark_dynamic
 from morality_gym.baselines.fleet.cost_base import FleetCostTrainer
 from morality_gym.baselines.fleet.losses import Policy, clipped_surrogate
 from morality_gym.baselines.fleet.optim import BatchedAdam
@@ -104,6 +105,8 @@ class FleetPPOLag(FleetCostTrainer):
         than gathering the others' weights for every minibatch. Past that, only the runs still
         passing are (``runs``: their indices). A stopped run draws no further permutation either way.
         """
+        if self.compiled:
+            return self._one_pass_compiled(active, step)
         ro, k_runs = self.rollout, self.n_runs
         assert ro is not None
         idx = np.flatnonzero(active)
@@ -133,6 +136,41 @@ class FleetPPOLag(FleetCostTrainer):
             self.actor_optimizer.step(actor_grads, step.actor_lr, mask, max_norm=step.max_norm)  # type: ignore[arg-type]
             clip_fraction = ((ratio - 1.0).abs() > step.clip_range).float().mean(dim=1)
             values = th.stack([policy_loss, value_loss, cost_value_loss, ent.mean(dim=1), clip_fraction])
+            stats.append((idx, values if keep is None else values[:, keep]))
+        return stats
+
+    def _one_pass_compiled(self, active: np.ndarray, step: _PassSettings) -> list[tuple[np.ndarray, th.Tensor]]:
+        """:meth:`_one_pass` with every minibatch one compiled step (:func:`~.compiled.lag_step`):
+        every run is computed (static shapes), the stopped ones masked out of the optimiser steps."""
+        ro = self.rollout
+        assert ro is not None and step.actor_lr is not None
+        idx = np.flatnonzero(active)
+        perms = {k: self.permutation(k, step.size) for k in idx}
+        order = self._tensor(np.stack([perms[k] if k in perms else np.arange(step.size) for k in range(self.n_runs)]))
+        keep = None if active.all() else self._tensor(idx)
+        mask = None if active.all() else active.copy()
+        run = self._compile(lag_step)
+        a_opt, c_opt = self.actor_optimizer, self.critic_optimizer
+        actor_net = Net(tuple(self.spec.net_arch), (6,), self.spec.activation)
+        actor_adam = AdamConsts(a_opt.beta1, a_opt.beta2, a_opt.eps, step.max_norm, 0, 0.0)
+        live = self._runs_tensor(active, th.bool)
+        actor_lr, critic_lr = self._runs_tensor(step.actor_lr), self._runs_tensor(step.critic_lr)
+        clip = th.tensor(step.clip_range, dtype=th.float32, device=self.device)
+        stats = []
+        for fields in ro.minibatches(order, step.batch, "obs", "actions", "log_probs", "advantages", "cost_advantages", "returns",
+                                     "cost_returns"):
+            mark_dynamic(fields[0], dims=(0, 1, 2))
+            mark_dynamic(a_opt.flat, a_opt.exp_avg, a_opt.exp_avg_sq, c_opt.flat, c_opt.exp_avg, c_opt.exp_avg_sq, *fields[1:],
+                         dims=(0, 1))
+            mark_dynamic(a_opt._step_counts, c_opt._step_counts, step.lam32, step.one_plus, actor_lr, critic_lr, live)
+            in_graph = self.in_graph
+            values, actor_grads, critic_grads = run(
+                a_opt.flat, a_opt.exp_avg, a_opt.exp_avg_sq, a_opt._step_counts, c_opt.flat, c_opt.exp_avg, c_opt.exp_avg_sq,
+                c_opt._step_counts, *fields, step.lam32, step.one_plus, actor_lr, critic_lr, clip, live, actor_net, self.critic_net,
+                actor_adam if in_graph else None, self.critic_adam if in_graph else None, step.ent_coef)
+            if actor_grads is not None and critic_grads is not None:
+                self._step_critics(critic_grads, step.critic_lr, mask)
+                a_opt.step(actor_grads, step.actor_lr, mask, max_norm=step.max_norm)
             stats.append((idx, values if keep is None else values[:, keep]))
         return stats
 
