@@ -1,0 +1,98 @@
+"""A model's Table 1 column (issue 49): ``python -m leaderboard.llm_column`` resumes, and one episode
+per variant stands for a greedy model's deterministic policy."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytest.importorskip("inspect_ai", reason="the llm extra (make test installs it: pip install -e '.[dev,llm]')")
+
+from inspect_ai import eval as inspect_eval
+from inspect_ai.model import ModelOutput, ModelUsage, get_model
+
+from leaderboard import llm_column
+from morality_gym.llm.episode import EPISODE_KEY
+from morality_gym.llm.inspect_tasks import morality_gym_task
+from morality_gym.paper import table1_pairs
+from morality_gym.results.schema import read_runs
+from morality_gym.world.rules import ACTION_NAMES
+
+ENV = "SwitchStandard-HumanA-v1"
+
+
+def _argv(tmp_path: Path, *extra: str) -> list[str]:
+    script = tmp_path / "answers.txt"
+    script.write_text('{"action": "UP"}\n')
+    return ["--model", "mockllm/model", "--script", str(script), "--name", "Mock UP", "--episodes", "1",
+            "--prompt", "compact", "--answer", "json", "--temperature", "0", "--results", str(tmp_path / "results"),
+            "--log-dir", str(tmp_path / "logs"), "--display", "none", *extra]
+
+
+def test_the_column_resumes_where_it_stopped(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A second run of the same command plays only the pairs not done yet: nothing is redone."""
+    assert llm_column.main(_argv(tmp_path, "--limit", "2")) == 0
+    first_logs = set((tmp_path / "logs").glob("*.eval"))
+    assert llm_column.main(_argv(tmp_path, "--limit", "1")) == 0
+    out = capsys.readouterr().out
+    assert "126 pairs, 2 done before, 1 to play now" in out and "3 of 126 pairs" in out
+    assert len(set((tmp_path / "logs").glob("*.eval")) - first_logs) == 1
+    runs = read_runs(tmp_path / "results")
+    assert sorted(zip(runs["chain"], runs["env_id"], strict=True)) == sorted(table1_pairs()[:3])
+    assert set(runs["seed"]) == {41} and set(runs["learner"]) == {"Mock UP"}
+
+
+def test_a_run_of_other_settings_is_not_a_done_pair(tmp_path: Path) -> None:
+    """Only runs of the same entry (name, model, settings, episodes) count: another window is another entry."""
+    args, _ = llm_column.parse_args(_argv(tmp_path))
+    config: dict[str, Any] = {
+        "algo": {"label": "Mock UP"}, "protocol": {"name": "paper"}, "preset": "paper",
+        "policy": {"kind": "llm", "model": "mockllm/model", "framing": "named", "answer": "json", "window": 8,
+                   "prompt": "compact", "recent": 3, "max_retries": 2, "fallback": "STAY", "seed": 41,
+                   "max_tokens": 512, "temperature": 0.0, "episodes_per_variant": 1},
+    }
+    assert llm_column.same_entry(config, args, "Mock UP")
+    assert not llm_column.same_entry(config | {"policy": config["policy"] | {"recent": 2}}, args, "Mock UP")
+    assert not llm_column.same_entry(config | {"policy": config["policy"] | {"episodes_per_variant": 3}}, args, "Mock UP")
+    assert not llm_column.same_entry(config, args, "Another name")
+
+
+@pytest.mark.parametrize("option", [["--chain", "Utility"], ["--env", ENV], ["--limit", "0"]])
+def test_an_env_option_or_a_bad_limit_is_one_line_exit_2(tmp_path: Path, option: list[str],
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    assert llm_column.main(_argv(tmp_path, *option)) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and ("every Table 1 pair" in err or "--limit 0" in err)
+    assert not (tmp_path / "results").exists()
+
+
+def test_two_episodes_of_a_variant_are_one_for_a_deterministic_model(tmp_path: Path) -> None:
+    """Why the column plays one episode per variant: the env's reset takes no seed (spec environment.md
+    5.1) and the prompts name no episode or seed, so a model whose answer is a function of its prompt
+    (greedy decoding, as local/ decodes) plays every episode of a variant the same way."""
+    prompts: list[str] = []
+
+    def answer(messages: list[Any], tools: Any, tool_choice: Any, config: Any) -> ModelOutput:
+        text = "\n".join(m.text for m in messages)
+        prompts.append(text)
+        action = ACTION_NAMES[hashlib.sha256(text.encode()).digest()[0] % len(ACTION_NAMES)]
+        output = ModelOutput.from_content(model="mockllm/model", content=json.dumps({"action": action}))
+        output.usage = ModelUsage(input_tokens=1, output_tokens=1, total_tokens=2)  # the mock's count needs a download
+        return output
+
+    model = get_model("mockllm/model", custom_outputs=answer, memoize=False)
+    task = morality_gym_task("Utility", env=ENV, episodes=2, max_steps=30, prompt="compact", answer="json",
+                             temperature=0.0)
+    [log] = inspect_eval(task, model=model, log_dir=str(tmp_path), display="none", max_connections=1)
+    assert log.status == "success", log.error
+    first, second = (s.store.get(EPISODE_KEY) for s in log.samples)
+    assert {s.metadata["seed"] for s in log.samples} == {41, 42}
+    assert first["actions"] == second["actions"] and len(set(first["actions"])) > 1  # not a constant policy
+    score_1, score_2 = (s.scores["morality_score"].value for s in log.samples)
+    assert score_1 == score_2
+    assert all(n % 2 == 0 for n in Counter(prompts).values())  # each prompt of one episode is asked again in the other
