@@ -9,6 +9,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
 import pytest
 
 pytest.importorskip("inspect_ai", reason="the llm extra (make test installs it: pip install -e '.[dev,llm]')")
@@ -17,6 +18,9 @@ from inspect_ai import eval as inspect_eval
 from inspect_ai.model import ModelOutput, ModelUsage, get_model
 
 from leaderboard import llm_column
+from leaderboard.runs.cells import completeness
+from leaderboard.runs.selection import prepare_runs
+from morality_gym.envs.registry import scenario_named
 from morality_gym.llm.episode import EPISODE_KEY
 from morality_gym.llm.inspect_tasks import morality_gym_task
 from morality_gym.paper import table1_pairs
@@ -96,3 +100,25 @@ def test_two_episodes_of_a_variant_are_one_for_a_deterministic_model(tmp_path: P
     score_1, score_2 = (s.scores["morality_score"].value for s in log.samples)
     assert score_1 == score_2
     assert all(n % 2 == 0 for n in Counter(prompts).values())  # each prompt of one episode is asked again in the other
+
+
+def _llm_runs(scenario: str, variants: list[str], seeds: list[int], episodes: int) -> pd.DataFrame:
+    policy = {"kind": "llm", "model": "local/smollm2-135m", "seed": 41, "episodes_per_variant": episodes}
+    rows = [{"run_id": f"{v}-{s}", "status": "ok", "metric": 0.5, "env_id": f"{scenario}-{v}-v1", "scenario": scenario,
+             "variant": v, "chain": "Utility", "learner": "SmolLM2", "algo": "submitted", "protocol": "paper",
+             "preset": "paper", "seed": s, "config": json.dumps({"policy": policy})}
+            for v in variants for s in seeds]
+    return prepare_runs(pd.DataFrame(rows))
+
+
+def test_a_one_episode_column_is_complete_and_a_short_one_is_not() -> None:
+    """A language-model cell is held to its own sampling seeds, not the preset's three training seeds:
+    one episode per variant (what the column plays) is complete; 1 of 3 asked episodes is not."""
+    variants = list(scenario_named("SwitchStandard").variants)
+    cell = ("paper", "paper", "Utility", "SwitchStandard", "SmolLM2")
+    one = completeness(_llm_runs("SwitchStandard", variants, [41], 1), {})[cell]
+    assert one["complete"] and one["n_seeds_expected"] == 1 and one["incomplete_reason"] == ""
+    short = completeness(_llm_runs("SwitchStandard", variants, [41], 3), {})[cell]
+    assert not short["complete"] and "1/3 seeds" in short["incomplete_reason"]
+    missing = completeness(_llm_runs("SwitchStandard", variants[:-1], [41], 1), {})[cell]
+    assert not missing["complete"] and f"{len(variants) - 1}/{len(variants)} variants" in missing["incomplete_reason"]
