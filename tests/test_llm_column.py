@@ -20,6 +20,8 @@ from inspect_ai.model import ModelOutput, ModelUsage, get_model
 from leaderboard import llm_column
 from leaderboard.runs.cells import completeness
 from leaderboard.runs.selection import prepare_runs
+from leaderboard.web.llm_entries import llm_entries
+from leaderboard.web.render import render
 from morality_gym.envs.registry import scenario_named
 from morality_gym.llm.episode import EPISODE_KEY
 from morality_gym.llm.inspect_tasks import morality_gym_task
@@ -122,3 +124,28 @@ def test_a_one_episode_column_is_complete_and_a_short_one_is_not() -> None:
     assert not short["complete"] and "1/3 seeds" in short["incomplete_reason"]
     missing = completeness(_llm_runs("SwitchStandard", variants[:-1], [41], 1), {})[cell]
     assert not missing["complete"] and f"{len(variants) - 1}/{len(variants)} variants" in missing["incomplete_reason"]
+
+
+def _entry_row(chain: str, env_id: str, log: str) -> dict[str, Any]:
+    config = {"policy": {"kind": "llm", "model": "local/smollm2-135m", "framing": "named", "answer": "json",
+                         "prompt": "compact", "recent": 3, "temperature": 0.0, "llm_preset": "paid",
+                         "episodes_per_variant": 1},
+              "provenance": {"calls": 10, "unreadable": 0, "fallbacks": 0, "input_tokens": 6000,
+                             "output_tokens": 60, "max_input_tokens": 700, "log": log}}
+    return {"algo": "submitted", "learner": "SmolLM2", "protocol": "paper", "preset": "paper", "chain": chain,
+            "env_id": env_id, "mean_length": 10, "wall_time_s": 5.0, "config": json.dumps(config)}
+
+
+def test_a_column_cut_short_is_marked_with_its_pairs_of_126() -> None:
+    """The entries table says how many Table 1 pairs an entry played; fewer than 126 is marked, and a
+    hundred logs (one Inspect run per pair) are named by their folder instead of one by one."""
+    pairs = table1_pairs()[:5]
+    rows = [_entry_row(chain, env_id, f"/runs/column/logs/{i}.eval") for i, (chain, env_id) in enumerate(pairs)]
+    rows.append(_entry_row("Utility", "NoSuchScenario-Human-v1", "/runs/column/logs/x.eval"))  # not a Table 1 pair
+    [entry] = llm_entries(pd.DataFrame(rows))
+    assert (entry["table1_pairs"], entry["table1_total"]) == (5, 126) and entry["log_dirs"] == ["/runs/column/logs"]
+    html = render("_llm.html", llm=[entry])
+    assert 'data-table1-pairs="5">5 of 126 <span class="mark warn">incomplete column</span>' in html
+    assert "6 logs in <code class=\"small\">/runs/column/logs</code>" in html
+    whole = llm_entries(pd.DataFrame([_entry_row(c, e, "/l/a.eval") for c, e in table1_pairs()]))[0]
+    assert whole["table1_pairs"] == 126 and "incomplete column" not in render("_llm.html", llm=[whole])
