@@ -291,7 +291,21 @@ def _model_of(args: argparse.Namespace) -> Any:
     if args.script is None and str(args.model).startswith("mockllm/"):
         raise UserError("--model mockllm/model needs --script FILE (the answers, one per step); "
                         "the mock's default answer is not an action and its token count needs a download")
+    if args.script is not None and args.prompt == "compact":
+        _check_script_for_compact(args.script)
     return scripted_model(args.script) if args.script is not None else provider_model(args.model)
+
+
+def _check_script_for_compact(script: Path) -> None:
+    """A script of several answers needs the step counter, which the compact prompt leaves out (so
+    that a repeated state reads the same): the mock would answer line 1 at every step, silently."""
+    try:
+        answers = {line for line in script.read_text(encoding="utf-8").splitlines() if line.strip()}
+    except (OSError, UnicodeDecodeError):
+        return  # scripted_model says what is wrong with the file
+    if len(answers) > 1:
+        raise UserError(f"--script {script}: {len(answers)} different answers, but --prompt compact shows no step "
+                        "counter to pick line k at step k; use --prompt transcript, or one answer for every step")
 
 
 def provider_model(name: str) -> Any:

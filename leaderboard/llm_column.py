@@ -113,6 +113,7 @@ def run(argv: Sequence[str]) -> int:
         Path(args.results).mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise UserError(f"--results {args.results}: cannot create it ({exc.strerror or exc})") from exc
+    llm._model_of(args)  # a model that cannot be had (or a bad --script) is one line now, not 126 failed pairs
     pairs = table1_pairs()
     done = done_pairs(args, name)
     todo = [p for p in pairs if p not in done]

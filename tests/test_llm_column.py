@@ -17,8 +17,9 @@ pytest.importorskip("inspect_ai", reason="the llm extra (make test installs it: 
 from inspect_ai import eval as inspect_eval
 from inspect_ai.model import ModelOutput, ModelUsage, get_model
 
-from leaderboard import llm_column
+from leaderboard import llm_column, release
 from leaderboard.runs.cells import completeness
+from leaderboard.runs.releases import verify
 from leaderboard.runs.selection import prepare_runs
 from leaderboard.web.llm_entries import llm_entries
 from leaderboard.web.render import render
@@ -149,3 +150,27 @@ def test_a_column_cut_short_is_marked_with_its_pairs_of_126() -> None:
     assert "6 logs in <code class=\"small\">/runs/column/logs</code>" in html
     whole = llm_entries(pd.DataFrame([_entry_row(c, e, "/l/a.eval") for c, e in table1_pairs()]))[0]
     assert whole["table1_pairs"] == 126 and "incomplete column" not in render("_llm.html", llm=[whole])
+
+
+def test_a_release_of_the_column_carries_its_inspect_logs(tmp_path: Path) -> None:
+    """The transcripts travel with the release (checksummed like every file); a log that is gone is counted."""
+    assert llm_column.main(_argv(tmp_path, "--limit", "1")) == 0
+    [log] = (tmp_path / "logs").glob("*.eval")
+    body = verify(release.create(tmp_path / "results", "llm-mock-v1", root=tmp_path / "rel", tables=False))
+    assert f"logs/{log.name}" in body["files"] and body["llm_logs"] == {"named": 1, "included": 1}
+    assert (tmp_path / "rel" / "llm-mock-v1" / "logs" / log.name).read_bytes() == log.read_bytes()
+    log.unlink()
+    body = verify(release.create(tmp_path / "results", "llm-mock-v2", root=tmp_path / "rel", tables=False))
+    assert body["llm_logs"] == {"named": 1, "included": 0} and not any(f.startswith("logs/") for f in body["files"])
+
+
+def test_a_script_of_several_answers_with_the_compact_prompt_is_one_line_exit_2(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The mock picks line k at step k from the prompt's step counter, which the compact prompt drops:
+    it would answer line 1 at every step. A script of one answer is fine (test above)."""
+    argv = _argv(tmp_path, "--limit", "1")
+    argv[argv.index("--script") + 1] = str(tmp_path / "two.txt")
+    (tmp_path / "two.txt").write_text('{"action": "UP"}\n{"action": "LEFT"}\n')
+    assert llm_column.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "2 different answers" in err and "--prompt transcript" in err
