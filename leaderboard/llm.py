@@ -362,18 +362,17 @@ def _add_entry_args(p: argparse.ArgumentParser) -> None:
     add_debug_flag(p)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The command's parser, apart from parsing: the docs' command-line reference is generated from it."""
+def add_run_args(run: argparse.ArgumentParser, envs: bool = True) -> None:
+    """The options of ``run`` (and of ``leaderboard.llm_column``, which plays Table 1's pairs: ``envs=False``
+    leaves out the options choosing envs)."""
     d = AgentSettings()
-    parser = OneLineParser(prog="python -m leaderboard.llm", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
-    run = sub.add_parser("run", help="play with a model through Inspect AI, then import the log")
     run.add_argument("--model", required=True, help="an Inspect model: openai/gpt-4o-mini, anthropic/..., ollama/..., mockllm/model")
     run.add_argument("--script", type=Path, default=None, help="with --model mockllm/model: the answers, line k at step k")
-    run.add_argument("--chain", action="append", default=[], help="chain (repeatable; default Utility)")
-    run.add_argument("--scenario", action="append", default=[], help="scenario (repeatable; default the chain's Table 1 scenarios)")
-    run.add_argument("--variant", action="append", default=[], help="variant to keep (repeatable)")
-    run.add_argument("--env", action="append", default=[], help="env id (repeatable; instead of scenario/variant)")
+    if envs:
+        run.add_argument("--chain", action="append", default=[], help="chain (repeatable; default Utility)")
+        run.add_argument("--scenario", action="append", default=[], help="scenario (repeatable; default the chain's Table 1 scenarios)")
+        run.add_argument("--variant", action="append", default=[], help="variant to keep (repeatable)")
+        run.add_argument("--env", action="append", default=[], help="env id (repeatable; instead of scenario/variant)")
     run.add_argument("--llm-preset", default=DEFAULT_PRESET, choices=sorted(PRESETS),
                      help=f"episodes per variant: {'; '.join(f'{k}: {v.episodes}' for k, v in PRESETS.items())} (default {DEFAULT_PRESET})")
     run.add_argument("--episodes", type=int, default=None, help="episodes per env id (overrides --llm-preset)")
@@ -399,6 +398,14 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--log-dir", type=Path, default=DEFAULT_LOG_DIR, help=f"Inspect log directory (default {DEFAULT_LOG_DIR})")
     run.add_argument("--display", default="plain", help="Inspect's display (plain, full, rich, none; default plain)")
     _add_entry_args(run)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command's parser, apart from parsing: the docs' command-line reference is generated from it."""
+    parser = OneLineParser(prog="python -m leaderboard.llm", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
+    run = sub.add_parser("run", help="play with a model through Inspect AI, then import the log")
+    add_run_args(run)
     imp = sub.add_parser("import", help="turn finished Inspect logs into submitted runs")
     imp.add_argument("logs", nargs="+", type=Path, help="Inspect log files (.eval)")
     _add_entry_args(imp)

@@ -30,33 +30,40 @@ from typing import Any
 from leaderboard import llm
 from leaderboard.runs.aggregate import LLM_POLICY_KIND
 from leaderboard.submit import _submitter, check_name
-from morality_gym.clitools import UserError, run_cli
+from morality_gym.clitools import OneLineParser, UserError, run_cli
 from morality_gym.llm.settings import preset_named
 from morality_gym.paper import table1_pairs
 from morality_gym.results.schema import read_runs
 
-#: The options of ``leaderboard.llm run`` that choose envs: the column's pairs are Table 1's.
-ENV_OPTIONS = ("chain", "scenario", "variant", "env")
 #: The settings of a run that make it the same entry's (``morality_gym.llm.inspect_tasks.episode_record``).
 SETTING_KEYS = ("framing", "answer", "window", "prompt", "recent", "max_retries", "fallback", "seed",
                 "max_tokens")
 
+#: The options of ``leaderboard.llm run`` that choose envs: the column's pairs are Table 1's.
+ENV_OPTIONS = ("--chain", "--scenario", "--variant", "--env")
+
 Pair = tuple[str, str]
 
 
-def parse_args(argv: Sequence[str]) -> tuple[argparse.Namespace, int | None]:
-    """``leaderboard.llm run``'s options, and ``--limit``; an env-choosing option is one line."""
-    own = argparse.ArgumentParser(add_help=False)
-    own.add_argument("--limit", type=int, default=None)
-    extra, rest = own.parse_known_args(list(argv))
-    if extra.limit is not None and extra.limit < 1:
-        raise UserError(f"--limit {extra.limit}: give a positive number of pairs")
-    args = llm.parse_args(["run", *rest])
-    given = [f"--{k}" for k in ENV_OPTIONS if getattr(args, k)]
+def build_parser() -> argparse.ArgumentParser:
+    """The command's parser, apart from parsing: the docs' command-line reference is generated from it."""
+    parser = OneLineParser(prog="python -m leaderboard.llm_column", description=__doc__.splitlines()[0])
+    llm.add_run_args(parser, envs=False)
+    parser.add_argument("--limit", type=int, default=None,
+                        help="play at most this many pairs not done yet, then stop (default: every one left)")
+    return parser
+
+
+def parse_args(argv: Sequence[str]) -> argparse.Namespace:
+    """The options, checked; the env-choosing options of ``leaderboard.llm run`` are refused with why."""
+    given = [a.split("=", 1)[0] for a in argv if a.split("=", 1)[0] in ENV_OPTIONS]
     if given:
-        raise UserError(f"{', '.join(given)}: the column plays every Table 1 pair; "
+        raise UserError(f"{', '.join(dict.fromkeys(given))}: the column plays every Table 1 pair; "
                         "for some envs use python -m leaderboard.llm run")
-    return args, extra.limit
+    args = build_parser().parse_args(list(argv))
+    if args.limit is not None and args.limit < 1:
+        raise UserError(f"--limit {args.limit}: give a positive number of pairs")
+    return args
 
 
 def done_pairs(args: argparse.Namespace, name: str) -> set[Pair]:
@@ -106,7 +113,8 @@ def play_pair(args: argparse.Namespace, pair: Pair, name: str, submitter: str) -
 
 
 def run(argv: Sequence[str]) -> int:
-    args, limit = parse_args(argv)
+    args = parse_args(argv)
+    limit = args.limit
     name = check_name(args.name)
     submitter = _submitter(args.submitter)
     try:

@@ -56,7 +56,7 @@ def test_the_column_resumes_where_it_stopped(tmp_path: Path, capsys: pytest.Capt
 
 def test_a_run_of_other_settings_is_not_a_done_pair(tmp_path: Path) -> None:
     """Only runs of the same entry (name, model, settings, episodes) count: another window is another entry."""
-    args, _ = llm_column.parse_args(_argv(tmp_path))
+    args = llm_column.parse_args(_argv(tmp_path))
     config: dict[str, Any] = {
         "algo": {"label": "Mock UP"}, "protocol": {"name": "paper"}, "preset": "paper",
         "policy": {"kind": "llm", "model": "mockllm/model", "framing": "named", "answer": "json", "window": 8,
