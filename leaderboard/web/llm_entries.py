@@ -19,6 +19,7 @@ from typing import Any
 import pandas as pd
 
 from leaderboard.runs.aggregate import LLM_POLICY_KIND
+from leaderboard.runs.sources import RESULTS_SOURCE
 from morality_gym.llm.settings import PRESETS
 from morality_gym.paper import table1_pairs
 from morality_gym.results.identity import PROVENANCE_KEY, SUBMITTED_ALGO
@@ -48,10 +49,19 @@ def llm_entries(runs: pd.DataFrame) -> list[dict[str, Any]]:
         entry["chains"].add(str(row["chain"]))
         entry["pairs"].add((str(row["chain"]), str(row.get("env_id"))))
         if prov.get("log"):
-            entry["logs"].add(str(prov["log"]))
+            entry["logs"].add(log_location(str(prov["log"]), row.get("source")))
         if prov.get("submitter"):
             entry["submitters"].add(str(prov["submitter"]))
     return sorted((_finished(entry) for entry in groups.values()), key=lambda e: (e["protocol"], e["preset"], e["learner"]))
+
+
+def log_location(log: str, source: Any) -> str:
+    """Where a reader finds a run's Inspect log: the path its provenance names, or, for a run read
+    from a release, the release's copy (``release NAME: logs/FILE``; the path on the machine that ran
+    it means nothing to a clone)."""
+    if not isinstance(source, str) or source == RESULTS_SOURCE:  # None or NaN: a frame without sources
+        return log
+    return f"release {source}: logs/{PurePath(log).name}"
 
 
 def _llm_config(row: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]] | None:
@@ -100,7 +110,7 @@ def _finished(entry: dict[str, Any]) -> dict[str, Any]:
         "seconds_per_step": round(entry["seconds"] / steps, 2),
         "chains": ", ".join(sorted(entry["chains"])), "logs": sorted(entry["logs"]),
         # a column of one Inspect run per pair has a hundred logs: the page names their folders then
-        "log_dirs": sorted({str(PurePath(log).parent) for log in entry["logs"]}),
+        "log_dirs": sorted({log.rsplit("/", 1)[0] if "/" in log else log for log in entry["logs"]}),
         "submitters": ", ".join(sorted(entry["submitters"])) or "unknown",
         "tokens_per_episode": round((entry["input_tokens"] + entry["output_tokens"]) / n),
         "calls_per_episode": round(entry["calls"] / n, 1),
