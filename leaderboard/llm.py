@@ -362,9 +362,10 @@ def _add_entry_args(p: argparse.ArgumentParser) -> None:
     add_debug_flag(p)
 
 
-def add_run_args(run: argparse.ArgumentParser, envs: bool = True) -> None:
+def add_run_args(run: argparse.ArgumentParser, envs: bool = True, entry: bool = True) -> None:
     """The options of ``run`` (and of ``leaderboard.llm_column``, which plays Table 1's pairs: ``envs=False``
-    leaves out the options choosing envs)."""
+    leaves out the options choosing envs; ``leaderboard.llm_track`` writes no leaderboard entry:
+    ``entry=False`` leaves out ``--name``, ``--results`` and the sweep group)."""
     d = AgentSettings()
     run.add_argument("--model", required=True, help="an Inspect model: openai/gpt-4o-mini, anthropic/..., ollama/..., mockllm/model")
     run.add_argument("--script", type=Path, default=None, help="with --model mockllm/model: the answers, line k at step k")
@@ -397,7 +398,8 @@ def add_run_args(run: argparse.ArgumentParser, envs: bool = True) -> None:
                           "Inspect's own default is no bound); past it the run ends with one line and nothing is imported")
     run.add_argument("--log-dir", type=Path, default=DEFAULT_LOG_DIR, help=f"Inspect log directory (default {DEFAULT_LOG_DIR})")
     run.add_argument("--display", default="plain", help="Inspect's display (plain, full, rich, none; default plain)")
-    _add_entry_args(run)
+    if entry:
+        _add_entry_args(run)
 
 
 def build_parser() -> argparse.ArgumentParser:
