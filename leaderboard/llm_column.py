@@ -117,11 +117,11 @@ def run(argv: Sequence[str]) -> int:
     limit = args.limit
     name = check_name(args.name)
     submitter = _submitter(args.submitter)
+    llm._model_of(args)  # a model that cannot be had (or a bad --script) is one line now, not 126 failed pairs
     try:
         Path(args.results).mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise UserError(f"--results {args.results}: cannot create it ({exc.strerror or exc})") from exc
-    llm._model_of(args)  # a model that cannot be had (or a bad --script) is one line now, not 126 failed pairs
     pairs = table1_pairs()
     done = done_pairs(args, name)
     todo = [p for p in pairs if p not in done]

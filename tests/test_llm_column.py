@@ -174,6 +174,7 @@ def test_a_script_of_several_answers_with_the_compact_prompt_is_one_line_exit_2(
     assert llm_column.main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "2 different answers" in err and "--prompt transcript" in err
+    assert not (tmp_path / "results").exists()  # refused before anything is written
 
 
 def test_a_released_runs_log_is_named_in_the_release() -> None:
