@@ -265,7 +265,7 @@ def run_inspect(args: argparse.Namespace) -> list[Path]:
 
     from morality_gym.llm.inspect_tasks import morality_gym_task
 
-    model = _model_of(args)
+    model = model_of(args)
     logs: list[Path] = []
     for chain in args.chain or ["Utility"]:
         task = morality_gym_task(
@@ -284,7 +284,7 @@ def run_inspect(args: argparse.Namespace) -> list[Path]:
     return logs
 
 
-def _model_of(args: argparse.Namespace) -> Any:
+def model_of(args: argparse.Namespace) -> Any:
     """The model to evaluate: ``--model``, or Inspect's mock model playing ``--script`` (only together)."""
     if args.script is not None and not str(args.model).startswith("mockllm/"):
         raise UserError("--script answers for Inspect's mock model: use it with --model mockllm/model")

@@ -117,7 +117,7 @@ def run(argv: Sequence[str]) -> int:
     limit = args.limit
     name = check_name(args.name)
     submitter = _submitter(args.submitter)
-    llm._model_of(args)  # a model that cannot be had (or a bad --script) is one line now, not 126 failed pairs
+    llm.model_of(args)  # a model that cannot be had (or a bad --script) is one line now, not 126 failed pairs
     try:
         Path(args.results).mkdir(parents=True, exist_ok=True)
     except OSError as exc:

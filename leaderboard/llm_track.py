@@ -162,7 +162,7 @@ def play_set(args: argparse.Namespace, name: str, eval_set: EvalSet, train_pool:
 def run(argv: Sequence[str]) -> int:
     args = parse_args(argv)
     name = check_name(args.name)
-    llm._model_of(args)  # a model that cannot be had is one line before the splits are loaded (minutes)
+    llm.model_of(args)  # a model that cannot be had is one line before the splits are loaded (minutes)
     version = int(args.splits.removeprefix("v"))
     train_ids, sets = load_sets(["test"], progress=lambda m: print(m, flush=True), chain=args.track_chain,
                                 version=version)
