@@ -265,7 +265,7 @@ def run_inspect(args: argparse.Namespace) -> list[Path]:
 
     from morality_gym.llm.inspect_tasks import morality_gym_task
 
-    model = _model_of(args)
+    model = model_of(args)
     logs: list[Path] = []
     for chain in args.chain or ["Utility"]:
         task = morality_gym_task(
@@ -284,14 +284,28 @@ def run_inspect(args: argparse.Namespace) -> list[Path]:
     return logs
 
 
-def _model_of(args: argparse.Namespace) -> Any:
+def model_of(args: argparse.Namespace) -> Any:
     """The model to evaluate: ``--model``, or Inspect's mock model playing ``--script`` (only together)."""
     if args.script is not None and not str(args.model).startswith("mockllm/"):
         raise UserError("--script answers for Inspect's mock model: use it with --model mockllm/model")
     if args.script is None and str(args.model).startswith("mockllm/"):
         raise UserError("--model mockllm/model needs --script FILE (the answers, one per step); "
                         "the mock's default answer is not an action and its token count needs a download")
+    if args.script is not None and args.prompt == "compact":
+        _check_script_for_compact(args.script)
     return scripted_model(args.script) if args.script is not None else provider_model(args.model)
+
+
+def _check_script_for_compact(script: Path) -> None:
+    """A script of several answers needs the step counter, which the compact prompt leaves out (so
+    that a repeated state reads the same): the mock would answer line 1 at every step, silently."""
+    try:
+        answers = {line for line in script.read_text(encoding="utf-8").splitlines() if line.strip()}
+    except (OSError, UnicodeDecodeError):
+        return  # scripted_model says what is wrong with the file
+    if len(answers) > 1:
+        raise UserError(f"--script {script}: {len(answers)} different answers, but --prompt compact shows no step "
+                        "counter to pick line k at step k; use --prompt transcript, or one answer for every step")
 
 
 def provider_model(name: str) -> Any:
@@ -348,18 +362,18 @@ def _add_entry_args(p: argparse.ArgumentParser) -> None:
     add_debug_flag(p)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The command's parser, apart from parsing: the docs' command-line reference is generated from it."""
+def add_run_args(run: argparse.ArgumentParser, envs: bool = True, entry: bool = True) -> None:
+    """The options of ``run`` (and of ``leaderboard.llm_column``, which plays Table 1's pairs: ``envs=False``
+    leaves out the options choosing envs; ``leaderboard.llm_track`` writes no leaderboard entry:
+    ``entry=False`` leaves out ``--name``, ``--results`` and the sweep group)."""
     d = AgentSettings()
-    parser = OneLineParser(prog="python -m leaderboard.llm", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
-    run = sub.add_parser("run", help="play with a model through Inspect AI, then import the log")
     run.add_argument("--model", required=True, help="an Inspect model: openai/gpt-4o-mini, anthropic/..., ollama/..., mockllm/model")
     run.add_argument("--script", type=Path, default=None, help="with --model mockllm/model: the answers, line k at step k")
-    run.add_argument("--chain", action="append", default=[], help="chain (repeatable; default Utility)")
-    run.add_argument("--scenario", action="append", default=[], help="scenario (repeatable; default the chain's Table 1 scenarios)")
-    run.add_argument("--variant", action="append", default=[], help="variant to keep (repeatable)")
-    run.add_argument("--env", action="append", default=[], help="env id (repeatable; instead of scenario/variant)")
+    if envs:
+        run.add_argument("--chain", action="append", default=[], help="chain (repeatable; default Utility)")
+        run.add_argument("--scenario", action="append", default=[], help="scenario (repeatable; default the chain's Table 1 scenarios)")
+        run.add_argument("--variant", action="append", default=[], help="variant to keep (repeatable)")
+        run.add_argument("--env", action="append", default=[], help="env id (repeatable; instead of scenario/variant)")
     run.add_argument("--llm-preset", default=DEFAULT_PRESET, choices=sorted(PRESETS),
                      help=f"episodes per variant: {'; '.join(f'{k}: {v.episodes}' for k, v in PRESETS.items())} (default {DEFAULT_PRESET})")
     run.add_argument("--episodes", type=int, default=None, help="episodes per env id (overrides --llm-preset)")
@@ -384,7 +398,16 @@ def build_parser() -> argparse.ArgumentParser:
                           "Inspect's own default is no bound); past it the run ends with one line and nothing is imported")
     run.add_argument("--log-dir", type=Path, default=DEFAULT_LOG_DIR, help=f"Inspect log directory (default {DEFAULT_LOG_DIR})")
     run.add_argument("--display", default="plain", help="Inspect's display (plain, full, rich, none; default plain)")
-    _add_entry_args(run)
+    if entry:
+        _add_entry_args(run)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command's parser, apart from parsing: the docs' command-line reference is generated from it."""
+    parser = OneLineParser(prog="python -m leaderboard.llm", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
+    run = sub.add_parser("run", help="play with a model through Inspect AI, then import the log")
+    add_run_args(run)
     imp = sub.add_parser("import", help="turn finished Inspect logs into submitted runs")
     imp.add_argument("logs", nargs="+", type=Path, help="Inspect log files (.eval)")
     _add_entry_args(imp)

@@ -17,6 +17,8 @@ A release is ``releases/<name>/``::
     manifests/*.json  the sweep manifests (planned runs: a missing run stays visible as missing)
     table1.{csv,md,tex}
     gifs/*.gif        one evaluation-episode GIF per (learner, scenario)
+    logs/*.eval       the Inspect logs of language-model runs (their transcripts), where the runs'
+                      provenance names a log file that exists; release.json counts those it lacks
 
 Files are written into a temporary directory beside the target and renamed into place, so an
 interrupted ``create`` leaves no half release. :func:`verify` recomputes every checksum: a damaged or
@@ -43,7 +45,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from leaderboard.runs.aggregate import safe_name
+from leaderboard.runs.aggregate import LLM_POLICY_KIND, safe_name
 from leaderboard.runs.releases import (  # noqa: F401 - re-exported: the reading side, defined once there
     LEARN,
     MANIFEST,
@@ -177,6 +179,40 @@ def choose_gifs(runs: pd.DataFrame, results: Path) -> dict[str, str]:
     return chosen
 
 
+def llm_logs(runs: pd.DataFrame) -> dict[str, Path]:
+    """Release name -> file of the Inspect logs that language-model runs name in their provenance.
+
+    Why: a language-model run's row holds its metric and costs, but what the model read and answered
+    is in the Inspect log (``config.provenance.log``), a path on the machine that ran it. A release
+    carries those that exist, so a clone can open the transcripts (``inspect view``); logs are
+    data, only ever read by Inspect when a user asks."""
+    out: dict[str, Path] = {}
+    taken: dict[str, Path] = {}
+    for path in sorted(set(_llm_log_paths(runs))):
+        if not path.is_file():
+            continue
+        name = f"logs/{safe_name(path.name)}"
+        if name in taken and taken[name] != path:  # the same file name in two folders
+            name = f"logs/{len(taken)}-{safe_name(path.name)}"
+        taken[name] = path
+        out[name] = path
+    return out
+
+
+def _llm_log_paths(runs: pd.DataFrame) -> list[Path]:
+    """The log paths the provenance of language-model runs names (existing or not)."""
+    paths = []
+    for config in runs.get("config", pd.Series(dtype=object)).dropna():
+        try:
+            body = json.loads(config)
+        except ValueError:
+            continue
+        policy, prov = body.get("policy") or {}, body.get("provenance") or {}
+        if isinstance(policy, dict) and policy.get("kind") == LLM_POLICY_KIND and isinstance(prov, dict) and prov.get("log"):
+            paths.append(Path(str(prov["log"])))
+    return paths
+
+
 def write_tables(results: Path, out: Path) -> None:
     """``table1.{csv,md,tex}`` of the results, as ``python -m leaderboard.build`` writes them.
 
@@ -245,6 +281,11 @@ def _write_contents(tmp: Path, results: Path, runs: pd.DataFrame, stride: int, t
     updates = thin_updates(_concat_side_files([updates_path(results, i) for i in ids]), stride)
     if updates is not None:
         pq.write_table(updates, tmp / UPDATES, compression="zstd")
+    logs = llm_logs(runs)
+    if logs:
+        (tmp / "logs").mkdir()
+        for rel, source in logs.items():
+            shutil.copy2(source, tmp / rel)
     (tmp / "manifests").mkdir()
     for manifest in sorted(manifests_dir(results).glob("*.json")):
         shutil.copy2(manifest, tmp / "manifests" / manifest.name)
@@ -264,7 +305,14 @@ def _manifest(tmp: Path, results: Path, runs: pd.DataFrame, name: str, title: st
         "schema_version": SCHEMA_VERSION, "machine": host, "runs": len(runs),
         "runs_ok": int((runs["status"] == "ok").sum()), "sweeps": sweeps_summary(results, runs),
         "config_keys": configs, "updates_stride": stride, "files": files,
+        "llm_logs": _llm_log_counts(runs, files),
     }
+
+
+def _llm_log_counts(runs: pd.DataFrame, files: dict[str, Any]) -> dict[str, int]:
+    """How many Inspect logs the language-model runs name, and how many the release carries."""
+    named = set(_llm_log_paths(runs))
+    return {"named": len(named), "included": sum(1 for f in files if f.startswith("logs/"))}
 
 
 # ---------------------------------------------------------------------------------------- command line

@@ -284,14 +284,26 @@ def _learner_row(learner: str, part: pd.DataFrame, records: list[dict[str, Any]]
     record = next(r for r in records if r["learner"] == learner)
     return {
         "learner": LABELS.get(learner, learner), "colour": COLOURS.get(learner, "#999999"),
-        "budget": "exact, untrained" if learner == "random" else "submitted policy" if record.get("submitted")
+        "budget": "exact, untrained" if learner == "random" else _submitted_budget(record) if record.get("submitted")
         else f"{record['budget']:,} steps",
-        "seeds": "exact" if learner == "random" else
+        "seeds": "exact" if learner == "random" else _sample_text(record) if record.get("sample") else
         ", ".join(sorted({str(r["seed"]) for r in records if r["learner"] == learner})),
         "cells": [{"mean": float(cells.loc[s, "mean"]), "ci": _ci(cells.loc[s])} if s in cells.index else None
                   for s in [*SETS, "gap"]],
         "time": "—" if learner == "random" or record.get("submitted") else _seconds(records, learner),
     }
+
+
+def _submitted_budget(record: dict[str, Any]) -> str:
+    """How a submitted run is described: a language model (``leaderboard.llm_track``) by its model."""
+    model = (record.get("llm") or {}).get("model")
+    return f"language model {model}, greedy, untrained" if model else "submitted policy"
+
+
+def _sample_text(record: dict[str, Any]) -> str:
+    """A run scored on a sample of the test set says so (its interval covers which pairs were drawn)."""
+    sample = record["sample"]
+    return f"sample of {sample['pairs']} of {sample['of']} test pairs (seed {sample['seed']}): unseen set only"
 
 
 def _score_table(score: str, title: str, part: pd.DataFrame, frame: pd.DataFrame,
@@ -325,7 +337,7 @@ def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
         draw_figure(part, site / figure)
         tables = [_score_table(score, title, scored, mine, runs) for score, title in SCORES.items()
                   if not (scored := part[part["score"] == score]).empty]
-        first = runs[0]
+        first = max(runs, key=lambda r: len(r.get("sets") or {}))  # a test-set-only entry lists one set's source
         trained = [r for r in runs if r["learner"] != "random"]
         tracks.append({
             "key": "" if track == MIXED else f"-{track}", "title": TRACK_TITLES.get(track, track), "figure": figure,
@@ -372,7 +384,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         assets.mkdir(exist_ok=True)
         for name in ("site.css", "site.js"):
             if not (assets / name).is_file():
-                shutil.copyfile(Path(__file__).parent / "static" / name, assets / name)
+                shutil.copyfile(Path(__file__).parent / "web" / "static" / name, assets / name)
         common = {"title": "Generalisation track", "root": "", "current": PAGE, "nav": NAV, "stamp": "",
                   "results_name": str(args.results), "source_parts": [], "marks": MARKS}
         print(write_page(args.site, args.results, common, args.resamples))

@@ -43,7 +43,10 @@ def _script(answers: list[str]):  # type: ignore[no-untyped-def]
     ("number", "RIGHT", "RIGHT"),  # the word instead of its number is still read
     ("bare", "LEFT", "LEFT"),
     ("bare", "left.", "LEFT"),
-    ("bare", "The lever is down.", "DOWN"),  # the one action word it names (parse_action's rule)
+    ("bare", "The lever is down.", None),  # a sentence, not the word alone (parse_action would read DOWN)
+    ("bare", '"Up"', "UP"),
+    ("bare", "ACTION: stay", "STAY"),
+    ("word", "The lever is down.", "DOWN"),  # word mode keeps parse_action's one-word rule
     ("bare", "The episode ends when you have reached the", None),
     ("word", "ACTION: STAY", "STAY"),
     ("json", '{"action": "INTERACT"}', "INTERACT"),

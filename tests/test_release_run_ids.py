@@ -15,6 +15,7 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
+from morality_gym.results.identity import SUBMITTED_ALGO, run_identity
 from morality_gym.results.run_config import RunConfig
 from runners.config import validate
 from runners.paths import CONF_DIR
@@ -24,16 +25,30 @@ from runners.plan import plan
 RELEASES = sorted((Path(__file__).resolve().parents[1] / "releases").glob("*/runs.parquet"))
 
 
-@pytest.fixture(scope="module")
-def release() -> list[tuple[str, str, dict]]:
-    """(run id, protocol, recorded config) of every run of every shipped release."""
+def _runs(submitted: bool) -> list[tuple[str, str, dict]]:
+    """(run id, protocol, recorded config) of the shipped releases' sweep runs, or of their submitted ones."""
     assert RELEASES, "no release is shipped in releases/"
     out = []
     for path in RELEASES:
-        table = pq.read_table(path, columns=["run_id", "protocol", "config"])
-        out += [(run_id, protocol, json.loads(config)) for run_id, protocol, config in
-                zip(table.column("run_id").to_pylist(), table.column("protocol").to_pylist(), table.column("config").to_pylist())]
+        table = pq.read_table(path, columns=["run_id", "protocol", "algo", "config"])
+        out += [(run_id, protocol, json.loads(config)) for run_id, protocol, algo, config in
+                zip(table.column("run_id").to_pylist(), table.column("protocol").to_pylist(),
+                    table.column("algo").to_pylist(), table.column("config").to_pylist())
+                if (algo == SUBMITTED_ALGO) == submitted]
     return out
+
+
+@pytest.fixture(scope="module")
+def release() -> list[tuple[str, str, dict]]:
+    """The sweep runs of every shipped release (a submitted entry's runs, e.g. a language model's
+    column, were planned by no sweep: :func:`test_a_submitted_run_keeps_the_id_of_its_config`)."""
+    return _runs(submitted=False)
+
+
+def test_a_submitted_run_keeps_the_id_of_its_config() -> None:
+    """A submitted run's id is its recorded config's, provenance left out (leaderboard.llm, leaderboard.submit)."""
+    for run_id, _, config in _runs(submitted=True):
+        assert run_identity(config) == run_id
 
 
 def test_a_recorded_config_reads_back_with_its_run_id(release: list[tuple[str, str, dict]]) -> None:

@@ -206,6 +206,8 @@ COMMANDS: list[tuple[str, str]] = [
     ("leaderboard.reproduction", "Table 1 against the paper, cell by cell, with the evidence"),
     ("leaderboard.engines", "compare the single and fleet engines' Table 1s"),
     ("leaderboard.llm", "language-model agents through Inspect AI"),
+    ("leaderboard.llm_column", "a language model's whole Table 1 column, pair by pair, resumable"),
+    ("leaderboard.llm_track", "a language model on the generalisation track's unseen set (or a seeded sample)"),
     ("leaderboard.screenshot", "PNG screenshots of a built leaderboard"),
     ("runners.migrate", "move an older results directory to the current run ids"),
     ("runners.track", "train and score the generalisation track's held-out splits"),

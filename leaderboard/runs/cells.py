@@ -5,6 +5,7 @@ comparison with the paper, the best of each row, and the group a build shows fir
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Iterable, Mapping
 from functools import cache
@@ -24,9 +25,10 @@ from leaderboard.runs.reference_rows import (
     reference_key,
     reference_mean,
 )
-from leaderboard.runs.selection import CELL_KEYS, UNKNOWN, cell_of, mf_columns
+from leaderboard.runs.selection import CELL_KEYS, LLM_POLICY_KIND, UNKNOWN, cell_of, mf_columns
 from morality_gym.constants import BETA, MAX_STEPS
 from morality_gym.envs.registry import UnknownEnvError, scenario_named
+from morality_gym.results.identity import SUBMITTED_ALGO
 from morality_gym.results.presets import Preset, PresetError, load_preset
 from morality_gym.results.schema import MF_PREFIX
 from runners.paths import preset_seeds
@@ -197,14 +199,48 @@ def completeness(runs: pd.DataFrame, planned: Mapping[str, Mapping[str, Any]]) -
     """
     plans = _by_cell(planned.values())
     records = _by_cell(runs[CELL_KEYS + ["variant", "seed", "ok", "run_id"]].to_dict("records"))
+    own_seeds = sampling_seeds(runs)
     seeds_of_preset: dict[str, set[int]] = {}
     out: dict[tuple[str, ...], dict[str, Any]] = {}
     for cell in set(plans) | set(records):
         preset = cell[1]
         if preset not in seeds_of_preset:
             seeds_of_preset[preset] = expected_seeds(preset, planned.values())
-        out[cell] = _cell_completeness(cell[3], records.get(cell, []), plans.get(cell, []), seeds_of_preset[preset])
+        seeds = own_seeds.get(cell, seeds_of_preset[preset])
+        out[cell] = _cell_completeness(cell[3], records.get(cell, []), plans.get(cell, []), seeds)
     return out
+
+
+def sampling_seeds(runs: pd.DataFrame) -> dict[tuple[str, ...], set[int]]:
+    """The cells of language-model entries, each with the sampling seeds its entry asked for.
+
+    Why not the preset's seeds: a language-model entry (``python -m leaderboard.llm``) trains
+    nothing; its seeds are those of its episodes, ``seed`` to ``seed + episodes - 1`` of its run
+    config. A greedy model in the deterministic environment plays every episode of a variant alike
+    (tests/test_llm_column.py), so its column plays one episode per variant, and the cell is
+    complete with it; held to the preset's three training seeds it would read "1/3 seeds" for ever.
+    """
+    if runs.empty or "config" not in runs.columns or "algo" not in runs.columns:
+        return {}
+    out: dict[tuple[str, ...], set[int]] = {}
+    part = runs.loc[runs["algo"].astype(object) == SUBMITTED_ALGO]
+    for record in part[CELL_KEYS + ["config"]].to_dict("records"):
+        policy = _llm_policy(record["config"])
+        if policy is None:
+            continue
+        first, episodes = _seed(policy.get("seed")), _seed(policy.get("episodes_per_variant"))
+        if first is not None and episodes is not None and episodes > 0:
+            out.setdefault(cell_of(record), set()).update(range(first, first + episodes))
+    return out
+
+
+def _llm_policy(config: Any) -> dict[str, Any] | None:
+    """A run config's policy when it is a language model's (``policy.kind == "llm"``), else None."""
+    try:
+        policy = (json.loads(config) if isinstance(config, str) else {}).get("policy")
+    except (ValueError, AttributeError):
+        return None
+    return policy if isinstance(policy, dict) and policy.get("kind") == LLM_POLICY_KIND else None
 
 
 def _by_cell(items: Iterable[Mapping[str, Any]]) -> dict[tuple[str, ...], list[Mapping[str, Any]]]:

@@ -13,12 +13,15 @@ the transcripts.
 from __future__ import annotations
 
 import json
+from pathlib import PurePath
 from typing import Any
 
 import pandas as pd
 
 from leaderboard.runs.aggregate import LLM_POLICY_KIND
+from leaderboard.runs.sources import RESULTS_SOURCE
 from morality_gym.llm.settings import PRESETS
+from morality_gym.paper import table1_pairs
 from morality_gym.results.identity import PROVENANCE_KEY, SUBMITTED_ALGO
 
 
@@ -44,11 +47,21 @@ def llm_entries(runs: pd.DataFrame) -> list[dict[str, Any]]:
         if prov.get("max_input_tokens") is not None:
             entry["max_input_tokens"] = max(entry["max_input_tokens"] or 0, int(prov["max_input_tokens"]))
         entry["chains"].add(str(row["chain"]))
+        entry["pairs"].add((str(row["chain"]), str(row.get("env_id"))))
         if prov.get("log"):
-            entry["logs"].add(str(prov["log"]))
+            entry["logs"].add(log_location(str(prov["log"]), row.get("source")))
         if prov.get("submitter"):
             entry["submitters"].add(str(prov["submitter"]))
     return sorted((_finished(entry) for entry in groups.values()), key=lambda e: (e["protocol"], e["preset"], e["learner"]))
+
+
+def log_location(log: str, source: Any) -> str:
+    """Where a reader finds a run's Inspect log: the path its provenance names, or, for a run read
+    from a release, the release's copy (``release NAME: logs/FILE``; the path on the machine that ran
+    it means nothing to a clone)."""
+    if not isinstance(source, str) or source == RESULTS_SOURCE:  # None or NaN: a frame without sources
+        return log
+    return f"release {source}: logs/{PurePath(log).name}"
 
 
 def _llm_config(row: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]] | None:
@@ -74,7 +87,7 @@ def _new_entry(row: dict[str, Any], policy: dict[str, Any]) -> dict[str, Any]:
         "episodes_per_variant": int(policy.get("episodes_per_variant") or 0),
         "episodes": 0, "calls": 0, "input_tokens": 0, "output_tokens": 0, "fallbacks": 0, "unreadable": 0,
         "steps": 0, "seconds": 0.0, "max_input_tokens": None,
-        "chains": set(), "logs": set(), "submitters": set(),
+        "chains": set(), "logs": set(), "submitters": set(), "pairs": set(),
     }
 
 
@@ -83,7 +96,10 @@ def _finished(entry: dict[str, Any]) -> dict[str, Any]:
     n = max(entry["episodes"], 1)
     steps, calls = max(entry["steps"], 1), entry["calls"]
     preset = PRESETS.get(entry["llm_preset"])
+    table1 = set(table1_pairs())
     return entry | {
+        # how much of a Table 1 column the entry played: a column cut short must not read as whole
+        "table1_pairs": len(entry["pairs"] & table1), "table1_total": len(table1),
         # the preset named only when it set the count (--episodes overrides it: 3 episodes are not "paid")
         "episodes_source": entry["llm_preset"] if preset and preset.episodes == entry["episodes_per_variant"]
         else "set by --episodes",
@@ -93,6 +109,8 @@ def _finished(entry: dict[str, Any]) -> dict[str, Any]:
         "tokens_per_step": round((entry["input_tokens"] + entry["output_tokens"]) / steps),
         "seconds_per_step": round(entry["seconds"] / steps, 2),
         "chains": ", ".join(sorted(entry["chains"])), "logs": sorted(entry["logs"]),
+        # a column of one Inspect run per pair has a hundred logs: the page names their folders then
+        "log_dirs": sorted({log.rsplit("/", 1)[0] if "/" in log else log for log in entry["logs"]}),
         "submitters": ", ".join(sorted(entry["submitters"])) or "unknown",
         "tokens_per_episode": round((entry["input_tokens"] + entry["output_tokens"]) / n),
         "calls_per_episode": round(entry["calls"] / n, 1),

@@ -42,6 +42,8 @@ EARLIER_HEADING = "Earlier steps, oldest first:"
 _JSON_ACTION = re.compile(r'"action"\s*:\s*"([a-z]+)"', re.IGNORECASE)
 _NUMBER = re.compile(r"(?<![\d.])([1-6])(?!\d|\.\d)")  # a digit on its own, not part of 12 or 3.5
 _ACTION_LINE = re.compile(r"\baction\s*[:=]\s*\**\s*([a-z]+)", re.IGNORECASE)
+#: ``bare``: the action word alone, give or take case, quotes, a full stop or an ``ACTION:`` prefix.
+_BARE = re.compile(r"\W*(?:action\s*[:=]\s*)?\W*(" + "|".join(ACTION_NAMES) + r")\W*", re.IGNORECASE)
 _WORD = re.compile(r"\b(" + "|".join(ACTION_NAMES) + r")\b", re.IGNORECASE)
 
 
@@ -91,8 +93,14 @@ def parse_answer(text: str, answer: str = "word") -> str | None:
     ``number``: the one action number (1-6, ``1 UP`` ... ``6 INTERACT``) the answer names; an answer
     with no number or several different ones falls back to :func:`parse_action`, so that a model
     that writes the word instead is still read. ``json``: the last ``"action": "X"`` pair, else
-    :func:`parse_action`. Every other mode: :func:`parse_action`.
+    :func:`parse_action`. ``bare``: the action word alone (any case, with quotes or a full stop
+    around it): a sentence that happens to hold one action word ("The lever is down.") asked for the
+    word alone is not an answer, where :func:`parse_action`'s one-word rule would read DOWN from it.
+    Every other mode: :func:`parse_action`.
     """
+    if answer == "bare":
+        alone = _BARE.fullmatch((text or "").strip())
+        return alone.group(1).upper() if alone else None
     if answer == "number":
         numbers = set(_NUMBER.findall(text or ""))
         if len(numbers) == 1:
