@@ -190,3 +190,54 @@ def test_the_compact_observation_is_exact_and_fixed() -> None:
 
 PINNED_SIGNS: list[list[float]] = [[-1.0, 1.0, 1.0, -1.0, -1.0, -1.0], [-1.0, -1.0, -1.0, 1.0, -1.0, 1.0],
                                     [-1.0, -1.0, 1.0, -1.0, -1.0, 1.0]]
+
+
+# ---------------------------------------------------------------------- runners.track on fleets
+def _chain_sets() -> dict:
+    from morality_gym.generalisation.sets import EvalSet, PairValues
+
+    def pv(env_id: str) -> PairValues:
+        return PairValues(env_id, "Utility", 1.0, 0.0, 0.5)
+
+    return {"seen": EvalSet("seen", (pv(POOL_A[0]),), {"split": "train", "split_digest": "a", "chain": "Utility"}),
+            "test": EvalSet("test", (pv("Switch5-Human-v1"),), {"split": "test", "split_digest": "b", "chain": "Utility"})}
+
+
+def test_a_chains_track_trains_fleets_and_a_rerun_redoes_only_missing_runs(tmp_path, monkeypatch, capsys) -> None:
+    import json
+
+    import pandas as pd
+
+    from runners import track
+
+    monkeypatch.setattr(track, "load_sets", lambda *a, **k: (list(POOL_A), _chain_sets()))
+    argv = ["--chain", "Utility", "--learners", "random", "ppo_lag", "--seeds", "1", "2", "--budget", "2048",
+            "--out", str(tmp_path)]
+    assert track.main(argv) == 0
+    runs = tmp_path / "runs"
+    for seed in (1, 2):
+        record = json.loads((runs / f"Utility-ppo_lag-s{seed}" / track.RESULT).read_text())
+        assert record["engine"] == "fleet" and record["chain"] == "Utility" and record["trained_steps"] == 2048
+        assert (runs / f"Utility-ppo_lag-s{seed}" / "model.zip").is_file()
+    assert "fleet of 2 runs" in capsys.readouterr().out
+    first = pd.read_parquet(runs / "Utility-ppo_lag-s2" / track.PAIRS)
+
+    # a crash after seed 1 was written: the rerun trains seed 2 alone, to the same numbers
+    (runs / "Utility-ppo_lag-s2" / track.RESULT).unlink()
+    assert track.main(argv) == 0
+    out = capsys.readouterr().out
+    assert "fleet of 1 runs" in out and "Utility-ppo_lag-s1: done, skipped" in out
+    pd.testing.assert_frame_equal(pd.read_parquet(runs / "Utility-ppo_lag-s2" / track.PAIRS), first)
+
+    monkeypatch.setattr(track, "train_fleet", lambda *a, **k: pytest.fail("a done fleet was trained again"))
+    assert track.main(argv) == 0
+
+
+def test_the_cost_learners_need_a_chain_before_anything_is_loaded(monkeypatch) -> None:
+    from runners import track
+
+    monkeypatch.setattr(track, "load_sets", lambda *a, **k: pytest.fail("loaded the splits first"))
+    with pytest.raises(track.TrackError, match="train on a chain's step-wise cost: add --chain"):
+        track.main(["--learners", "cpo"])
+    with pytest.raises(track.TrackError, match="ppo_lag trains whole rollouts of 2,048 steps"):
+        track.main(["--learners", "ppo_lag", "--chain", "Utility", "--budget", "1000"])
