@@ -16,8 +16,11 @@ mix. Random is not trained and its values are exact, so it has one run (seed ``e
 
 ``--chain Utility`` (or ``DualProcess``) runs that chain's track instead of the mixed one: the
 training pool and every set hold only the env ids that are a dilemma under the chain, a run trains
-on the chain's cost (PPO Shaped: its shaping) and is scored under the chain alone; its runs are
-``DIR/runs/<chain>-<learner>-s<seed>/`` and record the chain. ``--splits v2`` (with ``--chain``)
+on the chain's cost (PPO Shaped: its shaping; PPO-Lag and CPO: its step-wise cost, only here) and is
+scored under the chain alone; its runs are ``DIR/runs/<chain>-<learner>-s<seed>/`` and record the
+chain. There every learner trains all its seeds as one fleet with Table 1's hyper-parameters, on the
+compact observation, checkpointed and resumable (:mod:`runners.track_fleet`); ``--n-envs``,
+``--n-steps``, ``--batch-size`` and ``--n-epochs`` apply to the mixed track's single runs only. ``--splits v2`` (with ``--chain``)
 keeps only the pairs of the v2 splits, where Random leaves headroom under the chain
 (:mod:`~morality_gym.generalisation.headroom`); its runs are ``<chain>-v2-<learner>-s<seed>``.
 

@@ -25,6 +25,7 @@ from morality_gym.baselines.fleet import FleetCheckpoint, FleetRun, build_fleet
 from morality_gym.baselines.specs import learner_spec
 from morality_gym.constants import MAX_STEPS
 from morality_gym.norms.metric import bind_chain
+from morality_gym.world.compact_observe import COMPACT_WIDTH
 
 CHECKPOINT_EVERY_S = 300.0
 PROGRESS_EVERY_S = 30.0
@@ -68,7 +69,7 @@ def train_fleet(learner: str, seeds: Sequence[int], budget: int, train_ids: Sequ
         info = {"engine": "fleet", "fleet_runs": len(seeds), "fleet_seconds": round(seconds, 1),
                 "hparams": {**dict(spec.hparams), **hparams}, "protocol": "paper", "n_envs": spec.n_envs,
                 "net_arch": list(spec.net_arch), "activation": spec.activation,
-                "policy": "MlpPolicy on the compact observation (384 numbers, morality_gym.world.compact_observe)",
+                "policy": f"MlpPolicy on the compact observation ({COMPACT_WIDTH} numbers, morality_gym.world.compact_observe)",
                 "trained_steps": int(trained.trained_steps), **({"failed": failed[k]} if k in failed else {})}
         out[int(seed)] = (trained, info)
     return out

@@ -10,6 +10,7 @@ environment step for step (tested), including truncation on step ``max_steps + 1
 
 from __future__ import annotations
 
+import weakref
 from typing import Literal, NamedTuple
 
 import numpy as np
@@ -25,7 +26,7 @@ from morality_gym.world.vocab import EVENT_BIT
 AutoReset = Literal["same_step", "disabled"]
 #: What the simulators' observation rows hold: the scenario's flat vector, or the fixed-shape grid
 #: (:mod:`morality_gym.world.grid_observe`) flattened in C order, the same length for every scenario,
-#: or the compact observation (:mod:`morality_gym.world.compact_observe`): the grid's facts in 384 numbers.
+#: or the compact observation (:mod:`morality_gym.world.compact_observe`): the grid's facts in 128 numbers.
 BATCHED_OBS_TYPES = ("flat", "grid", "compact")
 
 _HARM_BIT = np.uint32(1 << EVENT_BIT["harm"])
@@ -52,6 +53,11 @@ class BatchStep(NamedTuple):
     final_obs: np.ndarray | None
 
 
+#: Each live graph's compact table: the track's fleets build one simulator per learner on the same
+#: pool (hundreds of thousands of states), and encoding every state's grid again cost a minute each.
+_COMPACT_TABLES: weakref.WeakKeyDictionary[StateGraph, tuple[tuple[int, str], np.ndarray]] = weakref.WeakKeyDictionary()
+
+
 def observation_table(graph: StateGraph, obs_type: str, dtype: type) -> np.ndarray:
     """One observation row per state of the (enumerated) ``graph``, as the simulators gather them.
 
@@ -65,9 +71,15 @@ def observation_table(graph: StateGraph, obs_type: str, dtype: type) -> np.ndarr
     tables = graph.tables()
     if obs_type == "flat":
         return np.ascontiguousarray(tables.obs.astype(dtype))
-    grids = grid_table(graph.world, graph.states[: tables.n_states])
     if obs_type == "compact":
-        return np.ascontiguousarray(compact_from_grid(grids).astype(dtype))
+        key = (tables.n_states, np.dtype(dtype).str)
+        cached = _COMPACT_TABLES.get(graph)
+        if cached is None or cached[0] != key:
+            table = compact_from_grid(grid_table(graph.world, graph.states[: tables.n_states])).astype(dtype)
+            table.setflags(write=False)
+            cached = _COMPACT_TABLES[graph] = (key, table)
+        return cached[1]
+    grids = grid_table(graph.world, graph.states[: tables.n_states])
     return np.ascontiguousarray(grids.reshape(tables.n_states, -1).astype(dtype))
 
 

@@ -1,7 +1,8 @@
 """Exact scores of one grid (or compact-observation) policy on an evaluation set.
 
-A policy trained on the mixture sees grids (or their compact observations, :func:`takes_compact`), so its action probabilities are asked for the grid of
-every reachable state of each env id (one batched query per env id) and the resulting state-aligned
+A policy trained on the mixture sees grids (or their compact observations, :func:`takes_compact`),
+so its action probabilities are asked for the observation of every reachable state of each env id
+(one batched query per env id) and the resulting state-aligned
 table is evaluated exactly (:func:`~morality_gym.evaluation.exact.exact_evaluate`: the expected
 metric of the stochastic policy, no sampling noise). The distribution is propagated once per env id
 with the events of every chain kept apart (:func:`pair_metrics`), and each chain's metric read off

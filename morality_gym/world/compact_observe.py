@@ -4,8 +4,14 @@ Why: the grid (:mod:`.grid_observe`) lets one policy act in every scenario, but 
 is 5,120 numbers wide, and a PPO update on it costs about ten times what it costs on a few hundred
 inputs (measured for issue 44: 43.4 us per sample, network and epoch at width 5,120, 4.0 us at 384).
 The grid is also almost all zeros. This observation keeps the grid's facts in :data:`COMPACT_WIDTH`
-numbers: ``compact = (grid.ravel() @ S) * COMPACT_SCALE`` with ``S`` a fixed ``[5120, 384]`` matrix
+numbers: ``compact = (grid.ravel() @ S) * COMPACT_SCALE`` with ``S`` a fixed ``[5120, 128]`` matrix
 of signs (+1 / -1).
+
+Why 128: the track's PPO fleet (paper hyper-parameters, K=32 runs, one thread) trains 6,084 env
+steps per CPU-second at width 384 and 11,549 at 128 (the update's products dominate); and at both
+widths no two distinct grids of the Utility train pool's states share a compact observation
+(BENCHMARKS.md, *Generalisation track*). Narrower inputs would be faster still, but leave the 64-unit
+first layer fewer independent directions to read.
 
 * **The same facts.** A random sign projection keeps distances between observations up to a small
   factor (Johnson-Lindenstrauss), so states the grid tells apart stay apart and similar states stay
@@ -32,8 +38,8 @@ from gymnasium import spaces
 
 from morality_gym.world.grid_observe import GRID_CHANNELS, GRID_HEIGHT, GRID_WIDTH
 
-#: Numbers in a compact observation (the width measured at 4.0 us per sample, net and epoch).
-COMPACT_WIDTH: Final[int] = 384
+#: Numbers in a compact observation (module docstring: why 128).
+COMPACT_WIDTH: Final[int] = 128
 #: The grid's size flattened.
 GRID_SIZE: Final[int] = GRID_CHANNELS * GRID_HEIGHT * GRID_WIDTH
 #: A power of two (exact in float32): a state's sums are about +-20, so the inputs are about +-1.
