@@ -10,7 +10,8 @@ one CSV row per (run, point): ``learner, chain, seed, steps, mean_range_score, c
     nice -n 19 python -m benchmarks.track_curve --learner ppo --chain Utility --seeds 1 --steps 2000000 \\
         --every 250000 --out results/track-pilot/ppo-Utility.csv
 
-Points are taken at update boundaries (the first boundary at or after each multiple of ``--every``).
+Points are taken at update boundaries (the first boundary at or after each multiple of ``--every``),
+and at the end.
 """
 
 from __future__ import annotations
@@ -55,8 +56,8 @@ def curve(learner: str, chain: str, seeds: list[int], steps: int, every: int, sa
         writer = csv.DictWriter(fh, fieldnames=FIELDS)
         writer.writeheader()
 
-        def point(done: int, _total: int) -> None:
-            if done < next_point[0]:
+        def point(done: int, _total: int, last: bool = False) -> None:
+            if done < next_point[0] and not last:
                 return
             cpu = time.process_time() - c0
             for k, (seed, trained) in enumerate(zip(seeds, fleet.learners())):
@@ -73,6 +74,8 @@ def curve(learner: str, chain: str, seeds: list[int], steps: int, every: int, sa
 
         point(0, steps)
         fleet.learn(steps, on_progress=point)
+        if next_point[0] - every < fleet.num_timesteps:  # the end, unless it was a point already
+            point(fleet.num_timesteps, steps, last=True)
 
 
 def main() -> None:

@@ -242,3 +242,17 @@ def test_the_cost_learners_need_a_chain_before_anything_is_loaded(monkeypatch) -
         track.main(["--learners", "cpo"])
     with pytest.raises(track.TrackError, match="ppo_lag trains whole rollouts of 2,048 steps"):
         track.main(["--learners", "ppo_lag", "--chain", "Utility", "--budget", "1000"])
+
+
+def test_the_pilot_curve_scores_each_run_at_every_point(tmp_path, monkeypatch) -> None:
+    import csv
+
+    from benchmarks import track_curve
+
+    monkeypatch.setattr(track_curve, "seen_set", lambda chain, size: (list(POOL_A), _chain_sets()["seen"]))
+    out = tmp_path / "curve.csv"
+    track_curve.curve("ppo_lag", "Utility", [1, 2], 3 * 2048, 4096, 1, out)
+    rows = list(csv.DictReader(out.open()))
+    assert [(r["seed"], int(r["steps"])) for r in rows] == [(s, n) for n in (0, 4096, 6144) for s in ("1", "2")]
+    assert all(0.0 <= float(r["mean_range_score"]) <= 1.0 for r in rows)
+    assert rows[0]["mean_range_score"] != rows[2]["mean_range_score"]  # the policy scored is the current one
