@@ -133,6 +133,37 @@ def test_mixture_runs_are_the_same_bits_whatever_fleet_they_train_in() -> None:
         assert str(a.update_diagnostics()) == str(b.update_diagnostics())
 
 
+class _Interrupted(Exception):
+    pass
+
+
+@pytest.mark.parametrize("name", ["ppo_lag", "cpo"])
+def test_a_killed_mixture_fleet_resumes_from_its_checkpoint_bit_for_bit(name: str, tmp_path) -> None:
+    from morality_gym.baselines.fleet import FleetCheckpoint
+
+    spec = learner_spec(name, {"hparams": SMALL[name]})
+    pool = [morality_gym.bind_chain("Utility", e) for e in POOL_A]
+    rollout = 32 * 8
+
+    def fleet():
+        return build_fleet(spec, [FleetRun.mixture(pool, 3), FleetRun.mixture(pool[1:], 4)], "paper")
+
+    def stop(steps: int, _total: int) -> None:
+        if steps >= 2 * rollout:
+            raise _Interrupted
+
+    path = tmp_path / "fleet.pt"
+    with pytest.raises(_Interrupted):
+        fleet().learn(4 * rollout, on_progress=stop, checkpoint=FleetCheckpoint(path, every_s=0.0))
+    resumed, whole = fleet(), fleet()
+    resumed.learn(4 * rollout, checkpoint=FleetCheckpoint(path, every_s=0.0))
+    whole.learn(4 * rollout)
+    for a, b in zip(whole.learners(), resumed.learners()):
+        for (pname, pa), (_, pb) in zip(a.model.policy.named_parameters(), b.model.policy.named_parameters()):
+            np.testing.assert_array_equal(pa.detach().numpy(), pb.detach().numpy(), err_msg=pname)
+    np.testing.assert_array_equal(whole.collector.env.sim.draws, resumed.collector.env.sim.draws)
+
+
 def test_a_fleet_does_not_mix_mixture_and_single_env_runs() -> None:
     spec = learner_spec("ppo", {"hparams": SMALL["ppo"]})
     bound = morality_gym.bind_chain("Utility", POOL_A[0])
