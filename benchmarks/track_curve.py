@@ -52,6 +52,7 @@ def curve(learner: str, chain: str, seeds: list[int], steps: int, every: int, sa
     out.parent.mkdir(parents=True, exist_ok=True)
     c0 = time.process_time()
     next_point = [0]
+    recorded = [-1]  # the steps of the last point written
     with out.open("w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=FIELDS)
         writer.writeheader()
@@ -69,12 +70,13 @@ def curve(learner: str, chain: str, seeds: list[int], steps: int, every: int, sa
                 print(f"{learner} {chain} seed {seed}: {done:,} steps, seen mean range score {score:.4f} "
                       f"({cpu:.0f} CPU-s)", flush=True)
             fh.flush()
+            recorded[0] = done
             while next_point[0] <= done:
                 next_point[0] += every
 
         point(0, steps)
         fleet.learn(steps, on_progress=point)
-        if next_point[0] - every < fleet.num_timesteps:  # the end, unless it was a point already
+        if recorded[0] != fleet.num_timesteps:  # the end, unless it was a point already
             point(fleet.num_timesteps, steps, last=True)
 
 

@@ -287,3 +287,5 @@ def test_the_pilot_curve_scores_each_run_at_every_point(tmp_path, monkeypatch) -
     assert [(r["seed"], int(r["steps"])) for r in rows] == [(s, n) for n in (0, 4096, 6144) for s in ("1", "2")]
     assert all(0.0 <= float(r["mean_range_score"]) <= 1.0 for r in rows)
     assert rows[0]["mean_range_score"] != rows[2]["mean_range_score"]  # the policy scored is the current one
+    track_curve.curve("ppo_lag", "Utility", [1], 2 * 2048, 4096, 1, out)  # the end is a point: written once
+    assert [int(r["steps"]) for r in csv.DictReader(out.open())] == [0, 4096]
