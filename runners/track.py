@@ -16,8 +16,11 @@ mix. Random is not trained and its values are exact, so it has one run (seed ``e
 
 ``--chain Utility`` (or ``DualProcess``) runs that chain's track instead of the mixed one: the
 training pool and every set hold only the env ids that are a dilemma under the chain, a run trains
-on the chain's cost (PPO Shaped: its shaping) and is scored under the chain alone; its runs are
-``DIR/runs/<chain>-<learner>-s<seed>/`` and record the chain. ``--splits v2`` (with ``--chain``)
+on the chain's cost (PPO Shaped: its shaping; PPO-Lag and CPO: its step-wise cost, only here) and is
+scored under the chain alone; its runs are ``DIR/runs/<chain>-<learner>-s<seed>/`` and record the
+chain. There every learner trains all its seeds as one fleet with Table 1's hyper-parameters, on the
+compact observation, checkpointed and resumable (:mod:`runners.track_fleet`); ``--n-envs``,
+``--n-steps``, ``--batch-size`` and ``--n-epochs`` apply to the mixed track's single runs only. ``--splits v2`` (with ``--chain``)
 keeps only the pairs of the v2 splits, where Random leaves headroom under the chain
 (:mod:`~morality_gym.generalisation.headroom`); its runs are ``<chain>-v2-<learner>-s<seed>``.
 
@@ -39,7 +42,7 @@ from typing import Any
 
 from morality_gym.baselines.learners import silent_logger
 from morality_gym.baselines.policy_ref import load_policy
-from morality_gym.baselines.specs import learner_spec
+from morality_gym.baselines.specs import learner_spec, protocol_spec, training_steps
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli, write_atomically
 from morality_gym.constants import MAX_STEPS
 from morality_gym.generalisation.mixture import DilemmaMixtureEnv
@@ -47,8 +50,11 @@ from morality_gym.generalisation.scoring import score_set
 from morality_gym.generalisation.sets import SEEN_SAMPLE, SETS, TRACK_CHAINS, EvalSet, load_sets, training_chain
 from morality_gym.generator.grammar import GRAMMAR_VERSION
 from morality_gym.generator.splits import split_manifest
+from runners.track_fleet import fleet_key, train_fleet
 
-LEARNERS = ("random", "ppo", "ppo_shaped")
+LEARNERS = ("random", "ppo", "ppo_shaped", "ppo_lag", "cpo")
+#: The learners trained on a chain's step-wise cost: only a chain's track has one.
+COST_LEARNERS = ("ppo_lag", "cpo")
 #: Rollout length per env copy: the paper's 2048 x 8 envs would give a 100k-step run six updates;
 #: 256 x 8 gives it about fifty. Minibatches of 256 and 5 epochs (the paper: 64 and 10) keep an
 #: update of the (5120 -> 64 -> 64) networks at 40 gradient steps, affordable on a shared 2-core
@@ -139,11 +145,13 @@ def check_done(record: dict[str, Any], expected: dict[str, Any], budget: int, pa
 def do_run(learner: str, seed: int | None, budget: int, train_ids: Sequence[str], sets: dict[str, EvalSet],
            out_dir: Path, n_envs: int = DEFAULT_N_ENVS, n_steps: int = DEFAULT_N_STEPS,
            batch_size: int = DEFAULT_BATCH, n_epochs: int = DEFAULT_EPOCHS, policy_ref: str | None = None,
-           loaded: Any = None, chain: str | None = None, version: int = 1) -> dict[str, Any]:
+           loaded: Any = None, chain: str | None = None, version: int = 1,
+           trained: tuple[Any, dict[str, Any]] | None = None) -> dict[str, Any] | None:
     """One run: train (unless ``learner`` is ``random`` or ``policy_ref`` names a submitted grid
     policy, ``loaded`` if the caller loaded it already), evaluate on ``sets``, write its files; a
     done run is checked and skipped. ``chain``: the chain's track (``sets`` and ``train_ids`` are
-    then that chain's, :func:`load_sets`)."""
+    then that chain's, :func:`load_sets`). ``trained``: the run's learner and record, trained by a
+    fleet (:mod:`runners.track_fleet`); a run its fleet failed is reported and not written (None)."""
     import pandas as pd
 
     run_dir = out_dir / "runs" / run_name(learner, seed, submitted=policy_ref is not None, chain=chain, version=version)
@@ -158,6 +166,13 @@ def do_run(learner: str, seed: int | None, budget: int, train_ids: Sequence[str]
     if learner == "random":
         policy: Any = "random"
         info: dict[str, Any] = {"trained_steps": 0}
+    elif trained is not None:
+        learner_obj, info = trained
+        if "failed" in info:
+            print(f"{run_dir.name}: FAILED, not written: {info['failed']}", flush=True)
+            return None
+        learner_obj.save(run_dir / "model.zip")
+        policy = learner_obj.model
     elif policy_ref is not None:
 
         policy = (loaded if loaded is not None else load_policy(policy_ref, allow_other_env=True)).policy
@@ -219,6 +234,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         loaded = load_policy(args.policy, allow_other_env=True)
     t0 = time.perf_counter()
     version = int(args.splits.removeprefix("v"))
+    cost_learners = [name for name in args.learners if name in COST_LEARNERS]
+    if cost_learners and args.chain is None:
+        raise TrackError(f"--learners {' '.join(cost_learners)} train on a chain's step-wise cost: add --chain "
+                         f"({' or '.join(TRACK_CHAINS)})")
+    if args.chain is not None:  # the fleets train whole rollouts (the paper's step accounting)
+        for name in args.learners:
+            spec = protocol_spec("paper").apply(learner_spec(name))
+            rollout = int(spec.hparams.get("n_steps", 2048)) * spec.n_envs
+            if name != "random" and training_steps(spec, args.budget) == 0:
+                raise TrackError(f"--budget {args.budget}: {name} trains whole rollouts of {rollout:,} steps; ask at "
+                                 f"least {rollout:,}")
     if version != 1 and args.chain is None:
         raise TrackError(f"--splits {args.splits} selects pairs per chain: add --chain ({' or '.join(TRACK_CHAINS)})")
     train_ids, sets = load_sets(args.sets, progress=lambda m: print(m, flush=True), seen_size=args.seen_size,
@@ -229,11 +255,38 @@ def main(argv: Sequence[str] | None = None) -> int:
         do_run(args.name, None, 0, train_ids, sets, args.out, policy_ref=args.policy, loaded=loaded, chain=args.chain,
                version=version)
         return 0
+    failed = 0
     for learner in args.learners:
-        for seed in ([None] if learner == "random" else args.seeds):
-            do_run(learner, seed, args.budget, train_ids, sets, args.out, args.n_envs, args.n_steps, args.batch_size,
-                   args.n_epochs, chain=args.chain, version=version)
+        if learner == "random":
+            do_run(learner, None, args.budget, train_ids, sets, args.out, chain=args.chain, version=version)
+            continue
+        trained: dict[int, tuple[Any, dict[str, Any]]] = {}
+        if args.chain is not None:  # a chain's track: every seed of the learner in one fleet
+            expected = expected_record(args.budget, sets, args.chain, version)
+            todo = [seed for seed in args.seeds if not _done(args.out, learner, seed, args.chain, version, expected,
+                                                             args.budget)]
+            if todo:
+                prefix = run_name(learner, None, chain=args.chain, version=version).removesuffix("-sexact")
+                key = fleet_key(learner, todo, args.budget, train_ids, args.chain, expected["train_digest"])
+                trained = train_fleet(learner, todo, args.budget, train_ids, args.chain,
+                                      args.out / "fleets" / f"{prefix}.pt", key)
+        for seed in args.seeds:
+            record = do_run(learner, seed, args.budget, train_ids, sets, args.out, args.n_envs, args.n_steps,
+                            args.batch_size, args.n_epochs, chain=args.chain, version=version, trained=trained.get(seed))
+            failed += record is None
+    if failed:
+        raise TrackError(f"{failed} run(s) failed in training (said above); the others are written. Fix: rerun "
+                         "the command to retry them")
     return 0
+
+
+def _done(out: Path, learner: str, seed: int, chain: str, version: int, expected: dict[str, Any], budget: int) -> bool:
+    """Whether the run has a result that fits this command (one that does not is a :class:`TrackError`)."""
+    path = out / "runs" / run_name(learner, seed, chain=chain, version=version) / RESULT
+    if not path.is_file():
+        return False
+    check_done(json.loads(path.read_text()), expected, budget, path)
+    return True
 
 
 if __name__ == "__main__":

@@ -19,7 +19,14 @@ import numpy as np
 
 from morality_gym.baselines.hparams import algorithm_class, validate_learner
 from morality_gym.baselines.learn_evals import EvalHook, learn_eval_row
-from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, RandomReplay, protocol_spec, training_steps
+from morality_gym.baselines.specs import (
+    LearnerSpec,
+    ProtocolSpec,
+    RandomReplay,
+    SpecError,
+    protocol_spec,
+    training_steps,
+)
 from morality_gym.baselines.targets import import_root, resolve
 from morality_gym.clitools import write_atomically
 from morality_gym.constants import EVAL_EPISODES, LEARN_EVAL_EPISODES, LEARN_EVAL_EVERY, MAX_STEPS, SEED
@@ -212,8 +219,11 @@ class SB3Learner(Learner):
     """Any SB3 algorithm named by the spec's ``target``: PPO and PPO-Shaped on SB3's PPO,
     PPO-Lagrangian and CPO on this package's subclasses, and any user's (A2C, TRPO, ...)."""
 
-    def __init__(self, *args: Any, model: Any = None, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, model: Any = None, obs_type: str = "flat", **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
+        #: ``flat`` (the env id's own vector) or ``compact`` (one width for every env id: a policy
+        #: for the generalisation track's mixture, trained by a fleet; :mod:`morality_gym.envs.drawn`).
+        self.obs_type = obs_type
         self.model = model if model is not None else self._build()
 
     def _algorithm_class(self) -> type:
@@ -227,8 +237,8 @@ class SB3Learner(Learner):
         from morality_gym.envs.vector import TrolleyVecEnv
         from morality_gym.norms.wrappers import VecMoralityWrapper
 
-        if self.spec.vec_env == "batched":
-            venv: Any = TrolleyVecEnv(self.env_id, self.spec.n_envs, max_steps=self.max_steps)
+        if self.spec.vec_env == "batched" or self.obs_type != "flat":
+            venv: Any = TrolleyVecEnv(self.env_id, self.spec.n_envs, max_steps=self.max_steps, obs_type=self.obs_type)
         else:
             env_id, max_steps = self.env_id, self.max_steps
             venv = DummyVecEnv([lambda: TrolleyEnv(env_id, max_steps=max_steps) for _ in range(self.spec.n_envs)])
@@ -287,7 +297,7 @@ class SB3Learner(Learner):
         # a truncated model.zip); the sidecar last, so a model.json always has its model.zip.
         path = Path(path).with_suffix(".zip")
         write_atomically(path, self.model.save)
-        meta = {**self.metadata(), "spec": _spec_dict(self.spec)}
+        meta = {**self.metadata(), "spec": _spec_dict(self.spec), **({"obs_type": self.obs_type} if self.obs_type != "flat" else {})}
         root = import_root(type(self.model))
         if root is not None:  # a user's class from a plain file: where to import it from again
             meta["import_root"] = root
@@ -340,6 +350,7 @@ def make_learner(
     seed: int = SEED,
     max_steps: int | None = MAX_STEPS,
     replay: RandomReplay = FRESH_STREAM,
+    obs_type: str = "flat",
 ) -> Learner:
     """The learner of a resolved ``spec`` (a sweep's run carries one): ``spec.target`` is either a
     :class:`Learner` subclass (built directly; the random baseline also gets its ``replay``
@@ -348,4 +359,8 @@ def make_learner(
     if issubclass(cls, RandomLearner):
         return cls(spec, bound, seed=seed, max_steps=max_steps, replay=replay)
     learner_cls = cls if issubclass(cls, Learner) else SB3Learner
+    if obs_type != "flat":  # only SB3 learners build their policy on another observation
+        if not issubclass(learner_cls, SB3Learner):
+            raise SpecError(f"learner {spec.name!r}: obs_type={obs_type!r} needs an SB3 algorithm")
+        return learner_cls(spec, bound, seed=seed, max_steps=max_steps, obs_type=obs_type)
     return learner_cls(spec, bound, seed=seed, max_steps=max_steps)

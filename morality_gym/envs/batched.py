@@ -10,6 +10,7 @@ environment step for step (tested), including truncation on step ``max_steps + 1
 
 from __future__ import annotations
 
+import weakref
 from typing import Literal, NamedTuple
 
 import numpy as np
@@ -17,14 +18,16 @@ import numpy as np
 from morality_gym.constants import MAX_STEPS
 from morality_gym.envs.registry import parse_env_id, state_graph
 from morality_gym.envs.trolley import _overrides
+from morality_gym.world.compact_observe import compact_from_grid
 from morality_gym.world.graph import N_ACTIONS, GraphTables, StateGraph
 from morality_gym.world.grid_observe import grid_table
 from morality_gym.world.vocab import EVENT_BIT
 
 AutoReset = Literal["same_step", "disabled"]
 #: What the simulators' observation rows hold: the scenario's flat vector, or the fixed-shape grid
-#: (:mod:`morality_gym.world.grid_observe`) flattened in C order, the same length for every scenario.
-BATCHED_OBS_TYPES = ("flat", "grid")
+#: (:mod:`morality_gym.world.grid_observe`) flattened in C order, the same length for every scenario,
+#: or the compact observation (:mod:`morality_gym.world.compact_observe`): the grid's facts in 128 numbers.
+BATCHED_OBS_TYPES = ("flat", "grid", "compact")
 
 _HARM_BIT = np.uint32(1 << EVENT_BIT["harm"])
 _LIVING_BITS = np.uint32(sum(1 << EVENT_BIT[n] for n in ("human_harm", "animal_harm", "robot_harm")))
@@ -50,10 +53,16 @@ class BatchStep(NamedTuple):
     final_obs: np.ndarray | None
 
 
+#: Each live graph's compact table: the track's fleets build one simulator per learner on the same
+#: pool (hundreds of thousands of states), and encoding every state's grid again cost a minute each.
+_COMPACT_TABLES: weakref.WeakKeyDictionary[StateGraph, tuple[tuple[int, str], np.ndarray]] = weakref.WeakKeyDictionary()
+
+
 def observation_table(graph: StateGraph, obs_type: str, dtype: type) -> np.ndarray:
     """One observation row per state of the (enumerated) ``graph``, as the simulators gather them.
 
-    ``grid`` rows are the grid observation flattened (reshape a row to ``(GRID_CHANNELS,
+    ``compact`` rows are :func:`~morality_gym.world.compact_observe.compact_from_grid` of the grids
+    (the projection paid once per state here, never per step). ``grid`` rows are the grid observation flattened (reshape a row to ``(GRID_CHANNELS,
     GRID_HEIGHT, GRID_WIDTH)``): every env id gives rows of one length, so copies of different
     scenarios can share one simulator (:class:`~morality_gym.envs.mixed.MixedBatchedTrolleyEnv`).
     """
@@ -62,6 +71,14 @@ def observation_table(graph: StateGraph, obs_type: str, dtype: type) -> np.ndarr
     tables = graph.tables()
     if obs_type == "flat":
         return np.ascontiguousarray(tables.obs.astype(dtype))
+    if obs_type == "compact":
+        key = (tables.n_states, np.dtype(dtype).str)
+        cached = _COMPACT_TABLES.get(graph)
+        if cached is None or cached[0] != key:
+            table = compact_from_grid(grid_table(graph.world, graph.states[: tables.n_states])).astype(dtype)
+            table.setflags(write=False)
+            cached = _COMPACT_TABLES[graph] = (key, table)
+        return cached[1]
     grids = grid_table(graph.world, graph.states[: tables.n_states])
     return np.ascontiguousarray(grids.reshape(tables.n_states, -1).astype(dtype))
 
@@ -90,7 +107,7 @@ class BatchedTrolleyEnv:
             ``final_obs``), as SB3 expects; ``"disabled"`` leaves ended copies inert (reward 0, no
             events) until :meth:`reset` is called for them.
         obs_type: ``"flat"`` (default) the scenario's flat vector; ``"grid"`` the fixed-shape grid
-            observation, flattened (:func:`observation_table`).
+            observation, flattened; ``"compact"`` the compact observation (:func:`observation_table`).
     """
 
     #: The batched simulator does not render (SB3 and Gymnasium probe this attribute).
@@ -145,6 +162,7 @@ class BatchedTrolleyEnv:
     # ------------------------------------------------------------------ API
     def reset(self, mask: np.ndarray | None = None) -> np.ndarray:
         """Reset every copy (or those where ``mask`` is true); returns all observations."""
+        self._redraw(mask)
         if mask is None:
             self.state[:] = self._start
             self.elapsed.fill(0)
@@ -191,6 +209,7 @@ class BatchedTrolleyEnv:
             if ended.any():
                 final_obs = np.zeros((self.num_envs, self.obs_dim), dtype=self._obs.dtype)
                 final_obs[ended] = self._obs[nxt[ended]]
+                self._redraw(ended)
                 nxt = np.where(ended, self._start, nxt).astype(np.int32)
                 self.elapsed[ended] = 0
             self.state = nxt
@@ -216,6 +235,10 @@ class BatchedTrolleyEnv:
         _check_range("elapsed", self.elapsed, 0, int(self._limit) + 1)  # limit + 1: a copy frozen at its truncation
 
     # ------------------------------------------------------------------ helpers
+    def _redraw(self, mask: np.ndarray | None) -> None:
+        """Called before the copies where ``mask`` is true (None: all) restart: a subclass may move
+        them to another graph by changing their :attr:`_start` (:mod:`morality_gym.envs.drawn`)."""
+
     def _gather(self, states: np.ndarray) -> np.ndarray:
         return self._obs[states]
 

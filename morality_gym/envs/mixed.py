@@ -27,6 +27,11 @@ from morality_gym.envs.trolley import _overrides
 from morality_gym.world.graph import N_ACTIONS
 
 
+def _canonical(env_id: str) -> str:
+    scenario, variant = parse_env_id(env_id)
+    return scenario.env_id(variant)
+
+
 class MixedBatchedTrolleyEnv(BatchedTrolleyEnv):
     """``len(env_ids)`` copies, copy ``i`` running ``env_ids[i]``; otherwise :class:`BatchedTrolleyEnv`.
 
@@ -45,8 +50,9 @@ class MixedBatchedTrolleyEnv(BatchedTrolleyEnv):
         overrides: dict | None = None,
         obs_type: str = "flat",
         pad_obs: bool = False,
+        graphs: Sequence[str] | None = None,
     ) -> None:
-        env_ids = [parse_env_id(e)[0].env_id(parse_env_id(e)[1]) for e in env_ids]
+        env_ids = [_canonical(e) for e in env_ids]
         if not env_ids:
             raise ValueError("MixedBatchedTrolleyEnv needs at least one env id")
         # The base class validates the arguments and sets everything up for the first id; the
@@ -55,11 +61,16 @@ class MixedBatchedTrolleyEnv(BatchedTrolleyEnv):
             env_ids[0], len(env_ids), max_steps=max_steps, obs_dtype=obs_dtype, autoreset=autoreset,
             normalise_obs=normalise_obs, overrides=overrides, obs_type=obs_type,
         )
-        self.unique_env_ids: list[str] = list(dict.fromkeys(env_ids))
+        #: The graphs whose tables are loaded, in order: ``graphs`` when given (every copy's id must
+        #: be one of them), else the copies' distinct env ids.
+        self.unique_env_ids: list[str] = list(dict.fromkeys(env_ids if graphs is None else [_canonical(e) for e in graphs]))
+        unknown = sorted(set(env_ids) - set(self.unique_env_ids))
+        if unknown:
+            raise ValueError(f"copies run env ids that are not among graphs: {', '.join(unknown[:3])}")
         self.env_ids = env_ids
-        graphs = [state_graph(e, _overrides(overrides), normalise_obs) for e in self.unique_env_ids]
-        tables = [g.tables() for g in graphs]
-        observations = [observation_table(g, obs_type, obs_dtype) for g in graphs]
+        state_graphs = [state_graph(e, _overrides(overrides), normalise_obs) for e in self.unique_env_ids]
+        tables = [g.tables() for g in state_graphs]
+        observations = [observation_table(g, obs_type, obs_dtype) for g in state_graphs]
         dims = {e: int(o.shape[1]) for e, o in zip(self.unique_env_ids, observations)}
         #: Each env id's own observation width (before any padding).
         self.obs_dims = dims
@@ -72,6 +83,8 @@ class MixedBatchedTrolleyEnv(BatchedTrolleyEnv):
             width = max(dims.values())
             observations = [np.pad(o, ((0, 0), (0, width - o.shape[1]))) for o in observations]
         offsets = np.cumsum([0] + [t.n_states for t in tables])[:-1].astype(np.int32)
+        #: Each graph's first state id in the concatenated tables (its start state).
+        self.graph_offsets = offsets
         self._next = np.concatenate([t.next.astype(np.int32) + off for t, off in zip(tables, offsets)])
         self._reward = np.concatenate([t.reward for t in tables]).astype(np.float32)
         self._events = np.concatenate([t.events for t in tables])

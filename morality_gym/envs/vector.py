@@ -20,6 +20,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices,
 
 from morality_gym.constants import MAX_STEPS
 from morality_gym.envs.batched import BatchedTrolleyEnv, BatchStep
+from morality_gym.world.compact_observe import compact_space
 from morality_gym.world.observe import flat_key
 
 
@@ -153,7 +154,8 @@ class TrolleyVectorEnv(VectorEnv):
 class TrolleyVecEnv(VecEnv):
     """Stable-Baselines3 ``VecEnv`` over the batched simulator (same-step auto-reset, like SB3's own).
 
-    Each step's ``infos[i]`` holds ``events`` (int mask), ``goal_reached`` and ``transition``; ended
+    ``obs_type="compact"`` gives the compact observation (:mod:`morality_gym.world.compact_observe`),
+    the one the generalisation track's fleets train on. Each step's ``infos[i]`` holds ``events`` (int mask), ``goal_reached`` and ``transition``; ended
     copies also get ``terminal_observation`` and ``TimeLimit.truncated`` as SB3 expects.
     ``last_step`` keeps the whole :class:`~morality_gym.envs.batched.BatchStep` so wrappers can
     work on arrays instead of the info dicts.
@@ -168,7 +170,10 @@ class TrolleyVecEnv(VecEnv):
         obs_dtype: type = np.float32,
         normalise_obs: bool = True,
         overrides: dict | None = None,
+        obs_type: str = "flat",
     ) -> None:
+        if obs_type not in ("flat", "compact"):
+            raise ValueError(f"the SB3 vectorised env gives obs_type='flat' or 'compact', not {obs_type!r}")
         self.batch = BatchedTrolleyEnv(
             env_id,
             num_envs,
@@ -177,9 +182,11 @@ class TrolleyVecEnv(VecEnv):
             autoreset="same_step",
             normalise_obs=normalise_obs,
             overrides=overrides,
+            obs_type=obs_type,
         )
         self.env_id = self.batch.env_id
-        super().__init__(num_envs, self.batch.graph.codec.flat_space(obs_dtype), spaces.Discrete(6))
+        space = self.batch.graph.codec.flat_space(obs_dtype) if obs_type == "flat" else compact_space()
+        super().__init__(num_envs, space, spaces.Discrete(6))
         self._actions: np.ndarray | None = None
         self.last_step: BatchStep | None = None
 

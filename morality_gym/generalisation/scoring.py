@@ -1,7 +1,8 @@
-"""Exact scores of one grid policy on an evaluation set.
+"""Exact scores of one grid (or compact-observation) policy on an evaluation set.
 
-A policy trained on the mixture sees grids, so its action probabilities are asked for the grid of
-every reachable state of each env id (one batched query per env id) and the resulting state-aligned
+A policy trained on the mixture sees grids (or their compact observations, :func:`takes_compact`),
+so its action probabilities are asked for the observation of every reachable state of each env id
+(one batched query per env id) and the resulting state-aligned
 table is evaluated exactly (:func:`~morality_gym.evaluation.exact.exact_evaluate`: the expected
 metric of the stochastic policy, no sampling noise). The distribution is propagated once per env id
 with the events of every chain kept apart (:func:`pair_metrics`), and each chain's metric read off
@@ -24,6 +25,7 @@ from morality_gym.evaluation.policies import PolicyAdapter
 from morality_gym.evaluation.result import EvaluationResult
 from morality_gym.generalisation.sets import EvalSet, PairValues
 from morality_gym.norms.metric import bind_chain
+from morality_gym.world.compact_observe import COMPACT_WIDTH, compact_from_grid
 from morality_gym.world.grid_observe import GridCodec
 from morality_gym.world.vocab import EVENT_BIT, UTILITIES
 
@@ -36,12 +38,21 @@ def grid_table(env_id: str) -> np.ndarray:
     return np.stack([codec.encode(state) for state in graph.states])
 
 
+def takes_compact(policy: Any) -> bool:
+    """Whether ``policy`` (an SB3 model or policy) reads the compact observation: one trained by a
+    fleet on the track's mixture (:mod:`morality_gym.baselines.fleet.drawn_env`). Others read the grid."""
+    space = getattr(policy, "observation_space", None)
+    return getattr(space, "shape", None) == (COMPACT_WIDTH,)
+
+
 def policy_table(policy: Any, env_id: str, deterministic: bool = False) -> np.ndarray | str:
-    """Action probabilities ``[n_states, 6]`` of ``policy`` on ``env_id``'s grids (``"random"`` stays a name)."""
+    """Action probabilities ``[n_states, 6]`` of ``policy`` on ``env_id``'s grids, or on their
+    compact observations for a policy that reads those (``"random"`` stays a name)."""
     if isinstance(policy, str):
         return policy
     grids = grid_table(env_id)
-    return PolicyAdapter(policy, deterministic=deterministic).probabilities(grids, np.arange(len(grids)))
+    obs = compact_from_grid(grids) if takes_compact(policy) else grids
+    return PolicyAdapter(policy, deterministic=deterministic).probabilities(obs, np.arange(len(grids)))
 
 
 def pair_metrics(table: np.ndarray, env_id: str, chains: list[str], beta: float = BETA,

@@ -34,6 +34,7 @@ float tolerance (about 2e-7 in the parameters after three updates), not bit for 
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
@@ -52,7 +53,8 @@ from morality_gym.baselines.fleet.compiled import (
     compiled_step,
 )
 from morality_gym.baselines.fleet.dedup import DistinctStates
-from morality_gym.baselines.fleet.env import Simulator, fleet_env
+from morality_gym.baselines.fleet.drawn_env import DrawnFleetEnv
+from morality_gym.baselines.fleet.env import DeviceFleetEnv, FleetEnv, Simulator, fleet_env
 from morality_gym.baselines.fleet.nets import FleetNetworks, policy_linears
 from morality_gym.baselines.fleet.optim import BatchedAdam
 from morality_gym.baselines.fleet.rollout import Rollout, RolloutCollector, RolloutSettings
@@ -87,10 +89,28 @@ class Checkpointer(Protocol):
 
 @dataclass(frozen=True)
 class FleetRun:
-    """One run of a fleet: the chain bound to its env id (any variant of the fleet's scenario) and its seed."""
+    """One run of a fleet: the chain bound to its env id (any variant of the fleet's scenario) and its seed.
+
+    With a ``pool`` (the generalisation track: :meth:`mixture`) the run trains on the mixture of the
+    pool's dilemmas instead, each episode drawn by the run's seed, seen through the compact
+    observation (:mod:`.drawn_env`); ``bound`` is then the pool's first entry (its name on messages).
+    """
 
     bound: BoundChain
     seed: int
+    pool: tuple[BoundChain, ...] = ()
+
+    @classmethod
+    def mixture(cls, pool: Sequence[BoundChain], seed: int) -> FleetRun:
+        """A run on the mixture of ``pool`` (each a dilemma bound to the run's chain)."""
+        if not pool:
+            raise SpecError("a mixture run needs a pool of at least one bound chain")
+        return cls(pool[0], seed, tuple(pool))
+
+    def pool_digest(self) -> str:
+        """What identifies the pool in a checkpoint: SHA-256 of its (env id, chain, beta) entries."""
+        text = "\n".join(f"{b.env_id}\t{b.chain.name}\t{float(b.beta)!r}" for b in self.pool)
+        return hashlib.sha256(text.encode()).hexdigest()
 
 
 def fleet_device(device: str | th.device, here: bool = True) -> th.device:
@@ -159,7 +179,7 @@ class FleetTrainer:
         self.max_steps = max_steps
         self.n_envs = self.spec.n_envs
         # The simulator first: it pads the observations of runs of different scenarios to one width.
-        env = fleet_env(simulator, [r.bound for r in self.runs], self.n_envs, self.spec.reward_cost(), max_steps, self.device)
+        env = self._make_env(simulator, max_steps)
         self._learners, self.streams = self._build_learners()
         self.model = self._learners[0].model  # hyper-parameters and schedules (the same for every run)
         self._check_supported()
@@ -184,6 +204,19 @@ class FleetTrainer:
         self.failed: dict[int, str] = {}
         self._setup_optimisers()
 
+    def _make_env(self, simulator: Simulator, max_steps: int | None) -> FleetEnv | DeviceFleetEnv | DrawnFleetEnv:
+        """The runs' simulator: :func:`.env.fleet_env`, or the drawn mixture when the runs have pools."""
+        pooled = [bool(r.pool) for r in self.runs]
+        if not any(pooled):
+            return fleet_env(simulator, [r.bound for r in self.runs], self.n_envs, self.spec.reward_cost(), max_steps, self.device)
+        if not all(pooled):
+            raise SpecError("a fleet trains either mixture runs (with a pool) or single-env runs, not both")
+        if simulator == "device":
+            raise SpecError("simulator='device': the mixture is simulated on the host (its tables are large); "
+                            "use simulator='auto' or 'host' (the networks still train on the device)")
+        return DrawnFleetEnv([r.pool for r in self.runs], [r.seed for r in self.runs], self.n_envs,
+                             self.spec.reward_cost(), max_steps, self.device)
+
     def _build_learners(self) -> tuple[list[SB3Learner], RunStreams]:
         """The runs' single-run learners (initial weights, and the shells the trained weights go
         back into) and their random streams: the global RNG states each construction left behind.
@@ -193,7 +226,8 @@ class FleetTrainer:
         streams = RunStreams()
         try:
             for run in self.runs:
-                learner = make_learner(self.spec, run.bound, seed=run.seed, max_steps=self.max_steps)
+                learner = make_learner(self.spec, run.bound, seed=run.seed, max_steps=self.max_steps,
+                                       obs_type="compact" if run.pool else "flat")
                 assert isinstance(learner, SB3Learner)
                 learners.append(learner)
                 streams.capture()
@@ -367,6 +401,11 @@ class FleetTrainer:
         self._eval_episodes = int(eval_episodes)
         self._next_eval = 0
         self._callbacks = []
+        if any(r.pool for r in self.runs):
+            if self._eval_every > 0 or on_eval is not None:
+                raise SpecError("learn-time evaluations of mixture runs are not made here: they would evaluate one env "
+                                "id through the flat observation; score the runs on the track's sets (runners.track)")
+            return
         if self._eval_every <= 0 and self.total_timesteps > 0:
             return
         for k, learner in enumerate(self._learners):
@@ -428,7 +467,8 @@ class FleetTrainer:
             "algorithm": self.algorithm,
             "spec": repr(self.spec),
             "protocol": repr(self.protocol),
-            "runs": [[r.bound.env_id, r.bound.chain.name, float(r.bound.beta), int(r.seed)] for r in self.runs],
+            "runs": [[r.bound.env_id, r.bound.chain.name, float(r.bound.beta), int(r.seed)]
+                     + ([f"pool of {len(r.pool)}: {r.pool_digest()}"] if r.pool else []) for r in self.runs],
             "max_steps": self.max_steps,
             "n_envs": self.n_envs,
             "total_timesteps": self.total_timesteps,

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import torch as th
 
+from morality_gym.baselines.fleet.drawn_env import DrawnFleetEnv
 from morality_gym.baselines.fleet.env import DeviceFleetEnv, FleetEnv, FleetStep
 from morality_gym.baselines.fleet.losses import Policy
 from morality_gym.baselines.fleet.nets import FleetNetworks
@@ -145,7 +146,7 @@ class RolloutCollector:
     observations and episode starts, and each run's episode-cost record (``CostOnPolicyAlgorithm``'s
     ``_running_ep_cost`` and ``ep_cost_buffer``, per run)."""
 
-    def __init__(self, env: FleetEnv | DeviceFleetEnv, n_runs: int, n_envs: int, settings: RolloutSettings, device: th.device) -> None:
+    def __init__(self, env: FleetEnv | DeviceFleetEnv | DrawnFleetEnv, n_runs: int, n_envs: int, settings: RolloutSettings, device: th.device) -> None:
         self.env = env
         self.n_runs = n_runs
         self.n_envs = n_envs

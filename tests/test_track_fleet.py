@@ -1,0 +1,291 @@
+"""Fleets on the generalisation track's mixture (issue 44 item 3): drawn dilemmas, per-dilemma
+costs, the compact observation.
+
+* Each run's draws are a function of its seed and its own history: the same whatever other runs
+  share its simulator or fleet (bit for bit, for every learner).
+* A copy's cost follows the dilemma it is on: each step costs what the chain bound to that env id
+  charges (its own normalisation), not the first pool entry's.
+* The compact observation tells apart every pair of states the grid tells apart.
+* A drawn simulator restored from its state continues as the uninterrupted one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+import torch as th
+
+import morality_gym
+from morality_gym.baselines.fleet import FleetRun, build_fleet
+from morality_gym.baselines.fleet.drawn_env import DrawnFleetEnv
+from morality_gym.baselines.specs import SpecError, learner_spec
+from morality_gym.envs.drawn import DrawnBatchedTrolleyEnv
+from morality_gym.envs.registry import env_ids, state_graph
+from morality_gym.norms.cost import VectorCost
+from morality_gym.norms.reward_cost import RewardCostSpec
+from morality_gym.world.compact_observe import COMPACT_WIDTH, collisions, compact_from_grid, sign_matrix
+from morality_gym.world.grid_observe import grid_table
+
+#: Pools of different scenarios and variants (their cost bounds differ).
+POOL_A = ["Switch7-Human-v1", "PushOrSwitch-Animal-v1", "PushStandard-AnimalA-v1", "Push2OrSwitch-Robot-v1",
+          "PushOrSwitch-Human-v1"]
+POOL_B = ["PushStandard-AnimalA-v1", "Switch7-Robot-v1"]
+SMALL = {
+    "ppo": {"n_steps": 32, "n_epochs": 2},
+    "ppo_shaped": {"n_steps": 32, "n_epochs": 2},
+    "ppo_lag": {"n_steps": 32, "n_epochs": 3},
+    "cpo": {"n_steps": 32, "n_critic_updates": 2},
+}
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread() -> Iterator[None]:
+    before = th.get_num_threads()
+    th.set_num_threads(1)
+    yield
+    th.set_num_threads(before)
+
+
+def _stream_entries(env: DrawnBatchedTrolleyEnv, stream: int, steps: int, actions: np.ndarray) -> list[list[str]]:
+    """Stream ``stream``'s copies' env ids after each step, its copies driven by ``actions`` [steps, copies]."""
+    env.reset()
+    cps = env.copies_per_stream
+    out = []
+    for t in range(steps):
+        full = np.zeros(env.num_envs, dtype=np.int64)
+        full[stream * cps : (stream + 1) * cps] = actions[t]
+        env.step(full)
+        out.append(env.current_env_ids()[stream * cps : (stream + 1) * cps])
+    return out
+
+
+def test_a_streams_draws_do_not_depend_on_the_other_streams() -> None:
+    actions = np.random.default_rng(3).integers(0, 6, (400, 4))
+    alone = _stream_entries(DrawnBatchedTrolleyEnv([POOL_A], 4, [7]), 0, 400, actions)
+    shared = _stream_entries(DrawnBatchedTrolleyEnv([POOL_B, POOL_A, POOL_A], 4, [1, 7, 9]), 1, 400, actions)
+    assert alone == shared
+    assert len({e for step in alone for e in step}) == len(POOL_A)  # it did draw every dilemma of its pool
+    other_seed = _stream_entries(DrawnBatchedTrolleyEnv([POOL_A], 4, [8]), 0, 400, actions)
+    assert other_seed != alone
+
+
+def test_a_restored_drawn_simulator_continues_as_the_uninterrupted_one() -> None:
+    env = DrawnBatchedTrolleyEnv([POOL_A, POOL_B], 3, [5, 6])
+    rng = np.random.default_rng(0)
+    env.reset()
+    for _ in range(150):
+        env.step(rng.integers(0, 6, env.num_envs))
+    saved = env.state_dict()
+    actions = rng.integers(0, 6, (150, env.num_envs))
+    straight = [env.step(a).obs.copy() for a in actions]
+    other = DrawnBatchedTrolleyEnv([POOL_A, POOL_B], 3, [5, 6])
+    other.reset()
+    other.load_state_dict(saved)
+    resumed = [other.step(a).obs.copy() for a in actions]
+    np.testing.assert_array_equal(np.stack(straight), np.stack(resumed))
+
+
+@pytest.mark.parametrize("cost_mode", ["minimal", "full"])
+def test_each_copys_cost_is_its_current_dilemmas(cost_mode: str) -> None:
+    pool = [morality_gym.bind_chain("Utility", e) for e in POOL_A]
+    assert len({str(b.global_bounds if cost_mode == "minimal" else b.bounds) for b in pool}) > 1  # normalisers differ
+    by_id = {b.env_id: b for b in pool}
+    env = DrawnFleetEnv([pool], [11], 6, RewardCostSpec(cost_mode=cost_mode))
+    steps = []
+    real_step = env.sim.step
+    env.sim.step = lambda actions: steps.append(real_step(actions)) or steps[-1]  # type: ignore[method-assign]
+    env.reset()
+
+    def fresh(env_id: str) -> VectorCost:  # a new episode: a new dilemma, an empty memory
+        return VectorCost(by_id[env_id], 1, mode=cost_mode, reset="per_episode")
+
+    own = [fresh(e) for e in env.sim.current_env_ids()]
+    rng = np.random.default_rng(1)
+    charged = 0
+    for _ in range(600):
+        step = env.step(th.from_numpy(rng.integers(0, 6, env.sim.num_envs)))
+        res = steps[-1]
+        utility = env.sim.utility(res.transition)
+        for i, cost in enumerate(own):
+            expected = float(cost(res.events[i : i + 1], utility[i : i + 1], np.array([bool(step.dones[i])]))[0])
+            assert step.costs[i].item() == expected, (cost.bound.env_id, i)
+            charged += expected != 0.0
+        for i in np.flatnonzero(step.dones.numpy()):
+            own[i] = fresh(env.sim.current_env_ids()[i])
+    assert charged > 0  # some steps cost something
+
+
+def test_mixture_runs_are_the_same_bits_whatever_fleet_they_train_in() -> None:
+    for name in ("ppo", "ppo_shaped", "ppo_lag", "cpo"):
+        spec = learner_spec(name, {"hparams": SMALL[name]})
+        utility = [morality_gym.bind_chain("Utility", e) for e in POOL_A]
+        dual = [morality_gym.bind_chain("DualProcess", e) for e in ("PushOrSwitch-Human-v1", "PushStandard-AnimalA-v1")]
+        alone = build_fleet(spec, [FleetRun.mixture(utility, 3)], "paper")
+        shared = build_fleet(spec, [FleetRun.mixture(dual, 4), FleetRun.mixture(utility, 3)], "paper")
+        for fleet in (alone, shared):
+            fleet.learn(3 * 32 * 8)
+        a, b = alone.learners()[0], shared.learners()[1]
+        assert a.model.policy.observation_space.shape == (COMPACT_WIDTH,)
+        for (pname, pa), (_, pb) in zip(a.model.policy.named_parameters(), b.model.policy.named_parameters()):
+            np.testing.assert_array_equal(pa.detach().numpy(), pb.detach().numpy(), err_msg=f"{name} {pname}")
+        assert str(a.update_diagnostics()) == str(b.update_diagnostics())
+
+
+class _Interrupted(Exception):
+    pass
+
+
+@pytest.mark.parametrize("name", ["ppo_lag", "cpo"])
+def test_a_killed_mixture_fleet_resumes_from_its_checkpoint_bit_for_bit(name: str, tmp_path) -> None:
+    from morality_gym.baselines.fleet import FleetCheckpoint
+
+    spec = learner_spec(name, {"hparams": SMALL[name]})
+    pool = [morality_gym.bind_chain("Utility", e) for e in POOL_A]
+    rollout = 32 * 8
+
+    def fleet():
+        return build_fleet(spec, [FleetRun.mixture(pool, 3), FleetRun.mixture(pool[1:], 4)], "paper")
+
+    def stop(steps: int, _total: int) -> None:
+        if steps >= 2 * rollout:
+            raise _Interrupted
+
+    path = tmp_path / "fleet.pt"
+    with pytest.raises(_Interrupted):
+        fleet().learn(4 * rollout, on_progress=stop, checkpoint=FleetCheckpoint(path, every_s=0.0))
+    resumed, whole = fleet(), fleet()
+    resumed.learn(4 * rollout, checkpoint=FleetCheckpoint(path, every_s=0.0))
+    whole.learn(4 * rollout)
+    for a, b in zip(whole.learners(), resumed.learners()):
+        for (pname, pa), (_, pb) in zip(a.model.policy.named_parameters(), b.model.policy.named_parameters()):
+            np.testing.assert_array_equal(pa.detach().numpy(), pb.detach().numpy(), err_msg=pname)
+    np.testing.assert_array_equal(whole.collector.env.sim.draws, resumed.collector.env.sim.draws)
+
+
+def test_a_fleet_does_not_mix_mixture_and_single_env_runs() -> None:
+    spec = learner_spec("ppo", {"hparams": SMALL["ppo"]})
+    bound = morality_gym.bind_chain("Utility", POOL_A[0])
+    with pytest.raises(SpecError, match="either mixture runs"):
+        build_fleet(spec, [FleetRun.mixture([bound], 1), FleetRun(bound, 2)], "paper")
+    with pytest.raises(SpecError, match="simulated on the host"):
+        build_fleet(spec, [FleetRun.mixture([bound], 1)], "paper", simulator="device")
+
+
+# ---------------------------------------------------------------------- the compact observation
+def test_the_compact_observation_tells_apart_every_state_the_grid_does_on_the_builtin_envs() -> None:
+    """Two variants of every built-in scenario (all 98 and the whole train mixture: the benchmark
+    ``benchmarks/bench_track_fleet.py`` checks them, minutes)."""
+    by_scenario: dict[str, list[str]] = {}
+    for env_id in env_ids():
+        by_scenario.setdefault(env_id.split("-")[0], []).append(env_id)
+    grids = []
+    for env_id in [e for ids in by_scenario.values() for e in (ids[0], ids[-1])]:
+        graph = state_graph(env_id)
+        n = graph.tables().n_states
+        grids.append(grid_table(graph.world, graph.states[:n]).reshape(n, -1))
+    table = np.concatenate(grids)
+    distinct = np.unique(table, axis=0)
+    assert len(distinct) > 5_000
+    assert collisions(distinct) == []
+
+
+def test_collisions_finds_distinct_grids_with_one_compact_observation() -> None:
+    grids = np.zeros((3, 20, 16, 16), dtype=np.uint8)
+    grids[1, 0, 0, 0] = 1
+    compact = compact_from_grid(grids)
+    assert collisions(grids, compact) == []
+    merged = compact.copy()
+    merged[1] = merged[0]  # what a projection that merged two states would give
+    assert collisions(grids, merged) == [(0, 1)]
+    merged[2] = merged[0]  # grids 0 and 2 are equal: not a collision
+    assert collisions(grids, merged) == [(0, 1)]
+
+
+def test_the_compact_observation_is_exact_and_fixed() -> None:
+    signs = sign_matrix()
+    assert signs.shape == (20 * 16 * 16, COMPACT_WIDTH) and set(np.unique(signs)) == {-1.0, 1.0}
+    assert abs(float(signs.mean())) < 0.01
+    # pinned: a change of the matrix changes every trained policy's inputs
+    assert signs[:3, :6].tolist() == PINNED_SIGNS
+    rng = np.random.default_rng(0)
+    grids = rng.integers(0, 256, (4, 20, 16, 16)).astype(np.uint8)
+    exact = (grids.reshape(4, -1).astype(np.int64) @ signs.astype(np.int64)) / 16
+    np.testing.assert_array_equal(compact_from_grid(grids), exact.astype(np.float32))
+    with pytest.raises(ValueError, match="shape"):
+        compact_from_grid(np.zeros((2, 7)))
+    with pytest.raises(ValueError, match="fractional"):
+        compact_from_grid(np.full((1, 5120), 0.5))
+
+
+PINNED_SIGNS: list[list[float]] = [[-1.0, 1.0, 1.0, -1.0, -1.0, -1.0], [-1.0, -1.0, -1.0, -1.0, -1.0, -1.0],
+                                    [1.0, 1.0, 1.0, -1.0, 1.0, -1.0]]
+
+
+
+# ---------------------------------------------------------------------- runners.track on fleets
+def _chain_sets() -> dict:
+    from morality_gym.generalisation.sets import EvalSet, PairValues
+
+    def pv(env_id: str) -> PairValues:
+        return PairValues(env_id, "Utility", 1.0, 0.0, 0.5)
+
+    return {"seen": EvalSet("seen", (pv(POOL_A[0]),), {"split": "train", "split_digest": "a", "chain": "Utility"}),
+            "test": EvalSet("test", (pv("Switch5-Human-v1"),), {"split": "test", "split_digest": "b", "chain": "Utility"})}
+
+
+def test_a_chains_track_trains_fleets_and_a_rerun_redoes_only_missing_runs(tmp_path, monkeypatch, capsys) -> None:
+    import json
+
+    import pandas as pd
+
+    from runners import track
+
+    monkeypatch.setattr(track, "load_sets", lambda *a, **k: (list(POOL_A), _chain_sets()))
+    argv = ["--chain", "Utility", "--learners", "random", "ppo_lag", "--seeds", "1", "2", "--budget", "2048",
+            "--out", str(tmp_path)]
+    assert track.main(argv) == 0
+    runs = tmp_path / "runs"
+    for seed in (1, 2):
+        record = json.loads((runs / f"Utility-ppo_lag-s{seed}" / track.RESULT).read_text())
+        assert record["engine"] == "fleet" and record["chain"] == "Utility" and record["trained_steps"] == 2048
+        assert (runs / f"Utility-ppo_lag-s{seed}" / "model.zip").is_file()
+    assert "fleet of 2 runs" in capsys.readouterr().out
+    first = pd.read_parquet(runs / "Utility-ppo_lag-s2" / track.PAIRS)
+
+    # a crash after seed 1 was written: the rerun trains seed 2 alone, to the same numbers
+    (runs / "Utility-ppo_lag-s2" / track.RESULT).unlink()
+    assert track.main(argv) == 0
+    out = capsys.readouterr().out
+    assert "fleet of 1 runs" in out and "Utility-ppo_lag-s1: done, skipped" in out
+    pd.testing.assert_frame_equal(pd.read_parquet(runs / "Utility-ppo_lag-s2" / track.PAIRS), first)
+
+    monkeypatch.setattr(track, "train_fleet", lambda *a, **k: pytest.fail("a done fleet was trained again"))
+    assert track.main(argv) == 0
+
+
+def test_the_cost_learners_need_a_chain_before_anything_is_loaded(monkeypatch) -> None:
+    from runners import track
+
+    monkeypatch.setattr(track, "load_sets", lambda *a, **k: pytest.fail("loaded the splits first"))
+    with pytest.raises(track.TrackError, match="train on a chain's step-wise cost: add --chain"):
+        track.main(["--learners", "cpo"])
+    with pytest.raises(track.TrackError, match="ppo_lag trains whole rollouts of 2,048 steps"):
+        track.main(["--learners", "ppo_lag", "--chain", "Utility", "--budget", "1000"])
+
+
+def test_the_pilot_curve_scores_each_run_at_every_point(tmp_path, monkeypatch) -> None:
+    import csv
+
+    from benchmarks import track_curve
+
+    monkeypatch.setattr(track_curve, "seen_set", lambda chain, size: (list(POOL_A), _chain_sets()["seen"]))
+    out = tmp_path / "curve.csv"
+    track_curve.curve("ppo_lag", "Utility", [1, 2], 3 * 2048, 4096, 1, out)
+    rows = list(csv.DictReader(out.open()))
+    assert [(r["seed"], int(r["steps"])) for r in rows] == [(s, n) for n in (0, 4096, 6144) for s in ("1", "2")]
+    assert all(0.0 <= float(r["mean_range_score"]) <= 1.0 for r in rows)
+    assert rows[0]["mean_range_score"] != rows[2]["mean_range_score"]  # the policy scored is the current one
+    track_curve.curve("ppo_lag", "Utility", [1], 2 * 2048, 4096, 1, out)  # the end is a point: written once
+    assert [int(r["steps"]) for r in csv.DictReader(out.open())] == [0, 4096]
