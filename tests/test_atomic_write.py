@@ -8,6 +8,7 @@ import os
 import threading
 import time
 from pathlib import Path
+from typing import BinaryIO
 
 import pyarrow as pa
 import pytest
@@ -32,7 +33,7 @@ def test_threads_of_one_process_writing_one_file_never_share_a_temporary_name(tm
     barrier = threading.Barrier(6)
 
     def write(i: int) -> None:
-        def body(fh) -> None:  # noqa: ANN001 - a binary file
+        def body(fh: BinaryIO) -> None:
             fh.write(f"writer {i} ".encode() * 100)
             time.sleep(0.05)  # every thread holds its temporary file at the same time
 
@@ -57,7 +58,7 @@ def test_a_failed_write_keeps_the_previous_file_and_leaves_no_temporary(tmp_path
     target = tmp_path / "table.json"
     target.write_text("old")
 
-    def fail(fh) -> None:  # noqa: ANN001
+    def fail(fh: BinaryIO) -> None:
         fh.write(b"half of the new")
         raise RuntimeError("killed")
 
