@@ -10,7 +10,7 @@ next to learner names), so a reader can follow a learner from the bar charts to 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -73,8 +73,14 @@ def _norm_matrix(summary: pd.DataFrame, learners: list[str]) -> tuple[list[str],
     return norms, means, stds
 
 
+def legend_label(learner: str, incomplete: Collection[str]) -> str:
+    """The learner's name, marked when its cells behind the figure are incomplete: a bar or polygon
+    drawn from part of a column is never shown as if it were the whole."""
+    return f"{learner} (incomplete)" if learner in incomplete else learner
+
+
 def bar_chart(summary: pd.DataFrame, learners: list[str], colours: dict[str, str], title: str, subtitle: str,
-              path: Path) -> Path:
+              path: Path, incomplete: Collection[str] = ()) -> Path:
     """Grouped bars: norms on x in chain order, one bar per learner, error bars = seed spread."""
     present = [name for name in learners if name in set(summary["learner"])]
     norms, means, stds = _norm_matrix(summary, present)
@@ -85,8 +91,8 @@ def bar_chart(summary: pd.DataFrame, learners: list[str], colours: dict[str, str
     for i, learner in enumerate(present):
         offset = (i - (len(present) - 1) / 2) * width
         err = np.where(np.isnan(stds[learner]), 0.0, stds[learner])
-        ax.bar(x + offset, np.nan_to_num(means[learner]), width, yerr=err, color=colours[learner], label=learner,
-               edgecolor="white", linewidth=0.4, capsize=2, error_kw={"elinewidth": 0.9, "ecolor": "#333333"})
+        ax.bar(x + offset, np.nan_to_num(means[learner]), width, yerr=err, color=colours[learner],
+               label=legend_label(learner, incomplete), edgecolor="white", linewidth=0.4, capsize=2, error_kw={"elinewidth": 0.9, "ecolor": "#333333"})
     ax.set_xticks(x, [norm_abbreviation(n) for n in norms])
     ax.set_ylim(0, 1.08)
     ax.set_ylabel("Morality function")
@@ -102,7 +108,7 @@ def bar_chart(summary: pd.DataFrame, learners: list[str], colours: dict[str, str
 
 
 def radar_chart(summary: pd.DataFrame, learners: list[str], colours: dict[str, str], title: str, subtitle: str,
-                path: Path) -> Path:
+                path: Path, incomplete: Collection[str] = ()) -> Path:
     """One polygon per learner over the relevant norms; bars when there are fewer than 3 norms.
 
     A radar with one or two axes is a point or a line and reads worse than two bars, hence the
@@ -111,7 +117,7 @@ def radar_chart(summary: pd.DataFrame, learners: list[str], colours: dict[str, s
     present = [name for name in learners if name in set(summary["learner"])]
     norms, means, _ = _norm_matrix(summary, present)
     if len(norms) < 3:
-        return bar_chart(summary, learners, colours, title, subtitle, path)
+        return bar_chart(summary, learners, colours, title, subtitle, path, incomplete)
     angles = np.linspace(0, 2 * np.pi, len(norms), endpoint=False)
     closed = np.concatenate([angles, angles[:1]])
     fig = _new_figure(4.6, 4.9)
@@ -121,7 +127,7 @@ def radar_chart(summary: pd.DataFrame, learners: list[str], colours: dict[str, s
     for learner in present:
         values = np.nan_to_num(means[learner])
         ring = np.concatenate([values, values[:1]])
-        ax.plot(closed, ring, color=colours[learner], linewidth=1.6, label=learner)
+        ax.plot(closed, ring, color=colours[learner], linewidth=1.6, label=legend_label(learner, incomplete))
         ax.fill(closed, ring, color=colours[learner], alpha=0.07)
     ax.set_xticks(angles, [norm_abbreviation(n) for n in norms], fontsize=9)
     ax.set_ylim(0, 1)
@@ -156,6 +162,18 @@ def figure_paths(out_dir: Path, group: Group) -> Path:
     return out_dir / group.slug
 
 
+def incomplete_learners(table: pd.DataFrame, group: Group, chain: str, scenario: str | None = None) -> set[str]:
+    """Learners with an incomplete Table 1 cell in ``group`` under ``chain`` (in ``scenario`` when
+    given): their norm means average only the runs that exist."""
+    if table.empty or "complete" not in table.columns:
+        return set()
+    rows = table.loc[(table["kind"] == "learner") & (table["protocol"] == group.protocol)
+                     & (table["preset"] == group.preset) & (table["chain"] == chain)]
+    if scenario is not None:
+        rows = rows.loc[rows["scenario"] == scenario]
+    return {str(name) for name in rows.loc[~rows["complete"].astype(bool), "learner"]}
+
+
 def write_figures(lb: Leaderboard, out_dir: Path, progress: Progress | None = None) -> FigureSet:
     """Figure 2 per (group, chain) and a radar per (group, chain, scenario) under ``out_dir``."""
     figures = FigureSet(colours=learner_palette(lb.learners))
@@ -173,16 +191,18 @@ def write_figures(lb: Leaderboard, out_dir: Path, progress: Progress | None = No
         jobs += [("radar", group, c, s) for c, s in dict.fromkeys(zip(part["chain"], part["scenario"]))]
     iterator: Iterable[Any] = progress(jobs, "figures", len(jobs)) if progress and jobs else jobs
     for kind, group, chain, scenario in iterator:
+        incomplete = incomplete_learners(lb.table, group, chain, scenario)
         if kind == "bar":
             t = lb.norms_by_chain
             data = t.loc[(t["protocol"] == group.protocol) & (t["preset"] == group.preset) & (t["chain"] == chain)]
             path = figure_paths(out_dir, group) / f"fig2_{safe_name(chain)}.png"
-            figures.bars[(group, chain)] = bar_chart(data, lb.learners, figures.colours, chain_title(chain), group.label, path)
+            figures.bars[(group, chain)] = bar_chart(
+                data, lb.learners, figures.colours, chain_title(chain), group.label, path, incomplete)
         else:
             t = lb.norms_by_scenario
             data = t.loc[(t["protocol"] == group.protocol) & (t["preset"] == group.preset) & (t["chain"] == chain)
                          & (t["scenario"] == scenario)]
             path = figure_paths(out_dir, group) / f"radar_{safe_name(chain)}_{safe_name(str(scenario))}.png"
             figures.radars[(group, chain, str(scenario))] = radar_chart(
-                data, lb.learners, figures.colours, f"{scenario} · {chain_title(chain)}", group.label, path)
+                data, lb.learners, figures.colours, f"{scenario} · {chain_title(chain)}", group.label, path, incomplete)
     return figures
