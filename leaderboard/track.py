@@ -39,6 +39,7 @@ import pandas as pd
 from leaderboard.outputs.marks import MARKS
 from leaderboard.outputs.precision import DIGITS_RULE
 from leaderboard.outputs.tables import interval_text
+from leaderboard.runs.display_order import LEARNER_COLOURS
 from leaderboard.stats.core import CONFIDENCE, DEFAULT_RESAMPLES, DEFAULT_SEED, generator_for, quantile_mcse
 from leaderboard.web.render import render
 from leaderboard.web.site_state import NAV
@@ -49,8 +50,10 @@ from runners.track import PAIRS, RESULT
 SCORES = {"range_score": "Range score (0 = oracle worst, 1 = oracle best)",
           "random_score": "Random-relative score (0 = Random, 1 = oracle best)",
           "vs_random": "Range score minus Random's on the same dilemmas (paired)"}
-LABELS = {"random": "Random", "ppo": "PPO", "ppo_shaped": "PPO Shaped"}
-COLOURS = {"random": "#8c8c8c", "ppo": "#1f77b4", "ppo_shaped": "#2ca02c"}
+#: The track's learner keys (``runners.track --learners``) and the names Table 1 gives them.
+LABELS = {"random": "Random", "ppo": "PPO", "ppo_shaped": "PPO Shaped", "ppo_lag": "PPO Lag", "cpo": "CPO"}
+#: Table 1's colours, so that a learner is one colour on every page of the site.
+COLOURS = {key: LEARNER_COLOURS[label] for key, label in LABELS.items()}
 PAGE = "track.html"
 #: The track of runs trained and scored under every chain a dilemma is one under (no ``--chain``).
 MIXED = "mixed"

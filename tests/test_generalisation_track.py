@@ -307,3 +307,15 @@ def test_v2_splits_need_a_chain_before_anything_is_loaded(monkeypatch) -> None:
     monkeypatch.setattr(track, "load_sets", lambda *a, **k: pytest.fail("loaded the splits first"))
     with pytest.raises(track.TrackError, match="--splits v2 selects pairs per chain: add --chain"):
         track.main(["--splits", "v2", "--learners", "random"])
+
+
+def test_the_page_names_and_colours_every_track_learner_as_table1_does() -> None:
+    # PPO-Lag and CPO joined the track (issue 44); without a label the page showed "ppo_lag" and a grey bar
+    from leaderboard.runs.display_order import LEARNER_COLOURS
+    from leaderboard.track import COLOURS, LABELS
+    from morality_gym.paper import LEARNERS as PAPER_LEARNERS
+    from runners.track import LEARNERS
+
+    assert set(LABELS) == set(LEARNERS)
+    assert set(LABELS.values()) == set(PAPER_LEARNERS)
+    assert all(COLOURS[key] == LEARNER_COLOURS[LABELS[key]] for key in LEARNERS)
