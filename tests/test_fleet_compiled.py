@@ -45,12 +45,7 @@ FLEET_A = [("DualProcess", "PushOrSwitch-Human-v1", 1), ("Utility", "PushOrSwitc
 FLEET_B = [("DualProcess", "PushOrSwitch-Human-v1", 5), ("Utility", "Switch7-Human-v1", 6), ("DualProcess", "PushStandard-AnimalA-v1", 7)]
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread() -> Iterator[None]:
-    before = th.get_num_threads()
-    th.set_num_threads(1)
-    yield
-    th.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # tests/conftest.py
 
 
 @pytest.fixture(autouse=True)

@@ -10,7 +10,6 @@ Also: the batched path makes every tensor on the fleet's device (torch's default
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -28,12 +27,7 @@ CPO_DUAL = {"cost_advantage_normalization": "standardize", "target_kl": 0.2, "co
 INTEGER_FIELDS = ("cpo_case", "accept_step", "line_search_tried", "update", "timesteps")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread() -> Iterator[None]:
-    before = th.get_num_threads()
-    th.set_num_threads(1)
-    yield
-    th.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # tests/conftest.py
 
 
 def _runs() -> list[FleetRun]:

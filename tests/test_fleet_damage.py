@@ -12,7 +12,6 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -31,12 +30,7 @@ SIX = [(env, chain, seed) for env in ("PushOrSwitch-Human-v1", "PushOrSwitch-Ani
 POISONED = 2
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread() -> Iterator[None]:
-    before = th.get_num_threads()
-    th.set_num_threads(1)
-    yield
-    th.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # tests/conftest.py
 
 
 def _warnings(caplog: pytest.LogCaptureFixture) -> list[str]:

@@ -11,11 +11,8 @@ out as in a fleet of its scenario alone.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 import numpy as np
 import pytest
-import torch as th
 
 import morality_gym
 from morality_gym.baselines.fleet import FleetRun, build_fleet
@@ -38,12 +35,7 @@ RUNS = [
 ]
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread() -> Iterator[None]:
-    before = th.get_num_threads()
-    th.set_num_threads(1)
-    yield
-    th.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # tests/conftest.py
 
 
 def _fleet(name: str, protocol: str, runs: list[tuple[str, str, int]], simulator: str = "host"):

@@ -11,8 +11,6 @@ costs, the compact observation.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 import numpy as np
 import pytest
 import torch as th
@@ -40,12 +38,7 @@ SMALL = {
 }
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread() -> Iterator[None]:
-    before = th.get_num_threads()
-    th.set_num_threads(1)
-    yield
-    th.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # tests/conftest.py
 
 
 def _stream_entries(env: DrawnBatchedTrolleyEnv, stream: int, steps: int, actions: np.ndarray) -> list[list[str]]:
