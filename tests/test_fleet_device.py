@@ -24,7 +24,8 @@ import morality_gym
 from morality_gym.baselines.fleet import FleetCheckpoint, FleetRun, build_fleet
 from morality_gym.baselines.fleet.env import DeviceFleetEnv, FleetEnv
 from morality_gym.baselines.specs import learner_spec
-from tests.test_fleet import _one_torch_thread  # noqa: F401 - the fleet tests' one-thread fixture (autouse)
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # tests/conftest.py
 
 SMALL = {
     "ppo": {"n_steps": 32, "n_epochs": 2},
