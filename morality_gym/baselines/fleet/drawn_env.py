@@ -16,12 +16,11 @@ env does).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 import torch as th
 
-from morality_gym.baselines.fleet.env import FleetStep, _FleetEnvBase
+from morality_gym.baselines.fleet.env import FleetStep, _OneCostMemory
 from morality_gym.constants import MAX_STEPS
 from morality_gym.envs.drawn import DrawnBatchedTrolleyEnv
 from morality_gym.norms.drawn_cost import DrawnCost
@@ -29,7 +28,7 @@ from morality_gym.norms.metric import BoundChain
 from morality_gym.norms.reward_cost import RewardCostSpec
 
 
-class DrawnFleetEnv(_FleetEnvBase):
+class DrawnFleetEnv(_OneCostMemory):
     """``n_envs`` copies per run, run ``k`` drawing from ``pools[k]`` with seed ``seeds[k]``."""
 
     name = "host-drawn"
@@ -67,16 +66,6 @@ class DrawnFleetEnv(_FleetEnvBase):
         """Each copy's cost row: its run's pool entry of the current episode."""
         return self._rows_flat[self._rows_offset[self.sim.stream_of_copy] + self.sim.copy_entry]
 
-    def state_dict(self) -> dict[str, Any]:
-        """The simulator (with its draws) and the cost memory (see :meth:`.env.FleetEnv.state_dict`)."""
-        return {"sim": self.sim.state_dict(), "costs": [self.cost.state_dict()]}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        if len(state["costs"]) != 1:
-            raise ValueError(f"cost memories: expected 1, got {len(state['costs'])}")
-        self.sim.load_state_dict(state["sim"])
-        self.cost.load_state_dict(state["costs"][0])
-
     def reset(self, runs: th.Tensor | None = None) -> th.Tensor:
         """Reset every copy (or the copies of the runs where ``runs`` is true): each draws its next
         dilemma, its cost memory cleared. Returns all observations."""
@@ -95,6 +84,3 @@ class DrawnFleetEnv(_FleetEnvBase):
         final_obs = None if res.final_obs is None else self._tensor(res.final_obs)
         truncated = res.truncated & ~res.terminated
         return FleetStep(*(self._tensor(a) for a in (res.obs, rewards, costs, dones, truncated)), final_obs)
-
-    def _tensor(self, arr: np.ndarray) -> th.Tensor:
-        return th.from_numpy(arr).to(self.device)

@@ -64,6 +64,29 @@ class _FleetEnvBase:
         """Boolean mask over the copies of the runs where ``runs`` (``[K]`` bool) is true."""
         return runs.repeat_interleave(self.n_envs)
 
+    def _tensor(self, arr: np.ndarray) -> th.Tensor:
+        """An array as a tensor on the fleet's device (the same memory on the CPU)."""
+        return th.from_numpy(arr).to(self.device)
+
+
+class _OneCostMemory(_FleetEnvBase):
+    """A fleet env whose copies share one cost object (``self.cost``) beside one simulator
+    (``self.sim``): the device fleet and the drawn-dilemma fleet. Their checkpoint state is the same
+    two parts, in :meth:`FleetEnv.state_dict`'s layout (a list of cost memories, here of one)."""
+
+    sim: Any
+    cost: Any
+
+    def state_dict(self) -> dict[str, Any]:
+        """The simulator's copies and the cost memory (see :meth:`FleetEnv.state_dict`)."""
+        return {"sim": self.sim.state_dict(), "costs": [self.cost.state_dict()]}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if len(state["costs"]) != 1:
+            raise ValueError(f"cost memories: expected 1, got {len(state['costs'])}")
+        self.sim.load_state_dict(state["sim"])
+        self.cost.load_state_dict(state["costs"][0])
+
 
 class FleetEnv(_FleetEnvBase):
     """``n_envs`` copies per run for every bound chain in ``bounds`` (one per run), simulated on the
@@ -141,12 +164,8 @@ class FleetEnv(_FleetEnvBase):
         truncated = res.truncated & ~res.terminated
         return FleetStep(*(self._tensor(a) for a in (res.obs, rewards, costs, dones, truncated)), final_obs)
 
-    def _tensor(self, arr: np.ndarray) -> th.Tensor:
-        """An array as a tensor on the fleet's device (the same memory on the CPU)."""
-        return th.from_numpy(arr).to(self.device)
 
-
-class DeviceFleetEnv(_FleetEnvBase):
+class DeviceFleetEnv(_OneCostMemory):
     """:class:`FleetEnv` with the simulator, the cost and the reward on the fleet's device."""
 
     name = "device"
@@ -165,16 +184,6 @@ class DeviceFleetEnv(_FleetEnvBase):
         self.sim = TorchTrolleySim([b.env_id for b in copies], self.device, max_steps=max_steps)
         self.obs_dim = self.sim.obs_dim
         self.run_obs_dims = [self.sim.obs_dims[self.sim.env_ids[k * n_envs]] for k in range(self.n_runs)]
-
-    def state_dict(self) -> dict[str, Any]:
-        """The simulator's copies and the cost memory (see :meth:`FleetEnv.state_dict`)."""
-        return {"sim": self.sim.state_dict(), "costs": [self.cost.state_dict()]}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        if len(state["costs"]) != 1:
-            raise ValueError(f"cost memories: expected 1, got {len(state['costs'])}")
-        self.sim.load_state_dict(state["sim"])
-        self.cost.load_state_dict(state["costs"][0])
 
     def reset(self, runs: th.Tensor | None = None) -> th.Tensor:
         """As :meth:`FleetEnv.reset`."""
