@@ -19,7 +19,8 @@ training pool and every set hold only the env ids that are a dilemma under the c
 on the chain's cost (PPO Shaped: its shaping; PPO-Lag and CPO: its step-wise cost, only here) and is
 scored under the chain alone; its runs are ``DIR/runs/<chain>-<learner>-s<seed>/`` and record the
 chain. There every learner trains all its seeds as one fleet with Table 1's hyper-parameters, on the
-compact observation, checkpointed and resumable (:mod:`runners.track_fleet`); ``--n-envs``,
+compact observation, checkpointed and resumable, recording each run's learning curve on the seen set
+in ``DIR/curves/`` every ``--curve-every`` steps (:mod:`runners.track_fleet`); ``--n-envs``,
 ``--n-steps``, ``--batch-size`` and ``--n-epochs`` apply to the mixed track's single runs only. ``--splits v2`` (with ``--chain``)
 keeps only the pairs of the v2 splits, where Random leaves headroom under the chain
 (:mod:`~morality_gym.generalisation.headroom`); its runs are ``<chain>-v2-<learner>-s<seed>``.
@@ -50,7 +51,7 @@ from morality_gym.generalisation.scoring import score_set
 from morality_gym.generalisation.sets import SEEN_SAMPLE, SETS, TRACK_CHAINS, EvalSet, load_sets, training_chain
 from morality_gym.generator.grammar import GRAMMAR_VERSION
 from morality_gym.generator.splits import split_manifest
-from runners.track_fleet import fleet_key, train_fleet
+from runners.track_fleet import CURVE_EVERY, CurveRecorder, fleet_key, train_fleet
 
 LEARNERS = ("random", "ppo", "ppo_shaped", "ppo_lag", "cpo")
 #: The learners trained on a chain's step-wise cost: only a chain's track has one.
@@ -216,6 +217,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--sets", nargs="+", default=list(SETS), choices=SETS)
     parser.add_argument("--chain", choices=TRACK_CHAINS, help="the chain's own track: train on its dilemmas and cost, "
                         "score under it alone (default: the mixed track, every chain a dilemma is one under)")
+    parser.add_argument("--curve-every", type=int, default=CURVE_EVERY, help="with --chain: env steps per run "
+                        "between two points of the learning curves on the seen set (DIR/curves/)")
     parser.add_argument("--splits", choices=("v1", "v2"), default="v1", help="v2 (with --chain): only the pairs "
                         "that leave Random headroom under the chain (docs/how-to/generalisation-track.md)")
     add_debug_flag(parser)
@@ -226,6 +229,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.budget <= 0:
         raise TrackError(f"--budget must be positive, got {args.budget}")
+    if args.curve_every <= 0:
+        raise TrackError(f"--curve-every must be positive, got {args.curve_every}")
     # Everything the command line can get wrong is refused before the splits are generated (minutes).
     loaded = None
     if args.policy is not None:
@@ -268,8 +273,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             if todo:
                 prefix = run_name(learner, None, chain=args.chain, version=version).removesuffix("-sexact")
                 key = fleet_key(learner, todo, args.budget, train_ids, args.chain, expected["train_digest"])
+                curve = (CurveRecorder(args.out / "curves" / f"{prefix}.csv", learner, args.chain, todo, sets["seen"],
+                                       args.curve_every) if "seen" in sets else None)
                 trained = train_fleet(learner, todo, args.budget, train_ids, args.chain,
-                                      args.out / "fleets" / f"{prefix}.pt", key)
+                                      args.out / "fleets" / f"{prefix}.pt", key, curve=curve)
         for seed in args.seeds:
             record = do_run(learner, seed, args.budget, train_ids, sets, args.out, args.n_envs, args.n_steps,
                             args.batch_size, args.n_epochs, chain=args.chain, version=version, trained=trained.get(seed))

@@ -12,23 +12,105 @@ The fleet checkpoints to ``DIR/fleets/<run prefix>-<learner>.pt`` (at most every
 :data:`CHECKPOINT_EVERY_S` seconds and when training ends) and a rerun of the same command resumes
 from it bit for bit; a file of another command (seeds, budget, pool) is discarded with one warning.
 Progress: one line at most every :data:`PROGRESS_EVERY_S` seconds.
+
+Learning curves (issue 44 item 4: a budget is chosen where the curve on seen dilemmas flattens, so
+the release's own runs must show it): every ``curve_every`` env steps per run (at the first update
+boundary at or after each multiple, at step 0 and at the end) every run's current policy is scored
+exactly on the track's ``seen`` set, and ``DIR/curves/<run prefix>-<learner>.csv`` is rewritten with
+all points so far (:data:`CURVE_FIELDS`). The points ride in the fleet checkpoint, so a resumed fleet
+continues its curve instead of losing or repeating points; scoring is exact and reads no random
+stream, so a run's bits do not depend on whether its curve is recorded (tested).
 """
 
 from __future__ import annotations
 
+import csv
+import io
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from morality_gym.baselines.fleet import FleetCheckpoint, FleetRun, build_fleet
 from morality_gym.baselines.specs import learner_spec
+from morality_gym.clitools import write_atomically
 from morality_gym.constants import MAX_STEPS
+from morality_gym.generalisation.scoring import score_set
+from morality_gym.generalisation.sets import EvalSet
 from morality_gym.norms.metric import bind_chain
 from morality_gym.world.compact_observe import COMPACT_WIDTH
 
 CHECKPOINT_EVERY_S = 300.0
 PROGRESS_EVERY_S = 30.0
+#: Env steps per run between two points of a learning curve: 20 points over the release's 10M
+#: budget; each point costs an exact scoring of the seen set per run (a few seconds each).
+CURVE_EVERY = 500_000
+CURVE_FIELDS = ("learner", "chain", "seed", "steps", "mean_range_score", "cpu_seconds")
+
+
+@dataclass
+class CurveRecorder:
+    """A fleet's learning curves on the seen set, kept across checkpoints (module docstring).
+
+    ``cpu_seconds`` is the process time spent on this fleet (training and scoring) up to the point,
+    summed over resumed sessions, so the curve also says what each step of budget cost."""
+
+    path: Path
+    learner: str
+    chain: str
+    seeds: Sequence[int]
+    seen: EvalSet
+    every: int = CURVE_EVERY
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    _next: int = field(default=0, init=False)
+    _cpu_before: float = field(default=0.0, init=False)  # CPU-s of earlier sessions
+    _cpu_start: float = field(default_factory=time.process_time, init=False)
+
+    def __post_init__(self) -> None:
+        if self.every <= 0:
+            raise ValueError(f"curve_every must be positive, got {self.every}")
+
+    def cpu_seconds(self) -> float:
+        return self._cpu_before + time.process_time() - self._cpu_start
+
+    def due(self, steps: int) -> bool:
+        return steps >= self._next
+
+    def record(self, fleet: Any, steps: int) -> None:
+        """Score every run's current policy on the seen set and rewrite the CSV."""
+        for k, (seed, trained) in enumerate(zip(self.seeds, fleet.learners())):
+            fleet.nets.export_run(k, trained.model.policy)
+            scores = [row["range_score"] for row in score_set(trained.model, self.seen)]
+            self.rows = [r for r in self.rows if (r["seed"], r["steps"]) != (int(seed), steps)]
+            self.rows.append({"learner": self.learner, "chain": self.chain, "seed": int(seed), "steps": int(steps),
+                              "mean_range_score": round(sum(scores) / len(scores), 4),
+                              "cpu_seconds": round(self.cpu_seconds(), 1)})
+        while self._next <= steps:
+            self._next += self.every
+        self.write()
+
+    def write(self) -> None:
+        text = io.StringIO()
+        writer = csv.DictWriter(text, fieldnames=CURVE_FIELDS, lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(sorted(self.rows, key=lambda r: (r["seed"], r["steps"])))
+        write_atomically(self.path, lambda fh: fh.write(text.getvalue().encode()))
+
+    def state(self) -> dict[str, Any]:
+        """What the fleet checkpoint keeps of the curve."""
+        return {"rows": self.rows, "next": self._next, "cpu_seconds": self.cpu_seconds()}
+
+    def resume(self, steps: int, extra: Any) -> None:
+        """Take the curve back from a restored checkpoint (points after ``steps`` are dropped: they
+        are retaken, identically, when training reaches them again)."""
+        state = (extra or {}).get("curve") if isinstance(extra, dict) else None
+        if not isinstance(state, dict):
+            return
+        self.rows = [dict(r) for r in state.get("rows", []) if int(r["steps"]) <= steps]
+        self._next = int(state.get("next", 0))
+        self._cpu_before = float(state.get("cpu_seconds", 0.0))
+        self._cpu_start = time.process_time()
 
 
 def fleet_key(learner: str, seeds: Sequence[int], budget: int, train_ids: Sequence[str], chain: str,
@@ -39,9 +121,10 @@ def fleet_key(learner: str, seeds: Sequence[int], budget: int, train_ids: Sequen
 
 
 def train_fleet(learner: str, seeds: Sequence[int], budget: int, train_ids: Sequence[str], chain: str,
-                checkpoint: Path, key: dict[str, Any], say: Callable[[str], None] = print) -> dict[int, tuple[Any, dict[str, Any]]]:
+                checkpoint: Path, key: dict[str, Any], say: Callable[[str], None] = print,
+                curve: CurveRecorder | None = None) -> dict[int, tuple[Any, dict[str, Any]]]:
     """Train ``learner`` on the chain's mixture for every seed in one fleet; returns each seed's
-    trained SB3 learner and what its result records."""
+    trained SB3 learner and what its result records. ``curve``: record its learning curves."""
     spec = learner_spec(learner)
     pool = [bind_chain(chain, env_id) for env_id in train_ids]
     t0 = time.perf_counter()
@@ -50,6 +133,8 @@ def train_fleet(learner: str, seeds: Sequence[int], budget: int, train_ids: Sequ
     last = [time.perf_counter(), 0]
 
     def progress(steps: int, total: int) -> None:
+        if curve is not None and (curve.due(steps) or steps >= total):
+            curve.record(fleet, steps)
         now = time.perf_counter()
         if now - last[0] >= PROGRESS_EVERY_S or steps >= total:
             rate = (steps - last[1]) * len(seeds) / max(now - last[0], 1e-9)
@@ -58,7 +143,12 @@ def train_fleet(learner: str, seeds: Sequence[int], budget: int, train_ids: Sequ
             last[:] = [now, steps]
 
     t1 = time.perf_counter()
-    fleet.learn(budget, on_progress=progress, checkpoint=FleetCheckpoint(checkpoint, every_s=CHECKPOINT_EVERY_S, key=key))
+    saved = FleetCheckpoint(checkpoint, every_s=CHECKPOINT_EVERY_S, key=key)
+    if curve is not None:
+        curve.record(fleet, 0)  # the untrained policies; a resumed fleet's stored curve replaces this
+        saved.extra = lambda: {"curve": curve.state()}
+        saved.on_resume = curve.resume
+    fleet.learn(budget, on_progress=progress, checkpoint=saved)
     seconds = time.perf_counter() - t1
     failed = fleet.failed
     out: dict[int, tuple[Any, dict[str, Any]]] = {}

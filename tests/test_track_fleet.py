@@ -268,17 +268,65 @@ def test_the_cost_learners_need_a_chain_before_anything_is_loaded(monkeypatch) -
         track.main(["--learners", "ppo_lag", "--chain", "Utility", "--budget", "1000"])
 
 
-def test_the_pilot_curve_scores_each_run_at_every_point(tmp_path, monkeypatch) -> None:
+def _curve(path) -> list[tuple[str, int, str]]:
     import csv
 
-    from benchmarks import track_curve
+    return [(r["seed"], int(r["steps"]), r["mean_range_score"]) for r in csv.DictReader(path.open())]
 
-    monkeypatch.setattr(track_curve, "seen_set", lambda chain, size: (list(POOL_A), _chain_sets()["seen"]))
-    out = tmp_path / "curve.csv"
-    track_curve.curve("ppo_lag", "Utility", [1, 2], 3 * 2048, 4096, 1, out)
-    rows = list(csv.DictReader(out.open()))
-    assert [(r["seed"], int(r["steps"])) for r in rows] == [(s, n) for n in (0, 4096, 6144) for s in ("1", "2")]
-    assert all(0.0 <= float(r["mean_range_score"]) <= 1.0 for r in rows)
-    assert rows[0]["mean_range_score"] != rows[2]["mean_range_score"]  # the policy scored is the current one
-    track_curve.curve("ppo_lag", "Utility", [1], 2 * 2048, 4096, 1, out)  # the end is a point: written once
-    assert [int(r["steps"]) for r in csv.DictReader(out.open())] == [0, 4096]
+
+def _train(tmp_path, name: str, curve_every: int | None, budget: int, say=lambda _m: None):
+    from runners import track_fleet
+
+    pool = list(POOL_A)
+    curve = None
+    if curve_every is not None:
+        curve = track_fleet.CurveRecorder(tmp_path / "curves" / "c.csv", "ppo_lag", "Utility", [1, 2],
+                                          _chain_sets()["seen"], curve_every)
+    key = track_fleet.fleet_key("ppo_lag", [1, 2], budget, pool, "Utility", "d")
+    return track_fleet.train_fleet("ppo_lag", [1, 2], budget, pool, "Utility", tmp_path / "fleet.pt", key,
+                                   say=say, curve=curve)
+
+
+def test_a_chains_track_records_each_runs_learning_curve_at_every_point(tmp_path, monkeypatch) -> None:
+    from runners import track
+
+    monkeypatch.setattr(track, "load_sets", lambda *a, **k: (list(POOL_A), _chain_sets()))
+    assert track.main(["--chain", "Utility", "--learners", "ppo_lag", "--seeds", "1", "2", "--budget", str(3 * 2048),
+                       "--curve-every", "4096", "--out", str(tmp_path)]) == 0
+    rows = _curve(tmp_path / "curves" / "Utility-ppo_lag.csv")
+    assert [(seed, steps) for seed, steps, _ in rows] == [(s, n) for s in ("1", "2") for n in (0, 4096, 6144)]
+    assert all(0.0 <= float(score) <= 1.0 for *_, score in rows)
+    assert rows[0][2] != rows[2][2]  # the policy scored is the current one, not the untrained one
+    with pytest.raises(track.TrackError, match="--curve-every must be positive"):
+        track.main(["--chain", "Utility", "--curve-every", "0"])
+
+
+def test_recording_a_curve_does_not_change_a_runs_bits(tmp_path) -> None:
+    budget = 2 * 2048
+    with_curve = _train(tmp_path / "a", "ppo_lag", 2048, budget)
+    without = _train(tmp_path / "b", "ppo_lag", None, budget)
+    for seed in (1, 2):
+        for (pname, pa), (_, pb) in zip(with_curve[seed][0].model.policy.named_parameters(),
+                                        without[seed][0].model.policy.named_parameters()):
+            np.testing.assert_array_equal(pa.detach().numpy(), pb.detach().numpy(), err_msg=pname)
+
+
+def test_a_resumed_fleet_continues_its_curve_without_losing_or_repeating_points(tmp_path, monkeypatch) -> None:
+    from runners import track_fleet
+
+    monkeypatch.setattr(track_fleet, "CHECKPOINT_EVERY_S", 0.0)
+    monkeypatch.setattr(track_fleet, "PROGRESS_EVERY_S", 0.0)
+    budget, every = 5 * 2048, 2048
+
+    def kill(message: str) -> None:  # after the curve's point at 3 rollouts, before that update's checkpoint
+        if message.startswith("Utility ppo_lag: 6,144 of"):
+            raise _Interrupted
+
+    with pytest.raises(_Interrupted):
+        _train(tmp_path / "r", "ppo_lag", every, budget, say=kill)
+    assert [steps for seed, steps, _ in _curve(tmp_path / "r" / "curves" / "c.csv") if seed == "1"] == [0, 2048, 4096, 6144]
+    _train(tmp_path / "r", "ppo_lag", every, budget)  # resumes from the checkpoint at 4,096 steps
+    _train(tmp_path / "w", "ppo_lag", every, budget)  # uninterrupted
+    assert _curve(tmp_path / "r" / "curves" / "c.csv") == _curve(tmp_path / "w" / "curves" / "c.csv")
+    assert [steps for seed, steps, _ in _curve(tmp_path / "w" / "curves" / "c.csv") if seed == "2"] == [
+        0, 2048, 4096, 6144, 8192, 10240]
