@@ -214,8 +214,10 @@ def test_the_page_reads_the_release_and_marks_every_incomplete_or_sampled_number
     shaped = re.search(r'<tr data-learner="PPO Shaped" data-mark="⚠ incomplete">(.*?)</tr>', html).group(1)
     assert shaped.count('class="small warn cell-mark">⚠ incomplete<') == 4 and "2 of 5 seeds" in shaped
     assert "cell-mark" not in rows["PPO"] and "cell-mark" not in rows["Random"]
+    assert "100 s + 2 s" in rows["PPO"]  # a fleet run's time: its share of the fleet's 500 s, not its model's save
     llm = rows["SmolLM2-135M (local, greedy)"]
-    assert "sample: 8 of 190 pairs" in llm and llm.count(">sample<") == 1  # only the unseen cell has a number
+    assert "sample: 8 of 190 pairs" in llm and "sample: sample" not in llm
+    assert llm.count(">sample<") == 1  # only the unseen cell has a number
     assert "No run yet: PPO Lag, CPO" in html
     assert 'src="track/track_curves-Utility-v2.png"' in html and (site / "track/track_curves-Utility-v2.png").stat().st_size
     assert "PPO 10,000,000 steps" in html and "compact observation" in html
