@@ -243,3 +243,17 @@ def test_the_page_marks_a_results_directorys_short_runs_too_and_refuses_a_damage
     (out / "runs/Utility-v2-ppo-s42/pairs.parquet").write_bytes(b"x")
     with pytest.raises(UserError, match="Generalisation page's release: .*fails its checksum"):
         track_source(None, releases)
+
+
+def test_a_runs_result_records_what_the_release_reports(tmp_path: Path) -> None:
+    """runners.track records CPU time, the commit and the host in result.json (the release's compute,
+    commits and machine come from there; before, only wall times were recorded)."""
+    from morality_gym.results.recording import git_commit
+    from runners import track
+    from tests.test_generalisation_track import _tiny_sets
+
+    record = track.do_run("random", None, 1000, ["x"], _tiny_sets(), tmp_path, chain="Utility", version=2)
+    saved = json.loads((tmp_path / "runs" / "Utility-v2-random-sexact" / "result.json").read_text())
+    assert saved == record
+    assert {"train_cpu_seconds", "eval_cpu_seconds", "hostname"} <= set(saved) and saved["eval_cpu_seconds"] >= 0
+    assert saved["git_commit"] == git_commit()
