@@ -388,7 +388,7 @@ def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
             "n_envs": trained[0].get("n_envs") if trained else None,
             "policy": trained[0].get("policy", "MlpPolicy on the flattened (20, 16, 16) grid") if trained else "",
             "missing": [LABELS.get(lr, lr) for lr, why in reasons.items() if why == ["no run"]],
-            "curves": _curves(track_dir, track, site, reasons) if track != MIXED else None,
+            "curves": _curves(track_dir, track, site, reasons, mine) if track != MIXED else None,
             "scoring": "every built-in chain under which a dilemma is one" if track == MIXED
             else f"the {first['chain']} chain alone, on the env ids that are a dilemma under it (trained on its cost)"
             + (", those of the v2 splits: Random leaves them headroom" if first.get("split_version", 1) != 1 else "")})
@@ -396,14 +396,17 @@ def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
     return context
 
 
-def _curves(root: Path, track: str, site: Path, reasons: dict[str, list[str]]) -> dict[str, Any]:
-    """The track's learning-curve figure (drawn into ``site``) and its caption's facts."""
+def _curves(root: Path, track: str, site: Path, reasons: dict[str, list[str]], frame: pd.DataFrame) -> dict[str, Any]:
+    """The track's learning-curve figure (drawn into ``site``) and its caption's facts; ``frame``: the
+    track's pairs (Random's seen score is the curves' reference line)."""
     curves, problems = read_curves(root, track)
     figure = f"track/track_curves-{track}.png"
+    random = frame[(frame["learner"] == "random") & (frame["set"] == "seen")]
+    random_seen = float(random.groupby("env_id")["range_score"].mean().mean()) if not random.empty else None
     if not curves.empty:
         draw_curves(curves, site / figure, LABELS, COLOURS, lambda lr: " ⚠ incomplete" if reasons.get(lr) else "",
-                    TRACK_TITLES.get(track, track))
-    return {"figure": figure if not curves.empty else "", "problems": problems,
+                    TRACK_TITLES.get(track, track), random_seen)
+    return {"figure": figure if not curves.empty else "", "problems": problems, "random_seen": random_seen,
             "summary": [{**row, "label": LABELS.get(row["learner"], row["learner"]), "incomplete": bool(reasons.get(row["learner"]))}
                         for row in curve_summary(curves)] if not curves.empty else []}
 

@@ -35,9 +35,10 @@ def read_curves(root: Path, track: str) -> tuple[pd.DataFrame, list[str]]:
 
 
 def draw_curves(curves: pd.DataFrame, path: Path, labels: Mapping[str, str], colours: Mapping[str, str],
-                marked: Callable[[str], str], title: str) -> None:
+                marked: Callable[[str], str], title: str, random_seen: float | None = None) -> None:
     """One line per learner (mean over seeds) with the seeds' min-max band; ``marked(learner)``: the
-    legend's suffix (``" ⚠ incomplete"``) or ``""``."""
+    legend's suffix (``" ⚠ incomplete"``) or ``""``; ``random_seen``: Random's exact score on the
+    seen set, drawn as the reference a curve must rise above."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -53,9 +54,12 @@ def draw_curves(curves: pd.DataFrame, path: Path, labels: Mapping[str, str], col
                 label=f"{labels.get(str(learner), learner)} ({seeds} seed{'s' if seeds != 1 else ''}){marked(str(learner))}")
         if seeds > 1:
             ax.fill_between(mean.index, low.to_numpy(), high.to_numpy(), color=colour, alpha=0.18, lw=0)
+    if random_seen is not None:
+        ax.axhline(random_seen, color=colours.get("random", "#777777"), lw=1, ls="--",
+                   label=f"{labels.get('random', 'Random')} (exact, untrained)")
     ax.set_xlabel("env steps per run")
     ax.set_ylabel("seen set: mean range score")
-    ax.set_title(f"{title}: learning curves (line: mean over seeds; band: lowest to highest seed)", fontsize=9)
+    ax.set_title(f"{title}\nlearning curves: line = mean over seeds, band = lowest to highest seed", fontsize=9)
     ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -221,6 +221,8 @@ def test_the_page_reads_the_release_and_marks_every_incomplete_or_sampled_number
     assert "No run yet: PPO Lag, CPO" in html
     assert 'src="track/track_curves-Utility-v2.png"' in html and (site / "track/track_curves-Utility-v2.png").stat().st_size
     assert "PPO 10,000,000 steps" in html and "compact observation" in html
+    random_seen = pd.read_parquet(track_dir / "runs/Utility-v2-random-sexact/pairs.parquet").query("set == 'seen'")
+    assert f"dashed: Random's exact score on the same seen set, {random_seen['range_score'].mean():.3f}" in html
 
 
 def test_the_page_marks_a_results_directorys_short_runs_too_and_refuses_a_damaged_release(results: Path,
