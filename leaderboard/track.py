@@ -307,13 +307,13 @@ def _seconds(records: list[dict[str, Any]], learner: str) -> str:
 
 
 def _learner_row(learner: str, part: pd.DataFrame, records: list[dict[str, Any]],
-                 reasons: dict[str, list[str]]) -> dict[str, Any]:
+                 reasons: dict[str, list[str]] | None = None) -> dict[str, Any]:
     """One learner's row of a score's table: its label, budget, seeds, cells and time, and the mark
     every one of its numbers carries: incomplete (``reasons``: :func:`leaderboard.track_status.status`)
     or a sample of the pairs."""
     cells = part[part["learner"] == learner].set_index("set")
     record = next(r for r in records if r["learner"] == learner)
-    why = reasons.get(learner) or []
+    why = (reasons or {}).get(learner) or []
     sample = entry_marks(record).removeprefix("sample: ")
     mark, note = ("⚠ incomplete", "; ".join(why)) if why else ("sample", sample) if sample else ("", "")
     return {"mark": mark, "mark_note": note,
