@@ -40,7 +40,12 @@ from leaderboard.outputs.marks import MARKS
 from leaderboard.outputs.precision import DIGITS_RULE
 from leaderboard.outputs.tables import interval_text
 from leaderboard.runs.display_order import LEARNER_COLOURS
+from leaderboard.runs.releases import RELEASES_DIR
 from leaderboard.stats.core import CONFIDENCE, DEFAULT_RESAMPLES, DEFAULT_SEED, generator_for, quantile_mcse
+from leaderboard.track_curves import curve_summary, draw_curves, read_curves
+from leaderboard.track_release import find as find_track_releases
+from leaderboard.track_release import verify as verify_release
+from leaderboard.track_status import CURVES_DIR, Requirement, entry_marks, status
 from leaderboard.web.render import render
 from leaderboard.web.site_state import NAV
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
@@ -70,6 +75,22 @@ def track_results(results: Path | None) -> Path | None:
         return None
     path = results / "track"
     return path if (path / "runs").is_dir() else None
+
+
+def track_source(results: Path | None, releases: Path = RELEASES_DIR) -> tuple[Path | None, dict[str, Any] | None]:
+    """What the page shows: the results directory's own track runs when it has some, else the last
+    track release (by name) under ``releases``, verified (a damaged one is refused, never shown).
+    Returns the folder holding ``runs/`` and, for a release, its manifest."""
+    own = track_results(results)
+    if own is not None:
+        return own, None
+    found = find_track_releases(releases)
+    if not found:
+        return None, None
+    try:
+        return found[-1], verify_release(found[-1])
+    except ValueError as exc:  # ReleaseError: one line naming the file
+        raise UserError(f"the Generalisation page's release: {exc}") from exc
 
 
 def track_of(record: dict[str, Any]) -> str:
@@ -228,20 +249,22 @@ def left_out(frame: pd.DataFrame) -> str:
             + "; ".join(parts) + ".")
 
 
-def _bars(ax: Any, part: pd.DataFrame, learners: list[str]) -> None:
+def _bars(ax: Any, part: pd.DataFrame, learners: list[str], marks: dict[str, str]) -> None:
     width = 0.8 / max(1, len(learners))
     for i, learner in enumerate(learners):
         mine = part[part["learner"] == learner].set_index("set").reindex(list(SETS))
         x = np.arange(len(SETS)) + (i - (len(learners) - 1) / 2) * width
         err = np.vstack([mine["mean"] - mine["low"], mine["high"] - mine["mean"]])
-        ax.bar(x, mine["mean"], width, yerr=err, capsize=4, label=LABELS.get(learner, learner),
+        ax.bar(x, mine["mean"], width, yerr=err, capsize=4, label=LABELS.get(learner, learner) + marks.get(learner, ""),
                color=COLOURS.get(learner, "#999999"))
     ax.set_xticks(np.arange(len(SETS)), [SET_LABELS[s].replace(" (", "\n(") for s in SETS], fontsize=8)
 
 
-def draw_figure(summary: pd.DataFrame, path: Path) -> None:
+def draw_figure(summary: pd.DataFrame, path: Path, marks: dict[str, str] | None = None) -> None:
     """Grouped bars with the 95 % intervals as error bars: the range score per set, and (when Random
-    ran) each learner's paired difference from Random on the same dilemmas."""
+    ran) each learner's paired difference from Random on the same dilemmas. ``marks``: a learner's
+    legend suffix (`` ⚠ incomplete``, `` (sample: 30 of 190 pairs)``), as its table row is marked."""
+    marks = marks or {}
     import matplotlib
 
     matplotlib.use("Agg")
@@ -253,7 +276,7 @@ def draw_figure(summary: pd.DataFrame, path: Path) -> None:
     fig, axes = plt.subplots(1, 2 if not paired.empty else 1, figsize=(11, 3.8) if not paired.empty else (7, 3.8),
                              dpi=110, squeeze=False)
     ax = axes[0, 0]
-    _bars(ax, scores, _in_order(scores["learner"]))
+    _bars(ax, scores, _in_order(scores["learner"]), marks)
     ax.set_ylabel("range score (0 = worst, 1 = best)")
     ax.set_ylim(0, 1.05)
     ax.axhline(1.0, color="#444444", lw=0.6, ls=":")
@@ -262,7 +285,7 @@ def draw_figure(summary: pd.DataFrame, path: Path) -> None:
     if not paired.empty:
         ax = axes[0, 1]
         learners = _in_order(paired["learner"])
-        _bars(ax, paired, learners)
+        _bars(ax, paired, learners, marks)
         ax.axhline(0.0, color="#444444", lw=0.8)
         ax.set_ylabel("range score − Random's (paired)")
         ax.set_title("Difference from Random on the same dilemmas", fontsize=10)
@@ -276,16 +299,24 @@ def draw_figure(summary: pd.DataFrame, path: Path) -> None:
 
 def _seconds(records: list[dict[str, Any]], learner: str) -> str:
     mine = [r for r in records if r["learner"] == learner]
-    train = np.mean([r.get("train_seconds", 0) for r in mine])
+    # a fleet's run: its share of the fleet's training time (its own train_seconds is the model's save)
+    train = np.mean([r["fleet_seconds"] / max(int(r.get("fleet_runs") or 1), 1) if r.get("fleet_seconds") is not None
+                     else r.get("train_seconds", 0) for r in mine])
     evals = np.mean([r.get("eval_seconds", 0) for r in mine])
     return f"{train:.0f} s + {evals:.0f} s"
 
 
-def _learner_row(learner: str, part: pd.DataFrame, records: list[dict[str, Any]]) -> dict[str, Any]:
-    """One learner's row of a score's table: its label, budget, seeds, cells and time."""
+def _learner_row(learner: str, part: pd.DataFrame, records: list[dict[str, Any]],
+                 reasons: dict[str, list[str]] | None = None) -> dict[str, Any]:
+    """One learner's row of a score's table: its label, budget, seeds, cells and time, and the mark
+    every one of its numbers carries: incomplete (``reasons``: :func:`leaderboard.track_status.status`)
+    or a sample of the pairs."""
     cells = part[part["learner"] == learner].set_index("set")
     record = next(r for r in records if r["learner"] == learner)
-    return {
+    why = (reasons or {}).get(learner) or []
+    sample = entry_marks(record).removeprefix("sample: ")
+    mark, note = ("⚠ incomplete", "; ".join(why)) if why else ("sample", sample) if sample else ("", "")
+    return {"mark": mark, "mark_note": note,
         "learner": LABELS.get(learner, learner), "colour": COLOURS.get(learner, "#999999"),
         "budget": "exact, untrained" if learner == "random" else _submitted_budget(record) if record.get("submitted")
         else f"{record['budget']:,} steps",
@@ -310,25 +341,30 @@ def _sample_text(record: dict[str, Any]) -> str:
 
 
 def _score_table(score: str, title: str, part: pd.DataFrame, frame: pd.DataFrame,
-                 records: list[dict[str, Any]]) -> dict[str, Any]:
+                 records: list[dict[str, Any]], reasons: dict[str, list[str]]) -> dict[str, Any]:
     """The table of one score (``part``: the summary's rows of that score)."""
     counts = {s: part[part["set"] == s].iloc[0] for s in SETS if (part["set"] == s).any()}
-    return {"score": score, "title": title, "rows": [_learner_row(learner, part, records) for learner in _in_order(part["learner"])],
+    return {"score": score, "title": title,
+            "rows": [_learner_row(learner, part, records, reasons) for learner in _in_order(part["learner"])],
             "left_out": left_out(frame) if score == "random_score" else "",
             "counts": {s: f"{int(c['env_ids'])} env ids, {int(c['dilemmas'])} dilemmas" for s, c in counts.items()}}
 
 
 def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
-                  resamples: int = DEFAULT_RESAMPLES) -> dict[str, Any]:
-    """The page's context; draws the figure and writes the summary CSV into ``site``."""
+                  resamples: int = DEFAULT_RESAMPLES, release: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The page's context; draws the figures and writes the summary CSV into ``site``. ``release``:
+    the verified manifest when ``track_dir`` is a track release (:mod:`leaderboard.track_release`)."""
     context: dict[str, Any] = {**common, "set_labels": SET_LABELS, "sets": list(SETS), "has_runs": False,
                                "track_dir": str(track_dir) if track_dir else "", "resamples": f"{resamples:,}",
-                               "digits_rule": DIGITS_RULE}
+                               "digits_rule": DIGITS_RULE, "release": _release_note(release)}
     if track_dir is None:
         return context
     frame, records = load_runs(track_dir)
     if frame.empty:
         return context
+    need = Requirement.from_dict(release.get("requirement")) if release else Requirement()
+    curves = [f"{CURVES_DIR}/{p.name}" for p in (track_dir / CURVES_DIR).glob("*.csv")]
+    incomplete = status(records, curves, need)
     summary = summarise(frame, resamples)
     (site / CSV).parent.mkdir(parents=True, exist_ok=True)
     summary.to_csv(site / CSV, index=False)
@@ -337,17 +373,22 @@ def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
         part, mine = summary[summary["track"] == track], frame[frame["track"] == track]
         runs = [r for r in records if track_of(r) == track]
         figure = FIGURE if track == MIXED else FIGURE.replace(".png", f"-{track}.png")
-        draw_figure(part, site / figure)
-        tables = [_score_table(score, title, scored, mine, runs) for score, title in SCORES.items()
+        reasons = incomplete.get(track, {})
+        draw_figure(part, site / figure, {r["learner"]: f" ({entry_marks(r)})" for r in runs if entry_marks(r)}
+                    | {lr: " ⚠ incomplete" for lr, why in reasons.items() if why})
+        tables = [_score_table(score, title, scored, mine, runs, reasons) for score, title in SCORES.items()
                   if not (scored := part[part["score"] == score]).empty]
         first = max(runs, key=lambda r: len(r.get("sets") or {}))  # a test-set-only entry lists one set's source
-        trained = [r for r in runs if r["learner"] != "random"]
+        trained = [r for r in runs if r["learner"] != "random" and not r.get("submitted")]
         tracks.append({
             "key": "" if track == MIXED else f"-{track}", "title": TRACK_TITLES.get(track, track), "figure": figure,
             "tables": tables, "sources": [{"set": SET_LABELS[name], **source} for name, source in first["sets"].items()],
             "train_digest": first["train_digest"], "grammar_version": first["grammar_version"],
             "train_pool": first["train_pool"], "hparams": trained[0].get("hparams") if trained else None,
             "n_envs": trained[0].get("n_envs") if trained else None,
+            "policy": trained[0].get("policy", "MlpPolicy on the flattened (20, 16, 16) grid") if trained else "",
+            "missing": [LABELS.get(lr, lr) for lr, why in reasons.items() if why == ["no run"]],
+            "curves": _curves(track_dir, track, site, reasons, mine) if track != MIXED else None,
             "scoring": "every built-in chain under which a dilemma is one" if track == MIXED
             else f"the {first['chain']} chain alone, on the env ids that are a dilemma under it (trained on its cost)"
             + (", those of the v2 splits: Random leaves them headroom" if first.get("split_version", 1) != 1 else "")})
@@ -355,15 +396,46 @@ def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
     return context
 
 
-def write_page(site: Path, track_dir: Path | None, common: dict[str, Any], resamples: int = DEFAULT_RESAMPLES) -> Path:
-    text = render("track.html", **track_context(common, track_dir, site, resamples))
+def _curves(root: Path, track: str, site: Path, reasons: dict[str, list[str]], frame: pd.DataFrame) -> dict[str, Any]:
+    """The track's learning-curve figure (drawn into ``site``) and its caption's facts; ``frame``: the
+    track's pairs (Random's seen score is the curves' reference line)."""
+    curves, problems = read_curves(root, track)
+    figure = f"track/track_curves-{track}.png"
+    random = frame[(frame["learner"] == "random") & (frame["set"] == "seen")]
+    random_seen = float(random.groupby("env_id")["range_score"].mean().mean()) if not random.empty else None
+    if not curves.empty:
+        draw_curves(curves, site / figure, LABELS, COLOURS, lambda lr: " ⚠ incomplete" if reasons.get(lr) else "",
+                    TRACK_TITLES.get(track, track), random_seen)
+    return {"figure": figure if not curves.empty else "", "problems": problems, "random_seen": random_seen,
+            "summary": [{**row, "label": LABELS.get(row["learner"], row["learner"]), "incomplete": bool(reasons.get(row["learner"]))}
+                        for row in curve_summary(curves)] if not curves.empty else []}
+
+
+def _release_note(release: dict[str, Any] | None) -> dict[str, Any] | None:
+    """What the page says about the release it reads: its name, commits, and whether it is complete."""
+    if release is None:
+        return None
+    commits = ", ".join(c[:7] for c in release.get("commits") or []) or "not recorded by the runs"
+    return {"name": release["name"], "title": release.get("title", release["name"]),
+            "created": str(release.get("created", ""))[:10], "commits": commits,
+            "built_at": str(release.get("built_at_commit", ""))[:7], "complete": bool(release.get("complete")),
+            "unfinished": release.get("unfinished") or [], "models": release.get("models", ""),
+            "missing_tracks": [t for t, learners in (release.get("status") or {}).items()
+                               if learners and all(why == ["no run"] for why in learners.values())]}
+
+
+def write_page(site: Path, track_dir: Path | None, common: dict[str, Any], resamples: int = DEFAULT_RESAMPLES,
+               release: dict[str, Any] | None = None) -> Path:
+    text = render("track.html", **track_context(common, track_dir, site, resamples, release))
     (site / PAGE).write_text(text, encoding="utf-8")
     return site / PAGE
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(prog="python -m leaderboard.track", description="The generalisation track's page and table.")
-    parser.add_argument("--results", type=Path, required=True, help="the --out of python -m runners.track")
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--results", type=Path, help="the --out of python -m runners.track")
+    source.add_argument("--release", type=Path, help="a track release (python -m leaderboard.track_release), verified first")
     parser.add_argument("--site", type=Path, help="write track.html (and its figure) into this site directory")
     parser.add_argument("--resamples", type=int, default=DEFAULT_RESAMPLES)
     add_debug_flag(parser)
@@ -373,14 +445,26 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
 
     args = build_parser().parse_args(argv)
+    manifest = None
+    if args.release is not None:
+        try:
+            manifest = verify_release(args.release)
+        except ValueError as exc:
+            raise UserError(str(exc)) from exc
+        args.results = args.release
     if not (args.results / "runs").is_dir():
         raise UserError(f"{args.results}: no runs/ directory. Fix: pass the --out of python -m runners.track")
-    frame, _ = load_runs(args.results)
+    frame, records = load_runs(args.results)
     if frame.empty:
         raise UserError(f"{args.results}: no finished run (result.json). Fix: run python -m runners.track first")
     summary = summarise(frame, args.resamples)
+    need = Requirement.from_dict(manifest.get("requirement")) if manifest else Requirement()
+    incomplete = status(records, [f"{CURVES_DIR}/{p.name}" for p in (args.results / CURVES_DIR).glob("*.csv")], need)
+    samples = {r["learner"]: entry_marks(r) for r in records if entry_marks(r)}
     for _, row in summary.iterrows():
-        print(f"{row['track']:<11} {row['score']:<12} {row['learner']:<11} {row['set']:<8} {row['mean']:+.3f} {_ci(row)}")
+        mark = (" ⚠ incomplete" if incomplete.get(row["track"], {}).get(row["learner"])
+                else f" ({samples[row['learner']]})" if row["learner"] in samples else "")
+        print(f"{row['track']:<11} {row['score']:<12} {row['learner']:<11} {row['set']:<8} {row['mean']:+.3f} {_ci(row)}{mark}")
     if args.site is not None:
         args.site.mkdir(parents=True, exist_ok=True)
         assets = args.site / "assets"
@@ -390,7 +474,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 shutil.copyfile(Path(__file__).parent / "web" / "static" / name, assets / name)
         common = {"title": "Generalisation track", "root": "", "current": PAGE, "nav": NAV, "stamp": "",
                   "results_name": str(args.results), "source_parts": [], "marks": MARKS}
-        print(write_page(args.site, args.results, common, args.resamples))
+        print(write_page(args.site, args.results, common, args.resamples, manifest))
     return 0
 
 

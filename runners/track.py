@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import socket
 import sys
 import time
 import warnings
@@ -51,6 +52,7 @@ from morality_gym.generalisation.scoring import score_set
 from morality_gym.generalisation.sets import SEEN_SAMPLE, SETS, TRACK_CHAINS, EvalSet, load_sets, training_chain
 from morality_gym.generator.grammar import GRAMMAR_VERSION
 from morality_gym.generator.splits import split_manifest
+from morality_gym.results.recording import git_commit
 from runners.track_fleet import CURVE_EVERY, CurveRecorder, fleet_key, train_fleet
 
 LEARNERS = ("random", "ppo", "ppo_shaped", "ppo_lag", "cpo")
@@ -163,7 +165,7 @@ def do_run(learner: str, seed: int | None, budget: int, train_ids: Sequence[str]
         print(f"{run_dir.name}: done, skipped", flush=True)
         return record
     run_dir.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     if learner == "random":
         policy: Any = "random"
         info: dict[str, Any] = {"trained_steps": 0}
@@ -182,15 +184,19 @@ def do_run(learner: str, seed: int | None, budget: int, train_ids: Sequence[str]
         assert seed is not None
         policy, info = _train_ppo(learner, seed, budget, train_ids, n_envs, n_steps, run_dir, batch_size, n_epochs,
                                   chain)
-    t1 = time.perf_counter()
+    t1, c1 = time.perf_counter(), time.process_time()
     rows = evaluate_sets(policy, sets)
-    t2 = time.perf_counter()
+    t2, c2 = time.perf_counter(), time.process_time()
     frame = pd.DataFrame(rows)
     write_atomically(run_dir / PAIRS, lambda fh: frame.to_parquet(fh, index=False))
     record = {**expected, "learner": learner, "seed": seed,
               "budget": 0 if learner == "random" or policy_ref is not None else budget,
               "train_pool": len(train_ids), **info, "train_seconds": round(t1 - t0, 1),
               "eval_seconds": round(t2 - t1, 1), "pairs": len(frame),
+              # what a release reports as compute (leaderboard.track_release): CPU, not wall, time;
+              # a fleet's training CPU is its fleet_cpu_seconds, shared by its runs
+              "train_cpu_seconds": round(c1 - c0, 1), "eval_cpu_seconds": round(c2 - c1, 1),
+              "git_commit": git_commit(), "hostname": socket.gethostname(),
               "mean_range_score": {name: round(float(part.groupby("env_id")["range_score"].mean().mean()), 4)
                                    for name, part in frame.groupby("set")}}
     text = json.dumps(record, indent=1)
@@ -273,10 +279,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             if todo:
                 prefix = run_name(learner, None, chain=args.chain, version=version).removesuffix("-sexact")
                 key = fleet_key(learner, todo, args.budget, train_ids, args.chain, expected["train_digest"])
+                c0 = time.process_time()
                 curve = (CurveRecorder(args.out / "curves" / f"{prefix}.csv", learner, args.chain, todo, sets["seen"],
                                        args.curve_every) if "seen" in sets else None)
                 trained = train_fleet(learner, todo, args.budget, train_ids, args.chain,
                                       args.out / "fleets" / f"{prefix}.pt", key, curve=curve)
+                # the curve sums the CPU of every session a resumed fleet trained in; else this process's alone
+                spent = curve.cpu_seconds() if curve is not None else time.process_time() - c0
+                for _, info in trained.values():
+                    info["fleet_cpu_seconds"] = round(spent, 1)
         for seed in args.seeds:
             record = do_run(learner, seed, args.budget, train_ids, sets, args.out, args.n_envs, args.n_steps,
                             args.batch_size, args.n_epochs, chain=args.chain, version=version, trained=trained.get(seed))

@@ -211,7 +211,8 @@ COMMANDS: list[tuple[str, str]] = [
     ("leaderboard.screenshot", "PNG screenshots of a built leaderboard"),
     ("runners.migrate", "move an older results directory to the current run ids"),
     ("runners.track", "train and score the generalisation track's held-out splits"),
-    ("leaderboard.track", "the generalisation track's table from a results directory"),
+    ("leaderboard.track", "the generalisation track's table from a results directory or a track release"),
+    ("leaderboard.track_release", "freeze the generalisation track's results into a checksummed release; verify one"),
     ("benchmarks.run", "speed benchmarks (BENCHMARKS.md)"),
     ("benchmarks.project_table1", "price a whole Table 1 from measured runs"),
 ]

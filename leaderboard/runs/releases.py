@@ -71,17 +71,23 @@ def verify(release: Path) -> dict[str, Any]:
     download or a hand edit never shows as published numbers.
     """
     body = read_manifest(release)
+    check_files(release, body, MANIFEST)
+    return body
+
+
+def check_files(release: Path, body: dict[str, Any], manifest: str) -> None:
+    """Check every file ``body['files']`` lists (size and SHA-256, inside ``release``); the track
+    release (:mod:`leaderboard.track_release`) checks its files by the same rule."""
     root = release.resolve()
     for name, entry in sorted(body["files"].items()):
         path = (release / name).resolve()
         if not path.is_relative_to(root):
-            raise ReleaseError(f"{release / MANIFEST}: file entry {name!r} points outside the release")
+            raise ReleaseError(f"{release / manifest}: file entry {name!r} points outside the release")
         if not path.is_file():
-            raise ReleaseError(f"release {body.get('name')}: {release / name} is missing (listed in {MANIFEST})")
+            raise ReleaseError(f"release {body.get('name')}: {release / name} is missing (listed in {manifest})")
         if path.stat().st_size != entry.get("bytes") or sha256(path) != entry.get("sha256"):
             raise ReleaseError(f"release {body.get('name')}: {release / name} fails its checksum (damaged or edited; "
                                f"restore it, e.g. git checkout -- {release / name})")
-    return body
 
 
 # ---------------------------------------------------------------------------------------- reading

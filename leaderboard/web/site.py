@@ -234,7 +234,7 @@ def _build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: Figu
     """:func:`build_site` while this build holds the site's parent (:mod:`leaderboard.web.leftovers`)."""
     # SciPy waits: leaderboard.build imports this module (check_target) before it has checked
     # SOURCE_DATE_EPOCH, which numpy's f2py, loaded with SciPy, reads at import and dies on
-    from leaderboard.track import track_results
+    from leaderboard.track import track_source
     from leaderboard.track import write_page as write_track_page
     from leaderboard.web.pages import index_context, run_context, runs_context, scenario_context
     from leaderboard.web.ranking_page import ranking_context
@@ -254,7 +254,8 @@ def _build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: Figu
         render_layouts(sb, scenarios)
         _write(tmp / "index.html", render("index.html", **index_context(sb)))
         _write(tmp / "ranking.html", render("ranking.html", **ranking_context(sb)))
-        write_track_page(tmp, track_results(sources.results), sb.common("Generalisation track", "", "track.html"))
+        track_dir, track_release = track_source(sources.results)
+        write_track_page(tmp, track_dir, sb.common("Generalisation track", "", "track.html"), release=track_release)
         _write(tmp / "runs" / "index.html", render("runs.html", **runs_context(sb)))
         for scenario in scenarios:
             _write(tmp / "scenarios" / f"{safe_name(scenario)}.html", render("scenario.html", **scenario_context(sb, scenario)))

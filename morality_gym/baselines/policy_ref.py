@@ -35,7 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from morality_gym.baselines.io import check_model_env, load_model
+from morality_gym.baselines.compact_policy import CompactObservationPolicy
+from morality_gym.baselines.io import check_model_env, load_model, read_metadata
 from morality_gym.baselines.policy_files import directory_files, files_digest, watching
 from morality_gym.clitools import UserError, did_you_mean, sigints
 from morality_gym.envs.registry import state_graph
@@ -188,6 +189,8 @@ def _load_model(ref: str, env_ids: Sequence[str], allow_other_env: bool) -> Load
     if path.is_dir():  # a run's artifact directory (results/runs/<run_id>/) holds model.{zip,json}
         path = path / "model"
     policy = load_model(path)
+    if env_ids and read_metadata(path).get("obs_type") == "compact":  # a track fleet's model: see compact_policy
+        policy = CompactObservationPolicy(policy, env_ids)
     for env_id in env_ids:
         check_model_env(path, policy, env_id, allow_other_env)
     base = path.with_suffix("") if path.suffix in (".zip", ".json") else path
