@@ -25,7 +25,6 @@ row's ``engine`` column (``single`` / ``fleet:K``) says which trained it.
 
 from __future__ import annotations
 
-import heapq
 import json
 import logging
 import math
@@ -40,7 +39,8 @@ from morality_gym.baselines.stopped import TrainingStopped
 from morality_gym.results.recording import RunClock, RunLock, finished_status, git_commit
 from morality_gym.results.run_config import RunConfig
 from runners import stopping
-from runners.config_schema import ENGINES, DeviceRate
+from runners.config_schema import ENGINES
+from runners.estimate import DeviceRate, DeviceWork, device_price, fleet_seconds
 from runners.execute import execute_locked, limit_threads, record_outcome, training_code
 from runners.fleet_checkpoints import fleet_to_train, remove_fleet, write_fleet_runs
 from runners.plan import PlannedRun
@@ -57,22 +57,12 @@ log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
-class DeviceWork:
-    """The part of a job that trains on a shared accelerator: its seconds alone on the device, and
-    how the device's aggregate rate grows with the processes sharing it (``DeviceRate.processes``).
-    The rest of the job's ``est_seconds`` (its runs' evaluations and writes) is CPU time."""
-
-    alone_s: float
-    processes: tuple[tuple[int, float], ...] = ()  # (N, aggregate of N processes over one's), hashable
-
-
-@dataclass(frozen=True)
 class Job:
     """Runs executed together by one worker (one local process or one SLURM array task)."""
 
     runs: tuple[PlannedRun, ...]
     engine: str  # "single" (one run) | "fleet"
-    est_seconds: float  # alone on the machine (and on the device): what longest-first orders by
+    est_seconds: float  # alone on the machine (and on the device): what longest-first orders by (runners.estimate)
     device: DeviceWork | None = None  # a fleet training on an accelerator that other workers share
 
     @property
@@ -92,51 +82,6 @@ def fleet_trains(target: str) -> bool:
     except (SpecError, ImportError, ValueError):
         return False
     return True
-
-
-def fleet_speedup(measured: float, size: int) -> float:
-    """The planning speed-up of a fleet of ``size`` runs from the speed-up ``measured`` at K >= 12.
-
-    BENCHMARKS.md's fleet section shows the gain saturating by K = 12 (K = 12 and K = 36 within
-    10-40% of each other); below 12 it is taken to grow linearly from 1 at K = 1. An estimate for
-    the plan's time only; it never changes what runs.
-    """
-    if size <= 1:
-        return 1.0
-    return 1.0 + (max(measured, 1.0) - 1.0) * min(1.0, (size - 1) / 11)
-
-
-def _interpolate(points: Mapping[float, float], x: float) -> float:
-    """Piecewise-linear through the measured ``points``, held flat beyond the last one."""
-    xs = sorted(points)
-    if x >= xs[-1]:
-        return points[xs[-1]]
-    upper = next(k for k in xs if k >= x)
-    lower = max((k for k in xs if k <= x), default=upper)
-    if upper == lower:
-        return points[upper]
-    return points[lower] + (points[upper] - points[lower]) * (x - lower) / (upper - lower)
-
-
-def device_fleet_rate(rate: DeviceRate, size: int) -> float:
-    """Env steps per second of one fleet of ``size`` runs alone on the device.
-
-    Between measured fleet sizes the rate is interpolated in log-log; below the smallest it falls
-    in proportion to the size (a launch-bound process steps K envs for the price of one launch),
-    above the largest it is held (no gain assumed that was not measured). An estimate for the
-    plan's time only; it never changes what runs.
-    """
-    sizes = sorted(rate.fleet_steps_per_s)
-    if size <= sizes[0]:
-        return rate.fleet_steps_per_s[sizes[0]] * size / sizes[0]
-    return math.exp(_interpolate({math.log(k): math.log(v) for k, v in rate.fleet_steps_per_s.items()}, math.log(size)))
-
-
-def device_share(processes: Mapping[int, float], sharing: int) -> float:
-    """The speed of each of ``sharing`` processes on one device, as a fraction of one alone:
-    the measured aggregate (linear between measured process counts, held beyond) split equally."""
-    n = max(1, sharing)
-    return _interpolate({1: 1.0, **processes}, n) / n
 
 
 def _group_key(config: RunConfig, free: Sequence[str] = FLEET_FREE_KEYS) -> str:
@@ -173,7 +118,8 @@ def make_jobs(
     Under ``fleet`` each group of fleet-compatible runs is cut into ``ceil(n / fleet_size)``
     balanced fleets; while there are fewer jobs than ``workers``, the largest fleet is cut again
     (down to fleets of 2), so that no worker idles while one trains everything. ``speedups`` maps
-    an algo name to its measured fleet speed-up (``planning.fleet_speedup``) for the estimate.
+    an algo name to its measured fleet speed-up (``planning.fleet_speedup``) for the estimate
+    (:func:`runners.estimate.fleet_seconds`).
 
     ``checkpointed``: the run ids of fleets that have a training checkpoint
     (:func:`runners.fleet_checkpoints.checkpointed_fleets`). A fleet whose runs are all among one
@@ -181,8 +127,8 @@ def make_jobs(
     that it resumes its training instead of starting over; the rest of the group is cut as above.
 
     ``device_rates``: an algo name's measured fleet rate on the sweep's device
-    (``planning.devices``); its fleets are priced at it (:func:`device_fleet_rate`) instead of
-    at the CPU rate and fleet speed-up.
+    (``planning.devices``); its fleets are priced at it (:func:`runners.estimate.device_price`)
+    instead of at the CPU rate and fleet speed-up.
     """
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
@@ -206,15 +152,12 @@ def make_jobs(
 
 
 def _priced_on_device(job: Job, rates: Mapping[str, DeviceRate]) -> Job:
-    """A fleet of a learner with a device rate, priced at it: its training steps at the fleet's
-    rate alone on the device (shared with other workers' fleets in :func:`jobs_estimate`), plus its
-    runs' overheads (evaluated on the CPU, one by one, as everywhere). Other jobs keep their price."""
+    """A fleet of a learner with a device rate, priced at it (:func:`runners.estimate.device_price`);
+    other jobs keep their price."""
     rate = rates.get(job.runs[0].config.algo.name)
     if job.engine != "fleet" or rate is None:
         return job
-    alone = sum(r.train_steps for r in job.runs) / device_fleet_rate(rate, len(job.runs))
-    return Job(job.runs, job.engine, sum(r.overhead_s for r in job.runs) + alone,
-               DeviceWork(alone, tuple(sorted(rate.processes.items()))))
+    return Job(job.runs, job.engine, *device_price(job.runs, rate))
 
 
 def _take_checkpointed(groups: dict[str, list[PlannedRun]], checkpointed: Iterable[Sequence[str]]) -> dict[str, list[list[PlannedRun]]]:
@@ -275,76 +218,7 @@ def _fleet_job(chunk: list[PlannedRun], speedups: Mapping[str, float]) -> Job:
     """One chunk of a group as a job: a fleet, or a single run when the chunk holds one."""
     if len(chunk) == 1:
         return _single(chunk[0])
-    measured = float(speedups.get(chunk[0].config.algo.name, 1.0))
-    # only training is shared; each run's evaluations and writes stay its own
-    overhead = sum(r.overhead_s for r in chunk)
-    est = overhead + (sum(r.est_seconds for r in chunk) - overhead) / fleet_speedup(measured, len(chunk))
-    return Job(tuple(chunk), "fleet", est)
-
-
-def dispatch_order(jobs: Sequence[Job], workers: int) -> list[Job]:
-    """The jobs in the order workers take them: longest (estimated) first when several run at once.
-
-    Handed out in plan order, a long fleet planned last keeps one worker busy after the others
-    have finished: on the quick Table 1 with 32 workers, 1m56s instead of 1m12s, and 5-10 % on 2-8
-    workers (``python -m benchmarks.project_table1``). Longest-first (LPT) scheduling bounds that
-    tail by the longest job. One worker keeps the plan's order, so results arrive row by row.
-    """
-    if workers <= 1:
-        return list(jobs)
-    return sorted(jobs, key=lambda job: -job.est_seconds)  # stable: equal estimates keep plan order
-
-
-def makespan(durations: Iterable[float], workers: int) -> float:
-    """Wall time when ``workers`` take jobs of these ``durations`` in order, each the next job as soon as it is free."""
-    free = [0.0] * max(1, workers)
-    for d in durations:
-        heapq.heappush(free, heapq.heappop(free) + d)
-    return max(free)
-
-
-def jobs_estimate(jobs: Sequence[Job], done: set[str], workers: int) -> float:
-    """Wall-time estimate of what remains: the jobs' seconds (scaled by the share of each job still
-    to run) handed to ``workers`` in :func:`dispatch_order`, as the local pool hands them out;
-    fleets on a shared device train at the device's share (:func:`shared_makespan`)."""
-    remaining = []
-    for job in dispatch_order(jobs, workers):
-        todo = sum(r.run_id not in done for r in job.runs)
-        if todo:
-            part = todo / len(job.runs)
-            device = job.device or DeviceWork(0.0)
-            remaining.append((device.alone_s * part, (job.est_seconds - device.alone_s) * part, dict(device.processes)))
-    if not any(device_s for device_s, _, _ in remaining):
-        return makespan([device_s + cpu_s for device_s, cpu_s, _ in remaining], workers)
-    return shared_makespan(remaining, workers)
-
-
-def shared_makespan(jobs: Sequence[tuple[float, float, Mapping[int, float]]], workers: int) -> float:
-    """Wall time of jobs ``(device_s, cpu_s, processes)``, taken in order by ``workers``, each
-    training first on one shared device (``device_s`` alone on it) and then working ``cpu_s`` on
-    its own core.
-
-    Why a simulation and not one price per job: how fast a fleet trains depends on how many others
-    share the device at that moment (:func:`device_share`), and that changes as fleets finish and
-    the last ones train on a device of their own. Processor sharing, advanced from one job's phase
-    end to the next."""
-    queue = list(jobs)[::-1]
-    active: list[list[Any]] = []  # [device_s left, cpu_s left, processes]
-    clock = 0.0
-    while queue or active:
-        while queue and len(active) < max(1, workers):
-            active.append(list(queue.pop()))
-        sharing = sum(a[0] > 0 for a in active)
-        speeds = [device_share(a[2], sharing) if a[0] > 0 else 1.0 for a in active]
-        step = min(a[0] / s if a[0] > 0 else a[1] for a, s in zip(active, speeds, strict=True))
-        for a, s in zip(active, speeds, strict=True):
-            if a[0] > 0:
-                a[0] = a[0] - step * s if a[0] - step * s > 1e-9 * (1 + a[0]) else 0.0
-            else:
-                a[1] -= step
-        clock += step
-        active = [a for a in active if a[0] > 0 or a[1] > 1e-9]
-    return clock
+    return Job(tuple(chunk), "fleet", fleet_seconds(chunk, float(speedups.get(chunk[0].config.algo.name, 1.0))))
 
 
 # ---------------------------------------------------------------------------------------------- workers

@@ -18,7 +18,8 @@ import pytest
 from morality_gym.results.recording import RunLock, finished_status
 from morality_gym.results.schema import read_runs, read_updates
 from runners.config import validate
-from runners.jobs import dispatch_order, execute_job, fleet_speedup, fleet_trains, jobs_estimate, make_jobs, makespan
+from runners.estimate import dispatch_order, fleet_speedup, jobs_estimate, makespan
+from runners.jobs import execute_job, fleet_trains, make_jobs
 from runners.plan import plan
 from tests.sweep_tools import run_files, wait_for_results
 
@@ -109,7 +110,7 @@ def test_estimate_uses_the_measured_fleet_speedup(tmp_path: Path) -> None:
     assert 1.0 < fleet_speedup(8.0, 6) < 8.0
     sweep = _sweep_config(tmp_path, "algo=ppo_lag", "chain=utility", "scenario=[switch_standard]", "preset=quick", "seed=[1]")
     runs = plan(sweep)
-    speedups = {a.spec.name: a.fleet_speedup for a in sweep.algos}
+    speedups = {a.spec.name: a.rates.fleet_speedup for a in sweep.algos}
     import yaml
 
     from runners.paths import CONF_DIR
@@ -126,7 +127,7 @@ def test_estimate_uses_the_measured_fleet_speedup(tmp_path: Path) -> None:
 def test_several_workers_take_the_longest_jobs_first(tmp_path: Path) -> None:
     sweep = _sweep_config(tmp_path, "algo=[random,ppo,cpo]", "chain=utility", "scenario=[switch_standard,switch5]",
                           "preset=smoke", "seed=[1,2,3]")
-    jobs = make_jobs(plan(sweep), "fleet", 36, 2, {a.spec.name: a.fleet_speedup for a in sweep.algos})
+    jobs = make_jobs(plan(sweep), "fleet", 36, 2, {a.spec.name: a.rates.fleet_speedup for a in sweep.algos})
     assert dispatch_order(jobs, 1) == jobs  # one worker: the plan's order (results arrive row by row)
     ordered = dispatch_order(jobs, 2)
     assert sorted(map(id, ordered)) == sorted(map(id, jobs))
