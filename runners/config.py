@@ -28,6 +28,7 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from morality_gym.baselines import typed
+from morality_gym.baselines.device import CPU, Device
 from morality_gym.baselines.hparams import algorithm_class, validate_learner
 from morality_gym.baselines.specs import (
     ALGO_FILE_EXTRAS,
@@ -45,7 +46,7 @@ from morality_gym.evaluation.horizon import truncation_problem
 from morality_gym.norms.chain import ChainError, MoralityChain, check_name_collision, get_chain, parse_chain
 from morality_gym.norms.metric import bind_chain
 from runners.config_schema import ENGINES, FLEET_SIZES, LAUNCHERS, Preset, Sweep, register
-from runners.estimate import LearnerRates, PlanningError, device_kind, learner_rates, planning_where
+from runners.estimate import LearnerRates, PlanningError, learner_rates, planning_where
 from runners.paths import CONF_DIR, config_roots, find_config, group_options  # noqa: F401 - re-exported: CONF_DIR is defined once
 
 register()  # the schemas conf/config.yaml names (sweep_schema, schema/launcher/*): Hydra needs them stored
@@ -109,7 +110,7 @@ class SweepConfig:
     name: str
     engine: str  # fleet | single (runners/jobs.py; default: runners.config_schema.Sweep)
     fleet_size: int  # most runs trained together in one fleet
-    device: str = "cpu"  # where fleets train (runners.config_schema.Sweep)
+    device: Device = CPU  # where fleets train, resolved once (morality_gym.baselines.device)
     progress_every_s: float = Sweep.progress_every_s  # plain progress lines when stderr is not a terminal
     checkpoint_every_s: float = Sweep.checkpoint_every_s  # how often a fleet checkpoints its training; 0: never
     chain_files: Mapping[str, str] = field(default_factory=dict)  # chain name -> config option name
@@ -535,26 +536,26 @@ def _launcher(node: Mapping[str, Any]) -> dict[str, Any]:
     return dataclasses.asdict(_typed(LAUNCHERS[kind], node, where=f"launcher={kind}"))
 
 
-def _engine(cfg: DictConfig) -> tuple[str, int, str]:
-    """The training engine, the largest fleet and the device fleets train on."""
+def _engine(cfg: DictConfig) -> tuple[str, int, Device]:
+    """The training engine, the largest fleet and the device fleets train on (:class:`Device`,
+    resolved here once: checked against what torch sees when the fleets train on this machine)."""
     engine = cfg.get("engine")
     if engine not in ENGINES:
         raise ConfigError(f"engine: expected fleet or single, got {engine!r}{_hint(str(engine), list(ENGINES))}")
-    device = str(cfg.get("device"))
+    try:
+        device = Device.parse(str(cfg.get("device")))
+    except SpecError as exc:
+        raise ConfigError(str(exc)) from exc
     given = cfg.get("fleet_size")
-    fleet_size = _int("fleet_size", FLEET_SIZES.get(device_kind(device), FLEET_SIZES["cpu"]) if given is None else given, 1)
-    if device != "cpu":
-        if engine != "fleet":
-            raise ConfigError(f"device={device}: only the fleet engine trains off the CPU; use engine=fleet or device=cpu")
-        # Imported here: the fleet engine imports torch (seconds), which a CPU sweep's checks never need.
-        from morality_gym.baselines.fleet.base import fleet_device
-
-        # the GPU must be here unless nothing trains here: a dry run plans, SLURM trains on its nodes
-        here = not cfg.get("dry_run") and (cfg.get("launcher") or {}).get("name") != "slurm"
-        try:
-            fleet_device(device, here=here)
-        except SpecError as exc:
-            raise ConfigError(str(exc)) from exc
+    fleet_size = _int("fleet_size", FLEET_SIZES.get(device.kind, FLEET_SIZES["cpu"]) if given is None else given, 1)
+    if not device.on_cpu and engine != "fleet":
+        raise ConfigError(f"device={device}: only the fleet engine trains off the CPU; use engine=fleet or device=cpu")
+    # the GPU must be here unless nothing trains here: a dry run plans, SLURM trains on its nodes
+    here = not cfg.get("dry_run") and (cfg.get("launcher") or {}).get("name") != "slurm"
+    try:
+        device = device.checked(here)
+    except SpecError as exc:
+        raise ConfigError(str(exc)) from exc
     return str(engine), fleet_size, device
 
 

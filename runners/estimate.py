@@ -496,30 +496,23 @@ class PricedLearner(Protocol):
     def rates(self) -> LearnerRates: ...
 
 
-def device_kind(device: str) -> str:
-    """``cuda:1`` -> ``cuda``: fleet sizes and planning rates are per kind of device, not per card."""
-    return device.split(":", 1)[0]
-
-
-def device_rates(device: str, algos: Sequence[PricedLearner]) -> dict[str, DeviceRate]:
-    """The measured fleet rates on ``device``, by algo name (none on the CPU)."""
-    if device == "cpu":
+def device_rates(kind: str, algos: Sequence[PricedLearner]) -> dict[str, DeviceRate]:
+    """The measured fleet rates on a ``kind`` of device (``cuda``), by algo name (none on the CPU)."""
+    if kind == "cpu":
         return {}
-    kind = device_kind(device)
     return {a.spec.name: a.rates.device_rates[kind] for a in algos if kind in a.rates.device_rates}
 
 
-def device_estimate_note(device: str, fleet_trained: Sequence[PricedLearner]) -> str | None:
-    """What the estimate is worth on ``device``, for the learners whose runs fleets train there.
+def device_estimate_note(kind: str, fleet_trained: Sequence[PricedLearner]) -> str | None:
+    """What the estimate is worth on a ``kind`` of device, for the learners whose runs fleets train there.
 
     Fleets of learners with measured device rates (``planning.devices`` in conf/algo) are priced
     at them, and the note names the card they were measured on: another card, or another load on
     this one, trains at another speed. A learner the fleet engine trains without a measured rate
     is priced at its CPU rate, and the note says which, so the figure never poses as a GPU
     estimate it is not (benchmarks/gpu_check.sh measures rates)."""
-    if device == "cpu":
+    if kind == "cpu":
         return None
-    kind = device_kind(device)
     priced = [a for a in fleet_trained if kind in a.rates.device_rates]
     unpriced = [a for a in fleet_trained if kind not in a.rates.device_rates]
     parts = []

@@ -34,6 +34,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
+from morality_gym.baselines.device import CPU, Device
 from morality_gym.baselines.specs import SpecError
 from morality_gym.baselines.stopped import TrainingStopped
 from morality_gym.results.recording import RunClock, RunLock, finished_status, git_commit
@@ -227,7 +228,7 @@ def execute_job(
     results_dir: str | Path,
     gif: bool = True,
     engine: str = "single",
-    device: str = "cpu",
+    device: Device = CPU,
     progress: Callable[[int, int], None] | None = None,
     checkpoint_every_s: float = 0.0,
 ) -> Iterator[Summary]:
@@ -266,7 +267,7 @@ def execute_job(
 
 
 def execute_job_all(
-    items: Sequence[tuple[str, RunConfig]], results_dir: str, gif: bool = True, engine: str = "single", device: str = "cpu",
+    items: Sequence[tuple[str, RunConfig]], results_dir: str, gif: bool = True, engine: str = "single", device: Device = CPU,
     checkpoint_every_s: float = 0.0,
 ) -> list[Summary]:
     """:func:`execute_job` as one list (what a SLURM array task returns to the parent).
@@ -295,7 +296,7 @@ def _train_fleet(
     mine: list[tuple[str, RunConfig]],
     results_dir: Path,
     gif: bool,
-    device: str = "cpu",
+    device: Device = CPU,
     progress: Callable[[int, int], None] | None = None,
     checkpoint_every_s: float = 0.0,
 ) -> Iterator[Summary]:
@@ -307,7 +308,6 @@ def _train_fleet(
     checkpoint (:func:`runners.fleet_checkpoints.fleet_to_train`); only ``mine`` are recorded."""
     # torch waits: importing runners.jobs must not load it
     from morality_gym.baselines.fleet import FleetRun, make_fleet
-    from morality_gym.baselines.fleet.base import fleet_device
     from morality_gym.baselines.fleet.state import NonFiniteTraining
 
     limit_threads()
@@ -317,7 +317,7 @@ def _train_fleet(
     engine = f"fleet:{len(trained)}"
     first = mine[0][1]
     try:
-        fleet_device(device)
+        device.usable()  # checked once on this machine, or here on a SLURM node (morality_gym.baselines.device)
     except SpecError as exc:  # e.g. a SLURM node without the GPU the submitting host had: a failure, not a silent CPU run
         for run_id, config in mine:
             yield record_outcome(config, run_id, results_dir, gif, None, [], clock, engine=engine, error=exc)
@@ -325,7 +325,7 @@ def _train_fleet(
     try:
         spec, protocol = first.algo, first.protocol  # resolved: the fleet applies nothing again
         fleet = make_fleet(spec, [FleetRun(c.bound_chain(), c.seed) for _, c in trained], protocol, max_steps=first.max_steps,
-                           device=device)
+                           device=device.name)
     except SpecError:
         # A setting the fleet does not reproduce (e.g. a learner option it has no batched form
         # of): the runs are trained one by one, as the single engine would.
@@ -380,7 +380,7 @@ class FleetTraining:
         self.clock = clock
         self.learn_rows: list[list[dict[str, Any]]] = [[] for _ in runs]
 
-    def checkpoint(self, results_dir: Path, spec: Any, protocol: Any, device: str, every_s: float) -> Any:
+    def checkpoint(self, results_dir: Path, spec: Any, protocol: Any, device: Device, every_s: float) -> Any:
         """The fleet's checkpoint in ``results_dir`` (:mod:`runners.fleet_checkpoints`), keyed by
         the runs, the learner, protocol and device, and the fingerprint of the training code
         (:func:`runners.execute.training_code`; None,
@@ -388,7 +388,7 @@ class FleetTraining:
         # torch waits: importing runners.jobs must not load it
         from morality_gym.baselines.fleet import FleetCheckpoint
 
-        key = {"runs": sorted(self.run_ids), "learner": spec.name, "protocol": protocol.name, "device": device,
+        key = {"runs": sorted(self.run_ids), "learner": spec.name, "protocol": protocol.name, "device": device.name,
                "fleet_size": len(self.run_ids), "code": training_code()}
         try:
             path = write_fleet_runs(results_dir, self.runs)

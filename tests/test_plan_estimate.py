@@ -93,14 +93,14 @@ def test_a_gpu_sweep_is_priced_at_the_measured_device_rates(tmp_path: Path) -> N
     from runners.plan import plan
 
     def note_of(sweep):  # what the sweep prints: the learners whose runs fleets train
-        return device_estimate_note(sweep.device, [a for a in sweep.algos
+        return device_estimate_note(sweep.device.kind, [a for a in sweep.algos
                                                    if fleet_trains(a.spec.target) and learner_trains(a.spec.target)])
 
     overrides = ("algo=[random,ppo,cpo]", "chain=utility", "scenario=[switch_standard,switch5]", "preset=paper")
     cpu = _sweep_config(tmp_path, *overrides)
-    assert note_of(cpu) is None and device_rates(cpu.device, cpu.algos) == {}
+    assert note_of(cpu) is None and device_rates(cpu.device.kind, cpu.algos) == {}
     gpu = _sweep_config(tmp_path, *overrides, "device=cuda", "launcher.workers=4")
-    rates = device_rates(gpu.device, gpu.algos)
+    rates = device_rates(gpu.device.kind, gpu.algos)
     assert set(rates) == {"ppo", "cpo"} and rates["ppo"].measured_on.startswith("NVIDIA H200")
     note = note_of(gpu)
     assert note is not None and "PPO, CPO are priced at cuda rates measured on NVIDIA H200" in note and "CPU rates" not in note
