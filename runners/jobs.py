@@ -141,15 +141,20 @@ def make_jobs(
     kept = _take_checkpointed(groups, checkpointed)
     singles = sum(isinstance(item, PlannedRun) for item in order) + sum(len(fleets) for fleets in kept.values())
     parts = _parts({key: g for key, g in groups.items() if g}, fleet_size, workers, singles=singles)
-    jobs: list[Job] = []
-    for item in order:
-        if isinstance(item, PlannedRun):
-            jobs.append(_single(item))
-            continue
-        jobs += [_fleet_job(chunk, speedups or {}) for chunk in kept.get(item, [])]
-        if groups[item]:
-            jobs += [_fleet_job(chunk, speedups or {}) for chunk in _split(groups[item], parts[item])]
+    jobs = [job for item in order for job in _jobs_of(item, groups, kept, parts, speedups or {})]
     return [_priced_on_device(job, device_rates) for job in jobs] if device_rates else jobs
+
+
+def _jobs_of(item: str | PlannedRun, groups: Mapping[str, list[PlannedRun]], kept: Mapping[str, list[list[PlannedRun]]],
+             parts: Mapping[str, int], speedups: Mapping[str, float]) -> list[Job]:
+    """The jobs of one item of the plan's order: a run alone, or a group's checkpointed fleets
+    (formed again as they were) and then the rest of the group cut into ``parts[item]`` fleets."""
+    if isinstance(item, PlannedRun):
+        return [_single(item)]
+    jobs = [_fleet_job(chunk, speedups) for chunk in kept.get(item, [])]
+    if groups[item]:
+        jobs += [_fleet_job(chunk, speedups) for chunk in _split(groups[item], parts[item])]
+    return jobs
 
 
 def _priced_on_device(job: Job, rates: Mapping[str, DeviceRate]) -> Job:
@@ -308,7 +313,6 @@ def _train_fleet(
     checkpoint (:func:`runners.fleet_checkpoints.fleet_to_train`); only ``mine`` are recorded."""
     # torch waits: importing runners.jobs must not load it
     from morality_gym.baselines.fleet import FleetRun, make_fleet
-    from morality_gym.baselines.fleet.state import NonFiniteTraining
 
     limit_threads()
     clock = RunClock.start()
@@ -319,8 +323,7 @@ def _train_fleet(
     try:
         device.usable()  # checked once on this machine, or here on a SLURM node (morality_gym.baselines.device)
     except SpecError as exc:  # e.g. a SLURM node without the GPU the submitting host had: a failure, not a silent CPU run
-        for run_id, config in mine:
-            yield record_outcome(config, run_id, results_dir, gif, None, [], clock, engine=engine, error=exc)
+        yield from _all_failed(mine, results_dir, gif, clock, engine, exc)
         return
     try:
         spec, protocol = first.algo, first.protocol  # resolved: the fleet applies nothing again
@@ -333,8 +336,7 @@ def _train_fleet(
             yield execute_locked(config, run_id, results_dir, gif)
         return
     except Exception as exc:  # noqa: BLE001 - recorded for every run of the fleet
-        for run_id, config in mine:
-            yield record_outcome(config, run_id, results_dir, gif, None, [], clock, engine=engine, error=exc)
+        yield from _all_failed(mine, results_dir, gif, clock, engine, exc)
         return
     training = FleetTraining(trained, clock)
     checkpoint = training.checkpoint(results_dir, spec, protocol, device, checkpoint_every_s) if checkpoint_every_s > 0 else None
@@ -349,11 +351,30 @@ def _train_fleet(
                 checkpoint=checkpoint,
             )
     except Exception as exc:  # noqa: BLE001 - TrainingStopped is no Exception: it passes, the runs are not failed
-        for run_id, config in mine:
-            yield record_outcome(config, run_id, results_dir, gif, None, [], training.clock, engine=engine, error=exc)
+        yield from _all_failed(mine, results_dir, gif, training.clock, engine, exc)
         return
-    # Each run's wall and CPU time is its share of the fleet's training (before a resume too) plus
-    # its own evaluation and writes, so that summing them over runs still gives what the fleet spent.
+    yield from _record_trained(fleet, training, ours, results_dir, gif, engine)
+    if checkpoint is not None:
+        remove_fleet(checkpoint.path)
+
+
+def _all_failed(mine: Sequence[tuple[str, RunConfig]], results_dir: Path, gif: bool, clock: RunClock, engine: str,
+                error: BaseException) -> Iterator[Summary]:
+    """Every run of ``mine`` recorded as failed with ``error`` (the fleet could not train them)."""
+    for run_id, config in mine:
+        yield record_outcome(config, run_id, results_dir, gif, None, [], clock, engine=engine, error=error)
+
+
+def _record_trained(fleet: Any, training: FleetTraining, ours: set[str], results_dir: Path, gif: bool,
+                    engine: str) -> Iterator[Summary]:
+    """Record each of ``ours`` among the fleet's trained runs, one after the other.
+
+    Each run's wall and CPU time is its share of the fleet's training (before a resume too) plus
+    its own evaluation and writes, so that summing them over runs still gives what the fleet spent."""
+    # torch waits: importing runners.jobs must not load it
+    from morality_gym.baselines.fleet.state import NonFiniteTraining
+
+    trained = training.runs
     wall, cpu = training.clock.elapsed()  # since the fleet began, before a resume too
     for k, learner in enumerate(fleet.learners()):
         run_id, config = trained[k]
@@ -365,8 +386,6 @@ def _train_fleet(
                                  error=NonFiniteTraining(fleet.failed[k]))
             continue
         yield record_outcome(config, run_id, results_dir, gif, learner, training.learn_rows[k], own, engine=engine)
-    if checkpoint is not None:
-        remove_fleet(checkpoint.path)
 
 
 class FleetTraining:
