@@ -31,10 +31,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from morality_gym.baselines.specs import learner_spec
+from morality_gym.baselines.specs import CONF_DIR, learner_spec
 from morality_gym.clitools import duration, write_atomically
 from morality_gym.results.schema import compute_seconds
-from runners.paths import CONF_DIR
 
 
 @dataclass(frozen=True)

@@ -47,7 +47,7 @@ from morality_gym.norms.chain import ChainError, MoralityChain, check_name_colli
 from morality_gym.norms.metric import bind_chain
 from runners.config_schema import ENGINES, FLEET_SIZES, LAUNCHERS, Preset, Sweep, register
 from runners.estimate import LearnerRates, PlanningError, learner_rates, planning_where
-from runners.paths import CONF_DIR, config_roots, find_config, group_options  # noqa: F401 - re-exported: CONF_DIR is defined once
+from runners.paths import config_roots, find_config, group_options
 
 register()  # the schemas conf/config.yaml names (sweep_schema, schema/launcher/*): Hydra needs them stored
 

@@ -1,7 +1,7 @@
 """The sweep's typed configuration: frozen dataclasses, registered as Hydra structured configs.
 
 Hydra composes ``conf/`` over these schemas, so a misspelt key or a value of the wrong type fails
-while the configuration is composed (:func:`runners.sweep.compose_check` turns Hydra's message
+while the configuration is composed (:func:`runners.sweep_cli.compose_check` turns Hydra's message
 into one line with the closest valid key). Each default is defined once:
 
 * a default every option of a group shares is a field default here (or, for learners and

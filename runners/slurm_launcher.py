@@ -17,7 +17,6 @@ from typing import Any
 from morality_gym.baselines.device import CPU, Device
 from runners.jobs import Job, execute_job_all
 from runners.plan import PlannedRun
-from runners.slurm_controller import SlurmUnavailable, check_controller  # noqa: F401 - re-exported for callers
 
 
 def run_on_slurm(

@@ -83,18 +83,14 @@ from runners.leftovers import remove_leftovers
 from runners.plan import PlannedRun, describe, plan
 from runners.pool import JobProgress, PoolStopped, WorkerPool
 from runners.preflight import preflight
-from runners.slurm_launcher import SlurmUnavailable, run_on_slurm
-from runners.sweep_cli import (  # noqa: F401 - compose_check, precheck, with_plugins, PROGRAM: re-exported
-    PROGRAM,
-    CommandLine,
+from runners.slurm_controller import SlurmUnavailable
+from runners.slurm_launcher import run_on_slurm
+from runners.sweep_cli import (
     CommandLineError,
-    compose_check,
     load_sweeps,
     parse_command_line,
-    precheck,
     prepare_overrides,
     show,
-    with_plugins,
 )
 from runners.tracking import Tracker, TrackingError
 

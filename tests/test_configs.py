@@ -132,7 +132,8 @@ def test_sweep_plan_uses_the_protocol_rate() -> None:
     """The shipped ppo_lag file: the corrected protocol plans ~20x the paper protocol's time per step."""
     from hydra import compose, initialize_config_dir
 
-    from runners.config import CONF_DIR, validate
+    from runners.config import validate
+    from runners.paths import CONF_DIR
 
     rates = {}
     for protocol in ("paper", "corrected"):
