@@ -31,10 +31,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from morality_gym.baselines.specs import learner_spec
+from morality_gym.baselines.specs import CONF_DIR, learner_spec
 from morality_gym.clitools import duration, write_atomically
 from morality_gym.results.schema import compute_seconds
-from runners.paths import CONF_DIR
 
 
 @dataclass(frozen=True)
@@ -183,9 +182,10 @@ def table1_plan(preset: str, protocol: str, engine: str, scratch: Path, extra: S
 def plan_jobs(runs: list[Any], sweep: Any, workers: int) -> list[Any]:
     """The plan cut into the jobs a sweep with ``workers`` workers runs, in the order they take them."""
     # pyarrow, OmegaConf wait: only the benchmark that runs it needs them
-    from runners.jobs import dispatch_order, make_jobs
+    from runners.estimate import dispatch_order
+    from runners.jobs import make_jobs
 
-    speedups = {a.spec.name: a.fleet_speedup for a in sweep.algos}
+    speedups = {a.spec.name: a.rates.fleet_speedup for a in sweep.algos}
     return dispatch_order(make_jobs(runs, sweep.engine, sweep.fleet_size, workers, speedups), workers)
 
 
@@ -284,7 +284,7 @@ def _projected_table(preset: str, protocol: str, engine: str, workers: Sequence[
                      sweep: Any) -> list[str]:
     """One row per worker count: the whole Table 1's jobs (``runs`` of ``sweep``) priced at the measured rates."""
     # pyarrow, OmegaConf wait: only the benchmark that runs it needs them
-    from runners.jobs import jobs_estimate, makespan
+    from runners.estimate import jobs_estimate, makespan
 
     title = f" ({', '.join(extra)})" if extra else ""
     lines = ["", f"### Projected: the whole Table 1 ({preset} preset, {protocol} protocol, engine {engine}){title}", "",

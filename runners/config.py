@@ -28,6 +28,7 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from morality_gym.baselines import typed
+from morality_gym.baselines.device import CPU, Device
 from morality_gym.baselines.hparams import algorithm_class, validate_learner
 from morality_gym.baselines.specs import (
     ALGO_FILE_EXTRAS,
@@ -44,18 +45,9 @@ from morality_gym.envs.registry import scenarios as all_scenarios
 from morality_gym.evaluation.horizon import truncation_problem
 from morality_gym.norms.chain import ChainError, MoralityChain, check_name_collision, get_chain, parse_chain
 from morality_gym.norms.metric import bind_chain
-from runners.config_schema import (
-    ENGINES,
-    FLEET_SIZES,
-    LAUNCHERS,
-    DeviceRate,
-    Planning,
-    Preset,
-    Sweep,
-    device_type,
-    register,
-)
-from runners.paths import CONF_DIR, config_roots, find_config, group_options  # noqa: F401 - re-exported: CONF_DIR is defined once
+from runners.config_schema import ENGINES, FLEET_SIZES, LAUNCHERS, Preset, Sweep, register
+from runners.estimate import LearnerRates, PlanningError, learner_rates, planning_where
+from runners.paths import config_roots, find_config, group_options
 
 register()  # the schemas conf/config.yaml names (sweep_schema, schema/launcher/*): Hydra needs them stored
 
@@ -90,11 +82,11 @@ def _one_or_list(value: Any) -> list[Any]:
 
 @dataclass(frozen=True)
 class AlgoChoice:
+    """A selected learner: its resolved spec, and its planning rates for the plan's estimate
+    (:mod:`runners.estimate`; never part of a run's identity)."""
+
     spec: LearnerSpec
-    steps_per_s: float  # planning estimate per worker
-    overhead_s: float
-    fleet_speedup: float = 1.0  # measured speed-up of the fleet engine at K >= 12 (planning only)
-    device_rates: Mapping[str, DeviceRate] = field(default_factory=dict)  # by device type, scaled to this spec
+    rates: LearnerRates
 
 
 @dataclass(frozen=True)
@@ -118,7 +110,7 @@ class SweepConfig:
     name: str
     engine: str  # fleet | single (runners/jobs.py; default: runners.config_schema.Sweep)
     fleet_size: int  # most runs trained together in one fleet
-    device: str = "cpu"  # where fleets train (runners.config_schema.Sweep)
+    device: Device = CPU  # where fleets train, resolved once (morality_gym.baselines.device)
     progress_every_s: float = Sweep.progress_every_s  # plain progress lines when stderr is not a terminal
     checkpoint_every_s: float = Sweep.checkpoint_every_s  # how often a fleet checkpoints its training; 0: never
     chain_files: Mapping[str, str] = field(default_factory=dict)  # chain name -> config option name
@@ -322,117 +314,12 @@ def _algo(option: str, node: Mapping[str, Any], preset: Preset, protocol: Protoc
         validate_learner(spec)  # keys against the algorithm class, values against sane ranges
     except SpecError as exc:
         raise ConfigError(f"{where}: {exc}") from exc
-    planning = dict(node.get("planning") or {})
-    where = _planning_where(where, option, overrides)
-    steps_per_s, overhead, speedup = _planning_rate(where, planning, file_values, spec, protocol.name)
-    devices = _device_rates(where, planning, file_values, spec, protocol.name)
-    return AlgoChoice(spec, steps_per_s, overhead, speedup, devices)
-
-
-def _planning_where(where: str, option: str, overrides: Sequence[str]) -> str:
-    """Where an algo's planning values come from: its file, and the command-line overrides that
-    change them (a bad value given there must not be blamed on the file)."""
-    prefix = f"algo.{option}.planning"
-    given = [o for o in overrides if o.lstrip("+~").startswith(prefix)]
-    return f"{where} with {', '.join(given)}" if given else where
-
-
-_PLANNING_KEYS = set(typed.valid_keys(Planning)) - {"protocols"}
-_DEVICE_RATE_KEYS = set(typed.valid_keys(DeviceRate))
-
-
-def _planning_rate(where: str, planning: Mapping[str, Any], file_values: Mapping[str, Any],
-                   spec: LearnerSpec, protocol: str | None = None) -> tuple[float, float, float]:
-    """Training steps per second, fixed seconds per run and the fleet speed-up, for the plan's estimate.
-
-    ``planning.steps_per_s`` is measured with the algorithm file's own settings. Only part of a
-    training step's time is gradient work (``update_share``); that part scales with the number of
-    update epochs per rollout, the rest (simulation, rollout bookkeeping) does not. Scaling the
-    whole rate by the epoch ratio, as a first version did, made the smoke preset (2 epochs
-    instead of 10-40) look 2.7x slower than it ran. ``overhead_s`` covers what every run pays
-    regardless of its budget: building the envs, the final and exact evaluations, the GIF, writes.
-
-    ``planning.protocols.<protocol>`` replaces some of these values under one protocol: a protocol
-    can change a learner's speed by an order of magnitude (PPO-Lag's early stop ends its update
-    after one pass under ``paper`` and after up to 40 under ``corrected``). ``fleet_speedup`` is
-    the fleet engine's measured gain at K >= 12 (BENCHMARKS.md), used by :mod:`runners.jobs`.
-    """
-    steps_per_s, share, overhead, speedup = _planning_values(where, _planning_for(where, planning, protocol))
-    return steps_per_s / _epoch_factor(file_values, spec, share), overhead, speedup
-
-
-def _epoch_factor(file_values: Mapping[str, Any], spec: LearnerSpec, share: float) -> float:
-    """How much longer a training step takes with ``spec``'s update epochs than with the algo
-    file's, at which the rates were measured: only the update's ``share`` of a step scales."""
-    ratio = 1.0
-    for key in ("n_epochs", "n_critic_updates"):
-        reference, actual = file_values.get("hparams", {}).get(key), spec.hparams.get(key)
-        if reference and actual:
-            ratio *= actual / reference
-    return (1.0 - share) + share * ratio
-
-
-def _device_rates(where: str, planning: Mapping[str, Any], file_values: Mapping[str, Any], spec: LearnerSpec,
-                  protocol: str | None = None) -> dict[str, DeviceRate]:
-    """``planning.devices`` under ``protocol``, checked (sizes and process counts >= 1, rates > 0),
-    each rate scaled by the epochs as the CPU rate is (the GPU's update share is not measured apart)."""
-    planning = _planning_for(where, planning, protocol)
-    factor = _epoch_factor(file_values, spec, _planning_values(where, planning)[1])
-    out: dict[str, DeviceRate] = {}
-    for device, given in dict(planning.get("devices") or {}).items():
-        at = f"{where}: planning.devices.{device}"
-        # not a mapping at all cannot reach here: the typed schema (DeviceRate) refuses it while composing
-        for key in set(given) - _DEVICE_RATE_KEYS:  # a typo would silently price the device at nothing measured
-            raise ConfigError(f"{at}: unknown key {key!r}{did_you_mean(str(key), sorted(_DEVICE_RATE_KEYS))}; "
-                              f"valid: {sorted(_DEVICE_RATE_KEYS)}")
-        try:
-            rates = {int(k): float(v) for k, v in dict(given.get("fleet_steps_per_s") or {}).items()}
-            processes = {int(k): float(v) for k, v in dict(given.get("processes") or {}).items()}
-        except (TypeError, ValueError, AttributeError) as exc:
-            raise ConfigError(f"{at}: fleet sizes, process counts and rates must be numbers ({exc})") from exc
-        if not rates or min(rates) < 1 or min(rates.values()) <= 0:
-            raise ConfigError(f"{at}.fleet_steps_per_s needs at least one fleet size >= 1 with a rate > 0, got {rates}")
-        if processes and (min(processes) < 1 or min(processes.values()) <= 0):
-            raise ConfigError(f"{at}.processes needs process counts >= 1 with aggregate factors > 0, got {processes}")
-        out[str(device)] = DeviceRate(str(given.get("measured_on") or ""), {k: v / factor for k, v in sorted(rates.items())},
-                                      dict(sorted(processes.items())))
-    return out
-
-
-def _planning_for(where: str, planning: Mapping[str, Any], protocol: str | None) -> dict[str, Any]:
-    """The algo's planning values with those of ``planning.protocols.<protocol>`` over them."""
-    planning = dict(planning)
-    by_protocol = planning.pop("protocols", None) or {}
-    if not isinstance(by_protocol, Mapping):
-        raise ConfigError(f"{where}: planning.protocols must map protocol names to planning values, got {by_protocol!r}")
-    if protocol is not None and protocol in by_protocol:
-        chosen = by_protocol[protocol]
-        if not isinstance(chosen, Mapping):
-            raise ConfigError(f"{where}: planning.protocols.{protocol} must be a mapping, got {chosen!r}")
-        devices = {**dict(planning.get("devices") or {}), **dict(chosen.get("devices") or {})}  # per device
-        planning.update({k: v for k, v in chosen.items() if v is not None})  # unset: the algo's own value
-        planning["devices"] = devices
-    unknown = set(planning) - _PLANNING_KEYS
-    if unknown:
-        raise ConfigError(f"{where}: unknown planning key(s) {sorted(unknown)}; valid: {sorted(_PLANNING_KEYS | {'protocols'})}")
-    return planning
-
-
-def _planning_values(where: str, planning: Mapping[str, Any]) -> tuple[float, float, float, float]:
-    """``steps_per_s``, ``update_share``, ``overhead_s`` and ``fleet_speedup`` as numbers in range
-    (:class:`runners.config_schema.Planning`'s defaults for those not given)."""
-    default = Planning()
     try:
-        steps_per_s = float(planning.get("steps_per_s", default.steps_per_s))
-        share = float(planning.get("update_share", default.update_share))
-        overhead = float(planning.get("overhead_s", default.overhead_s))
-        speedup = float(planning.get("fleet_speedup", default.fleet_speedup))
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{where}: planning values must be numbers ({exc})") from exc
-    if steps_per_s <= 0 or not 0.0 <= share <= 1.0 or overhead < 0 or speedup < 1.0:
-        raise ConfigError(f"{where}: planning needs steps_per_s > 0, 0 <= update_share <= 1, overhead_s >= 0, fleet_speedup >= 1; "
-                          f"got {dict(planning)}")
-    return steps_per_s, share, overhead, speedup
+        rates = learner_rates(planning_where(where, option, overrides), dict(node.get("planning") or {}), file_values, spec,
+                              protocol.name)
+    except PlanningError as exc:
+        raise ConfigError(str(exc)) from exc
+    return AlgoChoice(spec, rates)
 
 
 def _preset(node: Any) -> Preset:
@@ -649,26 +536,26 @@ def _launcher(node: Mapping[str, Any]) -> dict[str, Any]:
     return dataclasses.asdict(_typed(LAUNCHERS[kind], node, where=f"launcher={kind}"))
 
 
-def _engine(cfg: DictConfig) -> tuple[str, int, str]:
-    """The training engine, the largest fleet and the device fleets train on."""
+def _engine(cfg: DictConfig) -> tuple[str, int, Device]:
+    """The training engine, the largest fleet and the device fleets train on (:class:`Device`,
+    resolved here once: checked against what torch sees when the fleets train on this machine)."""
     engine = cfg.get("engine")
     if engine not in ENGINES:
         raise ConfigError(f"engine: expected fleet or single, got {engine!r}{_hint(str(engine), list(ENGINES))}")
-    device = str(cfg.get("device"))
+    try:
+        device = Device.parse(str(cfg.get("device")))
+    except SpecError as exc:
+        raise ConfigError(str(exc)) from exc
     given = cfg.get("fleet_size")
-    fleet_size = _int("fleet_size", FLEET_SIZES.get(device_type(device), FLEET_SIZES["cpu"]) if given is None else given, 1)
-    if device != "cpu":
-        if engine != "fleet":
-            raise ConfigError(f"device={device}: only the fleet engine trains off the CPU; use engine=fleet or device=cpu")
-        # Imported here: the fleet engine imports torch (seconds), which a CPU sweep's checks never need.
-        from morality_gym.baselines.fleet.base import fleet_device
-
-        # the GPU must be here unless nothing trains here: a dry run plans, SLURM trains on its nodes
-        here = not cfg.get("dry_run") and (cfg.get("launcher") or {}).get("name") != "slurm"
-        try:
-            fleet_device(device, here=here)
-        except SpecError as exc:
-            raise ConfigError(str(exc)) from exc
+    fleet_size = _int("fleet_size", FLEET_SIZES.get(device.kind, FLEET_SIZES["cpu"]) if given is None else given, 1)
+    if not device.on_cpu and engine != "fleet":
+        raise ConfigError(f"device={device}: only the fleet engine trains off the CPU; use engine=fleet or device=cpu")
+    # the GPU must be here unless nothing trains here: a dry run plans, SLURM trains on its nodes
+    here = not cfg.get("dry_run") and (cfg.get("launcher") or {}).get("name") != "slurm"
+    try:
+        device = device.checked(here)
+    except SpecError as exc:
+        raise ConfigError(str(exc)) from exc
     return str(engine), fleet_size, device
 
 

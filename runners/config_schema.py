@@ -1,7 +1,7 @@
 """The sweep's typed configuration: frozen dataclasses, registered as Hydra structured configs.
 
 Hydra composes ``conf/`` over these schemas, so a misspelt key or a value of the wrong type fails
-while the configuration is composed (:func:`runners.sweep.compose_check` turns Hydra's message
+while the configuration is composed (:func:`runners.sweep_cli.compose_check` turns Hydra's message
 into one line with the closest valid key). Each default is defined once:
 
 * a default every option of a group shares is a field default here (or, for learners and
@@ -34,6 +34,7 @@ from morality_gym.baselines import typed
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec
 from morality_gym.constants import BETA, MAX_STEPS
 from morality_gym.results.presets import Preset
+from runners.estimate import DeviceRate, Planning, PlanningOverride
 
 #: The largest fleet a sweep forms when ``fleet_size`` is not given, by kind of device. On the CPU
 #: the fleet's gain saturates by about 12 runs (BENCHMARKS.md), and 36 leaves room for a row's
@@ -41,84 +42,6 @@ from morality_gym.results.presets import Preset
 #: kernels), and 336 is the largest size measured (docs/engines.md: the plan of the paper Table 1
 #: with eight processes, 1h30m at 36, 39m at 336).
 FLEET_SIZES: dict[str, int] = {"cpu": 36, "cuda": 336}
-
-
-def device_type(device: str) -> str:
-    """``cuda:1`` -> ``cuda``: fleet sizes and planning rates are per kind of device, not per card."""
-    return device.split(":", 1)[0]
-
-
-@dataclass(frozen=True)
-class DeviceRate:
-    """How fast one learner's fleets train on an accelerator, as measured (benchmarks/gpu_check.sh).
-
-    Why its own table and not a factor on the CPU rate: on a GPU a fleet's rate grows with its
-    size (one process is bound by launching small kernels, not by arithmetic), and several
-    processes sharing the device add up to less than their sum. ``fleet_steps_per_s``: env steps
-    per second of one process training a fleet of K runs, by K, with the algo file's settings;
-    ``processes``: the aggregate rate of N processes sharing the device over one process's, by N
-    (1 process: 1); ``measured_on``: the card and the date, printed with the estimate, since
-    another card trains at another speed.
-    """
-
-    measured_on: str = ""
-    fleet_steps_per_s: Mapping[int, float] = field(default_factory=dict)
-    processes: Mapping[int, float] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class PlanningOverride:
-    """Some of :class:`Planning`'s values, replaced under one protocol (unset: the algo's own)."""
-
-    steps_per_s: float | None = None
-    update_share: float | None = None
-    overhead_s: float | None = None
-    fleet_speedup: float | None = None
-    devices: Mapping[str, DeviceRate] | None = None  # per device, replacing the algo's rate on that device
-
-
-@dataclass(frozen=True)
-class Planning:
-    """The sweep plan's time estimate for one learner (never part of a run's identity).
-
-    ``steps_per_s``: training steps per second with the algo file's own settings, one thread;
-    ``update_share``: the part of a step's time that is gradient work (scales with the epochs);
-    ``overhead_s``: what every run pays regardless of its budget; ``fleet_speedup``: the fleet
-    engine's measured gain at K >= 12 over single runs (1: no gain assumed); ``devices``: the
-    fleets' measured rates on an accelerator, by device type (``cuda``), for ``device=`` sweeps
-    (a learner without one is priced at its CPU rate, and the plan says so). The defaults are a
-    guess for a learner nobody measured; each built-in algo file states its fitted values.
-    """
-
-    steps_per_s: float = 2000.0
-    update_share: float = 1.0
-    overhead_s: float = 1.0
-    fleet_speedup: float = 1.0
-    devices: Mapping[str, DeviceRate] = field(default_factory=dict)
-    protocols: Mapping[str, PlanningOverride] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class SweepOverheads:
-    """What a sweep pays once, besides its runs, for the plan's time estimate (never part of a run's identity).
-
-    The per-learner :class:`Planning` prices the runs (its ``overhead_s`` is what each run pays);
-    a smoke sweep's runs take seconds, and its estimate was 2-8x below the wall time because these
-    once-per-sweep costs were left out. ``new_store_s``: creating the MLflow store of a new results
-    directory (its SQLite schema migrations, before the first run); ``worker_start_s``: the
-    workers starting (imports of torch and SB3; they start in parallel). Mirroring runs into MLflow
-    happens in the sweep's process while the workers train, so it is not added. Measured on this
-    2-core machine on 2026-11-25 while another sweep ran (load 2.3-3.1): 7.2-8.0 s and 1.85-1.94 s.
-    """
-
-    new_store_s: float = 7.5
-    worker_start_s: float = 1.9
-
-    def seconds(self, n_runs: int, *, new_store: bool, mlflow: bool) -> float:
-        """The overhead of a sweep with ``n_runs`` runs to do (nothing when none is left)."""
-        if n_runs == 0:
-            return 0.0
-        return self.worker_start_s + (self.new_store_s if new_store and mlflow else 0.0)
 
 
 def _algo_file_fields() -> list[tuple[str, Any, Any]]:

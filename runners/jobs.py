@@ -25,7 +25,6 @@ row's ``engine`` column (``single`` / ``fleet:K``) says which trained it.
 
 from __future__ import annotations
 
-import heapq
 import json
 import logging
 import math
@@ -35,12 +34,14 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
+from morality_gym.baselines.device import CPU, Device
 from morality_gym.baselines.specs import SpecError
 from morality_gym.baselines.stopped import TrainingStopped
 from morality_gym.results.recording import RunClock, RunLock, finished_status, git_commit
 from morality_gym.results.run_config import RunConfig
 from runners import stopping
-from runners.config_schema import ENGINES, DeviceRate
+from runners.config_schema import ENGINES
+from runners.estimate import DeviceRate, DeviceWork, device_price, fleet_seconds
 from runners.execute import execute_locked, limit_threads, record_outcome, training_code
 from runners.fleet_checkpoints import fleet_to_train, remove_fleet, write_fleet_runs
 from runners.plan import PlannedRun
@@ -57,22 +58,12 @@ log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
-class DeviceWork:
-    """The part of a job that trains on a shared accelerator: its seconds alone on the device, and
-    how the device's aggregate rate grows with the processes sharing it (``DeviceRate.processes``).
-    The rest of the job's ``est_seconds`` (its runs' evaluations and writes) is CPU time."""
-
-    alone_s: float
-    processes: tuple[tuple[int, float], ...] = ()  # (N, aggregate of N processes over one's), hashable
-
-
-@dataclass(frozen=True)
 class Job:
     """Runs executed together by one worker (one local process or one SLURM array task)."""
 
     runs: tuple[PlannedRun, ...]
     engine: str  # "single" (one run) | "fleet"
-    est_seconds: float  # alone on the machine (and on the device): what longest-first orders by
+    est_seconds: float  # alone on the machine (and on the device): what longest-first orders by (runners.estimate)
     device: DeviceWork | None = None  # a fleet training on an accelerator that other workers share
 
     @property
@@ -92,51 +83,6 @@ def fleet_trains(target: str) -> bool:
     except (SpecError, ImportError, ValueError):
         return False
     return True
-
-
-def fleet_speedup(measured: float, size: int) -> float:
-    """The planning speed-up of a fleet of ``size`` runs from the speed-up ``measured`` at K >= 12.
-
-    BENCHMARKS.md's fleet section shows the gain saturating by K = 12 (K = 12 and K = 36 within
-    10-40% of each other); below 12 it is taken to grow linearly from 1 at K = 1. An estimate for
-    the plan's time only; it never changes what runs.
-    """
-    if size <= 1:
-        return 1.0
-    return 1.0 + (max(measured, 1.0) - 1.0) * min(1.0, (size - 1) / 11)
-
-
-def _interpolate(points: Mapping[float, float], x: float) -> float:
-    """Piecewise-linear through the measured ``points``, held flat beyond the last one."""
-    xs = sorted(points)
-    if x >= xs[-1]:
-        return points[xs[-1]]
-    upper = next(k for k in xs if k >= x)
-    lower = max((k for k in xs if k <= x), default=upper)
-    if upper == lower:
-        return points[upper]
-    return points[lower] + (points[upper] - points[lower]) * (x - lower) / (upper - lower)
-
-
-def device_fleet_rate(rate: DeviceRate, size: int) -> float:
-    """Env steps per second of one fleet of ``size`` runs alone on the device.
-
-    Between measured fleet sizes the rate is interpolated in log-log; below the smallest it falls
-    in proportion to the size (a launch-bound process steps K envs for the price of one launch),
-    above the largest it is held (no gain assumed that was not measured). An estimate for the
-    plan's time only; it never changes what runs.
-    """
-    sizes = sorted(rate.fleet_steps_per_s)
-    if size <= sizes[0]:
-        return rate.fleet_steps_per_s[sizes[0]] * size / sizes[0]
-    return math.exp(_interpolate({math.log(k): math.log(v) for k, v in rate.fleet_steps_per_s.items()}, math.log(size)))
-
-
-def device_share(processes: Mapping[int, float], sharing: int) -> float:
-    """The speed of each of ``sharing`` processes on one device, as a fraction of one alone:
-    the measured aggregate (linear between measured process counts, held beyond) split equally."""
-    n = max(1, sharing)
-    return _interpolate({1: 1.0, **processes}, n) / n
 
 
 def _group_key(config: RunConfig, free: Sequence[str] = FLEET_FREE_KEYS) -> str:
@@ -173,7 +119,8 @@ def make_jobs(
     Under ``fleet`` each group of fleet-compatible runs is cut into ``ceil(n / fleet_size)``
     balanced fleets; while there are fewer jobs than ``workers``, the largest fleet is cut again
     (down to fleets of 2), so that no worker idles while one trains everything. ``speedups`` maps
-    an algo name to its measured fleet speed-up (``planning.fleet_speedup``) for the estimate.
+    an algo name to its measured fleet speed-up (``planning.fleet_speedup``) for the estimate
+    (:func:`runners.estimate.fleet_seconds`).
 
     ``checkpointed``: the run ids of fleets that have a training checkpoint
     (:func:`runners.fleet_checkpoints.checkpointed_fleets`). A fleet whose runs are all among one
@@ -181,8 +128,8 @@ def make_jobs(
     that it resumes its training instead of starting over; the rest of the group is cut as above.
 
     ``device_rates``: an algo name's measured fleet rate on the sweep's device
-    (``planning.devices``); its fleets are priced at it (:func:`device_fleet_rate`) instead of
-    at the CPU rate and fleet speed-up.
+    (``planning.devices``); its fleets are priced at it (:func:`runners.estimate.device_price`)
+    instead of at the CPU rate and fleet speed-up.
     """
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
@@ -194,27 +141,29 @@ def make_jobs(
     kept = _take_checkpointed(groups, checkpointed)
     singles = sum(isinstance(item, PlannedRun) for item in order) + sum(len(fleets) for fleets in kept.values())
     parts = _parts({key: g for key, g in groups.items() if g}, fleet_size, workers, singles=singles)
-    jobs: list[Job] = []
-    for item in order:
-        if isinstance(item, PlannedRun):
-            jobs.append(_single(item))
-            continue
-        jobs += [_fleet_job(chunk, speedups or {}) for chunk in kept.get(item, [])]
-        if groups[item]:
-            jobs += [_fleet_job(chunk, speedups or {}) for chunk in _split(groups[item], parts[item])]
+    jobs = [job for item in order for job in _jobs_of(item, groups, kept, parts, speedups or {})]
     return [_priced_on_device(job, device_rates) for job in jobs] if device_rates else jobs
 
 
+def _jobs_of(item: str | PlannedRun, groups: Mapping[str, list[PlannedRun]], kept: Mapping[str, list[list[PlannedRun]]],
+             parts: Mapping[str, int], speedups: Mapping[str, float]) -> list[Job]:
+    """The jobs of one item of the plan's order: a run alone, or a group's checkpointed fleets
+    (formed again as they were) and then the rest of the group cut into ``parts[item]`` fleets."""
+    if isinstance(item, PlannedRun):
+        return [_single(item)]
+    jobs = [_fleet_job(chunk, speedups) for chunk in kept.get(item, [])]
+    if groups[item]:
+        jobs += [_fleet_job(chunk, speedups) for chunk in _split(groups[item], parts[item])]
+    return jobs
+
+
 def _priced_on_device(job: Job, rates: Mapping[str, DeviceRate]) -> Job:
-    """A fleet of a learner with a device rate, priced at it: its training steps at the fleet's
-    rate alone on the device (shared with other workers' fleets in :func:`jobs_estimate`), plus its
-    runs' overheads (evaluated on the CPU, one by one, as everywhere). Other jobs keep their price."""
+    """A fleet of a learner with a device rate, priced at it (:func:`runners.estimate.device_price`);
+    other jobs keep their price."""
     rate = rates.get(job.runs[0].config.algo.name)
     if job.engine != "fleet" or rate is None:
         return job
-    alone = sum(r.train_steps for r in job.runs) / device_fleet_rate(rate, len(job.runs))
-    return Job(job.runs, job.engine, sum(r.overhead_s for r in job.runs) + alone,
-               DeviceWork(alone, tuple(sorted(rate.processes.items()))))
+    return Job(job.runs, job.engine, *device_price(job.runs, rate))
 
 
 def _take_checkpointed(groups: dict[str, list[PlannedRun]], checkpointed: Iterable[Sequence[str]]) -> dict[str, list[list[PlannedRun]]]:
@@ -275,76 +224,7 @@ def _fleet_job(chunk: list[PlannedRun], speedups: Mapping[str, float]) -> Job:
     """One chunk of a group as a job: a fleet, or a single run when the chunk holds one."""
     if len(chunk) == 1:
         return _single(chunk[0])
-    measured = float(speedups.get(chunk[0].config.algo.name, 1.0))
-    # only training is shared; each run's evaluations and writes stay its own
-    overhead = sum(r.overhead_s for r in chunk)
-    est = overhead + (sum(r.est_seconds for r in chunk) - overhead) / fleet_speedup(measured, len(chunk))
-    return Job(tuple(chunk), "fleet", est)
-
-
-def dispatch_order(jobs: Sequence[Job], workers: int) -> list[Job]:
-    """The jobs in the order workers take them: longest (estimated) first when several run at once.
-
-    Handed out in plan order, a long fleet planned last keeps one worker busy after the others
-    have finished: on the quick Table 1 with 32 workers, 1m56s instead of 1m12s, and 5-10 % on 2-8
-    workers (``python -m benchmarks.project_table1``). Longest-first (LPT) scheduling bounds that
-    tail by the longest job. One worker keeps the plan's order, so results arrive row by row.
-    """
-    if workers <= 1:
-        return list(jobs)
-    return sorted(jobs, key=lambda job: -job.est_seconds)  # stable: equal estimates keep plan order
-
-
-def makespan(durations: Iterable[float], workers: int) -> float:
-    """Wall time when ``workers`` take jobs of these ``durations`` in order, each the next job as soon as it is free."""
-    free = [0.0] * max(1, workers)
-    for d in durations:
-        heapq.heappush(free, heapq.heappop(free) + d)
-    return max(free)
-
-
-def jobs_estimate(jobs: Sequence[Job], done: set[str], workers: int) -> float:
-    """Wall-time estimate of what remains: the jobs' seconds (scaled by the share of each job still
-    to run) handed to ``workers`` in :func:`dispatch_order`, as the local pool hands them out;
-    fleets on a shared device train at the device's share (:func:`shared_makespan`)."""
-    remaining = []
-    for job in dispatch_order(jobs, workers):
-        todo = sum(r.run_id not in done for r in job.runs)
-        if todo:
-            part = todo / len(job.runs)
-            device = job.device or DeviceWork(0.0)
-            remaining.append((device.alone_s * part, (job.est_seconds - device.alone_s) * part, dict(device.processes)))
-    if not any(device_s for device_s, _, _ in remaining):
-        return makespan([device_s + cpu_s for device_s, cpu_s, _ in remaining], workers)
-    return shared_makespan(remaining, workers)
-
-
-def shared_makespan(jobs: Sequence[tuple[float, float, Mapping[int, float]]], workers: int) -> float:
-    """Wall time of jobs ``(device_s, cpu_s, processes)``, taken in order by ``workers``, each
-    training first on one shared device (``device_s`` alone on it) and then working ``cpu_s`` on
-    its own core.
-
-    Why a simulation and not one price per job: how fast a fleet trains depends on how many others
-    share the device at that moment (:func:`device_share`), and that changes as fleets finish and
-    the last ones train on a device of their own. Processor sharing, advanced from one job's phase
-    end to the next."""
-    queue = list(jobs)[::-1]
-    active: list[list[Any]] = []  # [device_s left, cpu_s left, processes]
-    clock = 0.0
-    while queue or active:
-        while queue and len(active) < max(1, workers):
-            active.append(list(queue.pop()))
-        sharing = sum(a[0] > 0 for a in active)
-        speeds = [device_share(a[2], sharing) if a[0] > 0 else 1.0 for a in active]
-        step = min(a[0] / s if a[0] > 0 else a[1] for a, s in zip(active, speeds, strict=True))
-        for a, s in zip(active, speeds, strict=True):
-            if a[0] > 0:
-                a[0] = a[0] - step * s if a[0] - step * s > 1e-9 * (1 + a[0]) else 0.0
-            else:
-                a[1] -= step
-        clock += step
-        active = [a for a in active if a[0] > 0 or a[1] > 1e-9]
-    return clock
+    return Job(tuple(chunk), "fleet", fleet_seconds(chunk, float(speedups.get(chunk[0].config.algo.name, 1.0))))
 
 
 # ---------------------------------------------------------------------------------------------- workers
@@ -353,7 +233,7 @@ def execute_job(
     results_dir: str | Path,
     gif: bool = True,
     engine: str = "single",
-    device: str = "cpu",
+    device: Device = CPU,
     progress: Callable[[int, int], None] | None = None,
     checkpoint_every_s: float = 0.0,
 ) -> Iterator[Summary]:
@@ -392,7 +272,7 @@ def execute_job(
 
 
 def execute_job_all(
-    items: Sequence[tuple[str, RunConfig]], results_dir: str, gif: bool = True, engine: str = "single", device: str = "cpu",
+    items: Sequence[tuple[str, RunConfig]], results_dir: str, gif: bool = True, engine: str = "single", device: Device = CPU,
     checkpoint_every_s: float = 0.0,
 ) -> list[Summary]:
     """:func:`execute_job` as one list (what a SLURM array task returns to the parent).
@@ -421,7 +301,7 @@ def _train_fleet(
     mine: list[tuple[str, RunConfig]],
     results_dir: Path,
     gif: bool,
-    device: str = "cpu",
+    device: Device = CPU,
     progress: Callable[[int, int], None] | None = None,
     checkpoint_every_s: float = 0.0,
 ) -> Iterator[Summary]:
@@ -433,8 +313,6 @@ def _train_fleet(
     checkpoint (:func:`runners.fleet_checkpoints.fleet_to_train`); only ``mine`` are recorded."""
     # torch waits: importing runners.jobs must not load it
     from morality_gym.baselines.fleet import FleetRun, make_fleet
-    from morality_gym.baselines.fleet.base import fleet_device
-    from morality_gym.baselines.fleet.state import NonFiniteTraining
 
     limit_threads()
     clock = RunClock.start()
@@ -443,15 +321,14 @@ def _train_fleet(
     engine = f"fleet:{len(trained)}"
     first = mine[0][1]
     try:
-        fleet_device(device)
+        device.usable()  # checked once on this machine, or here on a SLURM node (morality_gym.baselines.device)
     except SpecError as exc:  # e.g. a SLURM node without the GPU the submitting host had: a failure, not a silent CPU run
-        for run_id, config in mine:
-            yield record_outcome(config, run_id, results_dir, gif, None, [], clock, engine=engine, error=exc)
+        yield from _all_failed(mine, results_dir, gif, clock, engine, exc)
         return
     try:
         spec, protocol = first.algo, first.protocol  # resolved: the fleet applies nothing again
         fleet = make_fleet(spec, [FleetRun(c.bound_chain(), c.seed) for _, c in trained], protocol, max_steps=first.max_steps,
-                           device=device)
+                           device=device.name)
     except SpecError:
         # A setting the fleet does not reproduce (e.g. a learner option it has no batched form
         # of): the runs are trained one by one, as the single engine would.
@@ -459,8 +336,7 @@ def _train_fleet(
             yield execute_locked(config, run_id, results_dir, gif)
         return
     except Exception as exc:  # noqa: BLE001 - recorded for every run of the fleet
-        for run_id, config in mine:
-            yield record_outcome(config, run_id, results_dir, gif, None, [], clock, engine=engine, error=exc)
+        yield from _all_failed(mine, results_dir, gif, clock, engine, exc)
         return
     training = FleetTraining(trained, clock)
     checkpoint = training.checkpoint(results_dir, spec, protocol, device, checkpoint_every_s) if checkpoint_every_s > 0 else None
@@ -475,11 +351,30 @@ def _train_fleet(
                 checkpoint=checkpoint,
             )
     except Exception as exc:  # noqa: BLE001 - TrainingStopped is no Exception: it passes, the runs are not failed
-        for run_id, config in mine:
-            yield record_outcome(config, run_id, results_dir, gif, None, [], training.clock, engine=engine, error=exc)
+        yield from _all_failed(mine, results_dir, gif, training.clock, engine, exc)
         return
-    # Each run's wall and CPU time is its share of the fleet's training (before a resume too) plus
-    # its own evaluation and writes, so that summing them over runs still gives what the fleet spent.
+    yield from _record_trained(fleet, training, ours, results_dir, gif, engine)
+    if checkpoint is not None:
+        remove_fleet(checkpoint.path)
+
+
+def _all_failed(mine: Sequence[tuple[str, RunConfig]], results_dir: Path, gif: bool, clock: RunClock, engine: str,
+                error: BaseException) -> Iterator[Summary]:
+    """Every run of ``mine`` recorded as failed with ``error`` (the fleet could not train them)."""
+    for run_id, config in mine:
+        yield record_outcome(config, run_id, results_dir, gif, None, [], clock, engine=engine, error=error)
+
+
+def _record_trained(fleet: Any, training: FleetTraining, ours: set[str], results_dir: Path, gif: bool,
+                    engine: str) -> Iterator[Summary]:
+    """Record each of ``ours`` among the fleet's trained runs, one after the other.
+
+    Each run's wall and CPU time is its share of the fleet's training (before a resume too) plus
+    its own evaluation and writes, so that summing them over runs still gives what the fleet spent."""
+    # torch waits: importing runners.jobs must not load it
+    from morality_gym.baselines.fleet.state import NonFiniteTraining
+
+    trained = training.runs
     wall, cpu = training.clock.elapsed()  # since the fleet began, before a resume too
     for k, learner in enumerate(fleet.learners()):
         run_id, config = trained[k]
@@ -491,8 +386,6 @@ def _train_fleet(
                                  error=NonFiniteTraining(fleet.failed[k]))
             continue
         yield record_outcome(config, run_id, results_dir, gif, learner, training.learn_rows[k], own, engine=engine)
-    if checkpoint is not None:
-        remove_fleet(checkpoint.path)
 
 
 class FleetTraining:
@@ -506,7 +399,7 @@ class FleetTraining:
         self.clock = clock
         self.learn_rows: list[list[dict[str, Any]]] = [[] for _ in runs]
 
-    def checkpoint(self, results_dir: Path, spec: Any, protocol: Any, device: str, every_s: float) -> Any:
+    def checkpoint(self, results_dir: Path, spec: Any, protocol: Any, device: Device, every_s: float) -> Any:
         """The fleet's checkpoint in ``results_dir`` (:mod:`runners.fleet_checkpoints`), keyed by
         the runs, the learner, protocol and device, and the fingerprint of the training code
         (:func:`runners.execute.training_code`; None,
@@ -514,7 +407,7 @@ class FleetTraining:
         # torch waits: importing runners.jobs must not load it
         from morality_gym.baselines.fleet import FleetCheckpoint
 
-        key = {"runs": sorted(self.run_ids), "learner": spec.name, "protocol": protocol.name, "device": device,
+        key = {"runs": sorted(self.run_ids), "learner": spec.name, "protocol": protocol.name, "device": device.name,
                "fleet_size": len(self.run_ids), "code": training_code()}
         try:
             path = write_fleet_runs(results_dir, self.runs)

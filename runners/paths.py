@@ -20,8 +20,9 @@ import sys
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from morality_gym.baselines.specs import CONF_DIR  # re-exported: defined once, there
-from morality_gym.results.presets import preset_seeds  # noqa: F401 - re-exported: defined once, there
+from morality_gym.baselines.specs import (
+    CONF_DIR,  # also public here: docs/how-to/sweeps.md names runners.paths.CONF_DIR
+)
 
 #: Entry-point group of installed plugins: each entry point names a package that is a config root
 #: (holding ``algo/*.yaml`` and, if it likes, ``chain/``, ``scenario/``, ...), e.g. in a plugin's

@@ -1,4 +1,4 @@
-"""Expand a validated sweep into runs, give each a content-hash identity, and estimate the time.
+"""Expand a validated sweep into runs and give each a content-hash identity (and its price, :mod:`runners.estimate`).
 
 A run's identity is the SHA-256 of its resolved configuration (canonical JSON: env id, the chain's
 full definition, the learner's complete spec, the protocol, the preset's budget and evaluation
@@ -19,17 +19,17 @@ from morality_gym.baselines.specs import training_steps
 from morality_gym.baselines.targets import learner_trains
 from morality_gym.envs.registry import scenario_named
 from morality_gym.norms.chain import chain_fingerprint
-from morality_gym.results.identity import PER_RUN_KEYS, config_key, run_id_of  # noqa: F401 - re-exported
 from morality_gym.results.run_config import RunConfig
 from morality_gym.results.schema import SCHEMA_VERSION
 from runners.config import SweepConfig
+from runners.estimate import run_seconds
 
 
 @dataclass(frozen=True)
 class PlannedRun:
     run_id: str
     config: RunConfig  # the resolved run (what the worker executes; its JSON form is what the id hashes)
-    est_seconds: float
+    est_seconds: float  # alone on a core (runners.estimate.run_seconds): what the jobs' prices start from
     overhead_s: float = 0.0  # the part of est_seconds every run pays whatever trains it (evaluations, writes)
     train_steps: int = 0  # the env steps it trains (what a device's fleet rate prices)
 
@@ -86,20 +86,19 @@ def plan(sweep: SweepConfig) -> list[PlannedRun]:
                         continue
                     seen.add(run.run_id)
                     steps = training_steps(algo.spec, budget)
-                    runs.append(PlannedRun(run.run_id, run, algo.overhead_s + steps / max(algo.steps_per_s, 1e-9), algo.overhead_s,
-                                           steps))
+                    runs.append(PlannedRun(run.run_id, run, run_seconds(algo.rates, steps), algo.rates.overhead_s, steps))
     return runs
 
 
-def describe(runs: list[PlannedRun], done: set[str], workers: int) -> dict[str, Any]:
-    """Counts and an estimate of the wall time for what remains."""
-    todo = [r for r in runs if r.run_id not in done]
+def describe(runs: list[PlannedRun], done: set[str]) -> dict[str, Any]:
+    """The plan's counts: runs in all, done and to do, and ``[runs, done]`` per learner.
+
+    (The wall-time estimate is the jobs' (:func:`runners.estimate.jobs_estimate`): a figure here
+    from the runs alone, which an earlier version returned, was read by nothing.)"""
     by_algo: dict[str, list[int]] = {}
     for r in runs:
         entry = by_algo.setdefault(r.config.algo.label, [0, 0])
         entry[0] += 1
         entry[1] += r.run_id in done
-    est = sum(r.est_seconds for r in todo) / max(1, workers)
-    # The longest single run bounds the wall time from below.
-    est = max(est, max((r.est_seconds for r in todo), default=0.0))
-    return {"total": len(runs), "done": len(runs) - len(todo), "todo": len(todo), "by_algo": by_algo, "est_seconds": est}
+    n_done = sum(r.run_id in done for r in runs)
+    return {"total": len(runs), "done": n_done, "todo": len(runs) - n_done, "by_algo": by_algo}

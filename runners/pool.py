@@ -32,6 +32,7 @@ from multiprocessing.connection import Connection, wait
 from pathlib import Path
 from typing import Any
 
+from morality_gym.baselines.device import CPU, Device
 from morality_gym.baselines.stopped import TrainingStopped
 from morality_gym.clitools import DiskFullError
 from morality_gym.results.recording import git_commit
@@ -63,7 +64,7 @@ def _die_with_parent() -> None:
         pass
 
 
-def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int, device: str = "cpu",
+def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int, device: Device = CPU,
                  checkpoint_every_s: float = 0.0) -> None:
     _die_with_parent()
     if os.getppid() != parent_pid:  # the parent died before prctl took effect
@@ -91,7 +92,7 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int,
         stopping.ignore()  # nothing runs after this: a late SIGTERM must not raise while the process exits
 
 
-def _serve(conn: Connection, results_dir: str, gif: bool, device: str, checkpoint_every_s: float) -> None:
+def _serve(conn: Connection, results_dir: str, gif: bool, device: Device, checkpoint_every_s: float) -> None:
     """Execute the jobs the parent sends until it sends None or goes away."""
     while True:
         try:
@@ -156,7 +157,7 @@ class PoolStopped(Exception):
 class WorkerPool:
     """Run planned runs on ``n_workers`` processes; ``on_result`` is called in the parent."""
 
-    def __init__(self, n_workers: int, results_dir: Path, gif: bool, device: str = "cpu", checkpoint_every_s: float = 0.0) -> None:
+    def __init__(self, n_workers: int, results_dir: Path, gif: bool, device: Device = CPU, checkpoint_every_s: float = 0.0) -> None:
         self.n_workers = n_workers
         self.results_dir = str(results_dir)
         self.gif = gif

@@ -14,9 +14,9 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
+from morality_gym.baselines.device import CPU, Device
 from runners.jobs import Job, execute_job_all
 from runners.plan import PlannedRun
-from runners.slurm_controller import SlurmUnavailable, check_controller  # noqa: F401 - re-exported for callers
 
 
 def run_on_slurm(
@@ -27,7 +27,7 @@ def run_on_slurm(
     sweep_name: str,
     on_result: Callable[[PlannedRun, dict[str, Any]], None],
     on_failure: Callable[[PlannedRun, str], None],
-    device: str = "cpu",
+    device: Device = CPU,
     checkpoint_every_s: float = 0.0,
 ) -> None:
     """Submit ``jobs_`` as one array and poll it, reporting each run as its array task ends (a
@@ -44,7 +44,7 @@ def run_on_slurm(
 
 
 def _submit(jobs_: list[Job], launcher: Mapping[str, Any], results_dir: Path, gif: bool, sweep_name: str,
-            device: str, checkpoint_every_s: float = 0.0) -> list[Any]:
+            device: Device, checkpoint_every_s: float = 0.0) -> list[Any]:
     """One submitit array task per job, with the launcher's partition and resources."""
     import submitit  # submitit waits: importing runners.slurm_launcher must not load it
 

@@ -67,29 +67,32 @@ from morality_gym.results.quarantine import Quarantined, check_run_files, read_t
 from morality_gym.results.recording import finished_status
 from morality_gym.results.schema import run_path
 from runners.config import ConfigError, SweepConfig  # also stores the schemas (runners.config_schema)
-from runners.config_schema import DeviceRate, SweepOverheads, device_type
+from runners.estimate import (
+    Estimate,
+    MachineLoad,
+    device_estimate_note,
+    device_rates,
+    dispatch_order,
+    jobs_estimate,
+    sweep_overheads,
+)
 from runners.execute import record_failure
 from runners.fleet_checkpoints import fleets_to_form, remove_stale
-from runners.jobs import Job, dispatch_order, fleet_trains, jobs_estimate, make_jobs
+from runners.jobs import Job, fleet_trains, make_jobs
 from runners.leftovers import remove_leftovers
-from runners.machine_load import Estimate, MachineLoad, estimate
 from runners.plan import PlannedRun, describe, plan
 from runners.pool import JobProgress, PoolStopped, WorkerPool
 from runners.preflight import preflight
-from runners.slurm_launcher import SlurmUnavailable, run_on_slurm
-from runners.sweep_cli import (  # noqa: F401 - compose_check, precheck, with_plugins, PROGRAM: re-exported
-    PROGRAM,
-    CommandLine,
+from runners.slurm_controller import SlurmUnavailable
+from runners.slurm_launcher import run_on_slurm
+from runners.sweep_cli import (
     CommandLineError,
-    compose_check,
     load_sweeps,
     parse_command_line,
-    precheck,
     prepare_overrides,
     show,
-    with_plugins,
 )
-from runners.tracking import Tracker, TrackingError, tracking_uri
+from runners.tracking import Tracker, TrackingError
 
 
 # ---------------------------------------------------------------------------------------- the plan
@@ -97,13 +100,6 @@ def _workers(sweep: SweepConfig) -> int:
     if sweep.launcher["name"] == "slurm":
         return int(sweep.launcher["array_parallelism"])
     return int(sweep.launcher.get("workers") or len(os.sched_getaffinity(0)) or 1)
-
-
-def sweep_overheads(sweep: SweepConfig, n_todo: int) -> float:
-    """Seconds the sweep spends besides training its runs (:class:`runners.config_schema.SweepOverheads`)."""
-    uri = tracking_uri(sweep.results_dir)
-    new_store = uri.startswith("sqlite:///") and not Path(uri.removeprefix("sqlite:///")).exists()
-    return SweepOverheads().seconds(n_todo, new_store=new_store, mlflow=sweep.mlflow)
 
 
 @dataclass(frozen=True)
@@ -114,7 +110,7 @@ class Plan:
     to train, cut into ``jobs`` for ``workers`` parallel workers (:mod:`runners.jobs`); ``counts``:
     :func:`runners.plan.describe`'s totals per learner; ``estimate_s``: the wall time of what
     remains on an idle machine, and ``estimate`` the same at the machine's load when the plan was
-    made (:mod:`runners.machine_load`); ``moved``: unreadable result files moved aside while the plan was made.
+    made (:mod:`runners.estimate`); ``moved``: unreadable result files moved aside while the plan was made.
     """
 
     runs: tuple[PlannedRun, ...]
@@ -156,13 +152,14 @@ def make_plan(sweep: SweepConfig) -> Plan:
     # fleets with a training checkpoint are formed again, to resume (runners.fleet_checkpoints)
     checkpointed = fleets_to_form(sweep.results_dir, [r.run_id for r in todo]) if sweep.checkpoint_every_s > 0 else []
     jobs = dispatch_order(make_jobs(todo, sweep.engine, sweep.fleet_size, workers,
-                                    {a.spec.name: a.fleet_speedup for a in sweep.algos}, checkpointed,
-                                    mix_scenarios=sweep.device != "cpu", device_rates=device_rates(sweep)), workers)
-    idle = jobs_estimate(jobs, done, workers) + sweep_overheads(sweep, len(todo))
+                                    {a.spec.name: a.rates.fleet_speedup for a in sweep.algos}, checkpointed,
+                                    mix_scenarios=not sweep.device.on_cpu, device_rates=device_rates(sweep.device.kind, sweep.algos)),
+                          workers)
+    idle = jobs_estimate(jobs, done, workers) + sweep_overheads(sweep.results_dir, sweep.mlflow, len(todo))
     machine = None if sweep.launcher["name"] == "slurm" else MachineLoad.now()  # SLURM: other nodes' load
     return Plan(runs=tuple(runs), status=status, todo=tuple(todo), jobs=tuple(jobs), workers=workers,
-                counts=describe(runs, done, workers), estimate_s=idle, moved=tuple(moved), checkpointed=tuple(checkpointed),
-                estimate=estimate(idle, workers, machine))
+                counts=describe(runs, done), estimate_s=idle, moved=tuple(moved), checkpointed=tuple(checkpointed),
+                estimate=Estimate.of(idle, workers, machine))
 
 
 def _warn(console: Console, text: str) -> None:
@@ -190,39 +187,6 @@ def _estimate_text(plan_: Plan) -> str:
     return plan_.estimate.text() if plan_.estimate is not None else duration(plan_.estimate_s)
 
 
-def device_rates(sweep: SweepConfig) -> dict[str, DeviceRate]:
-    """The measured fleet rates on the sweep's device, by algo name (none on the CPU)."""
-    if sweep.device == "cpu":
-        return {}
-    kind = device_type(sweep.device)
-    return {a.spec.name: a.device_rates[kind] for a in sweep.algos if kind in a.device_rates}
-
-
-def device_estimate_note(sweep: SweepConfig) -> str | None:
-    """What the estimate is worth on the sweep's device.
-
-    Fleets of learners with measured device rates (``planning.devices`` in conf/algo) are priced
-    at them, and the note names the card they were measured on: another card, or another load on
-    this one, trains at another speed. A learner the fleet engine trains without a measured rate
-    is priced at its CPU rate, and the note says which, so the figure never poses as a GPU
-    estimate it is not (benchmarks/gpu_check.sh measures rates)."""
-    if sweep.device == "cpu":
-        return None
-    kind = device_type(sweep.device)
-    trained = [a for a in sweep.algos if fleet_trains(a.spec.target) and learner_trains(a.spec.target)]
-    priced = [a for a in trained if kind in a.device_rates]
-    parts = []
-    if priced:
-        cards = sorted({a.device_rates[kind].measured_on or "an unnamed card" for a in priced})
-        parts.append(f"fleets of {', '.join(a.spec.label for a in priced)} are priced at {kind} rates measured on "
-                     f"{'; '.join(cards)} (another card or a shared one trains at another speed)")
-    unpriced = [a for a in trained if kind not in a.device_rates]
-    if unpriced:
-        parts.append(f"{', '.join(a.spec.label for a in unpriced)}: no {kind} rates are measured, so their runs are priced "
-                     "at CPU rates and that part is not a GPU estimate (benchmarks/gpu_check.sh measures them)")
-    return "; ".join(parts) or None
-
-
 def print_plan(plan_: Plan, sweep: SweepConfig, console: Console) -> None:
     """The files moved aside, the counts per learner, the warnings, the settings and the estimate,
     and how the runs train."""
@@ -243,7 +207,8 @@ def print_plan(plan_: Plan, sweep: SweepConfig, console: Console) -> None:
         f"launcher [bold]{sweep.launcher['name']}[/bold] ({plan_.workers} parallel), results in {sweep.results_dir}; "
         f"estimated time for what remains: [bold]{escape(_estimate_text(plan_))}[/bold]"
     )
-    note = device_estimate_note(sweep)
+    note = device_estimate_note(sweep.device.kind, [a for a in sweep.algos
+                                               if fleet_trains(a.spec.target) and learner_trains(a.spec.target)])
     if note:
         _warn(console, f"note: {note}")
     engine = _engine_line(plan_, sweep)

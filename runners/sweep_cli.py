@@ -27,7 +27,7 @@ from hydra.core.utils import configure_log
 from omegaconf import DictConfig, OmegaConf
 
 from morality_gym.baselines.hparams import accepted_hparams
-from morality_gym.baselines.specs import SpecError
+from morality_gym.baselines.specs import CONF_DIR, SpecError
 from morality_gym.baselines.targets import add_python_roots
 from morality_gym.clitools import DEBUG_ENV, did_you_mean
 from morality_gym.envs.naming import squash
@@ -36,7 +36,7 @@ from runners.config import ConfigError, SweepConfig, validate  # also stores the
 from runners.config_schema import composition_error
 from runners.options import normalise_argv
 from runners.options import options as group_options
-from runners.paths import CONF_DIR, find_config, plugin_sources, source_dir, sources_from_argv, split_list
+from runners.paths import find_config, plugin_sources, source_dir, sources_from_argv, split_list
 
 #: How the manifest names the program (``sys.argv[0]`` of ``python -m runners.sweep``, also when
 #: :mod:`runners.table1` runs the sweep in its own process): the sweep's file, not this one.

@@ -128,50 +128,12 @@ def test_docs_command_writes_the_env_class_docs(tmp_path: Path) -> None:
     assert (tmp_path / "README.md").is_file()
 
 
-def test_plan_estimate_scales_only_the_update_share_with_epochs() -> None:
-    """The plan's estimate: a preset that trains with fewer epochs saves only the gradient part.
-
-    Fitted to measured runs (conf/algo/*.yaml planning); a whole-rate scaling made the smoke plan
-    2.7x too long.
-    """
-    from morality_gym.baselines.specs import learner_spec
-    from runners.config import ConfigError, _planning_rate
-
-    file_values = {"hparams": {"n_epochs": 10}}
-    same = learner_spec("ppo")
-    fewer = same.with_overrides({"hparams": {"n_epochs": 2}})
-    planning = {"steps_per_s": 3000.0, "update_share": 0.5, "overhead_s": 0.5}
-    assert _planning_rate("w", planning, file_values, same) == pytest.approx((3000.0, 0.5, 1.0))
-    rate, _, _ = _planning_rate("w", planning, file_values, fewer)
-    assert rate == pytest.approx(3000.0 / (0.5 + 0.5 * 0.2))  # 5000 steps/s, not 15000
-    with pytest.raises(ConfigError, match="update_share"):
-        _planning_rate("w", {**planning, "update_share": 1.5}, file_values, same)
-
-
-def test_plan_estimate_per_protocol() -> None:
-    """A protocol that changes a learner's speed (PPO-Lag: one pass vs up to 40) has its own rate;
-    other protocols keep the file's values, and a malformed block names the key."""
-    from morality_gym.baselines.specs import learner_spec
-    from runners.config import ConfigError, _planning_rate
-
-    spec = learner_spec("ppo_lag")
-    file_values = {"hparams": {"n_epochs": 40}}
-    planning = {"steps_per_s": 10000.0, "update_share": 0.25, "overhead_s": 0.5,
-                "protocols": {"corrected": {"steps_per_s": 500.0, "overhead_s": 1.0}}}
-    assert _planning_rate("w", planning, file_values, spec, "paper") == pytest.approx((10000.0, 0.5, 1.0))
-    assert _planning_rate("w", planning, file_values, spec, "corrected") == pytest.approx((500.0, 1.0, 1.0))
-    assert _planning_rate("w", planning, file_values, spec) == pytest.approx((10000.0, 0.5, 1.0))
-    with pytest.raises(ConfigError, match="planning.protocols.corrected must be a mapping"):
-        _planning_rate("w", {**planning, "protocols": {"corrected": 5}}, file_values, spec, "corrected")
-    with pytest.raises(ConfigError, match="unknown planning key"):
-        _planning_rate("w", {**planning, "protocols": {"corrected": {"speed": 1}}}, file_values, spec, "corrected")
-
-
 def test_sweep_plan_uses_the_protocol_rate() -> None:
     """The shipped ppo_lag file: the corrected protocol plans ~20x the paper protocol's time per step."""
     from hydra import compose, initialize_config_dir
 
-    from runners.config import CONF_DIR, validate
+    from runners.config import validate
+    from runners.paths import CONF_DIR
 
     rates = {}
     for protocol in ("paper", "corrected"):
@@ -179,5 +141,5 @@ def test_sweep_plan_uses_the_protocol_rate() -> None:
             cfg = compose("config", overrides=[f"protocol={protocol}", "algo=[ppo_lag]", "chain=utility",
                                                "preset=quick", "mlflow=false"])
         sweep = validate(cfg)
-        rates[protocol] = sweep.algos[0].steps_per_s
+        rates[protocol] = sweep.algos[0].rates.steps_per_s
     assert rates["paper"] > 10 * rates["corrected"]

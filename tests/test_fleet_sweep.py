@@ -15,10 +15,12 @@ from pathlib import Path
 
 import pytest
 
+from morality_gym.baselines.device import CPU, Device
 from morality_gym.results.recording import RunLock, finished_status
 from morality_gym.results.schema import read_runs, read_updates
 from runners.config import validate
-from runners.jobs import dispatch_order, execute_job, fleet_speedup, fleet_trains, jobs_estimate, make_jobs, makespan
+from runners.estimate import dispatch_order, fleet_speedup, jobs_estimate, makespan
+from runners.jobs import execute_job, fleet_trains, make_jobs
 from runners.plan import plan
 from tests.sweep_tools import run_files, wait_for_results
 
@@ -109,7 +111,7 @@ def test_estimate_uses_the_measured_fleet_speedup(tmp_path: Path) -> None:
     assert 1.0 < fleet_speedup(8.0, 6) < 8.0
     sweep = _sweep_config(tmp_path, "algo=ppo_lag", "chain=utility", "scenario=[switch_standard]", "preset=quick", "seed=[1]")
     runs = plan(sweep)
-    speedups = {a.spec.name: a.fleet_speedup for a in sweep.algos}
+    speedups = {a.spec.name: a.rates.fleet_speedup for a in sweep.algos}
     import yaml
 
     from runners.paths import CONF_DIR
@@ -126,7 +128,7 @@ def test_estimate_uses_the_measured_fleet_speedup(tmp_path: Path) -> None:
 def test_several_workers_take_the_longest_jobs_first(tmp_path: Path) -> None:
     sweep = _sweep_config(tmp_path, "algo=[random,ppo,cpo]", "chain=utility", "scenario=[switch_standard,switch5]",
                           "preset=smoke", "seed=[1,2,3]")
-    jobs = make_jobs(plan(sweep), "fleet", 36, 2, {a.spec.name: a.fleet_speedup for a in sweep.algos})
+    jobs = make_jobs(plan(sweep), "fleet", 36, 2, {a.spec.name: a.rates.fleet_speedup for a in sweep.algos})
     assert dispatch_order(jobs, 1) == jobs  # one worker: the plan's order (results arrive row by row)
     ordered = dispatch_order(jobs, 2)
     assert sorted(map(id, ordered)) == sorted(map(id, jobs))
@@ -160,18 +162,19 @@ def test_device_is_validated_before_anything_runs(tmp_path: Path) -> None:
 
     with pytest.raises(ConfigError, match="device=cuda: only the fleet engine trains off the CPU"):
         _sweep_config(tmp_path, "algo=ppo", "engine=single", "device=cuda")
-    with pytest.raises(ConfigError, match="device='tpu': not a torch device"):
+    with pytest.raises(ConfigError, match="device='tpu': not a device the fleet engine trains on; use cpu, cuda or cuda:N"):
         _sweep_config(tmp_path, "algo=ppo", "device=tpu")
     if not torch.cuda.is_available():
         with pytest.raises(ConfigError, match=r"torch sees no GPU here \(torch.cuda.is_available\(\) is False\); use device=cpu"):
             _sweep_config(tmp_path, "algo=ppo", "device=cuda")
         # nothing trains here in a dry run, nor under SLURM (its nodes have the GPUs): planned, not refused
-        assert _sweep_config(tmp_path, "algo=ppo", "device=cuda", "dry_run=true").device == "cuda"
-        assert _sweep_config(tmp_path, "algo=ppo", "device=cuda", "launcher=slurm").device == "cuda"
+        # ... and not marked checked: the machine that trains checks it (Device.usable)
+        assert _sweep_config(tmp_path, "algo=ppo", "device=cuda", "dry_run=true").device == Device("cuda")
+        assert _sweep_config(tmp_path, "algo=ppo", "device=cuda", "launcher=slurm").device == Device("cuda")
         done = _sweep(tmp_path / "r", "algo=ppo", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "device=cuda")
         assert done.returncode == 2 and "torch sees no GPU" in done.stderr and "Traceback" not in done.stderr
         assert not (tmp_path / "r").exists()
-    assert _sweep_config(tmp_path, "algo=ppo").device == "cpu"
+    assert _sweep_config(tmp_path, "algo=ppo").device == CPU
     # fleets grow with the device: 36 on the CPU, 336 on a GPU, unless fleet_size says otherwise
     assert _sweep_config(tmp_path, "algo=ppo").fleet_size == 36
     assert _sweep_config(tmp_path, "algo=ppo", "device=cuda", "dry_run=true").fleet_size == 336
@@ -188,7 +191,7 @@ def test_a_fleet_job_on_a_device_it_cannot_use_fails_its_runs_instead_of_trainin
     sweep = _sweep_config(tmp_path, "algo=ppo_lag", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
                           "seed=[1]", "variant=[HumanA,HumanB]")
     (job,) = make_jobs(plan(sweep), "fleet", 36, 1)
-    summaries = list(execute_job(job.items, tmp_path / "r", gif=False, engine="fleet", device="cuda"))
+    summaries = list(execute_job(job.items, tmp_path / "r", gif=False, engine="fleet", device=Device("cuda")))
     assert [s["status"] for s in summaries] == ["failed", "failed"]
     df = read_runs(tmp_path / "r")
     assert df.error.str.contains("torch sees no GPU").all()

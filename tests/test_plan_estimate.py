@@ -1,7 +1,7 @@
 """The plan's time estimate counts what a sweep pays besides its runs (issue #22).
 
 A smoke sweep's runs take seconds; its estimate (0m02s) was 2-8x below the wall time (17 s)
-because creating the MLflow store of a new results directory and the workers' start were left out (:class:`runners.config_schema.SweepOverheads`).
+because creating the MLflow store of a new results directory and the workers' start were left out (:class:`runners.estimate.SweepOverheads`).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from runners.config_schema import SweepOverheads
+from runners.estimate import SweepOverheads
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -37,16 +37,16 @@ def test_the_estimate_counts_what_a_sweep_pays_besides_its_runs(tmp_path: Path) 
 def test_the_estimate_says_what_a_busy_machine_costs() -> None:
     """Issue 36: on a shared machine the plan states the idle estimate and the one at the machine's load:
     workers share the cores with the other runnable processes (the kernel's fair share)."""
-    from runners.machine_load import MachineLoad, estimate, load_factor
+    from runners.estimate import Estimate, MachineLoad, load_factor
 
     assert load_factor(2, MachineLoad(cores=2, load=0.0)) == 1.0  # a core each: as fitted
     assert load_factor(2, MachineLoad(cores=2, load=3.0)) == pytest.approx(2.5)  # 5 runnable on 2 cores
     assert load_factor(2, MachineLoad(cores=8, load=3.0)) == 1.0  # room to spare
-    busy = estimate(206.0, 2, MachineLoad(cores=2, load=3.0))
+    busy = Estimate.of(206.0, 2, MachineLoad(cores=2, load=3.0))
     assert busy.loaded_s == pytest.approx(515.0)
     assert busy.text() == "3m26s on an idle machine, 8m35s at this machine's load (load average 3.0 on 2 core(s))"
-    assert estimate(206.0, 2, MachineLoad(cores=2, load=0.0)).text() == "3m26s"  # idle: one figure
-    assert estimate(206.0, 2, None).text() == "3m26s"  # SLURM: this machine's load does not matter
+    assert Estimate.of(206.0, 2, MachineLoad(cores=2, load=0.0)).text() == "3m26s"  # idle: one figure
+    assert Estimate.of(206.0, 2, None).text() == "3m26s"  # SLURM: this machine's load does not matter
     assert MachineLoad.now(lambda: (1.0, 2.5, 0.5)).load == 2.5  # a quiet minute of a busy hour counts as busy
 
 
@@ -59,8 +59,7 @@ def _sweep_config(tmp_path: Path, *overrides: str):
 
 def test_a_fleet_rate_on_a_device_follows_its_measured_sizes_and_sharing() -> None:
     """Issue 31 item 5: a GPU sweep is priced from measured fleet rates (planning.devices)."""
-    from runners.config_schema import DeviceRate
-    from runners.jobs import device_fleet_rate, device_share
+    from runners.estimate import DeviceRate, device_fleet_rate, device_share
 
     rate = DeviceRate("card", {21: 50_000.0, 84: 200_000.0, 336: 400_000.0}, {8: 4.0})
     assert device_fleet_rate(rate, 84) == pytest.approx(200_000.0)  # measured: as measured
@@ -74,7 +73,7 @@ def test_a_fleet_rate_on_a_device_follows_its_measured_sizes_and_sharing() -> No
 
 
 def test_fleets_sharing_a_device_speed_up_as_others_finish() -> None:
-    from runners.jobs import makespan, shared_makespan
+    from runners.estimate import makespan, shared_makespan
 
     # perfect sharing: as if each had its own device
     assert shared_makespan([(10.0, 1.0, {2: 2.0}), (30.0, 1.0, {2: 2.0})], 2) == pytest.approx(31.0)
@@ -88,17 +87,22 @@ def test_fleets_sharing_a_device_speed_up_as_others_finish() -> None:
 def test_a_gpu_sweep_is_priced_at_the_measured_device_rates(tmp_path: Path) -> None:
     """The estimate of a device=cuda plan comes from planning.devices and says on which card those
     were measured; a learner without one is named as priced at its CPU rate."""
-    from runners.jobs import make_jobs
+    from morality_gym.baselines.targets import learner_trains
+    from runners.estimate import device_estimate_note, device_rates
+    from runners.jobs import fleet_trains, make_jobs
     from runners.plan import plan
-    from runners.sweep import device_estimate_note, device_rates
+
+    def note_of(sweep):  # what the sweep prints: the learners whose runs fleets train
+        return device_estimate_note(sweep.device.kind, [a for a in sweep.algos
+                                                   if fleet_trains(a.spec.target) and learner_trains(a.spec.target)])
 
     overrides = ("algo=[random,ppo,cpo]", "chain=utility", "scenario=[switch_standard,switch5]", "preset=paper")
     cpu = _sweep_config(tmp_path, *overrides)
-    assert device_estimate_note(cpu) is None and device_rates(cpu) == {}
+    assert note_of(cpu) is None and device_rates(cpu.device.kind, cpu.algos) == {}
     gpu = _sweep_config(tmp_path, *overrides, "device=cuda", "launcher.workers=4")
-    rates = device_rates(gpu)
+    rates = device_rates(gpu.device.kind, gpu.algos)
     assert set(rates) == {"ppo", "cpo"} and rates["ppo"].measured_on.startswith("NVIDIA H200")
-    note = device_estimate_note(gpu)
+    note = note_of(gpu)
     assert note is not None and "PPO, CPO are priced at cuda rates measured on NVIDIA H200" in note and "CPU rates" not in note
     runs = plan(gpu)
     jobs = make_jobs(runs, "fleet", 336, 4, mix_scenarios=True, device_rates=rates)
@@ -109,9 +113,9 @@ def test_a_gpu_sweep_is_priced_at_the_measured_device_rates(tmp_path: Path) -> N
         steps = sum(r.train_steps for r in job.runs)
         assert steps > 0 and job.est_seconds < sum(r.est_seconds for r in job.runs)  # faster than one by one on the CPU
     # a learner without device rates is priced at its CPU rate, and the note says so
-    unpriced = dataclasses.replace(gpu, algos=tuple(dataclasses.replace(a, device_rates={}) if a.spec.name == "cpo" else a
-                                                    for a in gpu.algos))
-    note = device_estimate_note(unpriced)
+    unpriced = dataclasses.replace(gpu, algos=tuple(dataclasses.replace(a, rates=dataclasses.replace(a.rates, device_rates={}))
+                                                    if a.spec.name == "cpo" else a for a in gpu.algos))
+    note = note_of(unpriced)
     assert "CPO: no cuda rates are measured" in note and "not a GPU estimate" in note
 
 
@@ -132,3 +136,42 @@ def test_a_misspelt_device_rate_key_is_refused_with_the_close_match(tmp_path: Pa
     with pytest.raises(ConfigError, match=r"planning\.devices\.cuda: unknown key 'fleet_step_per_s' \(did you mean 'fleet_steps_per_s'\?\)"):
         _sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch5]", "device=cuda",
                       "+algo.ppo.planning.devices.cuda.fleet_step_per_s={21: 5.0}")
+
+
+def test_plan_estimate_scales_only_the_update_share_with_epochs() -> None:
+    """The plan's estimate: a preset that trains with fewer epochs saves only the gradient part.
+
+    Fitted to measured runs (conf/algo/*.yaml planning); a whole-rate scaling made the smoke plan
+    2.7x too long.
+    """
+    from morality_gym.baselines.specs import learner_spec
+    from runners.estimate import PlanningError, planning_rate
+
+    file_values = {"hparams": {"n_epochs": 10}}
+    same = learner_spec("ppo")
+    fewer = same.with_overrides({"hparams": {"n_epochs": 2}})
+    planning = {"steps_per_s": 3000.0, "update_share": 0.5, "overhead_s": 0.5}
+    assert planning_rate("w", planning, file_values, same) == pytest.approx((3000.0, 0.5, 1.0))
+    rate, _, _ = planning_rate("w", planning, file_values, fewer)
+    assert rate == pytest.approx(3000.0 / (0.5 + 0.5 * 0.2))  # 5000 steps/s, not 15000
+    with pytest.raises(PlanningError, match="update_share"):
+        planning_rate("w", {**planning, "update_share": 1.5}, file_values, same)
+
+
+def test_plan_estimate_per_protocol() -> None:
+    """A protocol that changes a learner's speed (PPO-Lag: one pass vs up to 40) has its own rate;
+    other protocols keep the file's values, and a malformed block names the key."""
+    from morality_gym.baselines.specs import learner_spec
+    from runners.estimate import PlanningError, planning_rate
+
+    spec = learner_spec("ppo_lag")
+    file_values = {"hparams": {"n_epochs": 40}}
+    planning = {"steps_per_s": 10000.0, "update_share": 0.25, "overhead_s": 0.5,
+                "protocols": {"corrected": {"steps_per_s": 500.0, "overhead_s": 1.0}}}
+    assert planning_rate("w", planning, file_values, spec, "paper") == pytest.approx((10000.0, 0.5, 1.0))
+    assert planning_rate("w", planning, file_values, spec, "corrected") == pytest.approx((500.0, 1.0, 1.0))
+    assert planning_rate("w", planning, file_values, spec) == pytest.approx((10000.0, 0.5, 1.0))
+    with pytest.raises(PlanningError, match="planning.protocols.corrected must be a mapping"):
+        planning_rate("w", {**planning, "protocols": {"corrected": 5}}, file_values, spec, "corrected")
+    with pytest.raises(PlanningError, match="unknown planning key"):
+        planning_rate("w", {**planning, "protocols": {"corrected": {"speed": 1}}}, file_values, spec, "corrected")

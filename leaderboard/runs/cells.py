@@ -29,9 +29,8 @@ from leaderboard.runs.selection import CELL_KEYS, LLM_POLICY_KIND, UNKNOWN, cell
 from morality_gym.constants import BETA, MAX_STEPS
 from morality_gym.envs.registry import UnknownEnvError, scenario_named
 from morality_gym.results.identity import SUBMITTED_ALGO
-from morality_gym.results.presets import Preset, PresetError, load_preset
+from morality_gym.results.presets import Preset, PresetError, load_preset, preset_seeds
 from morality_gym.results.schema import MF_PREFIX
-from runners.paths import preset_seeds
 
 #: "Standard deviation over three seeds": the sample standard deviation (n - 1 in the denominator).
 STD_DDOF = 1

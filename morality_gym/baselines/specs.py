@@ -187,7 +187,7 @@ def _read_file(group: str, name: str, what: str) -> tuple[Path, dict[str, Any]]:
 
 
 #: Keys of an algo file that are not learner settings: ``planning`` is the sweep's time estimate
-#: (``runners.config_schema.Planning``), read by the sweep's plan only.
+#: (``runners.estimate.Planning``), read by the sweep's plan only.
 ALGO_FILE_EXTRAS = ("planning",)
 
 
