@@ -330,3 +330,16 @@ def test_a_resumed_fleet_continues_its_curve_without_losing_or_repeating_points(
     assert _curve(tmp_path / "r" / "curves" / "c.csv") == _curve(tmp_path / "w" / "curves" / "c.csv")
     assert [steps for seed, steps, _ in _curve(tmp_path / "w" / "curves" / "c.csv") if seed == "2"] == [
         0, 2048, 4096, 6144, 8192, 10240]
+
+
+def test_a_failed_mixture_run_names_its_mixture_not_the_pools_first_dilemma() -> None:
+    spec = learner_spec("ppo_lag", {"hparams": SMALL["ppo_lag"]})
+    pool = [morality_gym.bind_chain("Utility", e) for e in POOL_A]
+    fleet = build_fleet(spec, [FleetRun.mixture(pool, 3), FleetRun.mixture(pool, 4)], "paper")
+    fleet.learn(32 * 8)
+    with th.no_grad():
+        fleet.nets.params("pi")[0][1, 0, 0] = float("nan")
+    fleet._fail_non_finite_runs()
+    assert list(fleet.failed) == [1]
+    assert "(the mixture of 5 dilemmas, Utility, seed 4)" in fleet.failed[1]
+    assert POOL_A[0] not in fleet.failed[1]

@@ -93,7 +93,8 @@ class FleetRun:
 
     With a ``pool`` (the generalisation track: :meth:`mixture`) the run trains on the mixture of the
     pool's dilemmas instead, each episode drawn by the run's seed, seen through the compact
-    observation (:mod:`.drawn_env`); ``bound`` is then the pool's first entry (its name on messages).
+    observation (:mod:`.drawn_env`); ``bound`` is then the pool's first entry (:meth:`where` names
+    the mixture on messages).
     """
 
     bound: BoundChain
@@ -106,6 +107,12 @@ class FleetRun:
         if not pool:
             raise SpecError("a mixture run needs a pool of at least one bound chain")
         return cls(pool[0], seed, tuple(pool))
+
+    def where(self) -> str:
+        """What the run trains on, for messages: its env id, or its mixture (not the pool's first entry)."""
+        if self.pool:
+            return f"the mixture of {len(self.pool)} dilemmas"
+        return self.bound.env_id
 
     def pool_digest(self) -> str:
         """What identifies the pool in a checkpoint: SHA-256 of its (env id, chain, beta) entries."""
@@ -366,7 +373,7 @@ class FleetTrainer:
             if k not in self.failed:
                 run = self.runs[k]
                 self.failed[k] = (f"training went non-finite (a NaN or infinite weight, moment or multiplier) in the update "
-                                  f"ending at step {self.num_timesteps:,} of run {k} ({run.bound.env_id}, "
+                                  f"ending at step {self.num_timesteps:,} of run {k} ({run.where()}, "
                                   f"{run.bound.chain.name}, seed {run.seed}); the other runs of its fleet trained on")
             for t in tensors:
                 t[k].zero_()
