@@ -27,6 +27,7 @@ import torch._dynamo
 import morality_gym
 from morality_gym.baselines.fleet import FleetRun, build_fleet, compiled
 from morality_gym.baselines.fleet import ppo as fleet_ppo
+from morality_gym.baselines.fleet.nets import ACTIVATIONS, backward_layers, trace_layers
 from morality_gym.baselines.specs import SpecError, learner_spec
 
 SMALL = {
@@ -115,6 +116,47 @@ def test_ppo_lag_early_stop_masks_stopped_runs(in_graph: bool) -> None:
     assert [row["passes"] for rows in fleet.update_logs for row in rows] == [1, 1]
     minibatches = ROLLOUT // int(fleet.model.batch_size)
     np.testing.assert_array_equal(fleet.actor_optimizer.steps, [minibatches, minibatches])
+
+
+def _graph_functions(name: str, protocol: str) -> list[str]:
+    """The functions called in the graphs of a learner's compiled steps (two updates of a fleet of two runs)."""
+    seen: list[str] = []
+
+    def record(gm: th.fx.GraphModule, example_inputs: Any) -> Any:
+        seen.extend(str(node.target) for node in gm.graph.nodes if node.op in ("call_function", "call_method"))
+        return compiled.static_check(gm, example_inputs)
+
+    fleet = _fleet(name, protocol, FLEET_A)
+    fleet.compile_backend = record
+    fleet.learn(2 * ROLLOUT)
+    assert seen, "no graph was compiled"
+    return seen
+
+
+@pytest.mark.parametrize(("name", "protocol"), [("ppo", "paper"), ("ppo_lag", "corrected"), ("cpo", "paper")])
+def test_adam_rates_are_computed_outside_the_graph(name: str, protocol: str) -> None:
+    """No ``pow`` in a compiled step: inside the graph inductor recomputed each run's bias corrections
+    for every 8 parameters (``compiled.adam_rates``'s docstring); the caller hands them in instead."""
+    called = _graph_functions(name, protocol)
+    assert not [f for f in called if "pow" in f], called
+
+
+def test_compiled_weight_gradients_are_laid_out_as_the_weights() -> None:
+    """The compiled steps' first-layer gradient (narrow observation input) is the direct product,
+    contiguous like the weights, not the eager engine's transposed view, which inductor reads
+    element by element in Adam's loop; the eager backward pass keeps its transposed product (its bits)."""
+    gen = th.Generator().manual_seed(0)
+    layers = [(th.randn(3, 64, 22, generator=gen), th.randn(3, 64, 1, generator=gen)),
+              (th.randn(3, 6, 64, generator=gen), th.randn(3, 6, 1, generator=gen))]
+    act, act_backward = ACTIVATIONS["tanh"]
+    trace = trace_layers(layers, th.randn(3, 64, 22, generator=gen), act)
+    dout = th.randn(3, 6, 64, generator=gen)
+    direct = compiled._backward(trace, dout.clone(), act_backward)
+    eager = backward_layers(trace, dout.clone(), act_backward)
+    assert all(g.is_contiguous() for g in direct)
+    assert not eager[0].is_contiguous()  # the eager engine's product, unchanged
+    for a, b in zip(direct, eager):
+        th.testing.assert_close(a, b, rtol=1e-5, atol=1e-5)
 
 
 def _with_host_read(*args: Any) -> None:

@@ -15,10 +15,12 @@ What a step is, per learner:
   passes per rollout; its actor step, conjugate gradients and line search, stays eager).
 
 The arithmetic is the eager path's (the same :mod:`.losses` and the same
-:func:`~.nets.trace_layers`/:func:`~.nets.backward_layers`), with three differences that change
+:func:`~.nets.trace_layers`/:func:`~.nets.backward_layers`), with four differences that change
 only float rounding: Adam is written out as tensor arithmetic inside the graph (:func:`adam_`; the
 eager path calls PyTorch's fused kernel on row views, which a graph does not take whole; see
-:func:`adam_in_graph`), each run's gradient norm is taken over its whole rows (padding columns of
+:func:`adam_in_graph`), its per-run rates handed in by the caller (:func:`adam_rates`), the first
+layer's weight gradient is the direct product rather than the transposed one (:func:`_backward`),
+each run's gradient norm is taken over its whole rows (padding columns of
 a mixed fleet hold exact zeros), and runs masked out of a step
 (PPO-Lag's KL early stop) are still computed and then left unchanged (``where``), so that every
 step has the same shapes. The compiled engine therefore does not rerun a release bit for bit: the
@@ -48,7 +50,7 @@ from typing import Any, NamedTuple
 import torch as th
 
 from morality_gym.baselines.fleet.losses import Policy, mse
-from morality_gym.baselines.fleet.nets import ACTIVATIONS, Layers, backward_layers, trace_layers
+from morality_gym.baselines.fleet.nets import ACTIVATIONS, Layers, Trace, backward_layers, trace_layers
 
 #: The update engines of a fleet: ``eager`` (per-operation PyTorch; reruns the releases bit for bit)
 #: and ``compiled`` (this module).
@@ -187,6 +189,19 @@ def mark_dynamic(*tensors: th.Tensor, dims: Sequence[int] = (0,)) -> None:
 
 
 # ---------------------------------------------------------------------------------------- pieces
+def _backward(tr: Trace, dout: th.Tensor, act_backward: Callable[[th.Tensor, th.Tensor], th.Tensor]) -> list[th.Tensor]:
+    """:func:`~.nets.backward_layers` with every weight gradient in its weights' layout.
+
+    Why: eagerly the first layer's gradient is the transposed product (faster for the narrow
+    observation input), a transposed view. In a graph, inductor fuses that view into Adam's loop
+    and gathers it element by element (an index ``% width`` and ``// width`` per element, the
+    observation width being a dynamic size): at K = 12, 1.39 ms for the Adam step with the first
+    layers' gradients transposed against 0.72 ms with them contiguous (rates outside the graph,
+    one probe, same process). On the whole PPO step the direct product was 1.08x (K = 12) and
+    1.48x (K = 36) faster (BENCHMARKS.md, "Fleet compiled update: ...", a noisy run)."""
+    return backward_layers(tr, dout, act_backward, narrow_transposed=False)
+
+
 def unflatten(flat: th.Tensor, in_dim: int, net: Net) -> list[Layers]:
     """The heads' layers as views into an optimiser's ``[K, P]`` buffer (:class:`~.optim.BatchedAdam`'s
     layout: ``W0, b0, W1, b1, ...`` head after head, each ``W`` ``[out, in]`` row-major)."""
@@ -207,19 +222,34 @@ def unflatten(flat: th.Tensor, in_dim: int, net: Net) -> list[Layers]:
     return heads
 
 
+def adam_rates(steps: th.Tensor, lr: th.Tensor, active: th.Tensor | None, c: AdamConsts) -> th.Tensor:
+    """``[K, 2]``: each run's Adam step size ``lr / (1 - beta1^t)`` and ``sqrt(1 - beta2^t)`` for its
+    next step ``t`` (the step count after this step: ``steps + 1``, or ``+ active``), as
+    :func:`adam_` reads them. Computed *outside* the compiled step, by the caller, just before it.
+
+    Why outside: inside a graph inductor fuses these per-run values into the loop over each run's
+    parameters and evaluates the two ``pow`` (and the division and root) again for every vector of 8
+    parameters (libm's ``pow`` may set ``errno``, so the C++ compiler cannot hoist it out of the
+    loop; the generated code shows it). Measured gain: mixed so far, on a heavily shared machine
+    (BENCHMARKS.md, "Fleet compiled update: Adam's per-run rates inside vs outside the graph": the
+    Adam step alone 1.7x faster at K = 36, slower at K = 12; rerun on a quiet machine). Five small
+    tensor operations on the device, no host read."""
+    step = steps + (1.0 if active is None else active.to(steps.dtype))
+    return th.stack([lr / (1.0 - th.pow(c.beta1, step)), th.sqrt(1.0 - th.pow(c.beta2, step))], dim=1)
+
+
 def adam_(flat: th.Tensor, exp_avg: th.Tensor, exp_avg_sq: th.Tensor, steps: th.Tensor, grads: list[th.Tensor],
-          lr: th.Tensor, active: th.Tensor | None, c: AdamConsts) -> None:
+          rates: th.Tensor, active: th.Tensor | None, c: AdamConsts) -> None:
     """One step of :class:`~.optim.BatchedAdam` written as tensor arithmetic, in place: the L2
     term, per-run clipping (one or two groups of tensors), the step count, then Adam (the formula of
-    PyTorch's fused kernel). ``lr``: ``[K]``; ``active``: ``[K]`` bool, None for every run.
+    PyTorch's fused kernel). ``rates``: :func:`adam_rates` (``[K, 2]``); ``active``: ``[K]`` bool,
+    None for every run.
 
     Tensor by tensor, joined once at the end: a ``cat`` of the gradients first made inductor
     compute every element of the joined gradient by testing which of a dozen inputs it comes from,
     once per use (2.5 ms of a 3.4 ms step at K = 12, measured)."""
     k = flat.shape[0]
-    # The first layers' gradients come transposed (the backward pass's faster product for narrow
-    # inputs): made contiguous once, so that nothing below reads them element by element.
-    g = [x.contiguous().reshape(k, -1) for x in grads]
+    g = [x.reshape(k, -1) for x in grads]  # laid out as the weights (:func:`_backward`)
     columns = [x.shape[1] for x in g]
     params = list(th.split(flat, columns, dim=1))
     if c.l2:
@@ -232,9 +262,7 @@ def adam_(flat: th.Tensor, exp_avg: th.Tensor, exp_avg_sq: th.Tensor, steps: th.
             for i in group:
                 g[i] = g[i] * coef
     new_steps = steps + (1.0 if active is None else active.to(steps.dtype))
-    step = new_steps.unsqueeze(1)
-    step_size = lr.unsqueeze(1) / (1.0 - th.pow(c.beta1, step))  # [K, 1]: per run, not per element
-    bias2_sqrt = th.sqrt(1.0 - th.pow(c.beta2, step))
+    step_size, bias2_sqrt = rates[:, :1], rates[:, 1:]  # [K, 1]: per run, not per element
     live = None if active is None else active.unsqueeze(1)
     out: tuple[list[th.Tensor], list[th.Tensor], list[th.Tensor]] = ([], [], [])
     for x, p, m, v in zip(g, params, th.split(exp_avg, columns, dim=1), th.split(exp_avg_sq, columns, dim=1)):
@@ -259,18 +287,18 @@ def _critics(flat: th.Tensor, obs: th.Tensor, returns: th.Tensor, cost_returns: 
     reward, cost = trace_layers(reward_layers, obs, act), trace_layers(cost_layers, obs, act)
     value_loss, dvalues = mse(reward.out[:, 0], returns)
     cost_value_loss, dcost_values = mse(cost.out[:, 0], cost_returns)
-    grads = backward_layers(reward, dvalues, act_backward) + backward_layers(cost, dcost_values, act_backward)
+    grads = _backward(reward, dvalues, act_backward) + _backward(cost, dcost_values, act_backward)
     return grads, value_loss, cost_value_loss
 
 
 # ---------------------------------------------------------------------------------------- steps
 def ppo_step(flat: th.Tensor, exp_avg: th.Tensor, exp_avg_sq: th.Tensor, steps: th.Tensor, obs: th.Tensor,
-             actions: th.Tensor, old_log_prob: th.Tensor, advantages: th.Tensor, returns: th.Tensor, lr: th.Tensor,
+             actions: th.Tensor, old_log_prob: th.Tensor, advantages: th.Tensor, returns: th.Tensor, rates: th.Tensor,
              clip_range: th.Tensor, net: Net, adam: AdamConsts | None, ent_coef: float, vf_coef: float, normalize: bool
              ) -> list[th.Tensor] | None:
     """One PPO minibatch of every run (:meth:`.ppo.FleetPPO._train`'s loop body), its Adam step
     taken in place on the optimiser's buffers; with ``adam`` None, the gradients are returned for
-    the eager optimiser instead (:func:`adam_in_graph`). ``lr``: ``[K]``; ``clip_range``: 0-d."""
+    the eager optimiser instead (:func:`adam_in_graph`). ``rates``: :func:`adam_rates`; ``clip_range``: 0-d."""
     act, act_backward = ACTIVATIONS[net.activation]
     actor_layers, critic_layers = unflatten(flat, obs.shape[2], net)
     actor, critic = trace_layers(actor_layers, obs, act), trace_layers(critic_layers, obs, act)
@@ -282,10 +310,10 @@ def ppo_step(flat: th.Tensor, exp_avg: th.Tensor, exp_avg_sq: th.Tensor, steps: 
     dentropy = th.full_like(ratio, -ent_coef / ratio.shape[1]) if ent_coef else None
     dlogits = policy.dlogits(actions, dratio * ratio, dentropy)
     _, dvalues = mse(critic.out[:, 0], returns)
-    grads = backward_layers(actor, dlogits, act_backward) + backward_layers(critic, dvalues.mul_(vf_coef), act_backward)
+    grads = _backward(actor, dlogits, act_backward) + _backward(critic, dvalues.mul_(vf_coef), act_backward)
     if adam is None:
         return grads
-    adam_(flat, exp_avg, exp_avg_sq, steps, grads, lr, None, adam)
+    adam_(flat, exp_avg, exp_avg_sq, steps, grads, rates, None, adam)
     return None
 
 
@@ -303,7 +331,7 @@ def clipped_surrogate_t(ratio: th.Tensor, advantages: th.Tensor, clip_range: th.
 
 
 def critic_step(flat: th.Tensor, exp_avg: th.Tensor, exp_avg_sq: th.Tensor, steps: th.Tensor, obs: th.Tensor,
-                returns: th.Tensor, cost_returns: th.Tensor, lr: th.Tensor, net: Net, adam: AdamConsts | None
+                returns: th.Tensor, cost_returns: th.Tensor, rates: th.Tensor, net: Net, adam: AdamConsts | None
                 ) -> tuple[th.Tensor, list[th.Tensor] | None]:
     """One minibatch of both critics' regression for every run (:meth:`.cost_base.FleetCostTrainer._train_critics`'s
     loop body); returns ``[2, K]``: the reward and cost critics' MSEs, and the gradients when
@@ -312,15 +340,15 @@ def critic_step(flat: th.Tensor, exp_avg: th.Tensor, exp_avg_sq: th.Tensor, step
     losses = th.stack([value_loss, cost_value_loss])
     if adam is None:
         return losses, grads
-    adam_(flat, exp_avg, exp_avg_sq, steps, grads, lr, None, adam)
+    adam_(flat, exp_avg, exp_avg_sq, steps, grads, rates, None, adam)
     return losses, None
 
 
 def lag_step(actor_flat: th.Tensor, actor_avg: th.Tensor, actor_avg_sq: th.Tensor, actor_steps: th.Tensor,
              critic_flat: th.Tensor, critic_avg: th.Tensor, critic_avg_sq: th.Tensor, critic_steps: th.Tensor,
              obs: th.Tensor, actions: th.Tensor, old_log_prob: th.Tensor, adv: th.Tensor, cadv: th.Tensor,
-             returns: th.Tensor, cost_returns: th.Tensor, lam32: th.Tensor, one_plus: th.Tensor, actor_lr: th.Tensor,
-             critic_lr: th.Tensor, clip_range: th.Tensor, active: th.Tensor, actor_net: Net, critic_net: Net,
+             returns: th.Tensor, cost_returns: th.Tensor, lam32: th.Tensor, one_plus: th.Tensor, actor_rates: th.Tensor,
+             critic_rates: th.Tensor, clip_range: th.Tensor, active: th.Tensor, actor_net: Net, critic_net: Net,
              actor_adam: AdamConsts | None, critic_adam: AdamConsts | None, ent_coef: float
              ) -> tuple[th.Tensor, list[th.Tensor] | None, list[th.Tensor] | None]:
     """One PPO-Lag minibatch of every run (:meth:`.ppo_lag.FleetPPOLag._one_pass`'s loop body),
@@ -336,18 +364,18 @@ def lag_step(actor_flat: th.Tensor, actor_avg: th.Tensor, actor_avg_sq: th.Tenso
     ratio = th.exp(policy.log_prob(actions) - old_log_prob)
     policy_loss, dratio = clipped_surrogate_t(ratio, advantages, clip_range)
     dentropy = th.full_like(ratio, -ent_coef / ratio.shape[1]) if ent_coef else None
-    actor_grads = backward_layers(actor, policy.dlogits(actions, dratio * ratio, dentropy), act_backward)
+    actor_grads = _backward(actor, policy.dlogits(actions, dratio * ratio, dentropy), act_backward)
     critic_grads, value_loss, cost_value_loss = _critics(critic_flat, obs, returns, cost_returns, critic_net)
     clip_fraction = ((ratio - 1.0).abs() > clip_range).float().mean(dim=1)
     stats = th.stack([policy_loss, value_loss, cost_value_loss, ent.mean(dim=1), clip_fraction])
     if actor_adam is None or critic_adam is None:
         return stats, actor_grads, critic_grads
-    adam_(critic_flat, critic_avg, critic_avg_sq, critic_steps, critic_grads, critic_lr, active, critic_adam)
-    adam_(actor_flat, actor_avg, actor_avg_sq, actor_steps, actor_grads, actor_lr, active, actor_adam)
+    adam_(critic_flat, critic_avg, critic_avg_sq, critic_steps, critic_grads, critic_rates, active, critic_adam)
+    adam_(actor_flat, actor_avg, actor_avg_sq, actor_steps, actor_grads, actor_rates, active, actor_adam)
     return stats, None, None
 
 
 __all__ = [
-    "DEFAULT_UPDATE_ENGINE", "UPDATE_ENGINES", "AdamConsts", "DataDependentShape", "Net", "adam_", "adam_in_graph", "clipped_surrogate_t", "compile_cache_dir",
+    "DEFAULT_UPDATE_ENGINE", "UPDATE_ENGINES", "AdamConsts", "DataDependentShape", "Net", "adam_", "adam_in_graph", "adam_rates", "clipped_surrogate_t", "compile_cache_dir",
     "compiled_step", "compiler_missing", "critic_step", "lag_step", "mark_dynamic", "ppo_step", "static_check", "unflatten",
 ]

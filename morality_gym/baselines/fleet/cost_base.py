@@ -15,7 +15,7 @@ import numpy as np
 import torch as th
 
 from morality_gym.baselines.fleet.base import FleetTrainer
-from morality_gym.baselines.fleet.compiled import AdamConsts, Net, critic_step, mark_dynamic
+from morality_gym.baselines.fleet.compiled import AdamConsts, Net, adam_rates, critic_step, mark_dynamic
 from morality_gym.baselines.fleet.losses import Policy, mse
 from morality_gym.baselines.fleet.nets import Runs
 from morality_gym.baselines.fleet.optim import BatchedAdam
@@ -130,8 +130,9 @@ class FleetCostTrainer(FleetTrainer):
                 if step is not None:
                     mark_dynamic(obs, dims=(0, 1, 2))
                     mark_dynamic(opt.flat, opt.exp_avg, opt.exp_avg_sq, returns, cost_returns, dims=(0, 1))
-                    mark_dynamic(opt._step_counts, lr_t)
-                    pair, grads = step(opt.flat, opt.exp_avg, opt.exp_avg_sq, opt._step_counts, obs, returns, cost_returns, lr_t,
+                    rates = adam_rates(opt._step_counts, lr_t, None, self.critic_adam)
+                    mark_dynamic(opt._step_counts, rates)
+                    pair, grads = step(opt.flat, opt.exp_avg, opt.exp_avg_sq, opt._step_counts, obs, returns, cost_returns, rates,
                                        self.critic_net, self.critic_adam if self.in_graph else None)
                     if grads is not None:
                         self._step_critics(grads, critic_lr)

@@ -117,15 +117,21 @@ def trace_layers(layers: Layers, x: th.Tensor, act: Callable[[th.Tensor], th.Ten
     return Trace(layers, inputs, h)
 
 
-def backward_layers(tr: Trace, dout: th.Tensor, act_backward: Callable[[th.Tensor, th.Tensor], th.Tensor]) -> list[th.Tensor]:
-    """:meth:`FleetNetworks.backward` as a plain function of tensors (see :func:`trace_layers`)."""
+def backward_layers(tr: Trace, dout: th.Tensor, act_backward: Callable[[th.Tensor, th.Tensor], th.Tensor],
+                    narrow_transposed: bool = True) -> list[th.Tensor]:
+    """:meth:`FleetNetworks.backward` as a plain function of tensors (see :func:`trace_layers`).
+
+    ``narrow_transposed``: a layer with a narrow input (the observations) gets its weight gradient
+    from the transposed product (the faster product eagerly), as a transposed view; False takes
+    the direct product, whose result is laid out as the weights are (what a compiled step wants:
+    :mod:`.compiled`)."""
     n = len(tr.layers)
     grads: list[th.Tensor] = [dout.new_empty(0)] * (2 * n)  # placeholders, each set below
     dz = dout
     for i in range(n - 1, -1, -1):
         w, _ = tr.layers[i]
         h = tr.inputs[i]
-        if h.shape[1] >= dz.shape[1]:
+        if h.shape[1] >= dz.shape[1] or not narrow_transposed:
             grads[2 * i] = th.matmul(dz, h.transpose(1, 2))
         else:  # a narrow input (the observations): the transposed product has the wider output
             grads[2 * i] = th.matmul(h, dz.transpose(1, 2)).transpose(1, 2)

@@ -21,7 +21,7 @@ import numpy as np
 import torch as th
 
 from morality_gym.baselines.fleet.base import FleetTrainer
-from morality_gym.baselines.fleet.compiled import AdamConsts, Net, mark_dynamic, ppo_step
+from morality_gym.baselines.fleet.compiled import AdamConsts, Net, adam_rates, mark_dynamic, ppo_step
 from morality_gym.baselines.fleet.losses import Policy, clipped_surrogate, mse
 from morality_gym.baselines.fleet.optim import BatchedAdam
 from morality_gym.baselines.specs import SB3_PPO
@@ -100,9 +100,10 @@ class FleetPPO(FleetTrainer):
             ):
                 mark_dynamic(obs, dims=(0, 1, 2))
                 mark_dynamic(opt.flat, opt.exp_avg, opt.exp_avg_sq, actions, old_log_prob, advantages, returns, dims=(0, 1))
-                mark_dynamic(opt._step_counts, lr_t)
+                rates = adam_rates(opt._step_counts, lr_t, None, adam)
+                mark_dynamic(opt._step_counts, rates)
                 grads = step(opt.flat, opt.exp_avg, opt.exp_avg_sq, opt._step_counts, obs, actions, old_log_prob, advantages,
-                             returns, lr_t, clip_t, net, adam if self.in_graph else None, ent_coef, vf_coef,
+                             returns, rates, clip_t, net, adam if self.in_graph else None, ent_coef, vf_coef,
                              bool(m.normalize_advantage and advantages.shape[1] > 1))
                 if grads is not None:
                     opt.step(grads, lr, max_norm=float(m.max_grad_norm))

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch as th
 
-from morality_gym.baselines.fleet.compiled import AdamConsts, Net, lag_step, mark_dynamic
+from morality_gym.baselines.fleet.compiled import AdamConsts, Net, adam_rates, lag_step, mark_dynamic
 from morality_gym.baselines.fleet.cost_base import FleetCostTrainer
 from morality_gym.baselines.fleet.losses import Policy, clipped_surrogate
 from morality_gym.baselines.fleet.optim import BatchedAdam
@@ -162,11 +162,13 @@ class FleetPPOLag(FleetCostTrainer):
             mark_dynamic(fields[0], dims=(0, 1, 2))
             mark_dynamic(a_opt.flat, a_opt.exp_avg, a_opt.exp_avg_sq, c_opt.flat, c_opt.exp_avg, c_opt.exp_avg_sq, *fields[1:],
                          dims=(0, 1))
-            mark_dynamic(a_opt._step_counts, c_opt._step_counts, step.lam32, step.one_plus, actor_lr, critic_lr, live)
+            actor_rates = adam_rates(a_opt._step_counts, actor_lr, live, actor_adam)
+            critic_rates = adam_rates(c_opt._step_counts, critic_lr, live, self.critic_adam)
+            mark_dynamic(a_opt._step_counts, c_opt._step_counts, step.lam32, step.one_plus, actor_rates, critic_rates, live)
             in_graph = self.in_graph
             values, actor_grads, critic_grads = run(
                 a_opt.flat, a_opt.exp_avg, a_opt.exp_avg_sq, a_opt._step_counts, c_opt.flat, c_opt.exp_avg, c_opt.exp_avg_sq,
-                c_opt._step_counts, *fields, step.lam32, step.one_plus, actor_lr, critic_lr, clip, live, actor_net, self.critic_net,
+                c_opt._step_counts, *fields, step.lam32, step.one_plus, actor_rates, critic_rates, clip, live, actor_net, self.critic_net,
                 actor_adam if in_graph else None, self.critic_adam if in_graph else None, step.ent_coef)
             if actor_grads is not None and critic_grads is not None:
                 self._step_critics(critic_grads, step.critic_lr, mask)
