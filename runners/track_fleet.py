@@ -111,6 +111,7 @@ class CurveRecorder:
         self._next = int(state.get("next", 0))
         self._cpu_before = float(state.get("cpu_seconds", 0.0))
         self._cpu_start = time.process_time()
+        self.write()  # the file held only the step-0 point retaken before the restore
 
 
 def fleet_key(learner: str, seeds: Sequence[int], budget: int, train_ids: Sequence[str], chain: str,

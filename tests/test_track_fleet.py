@@ -325,6 +325,13 @@ def test_a_resumed_fleet_continues_its_curve_without_losing_or_repeating_points(
     with pytest.raises(_Interrupted):
         _train(tmp_path / "r", "ppo_lag", every, budget, say=kill)
     assert [steps for seed, steps, _ in _curve(tmp_path / "r" / "curves" / "c.csv") if seed == "1"] == [0, 2048, 4096, 6144]
+    def stop_on_resume(message: str) -> None:  # the progress line the restored step count gives
+        if message.startswith("Utility ppo_lag: 4,096 of"):
+            raise _Interrupted
+
+    with pytest.raises(_Interrupted):  # right after the restore the file holds the restored curve
+        _train(tmp_path / "r", "ppo_lag", every, budget, say=stop_on_resume)
+    assert [steps for seed, steps, _ in _curve(tmp_path / "r" / "curves" / "c.csv") if seed == "1"] == [0, 2048, 4096]
     _train(tmp_path / "r", "ppo_lag", every, budget)  # resumes from the checkpoint at 4,096 steps
     _train(tmp_path / "w", "ppo_lag", every, budget)  # uninterrupted
     assert _curve(tmp_path / "r" / "curves" / "c.csv") == _curve(tmp_path / "w" / "curves" / "c.csv")
