@@ -321,7 +321,7 @@ def _learner_row(learner: str, part: pd.DataFrame, records: list[dict[str, Any]]
         "budget": "exact, untrained" if learner == "random" else _submitted_budget(record) if record.get("submitted")
         else f"{record['budget']:,} steps",
         "seeds": "exact" if learner == "random" else _sample_text(record) if record.get("sample") else
-        ", ".join(sorted({str(r["seed"]) for r in records if r["learner"] == learner})),
+        "submitted" if record.get("submitted") else ", ".join(sorted({str(r["seed"]) for r in records if r["learner"] == learner})),
         "cells": [{"mean": float(cells.loc[s, "mean"]), "ci": _ci(cells.loc[s])} if s in cells.index else None
                   for s in [*SETS, "gap"]],
         "time": "—" if learner == "random" or record.get("submitted") else _seconds(records, learner),

@@ -179,7 +179,7 @@ def test_the_page_shows_seen_unseen_and_builtin_scores_with_intervals(tmp_path: 
               "results_name": "", "source_parts": [], "marks": []}
     html = write_page(site, tmp_path / "track", common, resamples=200).read_text()
     assert (site / FIGURE).stat().st_size > 0 and f'src="{FIGURE}"' in html
-    for text in ("seen (train-split sample)", "unseen (test split)", "built-in (98 envs)", "Gap seen − unseen",
+    for text in ("seen (train-split sample)", "unseen (test split)", "built-in (Table 1 envs)", "Gap seen − unseen",
                  "5,000 steps", "exact, untrained", "7208e3b4"):
         assert text in html
     row = re.search(r'<tr data-learner="PPO">(.*?)</tr>', html).group(1)

@@ -50,7 +50,7 @@ def test_the_track_run_is_written_once_every_pair_is_played_and_resumes(tmp_path
     assert set(frame["track"]) == {"Utility-v2"} and set(frame["learner"]) == {"Mock UP"}
     summary = pd.DataFrame([{"learner": "Mock UP", "set": "test", "mean": 0.5, "low": 0.4, "high": 0.6}])
     row = _learner_row("Mock UP", summary, records)
-    assert row["budget"] == "language model mockllm/model, greedy, untrained" and row["seeds"] == "None"
+    assert row["budget"] == "language model mockllm/model, greedy, untrained" and row["seeds"] == "submitted"
 
 
 def test_a_sample_is_fixed_by_its_seed_and_named_on_the_page(tmp_path: Path) -> None:
