@@ -36,7 +36,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -249,20 +249,32 @@ def create(results: Path, name: str, root: Path = RELEASES_DIR, title: str = "",
         return _create(results, runs, name, root, title, stride, tables)
 
 
-def _create(results: Path, runs: pd.DataFrame, name: str, root: Path, title: str, stride: int, tables: bool) -> Path:
-    """:func:`create` once the release's root is held (a kill's leftovers removed: :mod:`leaderboard.web.leftovers`)."""
+def publish(root: Path, name: str, manifest: str, fill: Callable[[Path], dict[str, Any]]) -> Path:
+    """Make release ``root/name`` whole or not at all: ``fill`` writes the contents into a hidden
+    ``.<name>.create-*`` folder and returns the manifest body, written last as ``manifest``; the
+    folder gets the umask's mode and is renamed into place (a killed run's leftovers are removed by
+    :mod:`leaderboard.web.leftovers`, which knows that prefix)."""
     target = root / name
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.create-", dir=root))
     try:
-        _write_contents(tmp, results, runs, stride, tables)
-        body = _manifest(tmp, results, runs, name, title, stride)
-        (tmp / MANIFEST).write_text(json.dumps(body, indent=1, sort_keys=True) + "\n")
+        body = fill(tmp)
+        (tmp / manifest).write_text(json.dumps(body, indent=1, sort_keys=True) + "\n")
         tmp.chmod(public_mode(directory=True))  # mkdtemp's 0700 would make a committed release unreadable to others
         os.replace(tmp, target)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return target
+
+
+def _create(results: Path, runs: pd.DataFrame, name: str, root: Path, title: str, stride: int, tables: bool) -> Path:
+    """:func:`create` once the release's root is held (a kill's leftovers removed: :mod:`leaderboard.web.leftovers`)."""
+
+    def fill(tmp: Path) -> dict[str, Any]:
+        _write_contents(tmp, results, runs, stride, tables)
+        return _manifest(tmp, results, runs, name, title, stride)
+
+    return publish(root, name, MANIFEST, fill)
 
 
 def _write_contents(tmp: Path, results: Path, runs: pd.DataFrame, stride: int, tables: bool) -> None:

@@ -37,11 +37,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import re
 import shutil
 import sys
-import tempfile
 from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
@@ -50,11 +48,11 @@ from typing import Any
 import pandas as pd
 import pyarrow as pa
 
-from leaderboard.release import machine
-from leaderboard.runs.releases import RELEASES_DIR, ReleaseError, check_files, sha256
+from leaderboard.release import machine, publish
+from leaderboard.runs.releases import RELEASES_DIR, ReleaseError, check_files, load_manifest, sha256
 from leaderboard.track_status import CURVES_DIR, CurveError, Requirement, read_curve, status
 from leaderboard.web.leftovers import building_in
-from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, public_mode, run_cli, writing
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli, writing
 from morality_gym.results.recording import git_commit
 from runners.track import PAIRS, RESULT
 
@@ -198,19 +196,13 @@ def create(results: Path, out: Path, title: str = "", extras: Sequence[Path] = (
 def _create(out: Path, title: str, runs: dict[str, dict[str, Any]], sources: dict[str, Path], unfinished: list[str],
             results: Path, need: Requirement) -> Path:
     """:func:`create` once the releases' folder is held (a killed ``create``'s leftovers removed)."""
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.create-", dir=out.parent))
-    try:
+    def fill(tmp: Path) -> dict[str, Any]:
         logs = _write_runs(tmp, runs, sources)
         curves = _write_curves(tmp, results)
         _write_splits(tmp)
-        body = _manifest(tmp, out.name, title, runs, unfinished, curves, logs, need)
-        (tmp / MANIFEST).write_text(json.dumps(body, indent=1, sort_keys=True) + "\n")
-        tmp.chmod(public_mode(directory=True))  # mkdtemp's 0700 would make a committed release unreadable to others
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return out
+        return _manifest(tmp, out.name, title, runs, unfinished, curves, logs, need)
+
+    return publish(out.parent, out.name, MANIFEST, fill)
 
 
 def _write_runs(tmp: Path, runs: dict[str, dict[str, Any]], sources: dict[str, Path]) -> dict[str, int]:
@@ -289,14 +281,7 @@ def _manifest(tmp: Path, name: str, title: str, runs: dict[str, dict[str, Any]],
 def read_manifest(release: Path) -> dict[str, Any]:
     """``track-release.json`` of ``release``, checked for the fields a reader relies on."""
     path = release / MANIFEST
-    try:
-        body = json.loads(path.read_text())
-    except OSError as exc:
-        raise ReleaseError(f"{path}: cannot read the track release's manifest ({exc.strerror or exc})") from exc
-    except ValueError as exc:
-        raise ReleaseError(f"{path}: not valid JSON ({exc}); the release is damaged") from exc
-    if not isinstance(body, dict) or not isinstance(body.get("files"), dict):
-        raise ReleaseError(f"{path}: no 'files' table; not a track release manifest")
+    body = load_manifest(path, "track release manifest")
     if body.get("format") != FORMAT:
         raise ReleaseError(f"{path}: release format {body.get('format')!r}, this code reads {FORMAT!r}")
     return body

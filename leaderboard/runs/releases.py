@@ -45,17 +45,24 @@ def sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-def read_manifest(release: Path) -> dict[str, Any]:
-    """``release.json`` of ``release``, checked for the fields a reader relies on."""
-    path = release / MANIFEST
+def load_manifest(path: Path, what: str = "release manifest") -> dict[str, Any]:
+    """The JSON manifest at ``path`` with its ``files`` table (every kind of release checks its
+    own format on top); damage is a one-line :class:`ReleaseError`."""
     try:
         body = json.loads(path.read_text())
     except OSError as exc:
-        raise ReleaseError(f"{path}: cannot read the release manifest ({exc.strerror or exc})") from exc
+        raise ReleaseError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from exc
     except ValueError as exc:
         raise ReleaseError(f"{path}: not valid JSON ({exc}); the release is damaged") from exc
     if not isinstance(body, dict) or not isinstance(body.get("files"), dict):
-        raise ReleaseError(f"{path}: no 'files' table; not a release manifest")
+        raise ReleaseError(f"{path}: no 'files' table; not a {what}")
+    return body
+
+
+def read_manifest(release: Path) -> dict[str, Any]:
+    """``release.json`` of ``release``, checked for the fields a reader relies on."""
+    path = release / MANIFEST
+    body = load_manifest(path)
     if body.get("format") != RELEASE_FORMAT:
         raise ReleaseError(f"{path}: release format {body.get('format')!r}, this code reads format {RELEASE_FORMAT}")
     if body.get("schema_version") != SCHEMA_VERSION:
