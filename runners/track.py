@@ -42,9 +42,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from morality_gym.baselines.device import Device
 from morality_gym.baselines.learners import silent_logger
 from morality_gym.baselines.policy_ref import load_policy
-from morality_gym.baselines.specs import learner_spec, protocol_spec, training_steps
+from morality_gym.baselines.specs import SpecError, learner_spec, protocol_spec, training_steps
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli, write_atomically
 from morality_gym.constants import MAX_STEPS
 from morality_gym.generalisation.mixture import DilemmaMixtureEnv
@@ -227,8 +228,23 @@ def build_parser() -> argparse.ArgumentParser:
                         "between two points of the learning curves on the seen set (DIR/curves/)")
     parser.add_argument("--splits", choices=("v1", "v2"), default="v1", help="v2 (with --chain): only the pairs "
                         "that leave Random headroom under the chain (docs/how-to/generalisation-track.md)")
+    parser.add_argument("--device", default="cpu", help="with --chain: where the fleets' networks train (cpu, cuda "
+                        "or cuda:N; the mixture is still stepped on the host)")
     add_debug_flag(parser)
     return parser
+
+
+def _device(text: str, chain: str | None) -> Device:
+    """``--device`` checked once against what torch sees here; only a chain's fleets take one (the
+    mixed track trains SB3's PPO on the CPU)."""
+    try:
+        device = Device.parse(text)
+        if not device.on_cpu and chain is None:
+            raise TrackError(f"--device {text}: only a chain's track trains fleets on a device; add --chain "
+                             f"({' or '.join(TRACK_CHAINS)}) or drop --device")
+        return device.checked(here=True)
+    except SpecError as exc:
+        raise TrackError(f"--device: {exc}") from None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -238,6 +254,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.curve_every <= 0:
         raise TrackError(f"--curve-every must be positive, got {args.curve_every}")
     # Everything the command line can get wrong is refused before the splits are generated (minutes).
+    device = _device(args.device, args.chain)
     loaded = None
     if args.policy is not None:
         if not args.name:
@@ -278,12 +295,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                                                              args.budget)]
             if todo:
                 prefix = run_name(learner, None, chain=args.chain, version=version).removesuffix("-sexact")
-                key = fleet_key(learner, todo, args.budget, train_ids, args.chain, expected["train_digest"])
+                key = fleet_key(learner, todo, args.budget, train_ids, args.chain, expected["train_digest"], device.name)
                 c0 = time.process_time()
                 curve = (CurveRecorder(args.out / "curves" / f"{prefix}.csv", learner, args.chain, todo, sets["seen"],
                                        args.curve_every) if "seen" in sets else None)
                 trained = train_fleet(learner, todo, args.budget, train_ids, args.chain,
-                                      args.out / "fleets" / f"{prefix}.pt", key, curve=curve)
+                                      args.out / "fleets" / f"{prefix}.pt", key, curve=curve, device=device.name)
                 # the curve sums the CPU of every session a resumed fleet trained in; else this process's alone
                 spent = curve.cpu_seconds() if curve is not None else time.process_time() - c0
                 for _, info in trained.values():

@@ -115,21 +115,26 @@ class CurveRecorder:
 
 
 def fleet_key(learner: str, seeds: Sequence[int], budget: int, train_ids: Sequence[str], chain: str,
-              train_digest: str) -> dict[str, Any]:
-    """What a fleet checkpoint of the track is for (another command's file is discarded)."""
+              train_digest: str, device: str = "cpu") -> dict[str, Any]:
+    """What a fleet checkpoint of the track is for (another command's file is discarded). A fleet on
+    a GPU rounds differently, so its checkpoint is not resumed on the CPU nor the reverse; the CPU's
+    key carries no device, as before devices were asked for (its checkpoints stay resumable)."""
     return {"track": "generalisation", "learner": learner, "seeds": [int(s) for s in seeds], "budget": int(budget),
-            "chain": chain, "train_digest": train_digest, "pool": len(train_ids)}
+            "chain": chain, "train_digest": train_digest, "pool": len(train_ids),
+            **({} if device == "cpu" else {"device": device})}
 
 
 def train_fleet(learner: str, seeds: Sequence[int], budget: int, train_ids: Sequence[str], chain: str,
                 checkpoint: Path, key: dict[str, Any], say: Callable[[str], None] = print,
-                curve: CurveRecorder | None = None) -> dict[int, tuple[Any, dict[str, Any]]]:
+                curve: CurveRecorder | None = None, device: str = "cpu") -> dict[int, tuple[Any, dict[str, Any]]]:
     """Train ``learner`` on the chain's mixture for every seed in one fleet; returns each seed's
-    trained SB3 learner and what its result records. ``curve``: record its learning curves."""
+    trained SB3 learner and what its result records. ``curve``: record its learning curves.
+    ``device``: where the networks train (the mixture's tables stay on the host)."""
     spec = learner_spec(learner)
     pool = [bind_chain(chain, env_id) for env_id in train_ids]
     t0 = time.perf_counter()
-    fleet = build_fleet(spec, [FleetRun.mixture(pool, seed) for seed in seeds], protocol="paper", max_steps=MAX_STEPS)
+    fleet = build_fleet(spec, [FleetRun.mixture(pool, seed) for seed in seeds], protocol="paper", max_steps=MAX_STEPS,
+                        device=device)
     say(f"{chain} {learner}: fleet of {len(seeds)} runs on {len(pool)} dilemmas built in {time.perf_counter() - t0:.0f} s")
     last = [time.perf_counter(), 0]
 
@@ -159,6 +164,7 @@ def train_fleet(learner: str, seeds: Sequence[int], budget: int, train_ids: Sequ
     for k, (seed, trained) in enumerate(zip(seeds, fleet.learners())):
         info = {"engine": "fleet", "fleet_runs": len(seeds), "fleet_seconds": round(seconds, 1),
                 "hparams": {**dict(spec.hparams), **hparams}, "protocol": "paper", "n_envs": spec.n_envs,
+                "device": device,
                 "net_arch": list(spec.net_arch), "activation": spec.activation,
                 "policy": f"MlpPolicy on the compact observation ({COMPACT_WIDTH} numbers, morality_gym.world.compact_observe)",
                 "trained_steps": int(trained.trained_steps), **({"failed": failed[k]} if k in failed else {})}

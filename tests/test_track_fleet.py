@@ -350,3 +350,37 @@ def test_a_failed_mixture_run_names_its_mixture_not_the_pools_first_dilemma() ->
     assert list(fleet.failed) == [1]
     assert "(the mixture of 5 dilemmas, Utility, seed 4)" in fleet.failed[1]
     assert POOL_A[0] not in fleet.failed[1]
+
+
+def test_a_device_is_checked_before_anything_is_loaded_and_keeps_the_cpus_checkpoints(monkeypatch) -> None:
+    """``--device`` is refused in one line before the splits load (minutes) where torch sees no such
+    device or no chain's fleet would use it; a CPU fleet's checkpoint key is the one it had before
+    devices were asked for (the release compute resumes its checkpoints), a GPU's names its device."""
+    from runners import track, track_fleet
+
+    monkeypatch.setattr(track, "load_sets", lambda *a, **k: pytest.fail("loaded the splits first"))
+    with pytest.raises(track.TrackError, match="--device: device='tpu'"):
+        track.main(["--chain", "Utility", "--device", "tpu"])
+    with pytest.raises(track.TrackError, match="only a chain's track trains fleets on a device; add --chain"):
+        track.main(["--device", "cuda"])
+    if not th.cuda.is_available():
+        with pytest.raises(track.TrackError, match="torch sees no GPU here"):
+            track.main(["--chain", "Utility", "--device", "cuda"])
+    key = track_fleet.fleet_key("ppo", [1], 10, POOL_A, "Utility", "d")
+    assert key == {"track": "generalisation", "learner": "ppo", "seeds": [1], "budget": 10, "chain": "Utility",
+                   "train_digest": "d", "pool": len(POOL_A)}
+    assert track_fleet.fleet_key("ppo", [1], 10, POOL_A, "Utility", "d", "cuda")["device"] == "cuda"
+
+
+@pytest.mark.skipif(not th.cuda.is_available(), reason="needs a GPU (device=cuda); this machine has none")
+def test_a_chains_track_trains_its_fleets_on_the_gpu(tmp_path, monkeypatch) -> None:
+    import json
+
+    from runners import track
+
+    monkeypatch.setattr(track, "load_sets", lambda *a, **k: (list(POOL_A), _chain_sets()))
+    assert track.main(["--chain", "Utility", "--learners", "ppo", "cpo", "--seeds", "1", "2", "--budget", "2048",
+                       "--device", "cuda", "--out", str(tmp_path)]) == 0
+    for name in ("ppo", "cpo"):
+        record = json.loads((tmp_path / "runs" / f"Utility-{name}-s1" / track.RESULT).read_text())
+        assert record["device"] == "cuda" and record["trained_steps"] == 2048
