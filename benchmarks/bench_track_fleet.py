@@ -14,7 +14,9 @@ not timed. Needs the ``train`` split (generated on first use into ``$MORALITY_GY
 from __future__ import annotations
 
 import argparse
+import json
 import time
+from pathlib import Path
 from typing import Any
 
 from benchmarks import Context, Section, register
@@ -33,23 +35,36 @@ RELEASE_STEPS = 10_000_000
 TARGET_PPO = 30_000.0
 
 
-def measure(chain: str, runs: int, learners: tuple[str, ...] = LEARNERS, say: Any = print) -> list[dict[str, Any]]:
-    """Steps per CPU-second of each learner's fleet of ``runs`` runs on ``chain``'s v2 train pool."""
+def _marker(marks: list[tuple[int, float, float]]) -> Any:
+    """An ``on_progress`` hook appending (steps, CPU, wall) after each update to ``marks``."""
+    return lambda done, _total: marks.append((done, time.process_time(), time.perf_counter()))
+
+
+def measure(chain: str, runs: int, learners: tuple[str, ...] = LEARNERS, say: Any = print, device: str = "cpu",
+            pool_size: int | None = None, rollouts: int = 1) -> list[dict[str, Any]]:
+    """Steps per CPU-second (and per wall second: a GPU's figure) of each learner's fleet of ``runs``
+    runs on ``chain``'s v2 train pool (its first ``pool_size`` dilemmas: a quick build), ``rollouts``
+    rollouts and updates after one untimed warm-up update (a GPU's first update pays its set-up)."""
     load_split("train")
-    pool = [bind_chain(chain, env_id) for env_id in read_manifest("train").env_ids(chain)]
+    pool = [bind_chain(chain, env_id) for env_id in read_manifest("train").env_ids(chain)[:pool_size]]
     rows = []
     for name in learners:
         spec = protocol_spec("paper").apply(learner_spec(name))
         rollout = int(spec.hparams.get("n_steps", 2048)) * spec.n_envs
         t0 = time.perf_counter()
-        fleet = build_fleet(learner_spec(name), [FleetRun.mixture(pool, seed) for seed in range(runs)], "paper")
+        fleet = build_fleet(learner_spec(name), [FleetRun.mixture(pool, seed) for seed in range(runs)], "paper",
+                            device=device)
         built = time.perf_counter() - t0
-        c0 = time.process_time()
-        steps = fleet.learn(rollout)
-        cpu = time.process_time() - c0
-        rows.append({"learner": name, "runs": runs, "steps_per_run": steps, "cpu_s": cpu,
-                     "rate": steps * runs / cpu, "build_s": built, "pool": len(pool)})
-        say(f"{chain} {name}: K={runs}, {steps:,} steps per run, {steps * runs / cpu:,.0f} env steps per CPU-second "
+        warm = 0 if device == "cpu" else 1
+        marks = [(0, time.process_time(), time.perf_counter())]  # (steps, CPU, wall) after each update
+        fleet.learn((warm + rollouts) * rollout, on_progress=_marker(marks))
+        (s0, c0, w0), (s1, c1, w1) = marks[warm], marks[-1]
+        steps, cpu, wall = s1 - s0, c1 - c0, w1 - w0
+        rows.append({"learner": name, "runs": runs, "steps_per_run": steps, "cpu_s": cpu, "wall_s": wall,
+                     "rate": steps * runs / cpu, "wall_rate": steps * runs / wall, "build_s": built, "pool": len(pool),
+                     "device": device, "chain": chain})
+        say(f"{chain} {name} on {device}: K={runs}, pool {len(pool)}, {steps:,} steps per run, "
+            f"{steps * runs / cpu:,.0f} env steps per CPU-second, {steps * runs / wall:,.0f} per wall second "
             f"(fleet built in {built:.0f} s)")
         del fleet
     return rows
@@ -92,8 +107,16 @@ def main() -> None:
     parser.add_argument("--chain", default="Utility", choices=("Utility", "DualProcess"))
     parser.add_argument("--runs", type=int, default=RELEASE_SEEDS)
     parser.add_argument("--learners", nargs="+", default=list(LEARNERS), choices=LEARNERS)
+    parser.add_argument("--device", default="cpu", help="where the networks train (cpu, cuda); the mixture steps on the host")
+    parser.add_argument("--pool", type=int, default=None, help="the train pool's first N dilemmas only (a quick build)")
+    parser.add_argument("--rollouts", type=int, default=1, help="rollouts and updates timed per learner")
+    parser.add_argument("--json", type=Path, default=None, help="append each row to this JSON-lines file")
     args = parser.parse_args()
-    measure(args.chain, args.runs, tuple(args.learners))
+    rows = measure(args.chain, args.runs, tuple(args.learners), device=args.device, pool_size=args.pool,
+                   rollouts=args.rollouts)
+    if args.json is not None:
+        with args.json.open("a") as out:
+            out.writelines(json.dumps(row) + "\n" for row in rows)
 
 
 if __name__ == "__main__":

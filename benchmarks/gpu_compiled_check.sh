@@ -14,6 +14,7 @@
 # Compiled kernels are cached under $OUT/inductor-cache, so the 8 processes compile once between them.
 #
 # Usage (repository root, packages as for gpu_check.sh):  OUT=/tmp/gpu bash benchmarks/gpu_compiled_check.sh
+# BUDGET=<seconds> (default 300): the column gets what is left of it.
 # DRY=1 runs the same steps on the CPU with tiny sizes (a check that the script and its Python parts work).
 set -uo pipefail
 cd "$(dirname "$0")/.."
@@ -37,7 +38,7 @@ for learner in $LEARNERS; do
   timeout "$PROCS_LIMIT" "$PYTHON" -m benchmarks.gpu_probe --device "$DEVICE" --learners "$learner" --sizes "$K" --updates 1 \
     --procs "$PROCS" --update compiled --json "$OUT/compiled-probe.jsonl"
 done
-left=$(( 300 - ($(date +%s) - start) ))
+left=$(( ${BUDGET:-300} - ($(date +%s) - start) ))
 if [ "$COLUMN" = 1 ] && [ "$left" -gt 30 ]; then
   echo "== one column of the paper Table 1 (${left} s left)"
   LIMIT=$left OUT="$OUT" ALGO=${ALGO:-ppo} WORKERS=$PROCS bash benchmarks/gpu_table1_column.sh
