@@ -383,4 +383,5 @@ def test_a_chains_track_trains_its_fleets_on_the_gpu(tmp_path, monkeypatch) -> N
                        "--device", "cuda", "--out", str(tmp_path)]) == 0
     for name in ("ppo", "cpo"):
         record = json.loads((tmp_path / "runs" / f"Utility-{name}-s1" / track.RESULT).read_text())
-        assert record["device"] == "cuda" and record["trained_steps"] == 2048
+        # whole rollouts: PPO's is 8 copies x 2,048 steps, CPO's one copy's
+        assert record["device"] == "cuda" and record["trained_steps"] == {"ppo": 16_384, "cpo": 2048}[name]
