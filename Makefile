@@ -41,7 +41,7 @@ help:
 	@echo "make reproduce-table1 [PRESET=smoke|quick|paper] [LAUNCHER=local|slurm] [PROTOCOLS=\"paper corrected\"]"
 	@echo "                     [DEVICE=cpu|cuda] [WORKERS=n]"
 	@echo "                     run the Table 1 sweeps (resumable), then build table1.* and the leaderboard"
-	@echo "make track-compute [TRACK_BUDGET=10000000] [TRACK_OUT=results/track]"
+	@echo "make track-compute [TRACK_BUDGET=10000000] [TRACK_OUT=results/track] [TRACK_DEVICE=cpu|cuda]"
 	@echo "                     the generalisation track's runs: Utility and DualProcess on the v2 splits, every learner,"
 	@echo "                     5 seeds (resumable; docs/how-to/generalisation-track.md)"
 	@echo "make check-pins      check that every dependency pin installs on Python $(PYTHON_FLOOR) (Debian 12's); CI runs it"
@@ -144,11 +144,12 @@ leaderboard: venv
 TRACK_BUDGET ?= 10000000
 TRACK_SEEDS ?= 41 42 43 44 45
 TRACK_OUT ?= $(RESULTS)/track
+TRACK_DEVICE ?= cpu
 track-compute: venv
 	@# One chain after the other, every learner's seeds as one checkpointed fleet; a rerun resumes.
 	@for chain in Utility DualProcess; do \
 	  nice -n 19 $(PY) -m runners.track --chain $$chain --splits v2 --learners random ppo ppo_shaped ppo_lag cpo \
-	    --seeds $(TRACK_SEEDS) --budget $(TRACK_BUDGET) --out $(TRACK_OUT) || exit $$?; \
+	    --seeds $(TRACK_SEEDS) --budget $(TRACK_BUDGET) --out $(TRACK_OUT) --device $(TRACK_DEVICE) || exit $$?; \
 	done
 
 release: venv
