@@ -83,9 +83,11 @@ def fleet_adam(ctx: Context) -> Section:
         "adam rates outside": torch.compile(compiled.adam_, fullgraph=True, dynamic=None),
         **{name: torch.compile(_engine(*how), fullgraph=True, dynamic=None) for name, how in STEPS.items()},
     }
-    rows = []
+    rows, speedups = [], []
+    load = os.getloadavg()[0]
     for k in sizes:
         params, ms = _measure(k, spec, ids, compiled_fns, ctx.repeats)
+        speedups.append((k, ms))
         rows.append([f"K={k}", f"{params:,}", *(f"{v:.3f}" for v in ms.values()),
                      f"{ms['adam rates in graph'] / ms['adam rates outside']:.1f}x",
                      *(f"{ms['step before'] / ms[name]:.2f}x" for name in list(STEPS)[1:])])
@@ -110,8 +112,37 @@ element by element), with each of the two changes alone, and now (both). Speed-u
                  *(f"{name} ms" for name in STEPS), "adam speed-up",
                  *(f"{name} speed-up" for name in list(STEPS)[1:])],
         rows=rows,
+        notes=_notes(speedups, load, os.getloadavg()[0], os.cpu_count() or 1),
         compare=["adam rates outside ms", "step now ms"],
     )
+
+
+def _notes(measured: list[tuple[int, dict[str, float]]], load_start: float, load_end: float, cpus: int) -> list[str]:
+    """Which change was faster at every size measured, and the machine's load, so that a reader
+    can tell a clear result from a noisy one (a previous run on a loaded machine was inconclusive)."""
+    def verdict(name: str, base: str, what: str) -> str:
+        ratios = [ms[base] / ms[name] for _, ms in measured]
+        sizes = ", ".join(f"{r:.2f}x at K={k}" for (k, _), r in zip(measured, ratios))
+        if all(r > 1.0 for r in ratios):
+            word = "faster at every size"
+        elif all(r < 1.0 for r in ratios):
+            word = "slower at every size"
+        else:
+            word = "mixed"
+        return f"{what}: {word} ({sizes})"
+
+    return [
+        "; ".join([
+            verdict("adam rates outside", "adam rates in graph", "Adam's rates outside the graph, the Adam step alone"),
+            verdict("step, rates outside only", "step before", "the same change alone on the whole step"),
+            verdict("step, direct first-layer product only", "step before", "the direct first-layer product alone"),
+            verdict("step now", "step before", "both (the engine now)"),
+        ]) + ".",
+        (f"Load average (1 min) {load_start:.2f} at the start and {load_end:.2f} at the end of this section, on {cpus} "
+         "logical CPUs: the figures are this process's CPU time, which other jobs inflate less than wall time, though not entirely."
+         + (" **Inconclusive**: the machine was loaded beyond its CPUs; rerun on a quiet machine before quoting."
+            if max(load_start, load_end) > cpus else "")),
+    ]
 
 
 def _measure(k: int, spec: Any, ids: list[str], compiled_fns: dict[str, Callable[..., Any]], repeats: int

@@ -25,10 +25,10 @@ import torch as th
 import torch._dynamo
 
 import morality_gym
-from morality_gym.baselines.fleet import FleetRun, build_fleet, compiled
+from morality_gym.baselines.fleet import FleetRun, build_fleet, compiled, make_fleet
 from morality_gym.baselines.fleet import ppo as fleet_ppo
 from morality_gym.baselines.fleet.nets import ACTIVATIONS, backward_layers, trace_layers
-from morality_gym.baselines.specs import SpecError, learner_spec
+from morality_gym.baselines.specs import SpecError, learner_spec, protocol_spec
 
 SMALL = {
     "ppo": {"n_steps": 32, "n_epochs": 2},
@@ -213,6 +213,44 @@ def test_compiled_checkpoints_name_their_engine() -> None:
     eager fleet's identity is what it was before the setting existed."""
     assert "update" not in _fleet("ppo", "paper", FLEET_A, update="eager").identity()
     assert _fleet("ppo", "paper", FLEET_A).identity()["update"] == "compiled"
+
+
+@pytest.mark.parametrize(("name", "protocol"), [("ppo", "paper"), ("ppo_lag", "corrected"), ("cpo", "paper")])
+def test_buffers_a_step_writes_are_static_for_cuda_graphs(name: str, protocol: str) -> None:
+    """Every input a compiled step writes in place (parameters, Adam moments, step counts) is
+    marked static without a guard: inductor's CUDA-graph trees skip capturing a graph that writes
+    into any other input, which they did for every step on the H200 before the mark, and a guard
+    would recompile for every fleet."""
+    written_marks: list[Any] = []
+
+    def backend(gm: th.fx.GraphModule, example_inputs: list[Any]) -> Any:
+        placeholders = [n for n in gm.graph.nodes if n.op == "placeholder"]
+        written = {n.args[0] for n in gm.graph.nodes if n.op == "call_method" and n.target == "copy_"}
+        written_marks.extend(getattr(value, "_dynamo_static_input_type", None)
+                             for node, value in zip(placeholders, example_inputs) if node in written)
+        return compiled.static_check(gm, example_inputs)
+
+    fleet = _fleet(name, protocol, FLEET_A)
+    fleet.compile_backend = backend
+    fleet.learn(ROLLOUT)
+    assert len(written_marks) == (8 if name == "ppo_lag" else 4)
+    assert set(written_marks) == {"unguarded"}
+
+
+@pytest.mark.parametrize("name", ["ppo", "cpo"])
+def test_eager_stays_the_default_engine(name: str) -> None:
+    """Only the eager engine reruns a release bit for bit (docs/engines.md), and the sweep builds
+    its fleets without naming an engine (runners.jobs): so a fleet built without ``update=``, by
+    either entry point, is eager and trains without compiling anything."""
+    assert compiled.DEFAULT_UPDATE_ENGINE == "eager"
+    spec = learner_spec(name, {"hparams": SMALL[name]})
+    runs = [FleetRun(morality_gym.bind_chain(c, e), s) for c, e, s in FLEET_A]
+    protocol = protocol_spec("paper")
+    for fleet in (build_fleet(spec, runs, "paper"), make_fleet(protocol.apply(spec), runs, protocol)):
+        assert fleet.update_engine == "eager" and not fleet.compiled
+        fleet.learn(ROLLOUT)
+        assert "update" not in fleet.identity()  # its checkpoints are those of the releases' engine
+    assert torch._dynamo.utils.counters["stats"]["unique_graphs"] == 0
 
 
 @pytest.mark.skipif(not th.cuda.is_available(), reason="needs a GPU (benchmarks/gpu_compiled_check.sh runs it)")

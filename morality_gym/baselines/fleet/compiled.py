@@ -25,7 +25,8 @@ a mixed fleet hold exact zeros), and runs masked out of a step
 (PPO-Lag's KL early stop) are still computed and then left unchanged (``where``), so that every
 step has the same shapes. The compiled engine therefore does not rerun a release bit for bit: the
 eager engine (``update=eager``) does, and is the default (:data:`DEFAULT_UPDATE_ENGINE`: measured in
-``BENCHMARKS.md``, "Fleet update engines", the compiled engine's gain is below 2x on the CPU).
+``BENCHMARKS.md``, "Fleet update engines on a whole Table 1 row", the compiled engine gains 0.9-1.2x
+on the CPU at a sweep's fleet size, where the batched products dominate).
 
 Shapes: the run axis, the observation width and the minibatch are marked dynamic, so one compiled
 graph serves every fleet of a learner (any size, any scenario mix) and a sweep compiles once per
@@ -188,6 +189,21 @@ def mark_dynamic(*tensors: th.Tensor, dims: Sequence[int] = (0,)) -> None:
             th._dynamo.maybe_mark_dynamic(t, d)
 
 
+def mark_static(*tensors: th.Tensor) -> None:
+    """Mark the buffers a compiled step writes in place (an optimiser's parameters, Adam moments and
+    step counts) as keeping their address from call to call.
+
+    Why: a CUDA graph replays fixed addresses, and inductor's CUDA-graph trees refuse to capture a
+    graph that writes into an input unless the input is static (an ``nn.Parameter``, or marked so).
+    Unmarked, every compiled step ran outside a CUDA graph on an H200 ("skipping cudagraphs due to
+    mutated inputs (4 instances)", ``benchmarks/gpu_compiled_check.sh``, 2026-11-28). ``guard=False``:
+    no guard on the address, so another fleet's buffers reuse the compiled graph (the CUDA graph is
+    recorded again for them) instead of recompiling it. The mark is an attribute of the tensor: it
+    changes nothing on the CPU."""
+    for t in tensors:
+        th._dynamo.mark_static_address(t, guard=False)
+
+
 # ---------------------------------------------------------------------------------------- pieces
 def _backward(tr: Trace, dout: th.Tensor, act_backward: Callable[[th.Tensor, th.Tensor], th.Tensor]) -> list[th.Tensor]:
     """:func:`~.nets.backward_layers` with every weight gradient in its weights' layout.
@@ -232,7 +248,9 @@ def adam_rates(steps: th.Tensor, lr: th.Tensor, active: th.Tensor | None, c: Ada
     parameters (libm's ``pow`` may set ``errno``, so the C++ compiler cannot hoist it out of the
     loop; the generated code shows it). Measured gain: mixed so far, on a heavily shared machine
     (BENCHMARKS.md, "Fleet compiled update: Adam's per-run rates inside vs outside the graph": the
-    Adam step alone 1.7x faster at K = 36, slower at K = 12; rerun on a quiet machine). Five small
+    Adam step alone 1.7x faster at K = 36, slower at K = 12; rerun 2026-11-28 at a load of 7-8 on 2 CPUs:
+    the Adam step alone slower at both sizes, the whole step with this change alone 1.01x and 1.40x
+    faster; still inconclusive, rerun on a quiet machine). Five small
     tensor operations on the device, no host read."""
     step = steps + (1.0 if active is None else active.to(steps.dtype))
     return th.stack([lr / (1.0 - th.pow(c.beta1, step)), th.sqrt(1.0 - th.pow(c.beta2, step))], dim=1)
@@ -377,5 +395,5 @@ def lag_step(actor_flat: th.Tensor, actor_avg: th.Tensor, actor_avg_sq: th.Tenso
 
 __all__ = [
     "DEFAULT_UPDATE_ENGINE", "UPDATE_ENGINES", "AdamConsts", "DataDependentShape", "Net", "adam_", "adam_in_graph", "adam_rates", "clipped_surrogate_t", "compile_cache_dir",
-    "compiled_step", "compiler_missing", "critic_step", "lag_step", "mark_dynamic", "ppo_step", "static_check", "unflatten",
+    "compiled_step", "compiler_missing", "critic_step", "lag_step", "mark_dynamic", "mark_static", "ppo_step", "static_check", "unflatten",
 ]

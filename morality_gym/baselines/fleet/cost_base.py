@@ -15,7 +15,7 @@ import numpy as np
 import torch as th
 
 from morality_gym.baselines.fleet.base import FleetTrainer
-from morality_gym.baselines.fleet.compiled import AdamConsts, Net, adam_rates, critic_step, mark_dynamic
+from morality_gym.baselines.fleet.compiled import AdamConsts, Net, adam_rates, critic_step, mark_dynamic, mark_static
 from morality_gym.baselines.fleet.losses import Policy, mse
 from morality_gym.baselines.fleet.nets import Runs
 from morality_gym.baselines.fleet.optim import BatchedAdam
@@ -125,6 +125,8 @@ class FleetCostTrainer(FleetTrainer):
         step = self._compile(critic_step) if self.compiled else None
         lr_t = self._runs_tensor(critic_lr)
         opt = self.critic_optimizer
+        if step is not None:
+            mark_static(opt.flat, opt.exp_avg, opt.exp_avg_sq, opt._step_counts)
         for _ in range(int(self.model.n_critic_updates)):
             for obs, returns, cost_returns in ro.minibatches(self.permutations(size), batch, "obs", "returns", "cost_returns"):
                 if step is not None:

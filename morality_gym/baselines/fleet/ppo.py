@@ -21,7 +21,7 @@ import numpy as np
 import torch as th
 
 from morality_gym.baselines.fleet.base import FleetTrainer
-from morality_gym.baselines.fleet.compiled import AdamConsts, Net, adam_rates, mark_dynamic, ppo_step
+from morality_gym.baselines.fleet.compiled import AdamConsts, Net, adam_rates, mark_dynamic, mark_static, ppo_step
 from morality_gym.baselines.fleet.losses import Policy, clipped_surrogate, mse
 from morality_gym.baselines.fleet.optim import BatchedAdam
 from morality_gym.baselines.specs import SB3_PPO
@@ -94,6 +94,7 @@ class FleetPPO(FleetTrainer):
         adam = AdamConsts(opt.beta1, opt.beta2, opt.eps, float(m.max_grad_norm), 0, 0.0)
         lr_t, clip_t = self._runs_tensor(lr), th.tensor(clip_range, dtype=th.float32, device=self.device)
         ent_coef, vf_coef = float(m.ent_coef), float(m.vf_coef)
+        mark_static(opt.flat, opt.exp_avg, opt.exp_avg_sq, opt._step_counts)
         for _ in range(int(m.n_epochs)):
             for obs, actions, old_log_prob, advantages, returns in ro.minibatches(
                 self.permutations(ro.actions.shape[1]), int(m.batch_size), "obs", "actions", "log_probs", "advantages", "returns"

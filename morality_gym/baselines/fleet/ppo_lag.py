@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch as th
 
-from morality_gym.baselines.fleet.compiled import AdamConsts, Net, adam_rates, lag_step, mark_dynamic
+from morality_gym.baselines.fleet.compiled import AdamConsts, Net, adam_rates, lag_step, mark_dynamic, mark_static
 from morality_gym.baselines.fleet.cost_base import FleetCostTrainer
 from morality_gym.baselines.fleet.losses import Policy, clipped_surrogate
 from morality_gym.baselines.fleet.optim import BatchedAdam
@@ -156,6 +156,8 @@ class FleetPPOLag(FleetCostTrainer):
         live = self._runs_tensor(active, th.bool)
         actor_lr, critic_lr = self._runs_tensor(step.actor_lr), self._runs_tensor(step.critic_lr)
         clip = th.tensor(step.clip_range, dtype=th.float32, device=self.device)
+        mark_static(a_opt.flat, a_opt.exp_avg, a_opt.exp_avg_sq, a_opt._step_counts, c_opt.flat, c_opt.exp_avg, c_opt.exp_avg_sq,
+                    c_opt._step_counts)
         stats = []
         for fields in ro.minibatches(order, step.batch, "obs", "actions", "log_probs", "advantages", "cost_advantages", "returns",
                                      "cost_returns"):
