@@ -54,7 +54,7 @@ from morality_gym.generalisation.sets import SEEN_SAMPLE, SETS, TRACK_CHAINS, Ev
 from morality_gym.generator.grammar import GRAMMAR_VERSION
 from morality_gym.generator.splits import split_manifest
 from morality_gym.results.recording import git_commit
-from runners.track_fleet import CURVE_EVERY, CurveRecorder, fleet_key, train_fleet
+from runners.track_fleet import CURVE_EVERY, CurveRecorder, fleet_key, table_cache_dir, train_fleet
 
 LEARNERS = ("random", "ppo", "ppo_shaped", "ppo_lag", "cpo")
 #: The learners trained on a chain's step-wise cost: only a chain's track has one.
@@ -300,7 +300,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 curve = (CurveRecorder(args.out / "curves" / f"{prefix}.csv", learner, args.chain, todo, sets["seen"],
                                        args.curve_every) if "seen" in sets else None)
                 trained = train_fleet(learner, todo, args.budget, train_ids, args.chain,
-                                      args.out / "fleets" / f"{prefix}.pt", key, curve=curve, device=device.name)
+                                      args.out / "fleets" / f"{prefix}.pt", key, curve=curve, device=device.name,
+                                      table_cache=table_cache_dir())
                 # the curve sums the CPU of every session a resumed fleet trained in; else this process's alone
                 spent = curve.cpu_seconds() if curve is not None else time.process_time() - c0
                 for _, info in trained.values():

@@ -11,6 +11,9 @@ costs, the compact observation.
 
 from __future__ import annotations
 
+import hashlib
+import platform
+
 import numpy as np
 import pytest
 import torch as th
@@ -20,7 +23,7 @@ from morality_gym.baselines.fleet import FleetRun, build_fleet
 from morality_gym.baselines.fleet.drawn_env import DrawnFleetEnv
 from morality_gym.baselines.specs import SpecError, learner_spec
 from morality_gym.envs.drawn import DrawnBatchedTrolleyEnv
-from morality_gym.envs.registry import env_ids, state_graph
+from morality_gym.envs.registry import clear_graph_cache, env_ids, state_graph
 from morality_gym.norms.cost import VectorCost
 from morality_gym.norms.reward_cost import RewardCostSpec
 from morality_gym.world.compact_observe import COMPACT_WIDTH, collisions, compact_from_grid, sign_matrix
@@ -39,6 +42,12 @@ SMALL = {
 
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # tests/conftest.py
+
+
+@pytest.fixture(autouse=True)
+def _own_cache(tmp_path_factory, monkeypatch) -> None:
+    """``runners.track`` keeps its pools' tables under ``$MORALITY_GYM_CACHE``: here, not the user's."""
+    monkeypatch.setenv("MORALITY_GYM_CACHE", str(tmp_path_factory.mktemp("cache")))
 
 
 def _stream_entries(env: DrawnBatchedTrolleyEnv, stream: int, steps: int, actions: np.ndarray) -> list[list[str]]:
@@ -157,6 +166,71 @@ def test_a_killed_mixture_fleet_resumes_from_its_checkpoint_bit_for_bit(name: st
     np.testing.assert_array_equal(whole.collector.env.sim.draws, resumed.collector.env.sim.draws)
 
 
+# ---------------------------------------------------------------------- the same bits as the release's runs
+#: A mixture run's bits, recorded on main at 212ffd5 (before the table cache and the rollout's speed-ups of
+#: issue 44): the release's compute switches to newer code between checkpoints, so every change of the
+#: training path must leave every bit of a run as it was. The simulator's figures are numpy integer
+#: gathers and float64 costs (any platform); the parameters' are torch's float32 arithmetic on one
+#: thread, recorded with torch 2.13.0+cpu on x86-64 (another build may round differently).
+GOLDEN_SIM = {"minimal": "e258b508b1153b8c", "full": "a884979aa5a2c37f"}
+GOLDEN_PARAMS = {"ppo": ("30aa7ec4e74460b1", "f2bdcd080abe560d"), "ppo_shaped": ("58235f029f6101dc", "0c383f08c42b585a"),
+                 "ppo_lag": ("7bc0d7b301c5452e", "54318aaa39eb984f"), "cpo": ("6f0e8cda156e1bb5", "58ab1661aa6f46b1")}
+GOLDEN_DIAGNOSTICS = {"ppo": ("4f53cda18c2baa0c",) * 2, "ppo_shaped": ("4f53cda18c2baa0c",) * 2,
+                      "ppo_lag": ("2edf31cff26592cd", "5cce204fcd3eed57"), "cpo": ("f45df9897d75c46e", "f3ca5a0784951a62")}
+GOLDEN_TORCH = ("2.13.0+cpu", "x86_64")
+DUAL = ["PushOrSwitch-Human-v1", "PushStandard-AnimalA-v1", "Switch7-Robot-v1"]
+
+
+def _golden_pools() -> list[list]:
+    return [[morality_gym.bind_chain("DualProcess", e) for e in DUAL], [morality_gym.bind_chain("Utility", e) for e in POOL_A]]
+
+
+def _digest(*arrays: np.ndarray) -> str:
+    digest = hashlib.sha256()
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        digest.update(str(a.dtype).encode() + str(a.shape).encode() + a.tobytes())
+    return digest.hexdigest()[:16]
+
+
+@pytest.mark.parametrize("cached", [False, True])
+@pytest.mark.parametrize("cost_mode", ["minimal", "full"])
+def test_the_mixtures_steps_are_the_recorded_bits(cost_mode: str, cached: bool, tmp_path) -> None:
+    cache = tmp_path if cached else None
+    if cached:  # the second simulator reads every table from the files
+        DrawnFleetEnv(_golden_pools(), [12, 11], 6, RewardCostSpec(cost_mode=cost_mode), table_cache=cache)
+        clear_graph_cache()
+    env = DrawnFleetEnv(list(reversed(_golden_pools())), [11, 12], 6, RewardCostSpec(cost_mode=cost_mode), table_cache=cache)
+    rng = np.random.default_rng(1)
+    digest = hashlib.sha256(env.reset().numpy().tobytes())
+    for _ in range(600):
+        step = env.step(th.from_numpy(rng.integers(0, 6, env.sim.num_envs)))
+        for t in (step.obs, step.rewards, step.costs, step.dones, step.truncated):
+            digest.update(t.numpy().tobytes())
+        if step.final_obs is not None:
+            digest.update(step.final_obs.numpy().tobytes())
+    assert digest.hexdigest()[:16] == GOLDEN_SIM[cost_mode]
+
+
+@pytest.mark.skipif((th.__version__, platform.machine()) != GOLDEN_TORCH,
+                    reason=f"the parameters' bits were recorded with torch {GOLDEN_TORCH[0]} on {GOLDEN_TORCH[1]}")
+def test_mixture_fleets_train_the_recorded_bits_from_built_and_cached_tables(tmp_path) -> None:
+    """Every learner, 3 updates of two runs on two chains' pools: the first fleet builds the tables
+    and writes them, every later one reads them (and the last again after the graphs are forgotten)."""
+    for name in (*GOLDEN_PARAMS, "ppo"):
+        if name == "ppo" and any(tmp_path.iterdir()):
+            clear_graph_cache()
+        spec = learner_spec(name, {"hparams": SMALL[name]})
+        fleet = build_fleet(spec, [FleetRun.mixture(p, seed) for p, seed in zip(_golden_pools(), (4, 3))], "paper",
+                            table_cache=tmp_path)
+        fleet.learn(3 * 32 * 8)
+        got = tuple(_digest(*(p.detach().numpy() for p in run.model.policy.parameters())) for run in fleet.learners())
+        assert got == GOLDEN_PARAMS[name], name
+        assert tuple(hashlib.sha256(str(run.update_diagnostics()).encode()).hexdigest()[:16]
+                     for run in fleet.learners()) == GOLDEN_DIAGNOSTICS[name], name
+    assert len(list(tmp_path.glob("*.npz"))) == len(set(DUAL) | set(POOL_A))
+
+
 def test_a_fleet_does_not_mix_mixture_and_single_env_runs() -> None:
     spec = learner_spec("ppo", {"hparams": SMALL["ppo"]})
     bound = morality_gym.bind_chain("Utility", POOL_A[0])
@@ -245,6 +319,9 @@ def test_a_chains_track_trains_fleets_and_a_rerun_redoes_only_missing_runs(tmp_p
         assert record["engine"] == "fleet" and record["chain"] == "Utility" and record["trained_steps"] == 2048
         assert (runs / f"Utility-ppo_lag-s{seed}" / "model.zip").is_file()
     assert "fleet of 2 runs" in capsys.readouterr().out
+    from runners.track_fleet import table_cache_dir
+
+    assert len(list(table_cache_dir().glob("*.npz"))) == len(POOL_A)  # the next session reads the pool's tables
     first = pd.read_parquet(runs / "Utility-ppo_lag-s2" / track.PAIRS)
 
     # a crash after seed 1 was written: the rerun trains seed 2 alone, to the same numbers

@@ -11,16 +11,19 @@ environment step for step (tested), including truncation on step ``max_steps + 1
 from __future__ import annotations
 
 import weakref
+from pathlib import Path
 from typing import Literal, NamedTuple
 
 import numpy as np
 
 from morality_gym.constants import MAX_STEPS
 from morality_gym.envs.registry import parse_env_id, state_graph
+from morality_gym.envs.table_cache import CACHED_OBS_TYPES, SimTables, entry_key, read_entry, write_entry
 from morality_gym.envs.trolley import _overrides
 from morality_gym.world.compact_observe import compact_from_grid
-from morality_gym.world.graph import N_ACTIONS, GraphTables, StateGraph
+from morality_gym.world.graph import N_ACTIONS, StateGraph
 from morality_gym.world.grid_observe import grid_table
+from morality_gym.world.rules import Overrides
 from morality_gym.world.vocab import EVENT_BIT
 
 AutoReset = Literal["same_step", "disabled"]
@@ -83,6 +86,28 @@ def observation_table(graph: StateGraph, obs_type: str, dtype: type) -> np.ndarr
     return np.ascontiguousarray(grids.reshape(tables.n_states, -1).astype(dtype))
 
 
+def sim_tables(env_id: str, obs_type: str, obs_dtype: type, *, overrides: Overrides | None = None,
+               normalise: bool = True, cache_dir: Path | None = None) -> SimTables:
+    """The tables a batched simulator gathers from for ``env_id`` (canonical id), with observation
+    rows of ``obs_type``. With a ``cache_dir`` they are read from there when a sound entry exists,
+    else built and written there (:mod:`.table_cache`; a world with ``overrides``, or grid rows, are
+    always built: neither is worth an entry)."""
+    scenario, variant = parse_env_id(env_id)
+    path = key = None
+    if cache_dir is not None and overrides is None and obs_type in CACHED_OBS_TYPES:
+        key = entry_key(scenario, variant, obs_type, obs_dtype, normalise)
+        path = Path(cache_dir) / f"{key}.npz"
+        found = read_entry(path, key, obs_dtype)
+        if found is not None:
+            return found
+    graph = state_graph(env_id, overrides, normalise)
+    t = graph.tables()
+    tables = SimTables(t.next, t.reward, t.events, t.utility, t.goal, t.done, observation_table(graph, obs_type, obs_dtype))
+    if path is not None and key is not None:
+        write_entry(path, key, env_id, tables)
+    return tables
+
+
 def utility_present(events: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Which utility keys a step reported, from its event masks (spec section 8).
 
@@ -108,6 +133,7 @@ class BatchedTrolleyEnv:
             events) until :meth:`reset` is called for them.
         obs_type: ``"flat"`` (default) the scenario's flat vector; ``"grid"`` the fixed-shape grid
             observation, flattened; ``"compact"`` the compact observation (:func:`observation_table`).
+        table_cache: a folder that keeps the graphs' tables between processes (:func:`sim_tables`).
     """
 
     #: The batched simulator does not render (SB3 and Gymnasium probe this attribute).
@@ -124,6 +150,7 @@ class BatchedTrolleyEnv:
         normalise_obs: bool = True,
         overrides: dict | None = None,
         obs_type: str = "flat",
+        table_cache: Path | None = None,
     ) -> None:
         if not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
@@ -136,15 +163,14 @@ class BatchedTrolleyEnv:
         self.num_envs = num_envs
         self.max_steps = max_steps
         self.autoreset = autoreset
-        self.graph = state_graph(self.env_id, _overrides(overrides), normalise_obs)
-        self.tables: GraphTables = self.graph.tables()
-        t = self.tables
+        self._graph_args = (_overrides(overrides), normalise_obs)
+        t = self._first_tables(obs_type, obs_dtype, table_cache)
         self._next = t.next
         self._reward = t.reward.astype(np.float32)
         self._events = t.events
         self._done = t.done
         self.obs_type = obs_type
-        self._obs = observation_table(self.graph, obs_type, obs_dtype)
+        self._obs = t.obs
         # One extra, empty row after the graph's transitions: what an ended copy "did" in a step.
         self.no_transition = len(t.next)
         self._utility = np.vstack([t.utility, np.zeros((1, t.utility.shape[1]), dtype=t.utility.dtype)])
@@ -158,6 +184,17 @@ class BatchedTrolleyEnv:
         self.elapsed = np.zeros(num_envs, dtype=np.int32)
         self.ended = np.zeros(num_envs, dtype=bool)
         self._zero_reward = np.float32(0.0)
+
+    @property
+    def graph(self) -> StateGraph:
+        """The (shared, memoised) state graph of :attr:`env_id`: enumerated only if asked for, since
+        tables read from a cache need none."""
+        return state_graph(self.env_id, *self._graph_args)
+
+    def _first_tables(self, obs_type: str, obs_dtype: type, table_cache: Path | None) -> SimTables:
+        """The tables of :attr:`env_id` (a subclass that replaces them may skip the work)."""
+        overrides, normalise = self._graph_args
+        return sim_tables(self.env_id, obs_type, obs_dtype, overrides=overrides, normalise=normalise, cache_dir=table_cache)
 
     # ------------------------------------------------------------------ API
     def reset(self, mask: np.ndarray | None = None) -> np.ndarray:

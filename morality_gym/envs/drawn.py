@@ -19,6 +19,7 @@ bias is below ``len(pool) / 2**64``.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Final
 
 import numpy as np
@@ -56,7 +57,8 @@ class DrawnBatchedTrolleyEnv(MixedBatchedTrolleyEnv):
     draws its episodes' env ids from ``pools[s]`` with seed ``seeds[s]`` (module docstring).
 
     :attr:`copy_entry` is each copy's entry in its stream's pool for the current episode (what a
-    per-dilemma cost reads); :attr:`copy_graph` its graph's index into :attr:`unique_env_ids`."""
+    per-dilemma cost reads); :attr:`copy_graph` its graph's index into :attr:`unique_env_ids`.
+    ``table_cache``: a folder keeping the pools' tables between processes (:mod:`.table_cache`)."""
 
     def __init__(
         self,
@@ -67,6 +69,7 @@ class DrawnBatchedTrolleyEnv(MixedBatchedTrolleyEnv):
         max_steps: int | None = MAX_STEPS,
         obs_type: str = "compact",
         obs_dtype: type = np.float32,
+        table_cache: Path | None = None,
     ) -> None:
         if not pools or any(len(p) == 0 for p in pools):
             raise ValueError("every stream needs a pool of at least one env id")
@@ -82,7 +85,8 @@ class DrawnBatchedTrolleyEnv(MixedBatchedTrolleyEnv):
         self.seeds = [int(s) for s in seeds]
         self.pools = canonical
         self._drawing = False  # no draw while the base class builds (its reset-free __init__ sets the starts)
-        super().__init__(first, max_steps=max_steps, obs_type=obs_type, obs_dtype=obs_dtype, graphs=graphs)
+        super().__init__(first, max_steps=max_steps, obs_type=obs_type, obs_dtype=obs_dtype, graphs=graphs,
+                         table_cache=table_cache)
         index = {e: g for g, e in enumerate(self.unique_env_ids)}
         #: Per stream: its pool's entries as graph indices.
         self.pool_graphs = [np.array([index[e] for e in pool], dtype=np.int32) for pool in canonical]

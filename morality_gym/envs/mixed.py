@@ -17,13 +17,14 @@ too, each observation zero-padded on the right to the widest (:attr:`obs_dims` k
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 
 from morality_gym.constants import MAX_STEPS
-from morality_gym.envs.batched import AutoReset, BatchedTrolleyEnv, observation_table
-from morality_gym.envs.registry import parse_env_id, state_graph
-from morality_gym.envs.trolley import _overrides
+from morality_gym.envs.batched import AutoReset, BatchedTrolleyEnv, sim_tables
+from morality_gym.envs.registry import parse_env_id
+from morality_gym.envs.table_cache import SimTables
 from morality_gym.world.graph import N_ACTIONS
 
 
@@ -51,16 +52,11 @@ class MixedBatchedTrolleyEnv(BatchedTrolleyEnv):
         obs_type: str = "flat",
         pad_obs: bool = False,
         graphs: Sequence[str] | None = None,
+        table_cache: Path | None = None,
     ) -> None:
         env_ids = [_canonical(e) for e in env_ids]
         if not env_ids:
             raise ValueError("MixedBatchedTrolleyEnv needs at least one env id")
-        # The base class validates the arguments and sets everything up for the first id; the
-        # tables are then replaced by the concatenation over all ids.
-        super().__init__(
-            env_ids[0], len(env_ids), max_steps=max_steps, obs_dtype=obs_dtype, autoreset=autoreset,
-            normalise_obs=normalise_obs, overrides=overrides, obs_type=obs_type,
-        )
         #: The graphs whose tables are loaded, in order: ``graphs`` when given (every copy's id must
         #: be one of them), else the copies' distinct env ids.
         self.unique_env_ids: list[str] = list(dict.fromkeys(env_ids if graphs is None else [_canonical(e) for e in graphs]))
@@ -68,9 +64,16 @@ class MixedBatchedTrolleyEnv(BatchedTrolleyEnv):
         if unknown:
             raise ValueError(f"copies run env ids that are not among graphs: {', '.join(unknown[:3])}")
         self.env_ids = env_ids
-        state_graphs = [state_graph(e, _overrides(overrides), normalise_obs) for e in self.unique_env_ids]
-        tables = [g.tables() for g in state_graphs]
-        observations = [observation_table(g, obs_type, obs_dtype) for g in state_graphs]
+        self._loaded: list[SimTables] = []
+        # The base class validates the arguments and sets everything up for the first id (its
+        # tables are the first copy's of :meth:`_first_tables`, loaded with all the others); the
+        # tables are then replaced by the concatenation over all ids.
+        super().__init__(
+            env_ids[0], len(env_ids), max_steps=max_steps, obs_dtype=obs_dtype, autoreset=autoreset,
+            normalise_obs=normalise_obs, overrides=overrides, obs_type=obs_type, table_cache=table_cache,
+        )
+        tables, self._loaded = self._loaded, []
+        observations = [t.obs for t in tables]
         dims = {e: int(o.shape[1]) for e, o in zip(self.unique_env_ids, observations)}
         #: Each env id's own observation width (before any padding).
         self.obs_dims = dims
@@ -100,6 +103,13 @@ class MixedBatchedTrolleyEnv(BatchedTrolleyEnv):
         self._start = offsets[self.copy_graph].astype(np.int32)
         self.state = self._start.copy()
         assert len(self._next) == N_ACTIONS * len(self._done)
+
+    def _first_tables(self, obs_type: str, obs_dtype: type, table_cache: Path | None) -> SimTables:
+        """Every graph's tables (kept for ``__init__``); the first copy's are the base class's."""
+        overrides, normalise = self._graph_args
+        self._loaded = [sim_tables(e, obs_type, obs_dtype, overrides=overrides, normalise=normalise, cache_dir=table_cache)
+                        for e in self.unique_env_ids]
+        return self._loaded[self.unique_env_ids.index(self.env_ids[0])]
 
     def __repr__(self) -> str:
         return (

@@ -28,6 +28,7 @@ or all runs at once on accelerators: :mod:`.cpo_batch`, with :mod:`.cpo_math` wh
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 from morality_gym.baselines.fleet.base import FleetRun, FleetTrainer
 from morality_gym.baselines.fleet.checkpoint import FleetCheckpoint
@@ -74,6 +75,7 @@ def build_fleet(
     device: str = "cpu",
     simulator: Simulator = "auto",
     update: str = DEFAULT_UPDATE_ENGINE,
+    table_cache: Path | None = None,
 ) -> FleetTrainer:
     """The fleet trainer for ``runs`` of the learner ``spec`` under ``protocol``, its networks,
     rollouts and updates on ``device`` (``cpu``, or ``cuda`` when torch sees a GPU). ``simulator``:
@@ -81,11 +83,14 @@ def build_fleet(
     both give the same bits), ``host`` or ``device`` force one (:mod:`.env`). ``update``: ``eager``
 reruns the releases bit for bit, ``compiled`` runs the minibatch steps compiled (:mod:`.compiled`;
 float rounding differs). The sampling streams
-    and the single-run learners it hands back stay on the CPU. The library's entry: ``spec`` is
+    and the single-run learners it hands back stay on the CPU. ``table_cache``: a folder where the
+    tables of mixture runs' pools are kept between processes (:mod:`morality_gym.envs.table_cache`:
+    a fleet on the track's train pool then starts in seconds). The library's entry: ``spec`` is
     resolved for the protocol here (:meth:`~morality_gym.baselines.specs.ProtocolSpec.apply`), then
     :func:`make_fleet`."""
     protocol = protocol_spec(protocol)
-    return make_fleet(protocol.apply(spec), runs, protocol, max_steps=max_steps, device=device, simulator=simulator, update=update)
+    return make_fleet(protocol.apply(spec), runs, protocol, max_steps=max_steps, device=device, simulator=simulator,
+                      update=update, table_cache=table_cache)
 
 
 def make_fleet(
@@ -96,10 +101,11 @@ def make_fleet(
     device: str = "cpu",
     simulator: Simulator = "auto",
     update: str = DEFAULT_UPDATE_ENGINE,
+    table_cache: Path | None = None,
 ) -> FleetTrainer:
     """The fleet trainer of a ``spec`` already resolved for ``protocol`` (a sweep's runs carry one)."""
     return fleet_class(spec.target)(spec, runs, protocol=protocol, max_steps=max_steps, device=device, simulator=simulator,
-                                    update=update)
+                                    update=update, table_cache=table_cache)
 
 
 __all__ = ["FleetCheckpoint", "FleetRun", "FleetTrainer", "build_fleet", "fleet_class", "make_fleet"]

@@ -37,6 +37,7 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, ClassVar, Protocol
 
 import numpy as np
@@ -165,8 +166,11 @@ class FleetTrainer:
         device: str | th.device = "cpu",
         simulator: Simulator = "auto",
         update: str = DEFAULT_UPDATE_ENGINE,
+        table_cache: Path | None = None,
     ) -> None:
         self.device = fleet_device(device)
+        #: Where a mixture's tables are kept between processes (:mod:`morality_gym.envs.table_cache`).
+        self.table_cache = table_cache
         #: ``eager`` or ``compiled`` (:mod:`.compiled`): how the minibatch steps run.
         self.update_engine = update_engine(update)
         self.protocol = protocol_spec(protocol)  # what its checkpoints are keyed by
@@ -222,7 +226,7 @@ class FleetTrainer:
             raise SpecError("simulator='device': the mixture is simulated on the host (its tables are large); "
                             "use simulator='auto' or 'host' (the networks still train on the device)")
         return DrawnFleetEnv([r.pool for r in self.runs], [r.seed for r in self.runs], self.n_envs,
-                             self.spec.reward_cost(), max_steps, self.device)
+                             self.spec.reward_cost(), max_steps, self.device, table_cache=self.table_cache)
 
     def _build_learners(self) -> tuple[list[SB3Learner], RunStreams]:
         """The runs' single-run learners (initial weights, and the shells the trained weights go

@@ -16,6 +16,7 @@ env does).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 import torch as th
@@ -29,7 +30,8 @@ from morality_gym.norms.reward_cost import RewardCostSpec
 
 
 class DrawnFleetEnv(_OneCostMemory):
-    """``n_envs`` copies per run, run ``k`` drawing from ``pools[k]`` with seed ``seeds[k]``."""
+    """``n_envs`` copies per run, run ``k`` drawing from ``pools[k]`` with seed ``seeds[k]``;
+    ``table_cache``: where the pools' tables are kept between processes (:mod:`morality_gym.envs.table_cache`)."""
 
     name = "host-drawn"
 
@@ -41,10 +43,11 @@ class DrawnFleetEnv(_OneCostMemory):
         reward_cost: RewardCostSpec,
         max_steps: int | None = MAX_STEPS,
         device: str | th.device = "cpu",
+        table_cache: Path | None = None,
     ) -> None:
         super().__init__([pool[0] for pool in pools], n_envs, reward_cost, device)
         self.sim = DrawnBatchedTrolleyEnv([[b.env_id for b in pool] for pool in pools], n_envs, seeds,
-                                          max_steps=max_steps, obs_type="compact")
+                                          max_steps=max_steps, obs_type="compact", table_cache=table_cache)
         self.obs_dim = self.sim.obs_dim
         self.run_obs_dims = [self.obs_dim] * self.n_runs
         rows: dict[tuple[str, str, float], int] = {}
