@@ -70,7 +70,7 @@ def finished_runs(results_dir: Path, protocol: str, preset: str | None, engine: 
     # pandas, pyarrow, OmegaConf wait: only the benchmark that runs it needs them
     import pandas as pd
 
-    from runners.jobs import fleet_trains
+    from runners.execute.jobs import fleet_trains
 
     frame = _run_rows(results_dir)
     if frame.empty:
@@ -165,8 +165,8 @@ def table1_plan(preset: str, protocol: str, engine: str, scratch: Path, extra: S
     # pyarrow, Hydra, OmegaConf wait: only the benchmark that runs it needs them
     from hydra import compose, initialize_config_dir
 
-    from runners.config import validate
-    from runners.plan import plan
+    from runners.compose.sweep_config import validate
+    from runners.plan.runs import plan
 
     overrides = ["experiment=table1", f"protocol={protocol}", f"preset={preset}", f"engine={engine}",
                  f"results_dir={scratch}", "mlflow=false", "dry_run=true"]
@@ -182,8 +182,8 @@ def table1_plan(preset: str, protocol: str, engine: str, scratch: Path, extra: S
 def plan_jobs(runs: list[Any], sweep: Any, workers: int) -> list[Any]:
     """The plan cut into the jobs a sweep with ``workers`` workers runs, in the order they take them."""
     # pyarrow, OmegaConf wait: only the benchmark that runs it needs them
-    from runners.estimate import dispatch_order
-    from runners.jobs import make_jobs
+    from runners.execute.jobs import make_jobs
+    from runners.plan.estimate import dispatch_order
 
     speedups = {a.spec.name: a.rates.fleet_speedup for a in sweep.algos}
     return dispatch_order(make_jobs(runs, sweep.engine, sweep.fleet_size, workers, speedups), workers)
@@ -284,7 +284,7 @@ def _projected_table(preset: str, protocol: str, engine: str, workers: Sequence[
                      sweep: Any) -> list[str]:
     """One row per worker count: the whole Table 1's jobs (``runs`` of ``sweep``) priced at the measured rates."""
     # pyarrow, OmegaConf wait: only the benchmark that runs it needs them
-    from runners.estimate import jobs_estimate, makespan
+    from runners.plan.estimate import jobs_estimate, makespan
 
     title = f" ({', '.join(extra)})" if extra else ""
     lines = ["", f"### Projected: the whole Table 1 ({preset} preset, {protocol} protocol, engine {engine}){title}", "",

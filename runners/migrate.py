@@ -73,7 +73,8 @@ from morality_gym.results.schema import (
     runs_dir,
     updates_path,
 )
-from runners.rename_history import (
+from runners.record.mlflow_mirror import Tracker, TrackingError, check_reachable, marker_path, tracking_lock
+from runners.record.rename_history import (
     MIGRATIONS,
     Migration,
     MigrationError,
@@ -81,7 +82,6 @@ from runners.rename_history import (
     migrate_sidecar,
     unmigrate_config,
 )
-from runners.tracking import Tracker, TrackingError, check_reachable, marker_path, tracking_lock
 
 JOURNAL_DIR = "migrations"
 JOURNAL = "journal.jsonl"

@@ -66,8 +66,21 @@ from morality_gym.results.manifest import manifest_body, manifest_name, write_ma
 from morality_gym.results.quarantine import Quarantined, check_run_files, read_table_or_quarantine
 from morality_gym.results.recording import finished_status
 from morality_gym.results.schema import run_path
-from runners.config import ConfigError, SweepConfig  # also stores the schemas (runners.config_schema)
-from runners.estimate import (
+from runners.compose.command_line import (
+    CommandLineError,
+    load_sweeps,
+    parse_command_line,
+    prepare_overrides,
+    show,
+)
+from runners.compose.sweep_config import ConfigError, SweepConfig  # also stores the schemas (runners.config_schema)
+from runners.execute.jobs import Job, fleet_trains, make_jobs
+from runners.execute.run import record_failure
+from runners.launch.local_pool import JobProgress, PoolStopped, WorkerPool
+from runners.launch.preflight import preflight
+from runners.launch.slurm import run_on_slurm
+from runners.launch.slurm_controller import SlurmUnavailable
+from runners.plan.estimate import (
     Estimate,
     MachineLoad,
     device_estimate_note,
@@ -76,23 +89,10 @@ from runners.estimate import (
     jobs_estimate,
     sweep_overheads,
 )
-from runners.execute import record_failure
-from runners.fleet_checkpoints import fleets_to_form, remove_stale
-from runners.jobs import Job, fleet_trains, make_jobs
-from runners.leftovers import remove_leftovers
-from runners.plan import PlannedRun, describe, plan
-from runners.pool import JobProgress, PoolStopped, WorkerPool
-from runners.preflight import preflight
-from runners.slurm_controller import SlurmUnavailable
-from runners.slurm_launcher import run_on_slurm
-from runners.sweep_cli import (
-    CommandLineError,
-    load_sweeps,
-    parse_command_line,
-    prepare_overrides,
-    show,
-)
-from runners.tracking import Tracker, TrackingError
+from runners.plan.runs import PlannedRun, describe, plan
+from runners.record.fleet_checkpoints import fleets_to_form, remove_stale
+from runners.record.leftovers import remove_leftovers
+from runners.record.mlflow_mirror import Tracker, TrackingError
 
 
 # ---------------------------------------------------------------------------------------- the plan

@@ -269,8 +269,8 @@ def assert_same_records(a: dict[str, Any], b: dict[str, Any]) -> None:
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory: pytest.TempPathFactory) -> tuple[list[Any], dict[str, Any]]:
     """The sweep's runs and what an uninterrupted fleet job records for them."""
-    from runners.jobs import execute_job, make_jobs
-    from runners.plan import plan
+    from runners.execute.jobs import execute_job, make_jobs
+    from runners.plan.runs import plan
 
     tmp = tmp_path_factory.mktemp("whole")
     runs = plan(_sweep_config(tmp, *SWEEP))
@@ -287,7 +287,7 @@ def test_a_fleet_killed_while_recording_resumes_at_the_end_of_training(
 ) -> None:
     """The checkpoint written when training ends: a worker killed after recording one run builds
     the whole fleet again, restores it at its last step (no training) and records the other two."""
-    from runners.jobs import execute_job
+    from runners.execute.jobs import execute_job
 
     runs, expected = uninterrupted
     results = tmp_path / "r"
@@ -346,8 +346,8 @@ def test_a_killed_fleet_sweep_resumes_its_training_from_the_checkpoint(tmp_path:
 
 
 def test_make_jobs_forms_a_checkpointed_fleet_again(tmp_path: Path) -> None:
-    from runners.jobs import make_jobs
-    from runners.plan import plan
+    from runners.execute.jobs import make_jobs
+    from runners.plan.runs import plan
 
     runs = plan(_sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "seed=[1,2]"))
     assert len(runs) == 24
@@ -363,8 +363,8 @@ def test_make_jobs_forms_a_checkpointed_fleet_again(tmp_path: Path) -> None:
 
 
 def test_the_checkpoint_interval_is_a_sweep_setting_outside_every_run(tmp_path: Path) -> None:
-    from runners.config import ConfigError
-    from runners.plan import plan
+    from runners.compose.sweep_config import ConfigError
+    from runners.plan.runs import plan
 
     default = _sweep_config(tmp_path, "algo=[ppo,cpo]", "chain=utility", "scenario=[switch_standard]", "preset=smoke")
     assert default.checkpoint_every_s == 300.0
@@ -378,9 +378,9 @@ def test_the_checkpoint_interval_is_a_sweep_setting_outside_every_run(tmp_path: 
 
 
 def test_stale_checkpoints_are_removed_and_only_those(tmp_path: Path) -> None:
-    from runners import fleet_checkpoints as fc
-    from runners.jobs import execute_job
-    from runners.plan import plan
+    from runners.execute.jobs import execute_job
+    from runners.plan.runs import plan
+    from runners.record import fleet_checkpoints as fc
 
     runs = plan(_sweep_config(tmp_path, "algo=random", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
                               "variant=[HumanA,HumanB,AnimalA]"))
@@ -402,7 +402,7 @@ def test_a_resumed_fleet_counts_the_time_spent_before_the_kill() -> None:
     """A run's ``wall_time_s`` and ``cpu_time_s`` (compute accounting) include the training before
     the checkpoint: the time spent travels in the checkpoint's extra data."""
     from morality_gym.results.recording import RunClock
-    from runners.jobs import FleetTraining
+    from runners.execute.jobs import FleetTraining
 
     runs = [("a", {}), ("b", {})]
     before = FleetTraining(runs, RunClock.already_spent("2026-01-01T00:00:00+00:00", 5000.0, 3000.0))  # trained a while
@@ -416,7 +416,7 @@ def test_a_resumed_fleet_counts_the_time_spent_before_the_kill() -> None:
 
 
 def test_the_checkpoint_key_changes_with_the_training_code_only(tmp_path: Path) -> None:
-    from runners.execute import code_fingerprint
+    from runners.execute.run import code_fingerprint
 
     package = tmp_path / "morality_gym"
     (package / "data").mkdir(parents=True)

@@ -18,10 +18,10 @@ import pytest
 from morality_gym.baselines.device import CPU, Device
 from morality_gym.results.recording import RunLock, finished_status
 from morality_gym.results.schema import read_runs, read_updates
-from runners.config import validate
-from runners.estimate import dispatch_order, fleet_speedup, jobs_estimate, makespan
-from runners.jobs import execute_job, fleet_trains, make_jobs
-from runners.plan import plan
+from runners.compose.sweep_config import validate
+from runners.execute.jobs import execute_job, fleet_trains, make_jobs
+from runners.plan.estimate import dispatch_order, fleet_speedup, jobs_estimate, makespan
+from runners.plan.runs import plan
 from tests.sweep_tools import run_files, wait_for_results
 
 REPO = Path(__file__).resolve().parents[1]
@@ -30,7 +30,7 @@ REPO = Path(__file__).resolve().parents[1]
 def _sweep_config(tmp_path: Path, *overrides: str):
     from hydra import compose, initialize_config_dir
 
-    from runners.paths import CONF_DIR
+    from runners.compose.search_path import CONF_DIR
 
     given = [f"results_dir={tmp_path / 'r'}", "mlflow=false", "gif=false", *overrides]
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
@@ -114,7 +114,7 @@ def test_estimate_uses_the_measured_fleet_speedup(tmp_path: Path) -> None:
     speedups = {a.spec.name: a.rates.fleet_speedup for a in sweep.algos}
     import yaml
 
-    from runners.paths import CONF_DIR
+    from runners.compose.search_path import CONF_DIR
 
     measured = yaml.safe_load((CONF_DIR / "algo" / "ppo_lag.yaml").read_text())["planning"]["fleet_speedup"]
     assert measured > 1 and speedups["ppo_lag"] == pytest.approx(measured)  # the paper protocol's figure
@@ -147,7 +147,7 @@ def test_only_learners_the_fleet_reproduces_are_grouped() -> None:
 
 
 def test_engine_is_validated(tmp_path: Path) -> None:
-    from runners.config import ConfigError
+    from runners.compose.sweep_config import ConfigError
 
     with pytest.raises(ConfigError, match="engine: expected fleet or single, got 'fleat' \\(did you mean 'fleet'\\?\\)"):
         _sweep_config(tmp_path, "algo=ppo", "engine=fleat")
@@ -158,7 +158,7 @@ def test_engine_is_validated(tmp_path: Path) -> None:
 def test_device_is_validated_before_anything_runs(tmp_path: Path) -> None:
     import torch
 
-    from runners.config import ConfigError
+    from runners.compose.sweep_config import ConfigError
 
     with pytest.raises(ConfigError, match="device=cuda: only the fleet engine trains off the CPU"):
         _sweep_config(tmp_path, "algo=ppo", "engine=single", "device=cuda")
@@ -223,7 +223,7 @@ def test_a_fleet_job_writes_every_run_as_the_single_engine_does(tmp_path: Path) 
 def test_the_pool_reports_a_fleets_training_steps_while_it_trains(tmp_path: Path) -> None:
     """A local worker sends the fleet's steps to the parent as it trains (at most once a second,
     and at the end), and the job's end; the sweep shows them as a bar per fleet."""
-    from runners.pool import JobProgress, WorkerPool
+    from runners.launch.local_pool import JobProgress, WorkerPool
 
     sweep = _sweep_config(tmp_path, "algo=ppo_lag", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
                           "seed=[1]", "variant=[HumanA,HumanB]")

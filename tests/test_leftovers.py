@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 
 from morality_gym.results.recording import RunLock
-from runners.fleet_checkpoints import fleet_name
+from runners.record.fleet_checkpoints import fleet_name
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = ["algo=random", "chain=utility", "scenario=[switch_standard]", "variant=[HumanA,HumanB]", "preset=smoke",

@@ -17,9 +17,9 @@ import pytest
 
 from morality_gym.results.identity import SUBMITTED_ALGO, run_identity
 from morality_gym.results.run_config import RunConfig
-from runners.config import validate
-from runners.paths import CONF_DIR
-from runners.plan import plan
+from runners.compose.search_path import CONF_DIR
+from runners.compose.sweep_config import validate
+from runners.plan.runs import plan
 
 #: Every release shipped in the repository: a new one is checked without editing this test.
 RELEASES = sorted((Path(__file__).resolve().parents[1] / "releases").glob("*/runs.parquet"))

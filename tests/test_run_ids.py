@@ -25,9 +25,9 @@ def current_run_ids(results_dir: Path) -> dict[str, dict[str, list[str]]]:
     """``{"<protocol>/<preset>": {algo: [run ids in plan order]}}`` for one scenario (every variant, the preset's seeds)."""
     from hydra import compose, initialize_config_dir
 
-    from runners.config import validate
-    from runners.paths import CONF_DIR
-    from runners.plan import plan
+    from runners.compose.search_path import CONF_DIR
+    from runners.compose.sweep_config import validate
+    from runners.plan.runs import plan
 
     out: dict[str, dict[str, list[str]]] = {}
     for protocol in PROTOCOLS:

@@ -502,7 +502,7 @@ def configuration_page() -> str:
     import yaml
 
     from morality_gym.baselines.specs import CONF_DIR, LearnerSpec, ProtocolSpec
-    from runners import config_schema as schema
+    from runners.compose import schema
 
     groups: dict[str, tuple[str, list[type]]] = {
         "algo": (("a learner: its class (`_target_`), label and every setting; fields left out take "

@@ -36,10 +36,10 @@ from morality_gym.baselines.device import CPU, Device
 from morality_gym.baselines.stopped import TrainingStopped
 from morality_gym.clitools import DiskFullError
 from morality_gym.results.recording import git_commit
-from runners import stopping
-from runners.execute import limit_threads, training_code
-from runners.jobs import Job, execute_job
-from runners.plan import PlannedRun
+from runners.execute import stopping
+from runners.execute.jobs import Job, execute_job
+from runners.execute.run import limit_threads, training_code
+from runners.plan.runs import PlannedRun
 
 ResultHook = Callable[[PlannedRun, dict[str, Any]], None]
 

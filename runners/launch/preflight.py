@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import tempfile
 
-from runners.config import ConfigError, SweepConfig
-from runners.slurm_controller import SlurmUnavailable, check_controller
-from runners.tracking import TrackingError, check_reachable
+from runners.compose.sweep_config import ConfigError, SweepConfig
+from runners.launch.slurm_controller import SlurmUnavailable, check_controller
+from runners.record.mlflow_mirror import TrackingError, check_reachable
 
 
 def check_results_dir(sweep: SweepConfig) -> None:

@@ -45,9 +45,9 @@ from morality_gym.envs.registry import scenarios as all_scenarios
 from morality_gym.evaluation.horizon import truncation_problem
 from morality_gym.norms.chain import ChainError, MoralityChain, check_name_collision, get_chain, parse_chain
 from morality_gym.norms.metric import bind_chain
-from runners.config_schema import ENGINES, FLEET_SIZES, LAUNCHERS, Preset, Sweep, register
-from runners.estimate import LearnerRates, PlanningError, learner_rates, planning_where
-from runners.paths import config_roots, find_config, group_options
+from runners.compose.schema import ENGINES, FLEET_SIZES, LAUNCHERS, Preset, Sweep, register
+from runners.compose.search_path import config_roots, find_config, group_options
+from runners.plan.estimate import LearnerRates, PlanningError, learner_rates, planning_where
 
 register()  # the schemas conf/config.yaml names (sweep_schema, schema/launcher/*): Hydra needs them stored
 

@@ -15,8 +15,8 @@ from pathlib import Path
 from typing import Any
 
 from morality_gym.baselines.device import CPU, Device
-from runners.jobs import Job, execute_job_all
-from runners.plan import PlannedRun
+from runners.execute.jobs import Job, execute_job_all
+from runners.plan.runs import PlannedRun
 
 
 def run_on_slurm(

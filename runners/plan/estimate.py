@@ -36,7 +36,7 @@ from typing import Any, Protocol
 from morality_gym.baselines import typed
 from morality_gym.baselines.specs import LearnerSpec
 from morality_gym.clitools import did_you_mean, duration
-from runners.tracking import tracking_uri
+from runners.record.mlflow_mirror import tracking_uri
 
 
 # ------------------------------------------------------------------------------------------ rates

@@ -34,7 +34,7 @@ from morality_gym.baselines import typed
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec
 from morality_gym.constants import BETA, MAX_STEPS
 from morality_gym.results.presets import Preset
-from runners.estimate import DeviceRate, Planning, PlanningOverride
+from runners.plan.estimate import DeviceRate, Planning, PlanningOverride
 
 #: The largest fleet a sweep forms when ``fleet_size`` is not given, by kind of device. On the CPU
 #: the fleet's gain saturates by about 12 runs (BENCHMARKS.md), and 36 leaves room for a row's

@@ -21,8 +21,8 @@ from morality_gym.envs.registry import scenario_named
 from morality_gym.norms.chain import chain_fingerprint
 from morality_gym.results.run_config import RunConfig
 from morality_gym.results.schema import SCHEMA_VERSION
-from runners.config import SweepConfig
-from runners.estimate import run_seconds
+from runners.compose.sweep_config import SweepConfig
+from runners.plan.estimate import run_seconds
 
 
 @dataclass(frozen=True)

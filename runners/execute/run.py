@@ -21,6 +21,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
+import morality_gym
 from morality_gym.clitools import disk_full_error, is_disk_full
 from morality_gym.results.recording import RunClock, finished_status, git_commit, utc_now, versions
 from morality_gym.results.run_config import RunConfig
@@ -45,7 +46,7 @@ def training_code() -> str:
     of documentation or of the leaderboard would throw away every checkpoint) and too blind (an
     uncommitted edit keeps the commit). Asked once per process at the worker's start, as
     :func:`~morality_gym.results.recording.git_commit`, so that it describes the code the worker loaded."""
-    return code_fingerprint(Path(__file__).resolve().parents[1] / "morality_gym", versions())
+    return code_fingerprint(Path(morality_gym.__file__).resolve().parent, versions())
 
 
 #: The files of a package that decide what a run computes (modules and the data they read).

@@ -32,15 +32,20 @@ from morality_gym.baselines.targets import add_python_roots
 from morality_gym.clitools import DEBUG_ENV, did_you_mean
 from morality_gym.envs.naming import squash
 from morality_gym.envs.registry import skipped_scenario_files
-from runners.config import ConfigError, SweepConfig, validate  # also stores the schemas (runners.config_schema)
-from runners.config_schema import composition_error
-from runners.options import normalise_argv
-from runners.options import options as group_options
-from runners.paths import find_config, plugin_sources, source_dir, sources_from_argv, split_list
+from runners.compose.options import normalise_argv
+from runners.compose.options import options as group_options
+from runners.compose.schema import composition_error
+from runners.compose.search_path import find_config, plugin_sources, source_dir, sources_from_argv, split_list
+from runners.compose.sweep_config import (  # also stores the schemas (runners.config_schema)
+    ConfigError,
+    SweepConfig,
+    validate,
+)
 
 #: How the manifest names the program (``sys.argv[0]`` of ``python -m runners.sweep``, also when
-#: :mod:`runners.table1` runs the sweep in its own process): the sweep's file, not this one.
-PROGRAM = os.path.join(os.path.dirname(__file__), "sweep.py")
+#: :mod:`runners.table1` runs the sweep in its own process): the sweep's file, not this one, which
+#: sits one folder below it (``runners/compose/``).
+PROGRAM = os.path.join(os.path.dirname(os.path.dirname(__file__)), "sweep.py")
 
 _GROUPS = ("scenario", "chain", "algo", "protocol", "preset", "launcher", "experiment")
 

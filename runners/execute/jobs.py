@@ -39,12 +39,12 @@ from morality_gym.baselines.specs import SpecError
 from morality_gym.baselines.stopped import TrainingStopped
 from morality_gym.results.recording import RunClock, RunLock, finished_status, git_commit
 from morality_gym.results.run_config import RunConfig
-from runners import stopping
-from runners.config_schema import ENGINES
-from runners.estimate import DeviceRate, DeviceWork, device_price, fleet_seconds
-from runners.execute import execute_locked, limit_threads, record_outcome, training_code
-from runners.fleet_checkpoints import fleet_to_train, remove_fleet, write_fleet_runs
-from runners.plan import PlannedRun
+from runners.compose.schema import ENGINES
+from runners.execute import stopping
+from runners.execute.run import execute_locked, limit_threads, record_outcome, training_code
+from runners.plan.estimate import DeviceRate, DeviceWork, device_price, fleet_seconds
+from runners.plan.runs import PlannedRun
+from runners.record.fleet_checkpoints import fleet_to_train, remove_fleet, write_fleet_runs
 
 #: Keys of a run config that may differ between the runs of one fleet (the rest must be equal).
 FLEET_FREE_KEYS = ("env_id", "variant", "chain", "seed")
