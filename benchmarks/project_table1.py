@@ -7,7 +7,7 @@ on runs that were measured, not on the planner alone. This tool reads the finish
 results directory or a results release (a few Table 1 rows run at the preset in question), measures each learner's
 core-seconds per training step (every run's ``cpu_time_s``, or its ``wall_time_s`` in files written
 before that column: its share of its fleet's training plus its own evaluations and writes), and prices every job of the full Table 1 plan with it. The
-jobs are those the sweep itself would make (:func:`runners.jobs.make_jobs`, fleets of up to
+jobs are those the sweep itself would make (:func:`runners.execute.jobs.make_jobs`, fleets of up to
 ``fleet_size``), handed to ``W`` workers in the sweep's dispatch order (longest estimated job
 first) as each becomes free, as the local pool does, so the projection includes the tail where
 one long fleet keeps a worker busy.

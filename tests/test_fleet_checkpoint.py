@@ -11,7 +11,7 @@ the uninterrupted fleet ends, and a checkpoint that does not fit is never used.
 * The comparison can fail: a resume that skips the numpy generators does not match.
 * A checkpoint of another key or fleet is discarded with a warning, a damaged file set aside
   (tests/test_fleet_damage.py has the rest), and training starts over.
-* The sweep around it (runners.jobs) is tested in tests/test_fleet_sweep.py's style at the end.
+* The sweep around it (runners.execute.jobs) is tested in tests/test_fleet_sweep.py's style at the end.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def make_fleet(spec: LearnerSpec, protocol: str) -> FleetTrainer:
 
 class Trainer:
     """One fleet's training as a caller drives it: its evaluation rows (kept in the checkpoint as
-    the caller's extra data, as runners.jobs keeps them) and an optional interruption."""
+    the caller's extra data, as runners.execute.jobs keeps them) and an optional interruption."""
 
     def __init__(self, spec: LearnerSpec, protocol: str, global_seed: int) -> None:
         th.manual_seed(global_seed)  # training must not depend on the global RNGs

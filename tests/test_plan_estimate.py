@@ -1,7 +1,7 @@
 """The plan's time estimate counts what a sweep pays besides its runs (issue #22).
 
 A smoke sweep's runs take seconds; its estimate (0m02s) was 2-8x below the wall time (17 s)
-because creating the MLflow store of a new results directory and the workers' start were left out (:class:`runners.estimate.SweepOverheads`).
+because creating the MLflow store of a new results directory and the workers' start were left out (:class:`runners.plan.estimate.SweepOverheads`).
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ Each ``releases/<name>/runs.parquet`` records each run's id and its resolved con
 A run is found on disk by its id, so the one resolved run configuration
 (:class:`morality_gym.results.run_config.RunConfig`) must give every recorded run its recorded id: read back
 from its record, and built afresh by resolving the Table 1 sweep through the layers of
-:func:`runners.config.learner_layers` (algo file < protocol < preset < command line).
+:func:`runners.compose.sweep_config.learner_layers` (algo file < protocol < preset < command line).
 """
 
 from __future__ import annotations

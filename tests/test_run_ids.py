@@ -1,6 +1,6 @@
 """The run ids of the built-in learners never change by accident.
 
-A run id is the hash of the resolved run configuration (:mod:`runners.plan`); results on disk are
+A run id is the hash of the resolved run configuration (:mod:`runners.plan.runs`); results on disk are
 found by it, so a refactoring of how the configuration is written (Python defaults, YAML files,
 typed schemas) must give byte-identical run configs for every built-in algo, protocol and preset.
 ``tests/data/pinned_run_ids.json`` was recorded at main 11e6230, before the configuration became

@@ -5,7 +5,7 @@ Steps 1 and 2 of :mod:`runners.sweep`'s path (that module's docstring lists the 
 are this command's own rather than a ``@hydra.main`` application's): :func:`parse_command_line`
 reads ``argv`` once; :func:`prepare_overrides` adds the installed plugins' config packages to the
 search path, rewrites user scenarios and chain files into options Hydra can compose
-(:mod:`runners.options`) and checks group options and hyper-parameter names, naming the closest
+(:mod:`runners.compose.options`) and checks group options and hyper-parameter names, naming the closest
 valid ones (:func:`precheck`); :func:`load_sweeps` composes ``conf/`` with Hydra's compose API
 (:func:`compose_sweep`) and validates each sweep. Kept apart from planning and dispatch so that
 each module reads as one concern: what the user typed, and what the sweep then does.
@@ -245,7 +245,7 @@ def _with_config_dir(overrides: list[str], config_dir: str | None) -> list[str]:
 def prepare_overrides(line: CommandLine) -> tuple[list[str], str]:
     """The overrides to compose and the command line the manifest records.
 
-    The plugins' search path, the user's spellings of scenarios and chains (:mod:`runners.options`)
+    The plugins' search path, the user's spellings of scenarios and chains (:mod:`runners.compose.options`)
     and :func:`precheck` see ``--config-dir`` as typed; composition sees it as a search-path entry.
     Raises :class:`ConfigError` (or :class:`~morality_gym.norms.chain.ChainError` for a user's chain
     file that cannot be read) with one line.
@@ -274,7 +274,7 @@ def _recorded_command(line: CommandLine, rewritten: list[str]) -> str:
 
 # ---------------------------------------------------------------------------------------- composition
 def compose_sweep(overrides: Sequence[str], config_name: str = "config") -> DictConfig:
-    """``conf/`` composed with ``overrides`` over the typed schemas (:mod:`runners.config_schema`),
+    """``conf/`` composed with ``overrides`` over the typed schemas (:mod:`runners.compose.schema`),
     with its ``hydra`` node (the search path, logging). A key or value the schemas refuse is a
     :class:`ConfigError` of one line naming the key, its file or override and the closest valid key."""
     try:

@@ -1,4 +1,4 @@
-"""Expand a validated sweep into runs and give each a content-hash identity (and its price, :mod:`runners.estimate`).
+"""Expand a validated sweep into runs and give each a content-hash identity (and its price, :mod:`runners.plan.estimate`).
 
 A run's identity is the SHA-256 of its resolved configuration (canonical JSON: env id, the chain's
 full definition, the learner's complete spec, the protocol, the preset's budget and evaluation
@@ -29,7 +29,7 @@ from runners.plan.estimate import run_seconds
 class PlannedRun:
     run_id: str
     config: RunConfig  # the resolved run (what the worker executes; its JSON form is what the id hashes)
-    est_seconds: float  # alone on a core (runners.estimate.run_seconds): what the jobs' prices start from
+    est_seconds: float  # alone on a core (runners.plan.estimate.run_seconds): what the jobs' prices start from
     overhead_s: float = 0.0  # the part of est_seconds every run pays whatever trains it (evaluations, writes)
     train_steps: int = 0  # the env steps it trains (what a device's fleet rate prices)
 
@@ -93,7 +93,7 @@ def plan(sweep: SweepConfig) -> list[PlannedRun]:
 def describe(runs: list[PlannedRun], done: set[str]) -> dict[str, Any]:
     """The plan's counts: runs in all, done and to do, and ``[runs, done]`` per learner.
 
-    (The wall-time estimate is the jobs' (:func:`runners.estimate.jobs_estimate`): a figure here
+    (The wall-time estimate is the jobs' (:func:`runners.plan.estimate.jobs_estimate`): a figure here
     from the runs alone, which an earlier version returned, was read by nothing.)"""
     by_algo: dict[str, list[int]] = {}
     for r in runs:
