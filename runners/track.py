@@ -54,7 +54,7 @@ from morality_gym.generalisation.sets import SEEN_SAMPLE, SETS, TRACK_CHAINS, Ev
 from morality_gym.generator.grammar import GRAMMAR_VERSION
 from morality_gym.generator.splits import split_manifest
 from morality_gym.results.recording import git_commit
-from runners.track_fleet import CURVE_EVERY, CurveRecorder, fleet_key, train_fleet
+from runners.execute.track_fleet import CURVE_EVERY, CurveRecorder, fleet_key, train_fleet
 
 LEARNERS = ("random", "ppo", "ppo_shaped", "ppo_lag", "cpo")
 #: The learners trained on a chain's step-wise cost: only a chain's track has one.
