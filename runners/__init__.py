@@ -18,7 +18,8 @@ top level (``python -m runners.<tool>``), as in :mod:`leaderboard`:
 ``execute/`` - the work, in a worker process
     :mod:`~runners.execute.jobs` (runs cut into jobs, single runs or fleets, and a job executed),
     :mod:`~runners.execute.run` (one run: learn, evaluate, save, its Parquet row last),
-    :mod:`~runners.execute.stopping` (SIGTERM: checkpoint the fleet, then end cleanly).
+    :mod:`~runners.execute.stopping` (SIGTERM: checkpoint the fleet, then end cleanly),
+    :mod:`~runners.execute.track_fleet` (the generalisation track's learners trained as fleets).
 ``launch/`` - where the jobs run
     :mod:`~runners.launch.preflight` (the machine checked before anything is written),
     :mod:`~runners.launch.local_pool` (worker processes that survive each other's death),
@@ -32,5 +33,5 @@ top level (``python -m runners.<tool>``), as in :mod:`leaderboard`:
 the top level - the command-line tools
     :mod:`~runners.sweep` (compose, plan, launch, record), :mod:`~runners.table1` (Table 1, one sweep
     per protocol), :mod:`~runners.migrate` (old runs to the current run ids), :mod:`~runners.track`
-    (the generalisation track) with :mod:`~runners.track_fleet` (its fleets).
+    (the generalisation track).
 """
