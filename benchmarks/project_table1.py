@@ -166,7 +166,7 @@ def table1_plan(preset: str, protocol: str, engine: str, scratch: Path, extra: S
     from hydra import compose, initialize_config_dir
 
     from runners.compose.sweep_config import validate
-    from runners.plan.runs import plan
+    from runners.plan.runs import expand_sweep
 
     overrides = ["experiment=table1", f"protocol={protocol}", f"preset={preset}", f"engine={engine}",
                  f"results_dir={scratch}", "mlflow=false", "dry_run=true"]
@@ -176,7 +176,7 @@ def table1_plan(preset: str, protocol: str, engine: str, scratch: Path, extra: S
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = compose("config", overrides=overrides)
     sweep = validate(cfg)
-    return plan(sweep), sweep
+    return expand_sweep(sweep), sweep
 
 
 def plan_jobs(runs: list[Any], sweep: Any, workers: int) -> list[Any]:

@@ -89,7 +89,7 @@ from runners.plan.estimate import (
     jobs_estimate,
     sweep_overheads,
 )
-from runners.plan.runs import PlannedRun, describe, plan
+from runners.plan.runs import PlannedRun, describe, expand_sweep
 from runners.record.fleet_checkpoints import fleets_to_form, remove_stale
 from runners.record.leftovers import remove_leftovers
 from runners.record.mlflow_mirror import Tracker, TrackingError
@@ -139,7 +139,7 @@ class Plan:
 def make_plan(sweep: SweepConfig) -> Plan:
     """Expand the sweep into runs, learn which are finished (moving unreadable files aside) and cut
     the rest into jobs, longest first."""
-    runs = plan(sweep)
+    runs = expand_sweep(sweep)
     if sweep.dry_run:  # reads what exists, writes nothing: no directory, no file moved aside
         moved = []
     else:
@@ -222,7 +222,7 @@ def record_plan(plan_: Plan, sweep: SweepConfig, command: str, console: Console)
     write_manifest(
         sweep.results_dir,
         name,
-        [r.identity for r in plan_.runs],
+        [r.manifest_entry for r in plan_.runs],
         command=command,
         preset=sweep.preset.name,
         protocol=sweep.protocol.name,
@@ -242,7 +242,7 @@ def write_plan_file(plan_: Plan, sweep: SweepConfig, command: str, console: Cons
                       soft_wrap=True)
         return
     name = manifest_name(sweep.name, [r.run_id for r in plan_.runs])
-    body = manifest_body(name, [r.identity for r in plan_.runs], command=command, preset=sweep.preset.name,
+    body = manifest_body(name, [r.manifest_entry for r in plan_.runs], command=command, preset=sweep.preset.name,
                          protocol=sweep.protocol.name, preset_seeds=list(sweep.preset.seeds), dry_run=True)
     sweep.plan_file.parent.mkdir(parents=True, exist_ok=True)
     sweep.plan_file.write_text(json.dumps(body, indent=1) + "\n", encoding="utf-8")

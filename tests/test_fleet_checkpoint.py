@@ -270,10 +270,10 @@ def assert_same_records(a: dict[str, Any], b: dict[str, Any]) -> None:
 def uninterrupted(tmp_path_factory: pytest.TempPathFactory) -> tuple[list[Any], dict[str, Any]]:
     """The sweep's runs and what an uninterrupted fleet job records for them."""
     from runners.execute.jobs import execute_job, make_jobs
-    from runners.plan.runs import plan
+    from runners.plan.runs import expand_sweep
 
     tmp = tmp_path_factory.mktemp("whole")
-    runs = plan(_sweep_config(tmp, *SWEEP))
+    runs = expand_sweep(_sweep_config(tmp, *SWEEP))
     (job,) = make_jobs(runs, "fleet", 36, 1)
     summaries = list(execute_job(job.items, tmp / "r", gif=False, engine="fleet", checkpoint_every_s=1e-6))
     assert [s["status"] for s in summaries] == ["ok"] * 3
@@ -347,9 +347,9 @@ def test_a_killed_fleet_sweep_resumes_its_training_from_the_checkpoint(tmp_path:
 
 def test_make_jobs_forms_a_checkpointed_fleet_again(tmp_path: Path) -> None:
     from runners.execute.jobs import make_jobs
-    from runners.plan.runs import plan
+    from runners.plan.runs import expand_sweep
 
-    runs = plan(_sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "seed=[1,2]"))
+    runs = expand_sweep(_sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "seed=[1,2]"))
     assert len(runs) == 24
     ids = [r.run_id for r in runs]
     fleet = (ids[3], ids[17], ids[5])  # not a chunk the plan would cut
@@ -364,7 +364,7 @@ def test_make_jobs_forms_a_checkpointed_fleet_again(tmp_path: Path) -> None:
 
 def test_the_checkpoint_interval_is_a_sweep_setting_outside_every_run(tmp_path: Path) -> None:
     from runners.compose.sweep_config import ConfigError
-    from runners.plan.runs import plan
+    from runners.plan.runs import expand_sweep
 
     default = _sweep_config(tmp_path, "algo=[ppo,cpo]", "chain=utility", "scenario=[switch_standard]", "preset=smoke")
     assert default.checkpoint_every_s == 300.0
@@ -372,17 +372,17 @@ def test_the_checkpoint_interval_is_a_sweep_setting_outside_every_run(tmp_path: 
         other = _sweep_config(tmp_path, "algo=[ppo,cpo]", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
                               f"checkpoint_every_s={value}")
         assert other.checkpoint_every_s == float(value)
-        assert [(r.run_id, r.config) for r in plan(other)] == [(r.run_id, r.config) for r in plan(default)]
+        assert [(r.run_id, r.config) for r in expand_sweep(other)] == [(r.run_id, r.config) for r in expand_sweep(default)]
     with pytest.raises(ConfigError, match="checkpoint_every_s: expected a number of seconds >= 0"):
         _sweep_config(tmp_path, "algo=ppo", "checkpoint_every_s=-1")
 
 
 def test_stale_checkpoints_are_removed_and_only_those(tmp_path: Path) -> None:
     from runners.execute.jobs import execute_job
-    from runners.plan.runs import plan
+    from runners.plan.runs import expand_sweep
     from runners.record import fleet_checkpoints as fc
 
-    runs = plan(_sweep_config(tmp_path, "algo=random", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
+    runs = expand_sweep(_sweep_config(tmp_path, "algo=random", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
                               "variant=[HumanA,HumanB,AnimalA]"))
     results = tmp_path / "r"
     list(execute_job([(r.run_id, r.config) for r in runs[:2]], results, gif=False))  # two runs finish ok

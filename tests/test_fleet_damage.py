@@ -202,10 +202,10 @@ def test_the_sweep_records_the_non_finite_run_failed_with_its_own_error_and_the_
     rows are the very rows an undamaged fleet job records (timing aside)."""
     from morality_gym.results.schema import read_runs
     from runners.execute.jobs import execute_job, make_jobs
-    from runners.plan.runs import plan
+    from runners.plan.runs import expand_sweep
     from tests.test_fleet_checkpoint import SWEEP, TIMING, _sweep_config
 
-    runs = plan(_sweep_config(tmp_path, *SWEEP))
+    runs = expand_sweep(_sweep_config(tmp_path, *SWEEP))
     (job,) = make_jobs(runs, "fleet", 36, 1)
     healthy = list(execute_job(job.items, tmp_path / "healthy", gif=False, engine="fleet"))
     assert [s["status"] for s in healthy] == ["ok"] * 3

@@ -90,7 +90,7 @@ def test_a_gpu_sweep_is_priced_at_the_measured_device_rates(tmp_path: Path) -> N
     from morality_gym.baselines.targets import learner_trains
     from runners.execute.jobs import fleet_trains, make_jobs
     from runners.plan.estimate import device_estimate_note, device_rates
-    from runners.plan.runs import plan
+    from runners.plan.runs import expand_sweep
 
     def note_of(sweep):  # what the sweep prints: the learners whose runs fleets train
         return device_estimate_note(sweep.device.kind, [a for a in sweep.algos
@@ -104,7 +104,7 @@ def test_a_gpu_sweep_is_priced_at_the_measured_device_rates(tmp_path: Path) -> N
     assert set(rates) == {"ppo", "cpo"} and rates["ppo"].measured_on.startswith("NVIDIA H200")
     note = note_of(gpu)
     assert note is not None and "PPO, CPO are priced at cuda rates measured on NVIDIA H200" in note and "CPU rates" not in note
-    runs = plan(gpu)
+    runs = expand_sweep(gpu)
     jobs = make_jobs(runs, "fleet", 336, 4, mix_scenarios=True, device_rates=rates)
     fleets = [j for j in jobs if j.engine == "fleet"]
     assert fleets and all(j.device is not None for j in fleets)

@@ -27,7 +27,7 @@ def current_run_ids(results_dir: Path) -> dict[str, dict[str, list[str]]]:
 
     from runners.compose.search_path import CONF_DIR
     from runners.compose.sweep_config import validate
-    from runners.plan.runs import plan
+    from runners.plan.runs import expand_sweep
 
     out: dict[str, dict[str, list[str]]] = {}
     for protocol in PROTOCOLS:
@@ -37,7 +37,7 @@ def current_run_ids(results_dir: Path) -> dict[str, dict[str, list[str]]]:
                                                    f"protocol={protocol}", f"preset={preset}", "mlflow=false",
                                                    f"results_dir={results_dir}"])
             by_algo: dict[str, list[str]] = {}
-            for run in plan(validate(cfg)):
+            for run in expand_sweep(validate(cfg)):
                 by_algo.setdefault(run.config["algo"]["name"], []).append(run.run_id)
             out[f"{protocol}/{preset}"] = by_algo
     return out

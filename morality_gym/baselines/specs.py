@@ -31,7 +31,7 @@ from morality_gym.norms.reward_cost import PAPER_RETURN_BOUNDS, RewardCostSpec
 
 #: The configuration files (Hydra's config directory): ``conf/`` at the repository's root, reached
 #: through the link ``morality_gym/conf`` (a wheel installs the files themselves there). The one
-#: place that knows where they are; ``runners.compose.search_path.CONF_DIR`` is this.
+#: place that knows where they are: the sweep (``runners.compose``) and the leaderboard import it from here.
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 
 #: The baselines' classes, which the fleet trainers match by identity (``_target_`` of their

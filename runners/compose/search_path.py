@@ -20,9 +20,7 @@ import sys
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from morality_gym.baselines.specs import (
-    CONF_DIR,  # also public here: docs/how-to/sweeps.md names runners.compose.search_path.CONF_DIR
-)
+from morality_gym.baselines.specs import CONF_DIR
 
 #: Entry-point group of installed plugins: each entry point names a package that is a config root
 #: (holding ``algo/*.yaml`` and, if it likes, ``chain/``, ``scenario/``, ...), e.g. in a plugin's

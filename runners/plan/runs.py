@@ -34,7 +34,8 @@ class PlannedRun:
     train_steps: int = 0  # the env steps it trains (what a device's fleet rate prices)
 
     @property
-    def identity(self) -> dict[str, Any]:
+    def manifest_entry(self) -> dict[str, Any]:
+        """What the sweep's manifest and a dry run's plan file list of this run (its id and what it is)."""
         c = self.config
         return {
             "run_id": self.run_id,
@@ -52,7 +53,7 @@ class PlannedRun:
         }
 
 
-def plan(sweep: SweepConfig) -> list[PlannedRun]:
+def expand_sweep(sweep: SweepConfig) -> list[PlannedRun]:
     """Every run of the sweep, in a stable order (chain, scenario, variant, algo, seed)."""
     runs: list[PlannedRun] = []
     seen: set[str] = set()
