@@ -73,7 +73,7 @@ from runners.compose.command_line import (
     prepare_overrides,
     show,
 )
-from runners.compose.sweep_config import ConfigError, SweepConfig  # also stores the schemas (runners.config_schema)
+from runners.compose.sweep_config import ConfigError, SweepConfig  # also stores the schemas (runners.compose.schema)
 from runners.execute.jobs import Job, fleet_trains, make_jobs
 from runners.execute.run import record_failure
 from runners.launch.local_pool import JobProgress, PoolStopped, WorkerPool

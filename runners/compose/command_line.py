@@ -36,7 +36,7 @@ from runners.compose.options import normalise_argv
 from runners.compose.options import options as group_options
 from runners.compose.schema import composition_error
 from runners.compose.search_path import find_config, plugin_sources, source_dir, sources_from_argv, split_list
-from runners.compose.sweep_config import (  # also stores the schemas (runners.config_schema)
+from runners.compose.sweep_config import (  # also stores the schemas (runners.compose.schema)
     ConfigError,
     SweepConfig,
     validate,
