@@ -4,7 +4,7 @@ Why a whole row: the issue's target (core time per learner down 2x) is about wha
 a sweep trains a row's runs as the fleet it forms from them (every variant x seed of the row, cut
 to at most ``fleet_size`` runs): the fleet here is that one, formed by the sweep's own planner
 (:func:`benchmarks.project_table1.table1_plan` and :func:`~benchmarks.project_table1.plan_jobs`,
-i.e. :func:`runners.jobs.make_jobs`), and built as the sweep builds it (:func:`~morality_gym.baselines.fleet.make_fleet`
+i.e. :func:`runners.execute.jobs.make_jobs`), and built as the sweep builds it (:func:`~morality_gym.baselines.fleet.make_fleet`
 with the run's resolved learner). Each learner is trained eager and compiled, one after the
 other in the same process, on the same reduced budget (the ratio is per env step).
 
@@ -258,7 +258,7 @@ def _section(results: list[Trained], shares: list[float], quick: bool, load: tup
     return Section(
         intro=f"""
 The Table 1 row ({chain}, {scenario}) as a paper-preset sweep trains it: the fleet its planner forms of the row's
-runs (every variant x seeds 41-43, `fleet_size` 36 on the CPU: one fleet of K runs; `runners.jobs.make_jobs`),
+runs (every variant x seeds 41-43, `fleet_size` 36 on the CPU: one fleet of K runs; `runners.execute.jobs.make_jobs`),
 built as the sweep builds it (`make_fleet` with the runs' resolved learner and protocol), paper protocol, torch on
 one thread. Each learner is trained on a reduced budget (the steps per run below, a few rollouts instead of the
 paper's 1M; the ratio is per env step), in one process, in this order: eager (`update=eager`, the default, which

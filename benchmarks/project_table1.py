@@ -7,7 +7,7 @@ on runs that were measured, not on the planner alone. This tool reads the finish
 results directory or a results release (a few Table 1 rows run at the preset in question), measures each learner's
 core-seconds per training step (every run's ``cpu_time_s``, or its ``wall_time_s`` in files written
 before that column: its share of its fleet's training plus its own evaluations and writes), and prices every job of the full Table 1 plan with it. The
-jobs are those the sweep itself would make (:func:`runners.jobs.make_jobs`, fleets of up to
+jobs are those the sweep itself would make (:func:`runners.execute.jobs.make_jobs`, fleets of up to
 ``fleet_size``), handed to ``W`` workers in the sweep's dispatch order (longest estimated job
 first) as each becomes free, as the local pool does, so the projection includes the tail where
 one long fleet keeps a worker busy.
@@ -70,7 +70,7 @@ def finished_runs(results_dir: Path, protocol: str, preset: str | None, engine: 
     # pandas, pyarrow, OmegaConf wait: only the benchmark that runs it needs them
     import pandas as pd
 
-    from runners.jobs import fleet_trains
+    from runners.execute.jobs import fleet_trains
 
     frame = _run_rows(results_dir)
     if frame.empty:
@@ -165,8 +165,8 @@ def table1_plan(preset: str, protocol: str, engine: str, scratch: Path, extra: S
     # pyarrow, Hydra, OmegaConf wait: only the benchmark that runs it needs them
     from hydra import compose, initialize_config_dir
 
-    from runners.config import validate
-    from runners.plan import plan
+    from runners.compose.sweep_config import validate
+    from runners.plan.runs import expand_sweep
 
     overrides = ["experiment=table1", f"protocol={protocol}", f"preset={preset}", f"engine={engine}",
                  f"results_dir={scratch}", "mlflow=false", "dry_run=true"]
@@ -176,14 +176,14 @@ def table1_plan(preset: str, protocol: str, engine: str, scratch: Path, extra: S
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = compose("config", overrides=overrides)
     sweep = validate(cfg)
-    return plan(sweep), sweep
+    return expand_sweep(sweep), sweep
 
 
 def plan_jobs(runs: list[Any], sweep: Any, workers: int) -> list[Any]:
     """The plan cut into the jobs a sweep with ``workers`` workers runs, in the order they take them."""
     # pyarrow, OmegaConf wait: only the benchmark that runs it needs them
-    from runners.estimate import dispatch_order
-    from runners.jobs import make_jobs
+    from runners.execute.jobs import make_jobs
+    from runners.plan.estimate import dispatch_order
 
     speedups = {a.spec.name: a.rates.fleet_speedup for a in sweep.algos}
     return dispatch_order(make_jobs(runs, sweep.engine, sweep.fleet_size, workers, speedups), workers)
@@ -284,7 +284,7 @@ def _projected_table(preset: str, protocol: str, engine: str, workers: Sequence[
                      sweep: Any) -> list[str]:
     """One row per worker count: the whole Table 1's jobs (``runs`` of ``sweep``) priced at the measured rates."""
     # pyarrow, OmegaConf wait: only the benchmark that runs it needs them
-    from runners.estimate import jobs_estimate, makespan
+    from runners.plan.estimate import jobs_estimate, makespan
 
     title = f" ({', '.join(extra)})" if extra else ""
     lines = ["", f"### Projected: the whole Table 1 ({preset} preset, {protocol} protocol, engine {engine}){title}", "",

@@ -1,7 +1,7 @@
 """The paper's settings that code reads, each defined once (the lowest layer: imports nothing).
 
 Every module that needs one of these values imports it from here: the environments, the metric, the
-evaluations, the command lines, the sweep's typed configuration (:mod:`runners.config_schema`), the
+evaluations, the command lines, the sweep's typed configuration (:mod:`runners.compose.schema`), the
 leaderboard and the language-model agent. Older public names are aliases of these
 (:data:`morality_gym.norms.metric.DEFAULT_BETA`, :data:`morality_gym.envs.registry.DEFAULT_MAX_STEPS`,
 re-exported by :mod:`morality_gym.envs.trolley`).

@@ -1,13 +1,13 @@
 """``python -m runners.migrate RESULTS_DIR [--dry-run]``: bring old runs to the current run ids.
 
 When a change renames the vocabulary of the recorded run config without changing what runs (the
-list is :data:`runners.rename_history.MIGRATIONS`), every run id changes, because an id is the hash of
+list is :data:`runners.record.rename_history.MIGRATIONS`), every run id changes, because an id is the hash of
 the config. A results directory written before the change would be planned again from scratch by a
 sweep, and the leaderboard would show its runs as superseded. This command rewrites such runs
 under their new ids, so that the work already done counts again.
 
 For each run ``runs/<id>.parquet`` whose stored config hashes to its id and which a migration
-applies to, the config is migrated (:func:`runners.rename_history.migrate_config` checks that only
+applies to, the config is migrated (:func:`runners.record.rename_history.migrate_config` checks that only
 vocabulary changes and that the inverse gives the old config back). Then the run is written again
 under the new id: its row (``run_id``, ``config``, ``model_path``, ``gif_path``; every other value
 as it was), ``.learn``/``.updates`` side files (``run_id``), its artifacts directory (the model's
@@ -73,7 +73,8 @@ from morality_gym.results.schema import (
     runs_dir,
     updates_path,
 )
-from runners.rename_history import (
+from runners.record.mlflow_mirror import Tracker, TrackingError, check_reachable, marker_path, tracking_lock
+from runners.record.rename_history import (
     MIGRATIONS,
     Migration,
     MigrationError,
@@ -81,7 +82,6 @@ from runners.rename_history import (
     migrate_sidecar,
     unmigrate_config,
 )
-from runners.tracking import Tracker, TrackingError, check_reachable, marker_path, tracking_lock
 
 JOURNAL_DIR = "migrations"
 JOURNAL = "journal.jsonl"

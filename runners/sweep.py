@@ -2,13 +2,13 @@
 
 The path of a sweep, from the command line to its first run (docs/architecture.md):
 
-1. :func:`main` reads the command line once (:func:`runners.sweep_cli.parse_command_line`):
-   Hydra-style flags and ``key=value`` overrides. :func:`runners.sweep_cli.prepare_overrides` adds
+1. :func:`main` reads the command line once (:func:`runners.compose.command_line.parse_command_line`):
+   Hydra-style flags and ``key=value`` overrides. :func:`runners.compose.command_line.prepare_overrides` adds
    the installed plugins' config packages to the search path, rewrites user scenarios and chain
-   files into options Hydra can compose (:mod:`runners.options`) and checks group options and
-   hyper-parameter names, naming the closest valid ones (:func:`runners.sweep_cli.precheck`).
-2. :func:`runners.sweep_cli.compose_sweep` composes ``conf/`` once, with Hydra's compose API; :func:`runners.config.validate`
-   resolves it into a typed :class:`~runners.config.SweepConfig`, and :func:`runners.preflight.preflight`
+   files into options Hydra can compose (:mod:`runners.compose.options`) and checks group options and
+   hyper-parameter names, naming the closest valid ones (:func:`runners.compose.command_line.precheck`).
+2. :func:`runners.compose.command_line.compose_sweep` composes ``conf/`` once, with Hydra's compose API; :func:`runners.compose.sweep_config.validate`
+   resolves it into a typed :class:`~runners.compose.sweep_config.SweepConfig`, and :func:`runners.launch.preflight.preflight`
    checks the machine (results directory, MLflow, SLURM) before anything is written.
 3. :func:`make_plan` expands chain x scenario x variant x algorithm x seed into a :class:`Plan`:
    the runs, which are finished (their Parquet file exists with status ``ok``; failed ones are
@@ -27,7 +27,7 @@ lost and no duplicated results; an unreadable result file is moved aside and its
 (:mod:`morality_gym.results.quarantine`); two sweeps on one directory share it safely (per-run locks, and one
 MLflow writer at a time).
 
-Flags (read by :mod:`runners.sweep_cli`). The configuration is composed with Hydra's compose API,
+Flags (read by :mod:`runners.compose.command_line`). The configuration is composed with Hydra's compose API,
 not run as a ``@hydra.main`` application, so the flags are this command's own, spelt as Hydra spells them: ``--config-dir``/``-cd``,
 ``--config-name``/``-cn``, ``--cfg``/``-c`` ``job|hydra|all`` (with ``--resolve`` and
 ``--package``/``-p``: print the composed configuration and run nothing), ``--info``/``-i``
@@ -66,8 +66,21 @@ from morality_gym.results.manifest import manifest_body, manifest_name, write_ma
 from morality_gym.results.quarantine import Quarantined, check_run_files, read_table_or_quarantine
 from morality_gym.results.recording import finished_status
 from morality_gym.results.schema import run_path
-from runners.config import ConfigError, SweepConfig  # also stores the schemas (runners.config_schema)
-from runners.estimate import (
+from runners.compose.command_line import (
+    CommandLineError,
+    load_sweeps,
+    parse_command_line,
+    prepare_overrides,
+    show,
+)
+from runners.compose.sweep_config import ConfigError, SweepConfig  # also stores the schemas (runners.compose.schema)
+from runners.execute.jobs import Job, fleet_trains, make_jobs
+from runners.execute.run import record_failure
+from runners.launch.local_pool import JobProgress, PoolStopped, WorkerPool
+from runners.launch.preflight import preflight
+from runners.launch.slurm import run_on_slurm
+from runners.launch.slurm_controller import SlurmUnavailable
+from runners.plan.estimate import (
     Estimate,
     MachineLoad,
     device_estimate_note,
@@ -76,23 +89,10 @@ from runners.estimate import (
     jobs_estimate,
     sweep_overheads,
 )
-from runners.execute import record_failure
-from runners.fleet_checkpoints import fleets_to_form, remove_stale
-from runners.jobs import Job, fleet_trains, make_jobs
-from runners.leftovers import remove_leftovers
-from runners.plan import PlannedRun, describe, plan
-from runners.pool import JobProgress, PoolStopped, WorkerPool
-from runners.preflight import preflight
-from runners.slurm_controller import SlurmUnavailable
-from runners.slurm_launcher import run_on_slurm
-from runners.sweep_cli import (
-    CommandLineError,
-    load_sweeps,
-    parse_command_line,
-    prepare_overrides,
-    show,
-)
-from runners.tracking import Tracker, TrackingError
+from runners.plan.runs import PlannedRun, describe, expand_sweep
+from runners.record.fleet_checkpoints import fleets_to_form, remove_stale
+from runners.record.leftovers import remove_leftovers
+from runners.record.mlflow_mirror import Tracker, TrackingError
 
 
 # ---------------------------------------------------------------------------------------- the plan
@@ -107,10 +107,10 @@ class Plan:
     """A sweep's runs and what is left of them, as a value: printed, recorded and dispatched.
 
     ``status``: each run's result before the sweep (``ok``, ``failed`` or None); ``todo``: the runs
-    to train, cut into ``jobs`` for ``workers`` parallel workers (:mod:`runners.jobs`); ``counts``:
-    :func:`runners.plan.describe`'s totals per learner; ``estimate_s``: the wall time of what
+    to train, cut into ``jobs`` for ``workers`` parallel workers (:mod:`runners.execute.jobs`); ``counts``:
+    :func:`runners.plan.runs.describe`'s totals per learner; ``estimate_s``: the wall time of what
     remains on an idle machine, and ``estimate`` the same at the machine's load when the plan was
-    made (:mod:`runners.estimate`); ``moved``: unreadable result files moved aside while the plan was made.
+    made (:mod:`runners.plan.estimate`); ``moved``: unreadable result files moved aside while the plan was made.
     """
 
     runs: tuple[PlannedRun, ...]
@@ -126,7 +126,7 @@ class Plan:
 
     @property
     def resuming(self) -> tuple[Job, ...]:
-        """The fleets that resume their training from a checkpoint (:mod:`runners.fleet_checkpoints`)."""
+        """The fleets that resume their training from a checkpoint (:mod:`runners.record.fleet_checkpoints`)."""
         sets = {frozenset(ids) for ids in self.checkpointed}
         return tuple(j for j in self.fleets if frozenset(r.run_id for r in j.runs) in sets)
 
@@ -139,7 +139,7 @@ class Plan:
 def make_plan(sweep: SweepConfig) -> Plan:
     """Expand the sweep into runs, learn which are finished (moving unreadable files aside) and cut
     the rest into jobs, longest first."""
-    runs = plan(sweep)
+    runs = expand_sweep(sweep)
     if sweep.dry_run:  # reads what exists, writes nothing: no directory, no file moved aside
         moved = []
     else:
@@ -149,7 +149,7 @@ def make_plan(sweep: SweepConfig) -> Plan:
     done = {rid for rid, s in status.items() if s == "ok" or (s == "failed" and not sweep.retry_failed)}
     workers = _workers(sweep)
     todo = [r for r in runs if r.run_id not in done]
-    # fleets with a training checkpoint are formed again, to resume (runners.fleet_checkpoints)
+    # fleets with a training checkpoint are formed again, to resume (runners.record.fleet_checkpoints)
     checkpointed = fleets_to_form(sweep.results_dir, [r.run_id for r in todo]) if sweep.checkpoint_every_s > 0 else []
     jobs = dispatch_order(make_jobs(todo, sweep.engine, sweep.fleet_size, workers,
                                     {a.spec.name: a.rates.fleet_speedup for a in sweep.algos}, checkpointed,
@@ -222,7 +222,7 @@ def record_plan(plan_: Plan, sweep: SweepConfig, command: str, console: Console)
     write_manifest(
         sweep.results_dir,
         name,
-        [r.identity for r in plan_.runs],
+        [r.manifest_entry for r in plan_.runs],
         command=command,
         preset=sweep.preset.name,
         protocol=sweep.protocol.name,
@@ -242,7 +242,7 @@ def write_plan_file(plan_: Plan, sweep: SweepConfig, command: str, console: Cons
                       soft_wrap=True)
         return
     name = manifest_name(sweep.name, [r.run_id for r in plan_.runs])
-    body = manifest_body(name, [r.identity for r in plan_.runs], command=command, preset=sweep.preset.name,
+    body = manifest_body(name, [r.manifest_entry for r in plan_.runs], command=command, preset=sweep.preset.name,
                          protocol=sweep.protocol.name, preset_seeds=list(sweep.preset.seeds), dry_run=True)
     sweep.plan_file.parent.mkdir(parents=True, exist_ok=True)
     sweep.plan_file.write_text(json.dumps(body, indent=1) + "\n", encoding="utf-8")
@@ -276,7 +276,7 @@ def fleet_label(job: Any) -> str:
 class FleetBars(JobProgress):
     """One progress bar per fleet while it trains (steps per run), under the sweep's bar of runs:
     at the paper's budget a fleet trains for many minutes before its first run is written.
-    (A :class:`runners.pool.JobProgress`; SLURM jobs train on other nodes and show none.)"""
+    (A :class:`runners.launch.local_pool.JobProgress`; SLURM jobs train on other nodes and show none.)"""
 
     def __init__(self, progress: Any) -> None:
         self.progress = progress
@@ -447,7 +447,7 @@ def report(plan_: Plan, sweep: SweepConfig, console: Console, seconds: float) ->
 
 
 def run_sweep(sweep: SweepConfig, console: Console | None = None, command: str | None = None) -> int:
-    """Plan, record and execute a validated sweep whose machine passed :func:`runners.preflight.preflight`;
+    """Plan, record and execute a validated sweep whose machine passed :func:`runners.launch.preflight.preflight`;
     returns the exit status. ``command``: the command line the manifest records (default: this process's)."""
     console = console or Console(stderr=True)
     plan_ = make_plan(sweep)
@@ -525,7 +525,7 @@ def sweep_command(argv: Sequence[str]) -> int:
 
 
 def run_sweeps(sweeps: Sequence[SweepConfig], console: Console, command: str) -> int:
-    """Check the machine for each sweep (:func:`runners.preflight.preflight`) and run it; a user
+    """Check the machine for each sweep (:func:`runners.launch.preflight.preflight`) and run it; a user
     error stops at once (exit 2), else the worst exit status of the sweeps."""
     worst = 0
     for sweep in sweeps:

@@ -20,7 +20,7 @@ on the chain's cost (PPO Shaped: its shaping; PPO-Lag and CPO: its step-wise cos
 scored under the chain alone; its runs are ``DIR/runs/<chain>-<learner>-s<seed>/`` and record the
 chain. There every learner trains all its seeds as one fleet with Table 1's hyper-parameters, on the
 compact observation, checkpointed and resumable, recording each run's learning curve on the seen set
-in ``DIR/curves/`` every ``--curve-every`` steps (:mod:`runners.track_fleet`); ``--n-envs``,
+in ``DIR/curves/`` every ``--curve-every`` steps (:mod:`runners.execute.track_fleet`); ``--n-envs``,
 ``--n-steps``, ``--batch-size`` and ``--n-epochs`` apply to the mixed track's single runs only. ``--splits v2`` (with ``--chain``)
 keeps only the pairs of the v2 splits, where Random leaves headroom under the chain
 (:mod:`~morality_gym.generalisation.headroom`); its runs are ``<chain>-v2-<learner>-s<seed>``.
@@ -54,7 +54,7 @@ from morality_gym.generalisation.sets import SEEN_SAMPLE, SETS, TRACK_CHAINS, Ev
 from morality_gym.generator.grammar import GRAMMAR_VERSION
 from morality_gym.generator.splits import split_manifest
 from morality_gym.results.recording import git_commit
-from runners.track_fleet import CURVE_EVERY, CurveRecorder, fleet_key, table_cache_dir, train_fleet
+from runners.execute.track_fleet import CURVE_EVERY, CurveRecorder, fleet_key, table_cache_dir, train_fleet
 
 LEARNERS = ("random", "ppo", "ppo_shaped", "ppo_lag", "cpo")
 #: The learners trained on a chain's step-wise cost: only a chain's track has one.
@@ -155,7 +155,7 @@ def do_run(learner: str, seed: int | None, budget: int, train_ids: Sequence[str]
     policy, ``loaded`` if the caller loaded it already), evaluate on ``sets``, write its files; a
     done run is checked and skipped. ``chain``: the chain's track (``sets`` and ``train_ids`` are
     then that chain's, :func:`load_sets`). ``trained``: the run's learner and record, trained by a
-    fleet (:mod:`runners.track_fleet`); a run its fleet failed is reported and not written (None)."""
+    fleet (:mod:`runners.execute.track_fleet`); a run its fleet failed is reported and not written (None)."""
     import pandas as pd
 
     run_dir = out_dir / "runs" / run_name(learner, seed, submitted=policy_ref is not None, chain=chain, version=version)

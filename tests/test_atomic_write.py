@@ -17,8 +17,8 @@ from leaderboard.runs.reference_rows import _write_json_atomic
 from leaderboard.web.content_cache import atomic_write
 from morality_gym.clitools import write_atomically
 from morality_gym.results.schema import atomic_write_table
-from runners.fleet_checkpoints import _runs_path, write_fleet_runs
 from runners.migrate import _write_json
+from runners.record.fleet_checkpoints import _runs_path, write_fleet_runs
 
 
 def _leftovers(directory: Path) -> list[Path]:

@@ -170,7 +170,7 @@ def test_a_presets_seeds_are_read_without_torch() -> None:
     """The build asks ``morality_gym.results.presets`` for a preset's seeds; importing torch for that
     cost about a second of every build (the learner specs imported the wrappers, which import
     Stable-Baselines3)."""
-    code = ("import sys, morality_gym.results.presets as p, runners.paths; p.preset_seeds('quick'); "
+    code = ("import sys, morality_gym.results.presets as p, runners.compose.search_path; p.preset_seeds('quick'); "
             "print('torch' in sys.modules)")
     proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120,
                           check=True)

@@ -132,8 +132,8 @@ def test_sweep_plan_uses_the_protocol_rate() -> None:
     """The shipped ppo_lag file: the corrected protocol plans ~20x the paper protocol's time per step."""
     from hydra import compose, initialize_config_dir
 
-    from runners.config import validate
-    from runners.paths import CONF_DIR
+    from runners.compose.search_path import CONF_DIR
+    from runners.compose.sweep_config import validate
 
     rates = {}
     for protocol in ("paper", "corrected"):

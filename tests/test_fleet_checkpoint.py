@@ -11,7 +11,7 @@ the uninterrupted fleet ends, and a checkpoint that does not fit is never used.
 * The comparison can fail: a resume that skips the numpy generators does not match.
 * A checkpoint of another key or fleet is discarded with a warning, a damaged file set aside
   (tests/test_fleet_damage.py has the rest), and training starts over.
-* The sweep around it (runners.jobs) is tested in tests/test_fleet_sweep.py's style at the end.
+* The sweep around it (runners.execute.jobs) is tested in tests/test_fleet_sweep.py's style at the end.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def make_fleet(spec: LearnerSpec, protocol: str) -> FleetTrainer:
 
 class Trainer:
     """One fleet's training as a caller drives it: its evaluation rows (kept in the checkpoint as
-    the caller's extra data, as runners.jobs keeps them) and an optional interruption."""
+    the caller's extra data, as runners.execute.jobs keeps them) and an optional interruption."""
 
     def __init__(self, spec: LearnerSpec, protocol: str, global_seed: int) -> None:
         th.manual_seed(global_seed)  # training must not depend on the global RNGs
@@ -269,11 +269,11 @@ def assert_same_records(a: dict[str, Any], b: dict[str, Any]) -> None:
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory: pytest.TempPathFactory) -> tuple[list[Any], dict[str, Any]]:
     """The sweep's runs and what an uninterrupted fleet job records for them."""
-    from runners.jobs import execute_job, make_jobs
-    from runners.plan import plan
+    from runners.execute.jobs import execute_job, make_jobs
+    from runners.plan.runs import expand_sweep
 
     tmp = tmp_path_factory.mktemp("whole")
-    runs = plan(_sweep_config(tmp, *SWEEP))
+    runs = expand_sweep(_sweep_config(tmp, *SWEEP))
     (job,) = make_jobs(runs, "fleet", 36, 1)
     summaries = list(execute_job(job.items, tmp / "r", gif=False, engine="fleet", checkpoint_every_s=1e-6))
     assert [s["status"] for s in summaries] == ["ok"] * 3
@@ -287,7 +287,7 @@ def test_a_fleet_killed_while_recording_resumes_at_the_end_of_training(
 ) -> None:
     """The checkpoint written when training ends: a worker killed after recording one run builds
     the whole fleet again, restores it at its last step (no training) and records the other two."""
-    from runners.jobs import execute_job
+    from runners.execute.jobs import execute_job
 
     runs, expected = uninterrupted
     results = tmp_path / "r"
@@ -346,10 +346,10 @@ def test_a_killed_fleet_sweep_resumes_its_training_from_the_checkpoint(tmp_path:
 
 
 def test_make_jobs_forms_a_checkpointed_fleet_again(tmp_path: Path) -> None:
-    from runners.jobs import make_jobs
-    from runners.plan import plan
+    from runners.execute.jobs import make_jobs
+    from runners.plan.runs import expand_sweep
 
-    runs = plan(_sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "seed=[1,2]"))
+    runs = expand_sweep(_sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "seed=[1,2]"))
     assert len(runs) == 24
     ids = [r.run_id for r in runs]
     fleet = (ids[3], ids[17], ids[5])  # not a chunk the plan would cut
@@ -363,8 +363,8 @@ def test_make_jobs_forms_a_checkpointed_fleet_again(tmp_path: Path) -> None:
 
 
 def test_the_checkpoint_interval_is_a_sweep_setting_outside_every_run(tmp_path: Path) -> None:
-    from runners.config import ConfigError
-    from runners.plan import plan
+    from runners.compose.sweep_config import ConfigError
+    from runners.plan.runs import expand_sweep
 
     default = _sweep_config(tmp_path, "algo=[ppo,cpo]", "chain=utility", "scenario=[switch_standard]", "preset=smoke")
     assert default.checkpoint_every_s == 300.0
@@ -372,17 +372,17 @@ def test_the_checkpoint_interval_is_a_sweep_setting_outside_every_run(tmp_path: 
         other = _sweep_config(tmp_path, "algo=[ppo,cpo]", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
                               f"checkpoint_every_s={value}")
         assert other.checkpoint_every_s == float(value)
-        assert [(r.run_id, r.config) for r in plan(other)] == [(r.run_id, r.config) for r in plan(default)]
+        assert [(r.run_id, r.config) for r in expand_sweep(other)] == [(r.run_id, r.config) for r in expand_sweep(default)]
     with pytest.raises(ConfigError, match="checkpoint_every_s: expected a number of seconds >= 0"):
         _sweep_config(tmp_path, "algo=ppo", "checkpoint_every_s=-1")
 
 
 def test_stale_checkpoints_are_removed_and_only_those(tmp_path: Path) -> None:
-    from runners import fleet_checkpoints as fc
-    from runners.jobs import execute_job
-    from runners.plan import plan
+    from runners.execute.jobs import execute_job
+    from runners.plan.runs import expand_sweep
+    from runners.record import fleet_checkpoints as fc
 
-    runs = plan(_sweep_config(tmp_path, "algo=random", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
+    runs = expand_sweep(_sweep_config(tmp_path, "algo=random", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
                               "variant=[HumanA,HumanB,AnimalA]"))
     results = tmp_path / "r"
     list(execute_job([(r.run_id, r.config) for r in runs[:2]], results, gif=False))  # two runs finish ok
@@ -402,7 +402,7 @@ def test_a_resumed_fleet_counts_the_time_spent_before_the_kill() -> None:
     """A run's ``wall_time_s`` and ``cpu_time_s`` (compute accounting) include the training before
     the checkpoint: the time spent travels in the checkpoint's extra data."""
     from morality_gym.results.recording import RunClock
-    from runners.jobs import FleetTraining
+    from runners.execute.jobs import FleetTraining
 
     runs = [("a", {}), ("b", {})]
     before = FleetTraining(runs, RunClock.already_spent("2026-01-01T00:00:00+00:00", 5000.0, 3000.0))  # trained a while
@@ -416,7 +416,7 @@ def test_a_resumed_fleet_counts_the_time_spent_before_the_kill() -> None:
 
 
 def test_the_checkpoint_key_changes_with_the_training_code_only(tmp_path: Path) -> None:
-    from runners.execute import code_fingerprint
+    from runners.execute.run import code_fingerprint
 
     package = tmp_path / "morality_gym"
     (package / "data").mkdir(parents=True)

@@ -198,14 +198,14 @@ def test_a_checkpoint_file_has_a_digest_line_and_no_pickle_of_objects(tmp_path: 
 def test_the_sweep_records_the_non_finite_run_failed_with_its_own_error_and_the_others_ok(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Through runners.jobs: the poisoned run's row is failed with its own error, the other runs'
+    """Through runners.execute.jobs: the poisoned run's row is failed with its own error, the other runs'
     rows are the very rows an undamaged fleet job records (timing aside)."""
     from morality_gym.results.schema import read_runs
-    from runners.jobs import execute_job, make_jobs
-    from runners.plan import plan
+    from runners.execute.jobs import execute_job, make_jobs
+    from runners.plan.runs import expand_sweep
     from tests.test_fleet_checkpoint import SWEEP, TIMING, _sweep_config
 
-    runs = plan(_sweep_config(tmp_path, *SWEEP))
+    runs = expand_sweep(_sweep_config(tmp_path, *SWEEP))
     (job,) = make_jobs(runs, "fleet", 36, 1)
     healthy = list(execute_job(job.items, tmp_path / "healthy", gif=False, engine="fleet"))
     assert [s["status"] for s in healthy] == ["ok"] * 3

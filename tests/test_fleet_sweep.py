@@ -18,10 +18,10 @@ import pytest
 from morality_gym.baselines.device import CPU, Device
 from morality_gym.results.recording import RunLock, finished_status
 from morality_gym.results.schema import read_runs, read_updates
-from runners.config import validate
-from runners.estimate import dispatch_order, fleet_speedup, jobs_estimate, makespan
-from runners.jobs import execute_job, fleet_trains, make_jobs
-from runners.plan import plan
+from runners.compose.sweep_config import validate
+from runners.execute.jobs import execute_job, fleet_trains, make_jobs
+from runners.plan.estimate import dispatch_order, fleet_speedup, jobs_estimate, makespan
+from runners.plan.runs import expand_sweep
 from tests.sweep_tools import run_files, wait_for_results
 
 REPO = Path(__file__).resolve().parents[1]
@@ -30,7 +30,7 @@ REPO = Path(__file__).resolve().parents[1]
 def _sweep_config(tmp_path: Path, *overrides: str):
     from hydra import compose, initialize_config_dir
 
-    from runners.paths import CONF_DIR
+    from runners.compose.search_path import CONF_DIR
 
     given = [f"results_dir={tmp_path / 'r'}", "mlflow=false", "gif=false", *overrides]
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
@@ -52,7 +52,7 @@ def _sweep(results: Path, *overrides: str, background: bool = False) -> subproce
 def test_runs_group_into_fleets_by_learner_and_scenario(tmp_path: Path) -> None:
     sweep = _sweep_config(tmp_path, "algo=[random,ppo,ppo_lag]", "chain=[utility,dual_process]",
                           "scenario=[switch_standard,push_standard]", "preset=smoke", "seed=[1,2]")
-    runs = plan(sweep)
+    runs = expand_sweep(sweep)
     jobs = make_jobs(runs, "fleet", fleet_size=1000, workers=1)
     assert sorted(r.run_id for j in jobs for r in j.runs) == sorted(r.run_id for r in runs)  # each run exactly once
     for job in jobs:
@@ -76,7 +76,7 @@ def test_runs_group_into_fleets_by_learner_and_scenario(tmp_path: Path) -> None:
 def test_on_accelerators_fleets_mix_the_scenarios_of_one_budget(tmp_path: Path) -> None:
     sweep = _sweep_config(tmp_path, "algo=[random,ppo]", "chain=utility", "scenario=[switch_standard,switch5,switch7]",
                           "preset=quick", "seed=[1]")
-    runs = plan(sweep)
+    runs = expand_sweep(sweep)
     jobs = make_jobs(runs, "fleet", fleet_size=1000, workers=1, mix_scenarios=True)
     assert sorted(r.run_id for j in jobs for r in j.runs) == sorted(r.run_id for r in runs)
     fleets = [j for j in jobs if j.engine == "fleet"]
@@ -94,7 +94,7 @@ def test_on_accelerators_fleets_mix_the_scenarios_of_one_budget(tmp_path: Path) 
 
 def test_fleets_are_cut_to_fleet_size_and_to_keep_workers_busy(tmp_path: Path) -> None:
     sweep = _sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "seed=[1,2,3]")
-    runs = plan(sweep)  # 12 variants x 3 seeds
+    runs = expand_sweep(sweep)  # 12 variants x 3 seeds
     assert len(runs) == 36
     sizes = sorted(len(j.runs) for j in make_jobs(runs, "fleet", fleet_size=10, workers=1))
     assert sizes == [9, 9, 9, 9]  # ceil(36/10) = 4 balanced fleets
@@ -110,11 +110,11 @@ def test_estimate_uses_the_measured_fleet_speedup(tmp_path: Path) -> None:
     assert fleet_speedup(8.0, 1) == 1.0 and fleet_speedup(8.0, 12) == 8.0 and fleet_speedup(8.0, 36) == 8.0
     assert 1.0 < fleet_speedup(8.0, 6) < 8.0
     sweep = _sweep_config(tmp_path, "algo=ppo_lag", "chain=utility", "scenario=[switch_standard]", "preset=quick", "seed=[1]")
-    runs = plan(sweep)
+    runs = expand_sweep(sweep)
     speedups = {a.spec.name: a.rates.fleet_speedup for a in sweep.algos}
     import yaml
 
-    from runners.paths import CONF_DIR
+    from runners.compose.search_path import CONF_DIR
 
     measured = yaml.safe_load((CONF_DIR / "algo" / "ppo_lag.yaml").read_text())["planning"]["fleet_speedup"]
     assert measured > 1 and speedups["ppo_lag"] == pytest.approx(measured)  # the paper protocol's figure
@@ -128,7 +128,7 @@ def test_estimate_uses_the_measured_fleet_speedup(tmp_path: Path) -> None:
 def test_several_workers_take_the_longest_jobs_first(tmp_path: Path) -> None:
     sweep = _sweep_config(tmp_path, "algo=[random,ppo,cpo]", "chain=utility", "scenario=[switch_standard,switch5]",
                           "preset=smoke", "seed=[1,2,3]")
-    jobs = make_jobs(plan(sweep), "fleet", 36, 2, {a.spec.name: a.rates.fleet_speedup for a in sweep.algos})
+    jobs = make_jobs(expand_sweep(sweep), "fleet", 36, 2, {a.spec.name: a.rates.fleet_speedup for a in sweep.algos})
     assert dispatch_order(jobs, 1) == jobs  # one worker: the plan's order (results arrive row by row)
     ordered = dispatch_order(jobs, 2)
     assert sorted(map(id, ordered)) == sorted(map(id, jobs))
@@ -147,7 +147,7 @@ def test_only_learners_the_fleet_reproduces_are_grouped() -> None:
 
 
 def test_engine_is_validated(tmp_path: Path) -> None:
-    from runners.config import ConfigError
+    from runners.compose.sweep_config import ConfigError
 
     with pytest.raises(ConfigError, match="engine: expected fleet or single, got 'fleat' \\(did you mean 'fleet'\\?\\)"):
         _sweep_config(tmp_path, "algo=ppo", "engine=fleat")
@@ -158,7 +158,7 @@ def test_engine_is_validated(tmp_path: Path) -> None:
 def test_device_is_validated_before_anything_runs(tmp_path: Path) -> None:
     import torch
 
-    from runners.config import ConfigError
+    from runners.compose.sweep_config import ConfigError
 
     with pytest.raises(ConfigError, match="device=cuda: only the fleet engine trains off the CPU"):
         _sweep_config(tmp_path, "algo=ppo", "engine=single", "device=cuda")
@@ -190,7 +190,7 @@ def test_a_fleet_job_on_a_device_it_cannot_use_fails_its_runs_instead_of_trainin
         pytest.skip("this machine has a GPU")
     sweep = _sweep_config(tmp_path, "algo=ppo_lag", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
                           "seed=[1]", "variant=[HumanA,HumanB]")
-    (job,) = make_jobs(plan(sweep), "fleet", 36, 1)
+    (job,) = make_jobs(expand_sweep(sweep), "fleet", 36, 1)
     summaries = list(execute_job(job.items, tmp_path / "r", gif=False, engine="fleet", device=Device("cuda")))
     assert [s["status"] for s in summaries] == ["failed", "failed"]
     df = read_runs(tmp_path / "r")
@@ -201,7 +201,7 @@ def test_a_fleet_job_on_a_device_it_cannot_use_fails_its_runs_instead_of_trainin
 def test_a_fleet_job_writes_every_run_as_the_single_engine_does(tmp_path: Path) -> None:
     sweep = _sweep_config(tmp_path, "algo=ppo_lag", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
                           "seed=[1]", "variant=[HumanA,HumanB,AnimalA]")
-    runs = plan(sweep)
+    runs = expand_sweep(sweep)
     results = tmp_path / "r"
     (job,) = make_jobs(runs, "fleet", 36, 1)
     assert job.engine == "fleet" and len(job.runs) == 3
@@ -223,11 +223,11 @@ def test_a_fleet_job_writes_every_run_as_the_single_engine_does(tmp_path: Path) 
 def test_the_pool_reports_a_fleets_training_steps_while_it_trains(tmp_path: Path) -> None:
     """A local worker sends the fleet's steps to the parent as it trains (at most once a second,
     and at the end), and the job's end; the sweep shows them as a bar per fleet."""
-    from runners.pool import JobProgress, WorkerPool
+    from runners.launch.local_pool import JobProgress, WorkerPool
 
     sweep = _sweep_config(tmp_path, "algo=ppo_lag", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
                           "seed=[1]", "variant=[HumanA,HumanB]")
-    (job,) = make_jobs(plan(sweep), "fleet", 36, 1)
+    (job,) = make_jobs(expand_sweep(sweep), "fleet", 36, 1)
 
     class Record(JobProgress):
         def __init__(self) -> None:
@@ -253,7 +253,7 @@ def test_the_pool_reports_a_fleets_training_steps_while_it_trains(tmp_path: Path
 def test_a_resumed_fleet_trains_only_its_unfinished_runs(tmp_path: Path) -> None:
     sweep = _sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
                           "seed=[1]", "variant=[HumanA,HumanB,AnimalA,AnimalB]")
-    runs = plan(sweep)
+    runs = expand_sweep(sweep)
     results = tmp_path / "r"
     # run 0 finished earlier (single engine); run 1 is held by another live process
     first = list(execute_job([(runs[0].run_id, runs[0].config)], results, gif=False))
@@ -323,7 +323,7 @@ def test_a_run_written_before_its_worker_died_counts_as_written(tmp_path: Path) 
 
     sweep = _sweep_config(tmp_path, "algo=random", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
                           "seed=[1]", "variant=[HumanA,HumanB]")
-    written, unwritten = plan(sweep)
+    written, unwritten = expand_sweep(sweep)
     results = tmp_path / "r"
     assert [s["status"] for s in execute_job([(written.run_id, written.config)], results, gif=False)] == ["ok"]
     console = Console(file=open(os.devnull, "w"))  # noqa: SIM115 - closed with the test's process

@@ -89,7 +89,7 @@ def installed(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str,
 
 def test_the_wheel_ships_every_file_read_at_run_time(installed: tuple[Path, dict[str, str], Path]) -> None:
     python, env, work = installed
-    code = ("from runners.paths import CONF_DIR; from morality_gym.paper import TABLE1_FILE;"
+    code = ("from runners.compose.search_path import CONF_DIR; from morality_gym.paper import TABLE1_FILE;"
             "from morality_gym.envs.registry import BUILTIN_DIR; from morality_gym.norms.chain import BUILTIN_DIR as C;"
             "[print(p) for p in (CONF_DIR, TABLE1_FILE, BUILTIN_DIR, C)]")
     out = _ok(_run([str(python), "-c", code], work, env), "paths")

@@ -32,7 +32,7 @@ PACKAGES = ("morality_gym", "runners", "leaderboard", "benchmarks")
 #: a new top-level module must be placed here on purpose.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("support", ("morality_gym.clitools", "morality_gym.constants")),
-    ("world", ("morality_gym.world", "morality_gym.generator.draws", "morality_gym.generator.tracks",
+    ("world", ("morality_gym.world", "morality_gym.generator.draws", "morality_gym.generator.rail_networks",
                "morality_gym.generator.grammar", "morality_gym.generator.writer", "morality_gym.generator.measure")),
     ("render", ("morality_gym.render",)),
     ("envs", ("morality_gym.envs",)),

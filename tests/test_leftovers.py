@@ -4,7 +4,7 @@ Issue 33: ``kill -9`` of a build left a hidden ``.<site>.build-XXXX/`` (11-29 MB
 that later builds never removed (under ``make leaderboard`` it showed in ``git status``); a killed
 fleet could leave ``checkpoints/fleet-*.pt.tmp``. Builds and release creation now remove such
 directories when no other build holds the parent directory (:mod:`leaderboard.leftovers`), and a
-sweep removes temporary files of runs and fleets whose run locks are free (:mod:`runners.leftovers`).
+sweep removes temporary files of runs and fleets whose run locks are free (:mod:`runners.record.leftovers`).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 
 from morality_gym.results.recording import RunLock
-from runners.fleet_checkpoints import fleet_name
+from runners.record.fleet_checkpoints import fleet_name
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = ["algo=random", "chain=utility", "scenario=[switch_standard]", "variant=[HumanA,HumanB]", "preset=smoke",

@@ -68,8 +68,8 @@ def test_actions_of_the_wrong_shape_are_refused_not_flattened() -> None:
 
 
 def test_a_non_ascii_results_dir_gets_a_hint_to_quote_it() -> None:
-    from runners.config import ConfigError
-    from runners.sweep_cli import compose_sweep
+    from runners.compose.command_line import compose_sweep
+    from runners.compose.sweep_config import ConfigError
 
     with pytest.raises(ConfigError, match=r"results_dir: the value '/tmp/résultats' .* quote it .*\"results_dir='/tmp/résultats'\""):
         compose_sweep(["results_dir=/tmp/résultats"], "config")

@@ -27,7 +27,7 @@ from morality_gym.results.identity import config_key, run_id_of
 from morality_gym.results.manifest import manifest_name, read_manifests
 from morality_gym.results.schema import learn_path, run_path, runs_dir, updates_path
 from runners.migrate import MigrateError, migrate, read_journal
-from runners.rename_history import (
+from runners.record.rename_history import (
     LEARNER_TARGET,
     MIGRATIONS,
     MigrationError,
@@ -97,7 +97,7 @@ def _set(table: pa.Table, name: str, value: Any) -> pa.Table:
 
 def make_old(results: Path) -> dict[str, str]:
     """Rewrite ``results`` as the code before c0db801 would have written it; returns {old id: new id}."""
-    from runners.tracking import Tracker, marker_path
+    from runners.record.mlflow_mirror import Tracker, marker_path
 
     ids: dict[str, str] = {}
     for new_id, path in run_files(results).items():

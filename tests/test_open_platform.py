@@ -260,8 +260,8 @@ def _sweep_config(conf: Path, results: Path, *overrides: str):
     """The validated sweep as ``runners.sweep`` builds it, through the compose API with a user dir."""
     from hydra import compose, initialize_config_dir
 
-    from runners.config import validate
-    from runners.paths import CONF_DIR
+    from runners.compose.search_path import CONF_DIR
+    from runners.compose.sweep_config import validate
 
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = compose("config", overrides=[f"hydra.searchpath=[file://{conf}]", "chain=utility", "scenario=[switch_standard]",
@@ -291,7 +291,7 @@ def test_a_preset_caps_the_rollout_of_every_learner_and_the_plan_warns(tmp_path:
 def test_a_misspelt_key_or_wrong_type_fails_at_composition_in_one_line(tmp_path: Path) -> None:
     """The typed schemas refuse a bad key or value while Hydra composes: the line names the key, the
     file or the command line, and the closest valid key; a user's file is checked like a built-in."""
-    from runners.sweep_cli import compose_check
+    from runners.compose.command_line import compose_check
 
     conf = tmp_path / "my_conf"
     (conf / "algo").mkdir(parents=True)

@@ -1,7 +1,7 @@
 """The plan's time estimate counts what a sweep pays besides its runs (issue #22).
 
 A smoke sweep's runs take seconds; its estimate (0m02s) was 2-8x below the wall time (17 s)
-because creating the MLflow store of a new results directory and the workers' start were left out (:class:`runners.estimate.SweepOverheads`).
+because creating the MLflow store of a new results directory and the workers' start were left out (:class:`runners.plan.estimate.SweepOverheads`).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from runners.estimate import SweepOverheads
+from runners.plan.estimate import SweepOverheads
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -37,7 +37,7 @@ def test_the_estimate_counts_what_a_sweep_pays_besides_its_runs(tmp_path: Path) 
 def test_the_estimate_says_what_a_busy_machine_costs() -> None:
     """Issue 36: on a shared machine the plan states the idle estimate and the one at the machine's load:
     workers share the cores with the other runnable processes (the kernel's fair share)."""
-    from runners.estimate import Estimate, MachineLoad, load_factor
+    from runners.plan.estimate import Estimate, MachineLoad, load_factor
 
     assert load_factor(2, MachineLoad(cores=2, load=0.0)) == 1.0  # a core each: as fitted
     assert load_factor(2, MachineLoad(cores=2, load=3.0)) == pytest.approx(2.5)  # 5 runnable on 2 cores
@@ -59,7 +59,7 @@ def _sweep_config(tmp_path: Path, *overrides: str):
 
 def test_a_fleet_rate_on_a_device_follows_its_measured_sizes_and_sharing() -> None:
     """Issue 31 item 5: a GPU sweep is priced from measured fleet rates (planning.devices)."""
-    from runners.estimate import DeviceRate, device_fleet_rate, device_share
+    from runners.plan.estimate import DeviceRate, device_fleet_rate, device_share
 
     rate = DeviceRate("card", {21: 50_000.0, 84: 200_000.0, 336: 400_000.0}, {8: 4.0})
     assert device_fleet_rate(rate, 84) == pytest.approx(200_000.0)  # measured: as measured
@@ -73,7 +73,7 @@ def test_a_fleet_rate_on_a_device_follows_its_measured_sizes_and_sharing() -> No
 
 
 def test_fleets_sharing_a_device_speed_up_as_others_finish() -> None:
-    from runners.estimate import makespan, shared_makespan
+    from runners.plan.estimate import makespan, shared_makespan
 
     # perfect sharing: as if each had its own device
     assert shared_makespan([(10.0, 1.0, {2: 2.0}), (30.0, 1.0, {2: 2.0})], 2) == pytest.approx(31.0)
@@ -88,9 +88,9 @@ def test_a_gpu_sweep_is_priced_at_the_measured_device_rates(tmp_path: Path) -> N
     """The estimate of a device=cuda plan comes from planning.devices and says on which card those
     were measured; a learner without one is named as priced at its CPU rate."""
     from morality_gym.baselines.targets import learner_trains
-    from runners.estimate import device_estimate_note, device_rates
-    from runners.jobs import fleet_trains, make_jobs
-    from runners.plan import plan
+    from runners.execute.jobs import fleet_trains, make_jobs
+    from runners.plan.estimate import device_estimate_note, device_rates
+    from runners.plan.runs import expand_sweep
 
     def note_of(sweep):  # what the sweep prints: the learners whose runs fleets train
         return device_estimate_note(sweep.device.kind, [a for a in sweep.algos
@@ -104,7 +104,7 @@ def test_a_gpu_sweep_is_priced_at_the_measured_device_rates(tmp_path: Path) -> N
     assert set(rates) == {"ppo", "cpo"} and rates["ppo"].measured_on.startswith("NVIDIA H200")
     note = note_of(gpu)
     assert note is not None and "PPO, CPO are priced at cuda rates measured on NVIDIA H200" in note and "CPU rates" not in note
-    runs = plan(gpu)
+    runs = expand_sweep(gpu)
     jobs = make_jobs(runs, "fleet", 336, 4, mix_scenarios=True, device_rates=rates)
     fleets = [j for j in jobs if j.engine == "fleet"]
     assert fleets and all(j.device is not None for j in fleets)
@@ -120,7 +120,7 @@ def test_a_gpu_sweep_is_priced_at_the_measured_device_rates(tmp_path: Path) -> N
 
 
 def test_bad_device_rates_are_refused_with_where_they_are(tmp_path: Path) -> None:
-    from runners.config import ConfigError
+    from runners.compose.sweep_config import ConfigError
 
     with pytest.raises(ConfigError, match=r"algo=ppo .*planning\.devices\.cuda\.fleet_steps_per_s needs at least one fleet size"):
         _sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch5]", "algo.ppo.planning.devices.cuda.fleet_steps_per_s={21: 0}")
@@ -131,7 +131,7 @@ def test_bad_device_rates_are_refused_with_where_they_are(tmp_path: Path) -> Non
 
 def test_a_misspelt_device_rate_key_is_refused_with_the_close_match(tmp_path: Path) -> None:
     """A typo used to be ignored, and the device then priced at rates nobody measured."""
-    from runners.config import ConfigError
+    from runners.compose.sweep_config import ConfigError
 
     with pytest.raises(ConfigError, match=r"planning\.devices\.cuda: unknown key 'fleet_step_per_s' \(did you mean 'fleet_steps_per_s'\?\)"):
         _sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch5]", "device=cuda",
@@ -145,7 +145,7 @@ def test_plan_estimate_scales_only_the_update_share_with_epochs() -> None:
     2.7x too long.
     """
     from morality_gym.baselines.specs import learner_spec
-    from runners.estimate import PlanningError, planning_rate
+    from runners.plan.estimate import PlanningError, planning_rate
 
     file_values = {"hparams": {"n_epochs": 10}}
     same = learner_spec("ppo")
@@ -162,7 +162,7 @@ def test_plan_estimate_per_protocol() -> None:
     """A protocol that changes a learner's speed (PPO-Lag: one pass vs up to 40) has its own rate;
     other protocols keep the file's values, and a malformed block names the key."""
     from morality_gym.baselines.specs import learner_spec
-    from runners.estimate import PlanningError, planning_rate
+    from runners.plan.estimate import PlanningError, planning_rate
 
     spec = learner_spec("ppo_lag")
     file_values = {"hparams": {"n_epochs": 40}}

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from benchmarks.project_table1 import job_seconds, measured_rates, scenario_factors, table1_jobs
-from runners.estimate import makespan
+from runners.plan.estimate import makespan
 from tests.leaderboard_data import REPO, make_results
 
 

@@ -57,7 +57,7 @@ def test_eval_with_a_long_enough_max_steps_still_runs() -> None:
 
 
 def test_a_sweep_refuses_max_steps_2_before_training(tmp_path: Path) -> None:
-    from runners.config import ConfigError
+    from runners.compose.sweep_config import ConfigError
     from tests.test_fleet_sweep import _sweep_config
 
     with pytest.raises(ConfigError, match=r"max_steps=2 is too short for SwitchStandard-HumanA-v1.*use max_steps >= 5"):
@@ -82,7 +82,7 @@ WORKER = """
 import os, signal, sys
 from multiprocessing import Pipe
 from morality_gym.clitools import DiskFullError
-from runners import pool
+from runners.launch import local_pool as pool
 
 def full(*args, **kwargs):
     raise DiskFullError("results/runs: the disk is full (0 bytes free)")

@@ -4,7 +4,7 @@ Each ``releases/<name>/runs.parquet`` records each run's id and its resolved con
 A run is found on disk by its id, so the one resolved run configuration
 (:class:`morality_gym.results.run_config.RunConfig`) must give every recorded run its recorded id: read back
 from its record, and built afresh by resolving the Table 1 sweep through the layers of
-:func:`runners.config.learner_layers` (algo file < protocol < preset < command line).
+:func:`runners.compose.sweep_config.learner_layers` (algo file < protocol < preset < command line).
 """
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ import pytest
 
 from morality_gym.results.identity import SUBMITTED_ALGO, run_identity
 from morality_gym.results.run_config import RunConfig
-from runners.config import validate
-from runners.paths import CONF_DIR
-from runners.plan import plan
+from runners.compose.search_path import CONF_DIR
+from runners.compose.sweep_config import validate
+from runners.plan.runs import expand_sweep
 
 #: Every release shipped in the repository: a new one is checked without editing this test.
 RELEASES = sorted((Path(__file__).resolve().parents[1] / "releases").glob("*/runs.parquet"))
@@ -66,7 +66,7 @@ def test_resolving_table1_gives_the_release_its_run_ids(release: list[tuple[str,
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = compose("config", overrides=["experiment=table1", "preset=paper", f"protocol={protocol}", "mlflow=false"],
                       return_hydra_config=True)
-    planned = {r.run_id: r.config for r in plan(validate(cfg))}
+    planned = {r.run_id: r.config for r in expand_sweep(validate(cfg))}
     recorded = {run_id: config for run_id, p, config in release if p == protocol}
     assert recorded, f"the release has no {protocol} runs"
     missing = sorted(set(recorded) - set(planned))

@@ -1,6 +1,6 @@
 """The run ids of the built-in learners never change by accident.
 
-A run id is the hash of the resolved run configuration (:mod:`runners.plan`); results on disk are
+A run id is the hash of the resolved run configuration (:mod:`runners.plan.runs`); results on disk are
 found by it, so a refactoring of how the configuration is written (Python defaults, YAML files,
 typed schemas) must give byte-identical run configs for every built-in algo, protocol and preset.
 ``tests/data/pinned_run_ids.json`` was recorded at main 11e6230, before the configuration became
@@ -25,9 +25,9 @@ def current_run_ids(results_dir: Path) -> dict[str, dict[str, list[str]]]:
     """``{"<protocol>/<preset>": {algo: [run ids in plan order]}}`` for one scenario (every variant, the preset's seeds)."""
     from hydra import compose, initialize_config_dir
 
-    from runners.config import validate
-    from runners.paths import CONF_DIR
-    from runners.plan import plan
+    from runners.compose.search_path import CONF_DIR
+    from runners.compose.sweep_config import validate
+    from runners.plan.runs import expand_sweep
 
     out: dict[str, dict[str, list[str]]] = {}
     for protocol in PROTOCOLS:
@@ -37,7 +37,7 @@ def current_run_ids(results_dir: Path) -> dict[str, dict[str, list[str]]]:
                                                    f"protocol={protocol}", f"preset={preset}", "mlflow=false",
                                                    f"results_dir={results_dir}"])
             by_algo: dict[str, list[str]] = {}
-            for run in plan(validate(cfg)):
+            for run in expand_sweep(validate(cfg)):
                 by_algo.setdefault(run.config["algo"]["name"], []).append(run.run_id)
             out[f"{protocol}/{preset}"] = by_algo
     return out

@@ -319,7 +319,7 @@ def test_a_chains_track_trains_fleets_and_a_rerun_redoes_only_missing_runs(tmp_p
         assert record["engine"] == "fleet" and record["chain"] == "Utility" and record["trained_steps"] == 2048
         assert (runs / f"Utility-ppo_lag-s{seed}" / "model.zip").is_file()
     assert "fleet of 2 runs" in capsys.readouterr().out
-    from runners.track_fleet import table_cache_dir
+    from runners.execute.track_fleet import table_cache_dir
 
     assert len(list(table_cache_dir().glob("*.npz"))) == len(POOL_A)  # the next session reads the pool's tables
     first = pd.read_parquet(runs / "Utility-ppo_lag-s2" / track.PAIRS)
@@ -352,7 +352,7 @@ def _curve(path) -> list[tuple[str, int, str]]:
 
 
 def _train(tmp_path, name: str, curve_every: int | None, budget: int, say=lambda _m: None):
-    from runners import track_fleet
+    from runners.execute import track_fleet
 
     pool = list(POOL_A)
     curve = None
@@ -389,7 +389,7 @@ def test_recording_a_curve_does_not_change_a_runs_bits(tmp_path) -> None:
 
 
 def test_a_resumed_fleet_continues_its_curve_without_losing_or_repeating_points(tmp_path, monkeypatch) -> None:
-    from runners import track_fleet
+    from runners.execute import track_fleet
 
     monkeypatch.setattr(track_fleet, "CHECKPOINT_EVERY_S", 0.0)
     monkeypatch.setattr(track_fleet, "PROGRESS_EVERY_S", 0.0)
@@ -433,7 +433,8 @@ def test_a_device_is_checked_before_anything_is_loaded_and_keeps_the_cpus_checkp
     """``--device`` is refused in one line before the splits load (minutes) where torch sees no such
     device or no chain's fleet would use it; a CPU fleet's checkpoint key is the one it had before
     devices were asked for (the release compute resumes its checkpoints), a GPU's names its device."""
-    from runners import track, track_fleet
+    from runners import track
+    from runners.execute import track_fleet
 
     monkeypatch.setattr(track, "load_sets", lambda *a, **k: pytest.fail("loaded the splits first"))
     with pytest.raises(track.TrackError, match="--device: device='tpu'"):

@@ -12,7 +12,7 @@ Nothing here is committed output: every page below is made from its source of tr
   ``build_parser()`` that runs as a program).
 * ``reference/api.md`` - every name ``morality_gym`` exports (``__all__``), from its docstring.
 * ``reference/configuration.md`` - every configuration group and field with its default, from the
-  typed schemas of :mod:`runners.config_schema` and the files of ``conf/``.
+  typed schemas of :mod:`runners.compose.schema` and the files of ``conf/``.
 * ``reference/results-schema.md`` - every column of the results contract, from
   :mod:`morality_gym.results.schema` (its fields and the comments beside them).
 * ``reference/modules.md`` - every module, folder by folder, with its size and the first line of
@@ -502,7 +502,7 @@ def configuration_page() -> str:
     import yaml
 
     from morality_gym.baselines.specs import CONF_DIR, LearnerSpec, ProtocolSpec
-    from runners import config_schema as schema
+    from runners.compose import schema
 
     groups: dict[str, tuple[str, list[type]]] = {
         "algo": (("a learner: its class (`_target_`), label and every setting; fields left out take "
@@ -519,7 +519,7 @@ def configuration_page() -> str:
     lines = [
         "# Configuration",
         "",
-        ("Generated from the typed schemas (`runners/config_schema.py`, `morality_gym/baselines/specs.py`) "
+        ("Generated from the typed schemas (`runners/compose/schema.py`, `morality_gym/baselines/specs.py`) "
         "and the files of `conf/` when the site is built. A sweep composes `conf/config.yaml` over "
         "the top-level schema below; each group's files state only what differs from the field "
         "defaults. Override anything on the command line (`preset.budget=200000`, "

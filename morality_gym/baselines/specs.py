@@ -6,7 +6,7 @@ values (its class, its hyper-parameters) are in its file ``conf/algo/<name>.yaml
 only what differs from the field defaults. A protocol's changes are in ``conf/protocol/<name>.yaml``
 over the :class:`ProtocolSpec` defaults. :func:`learner_spec` and :func:`protocol_spec` read those
 same files for library users (tests, the fleet trainer, the CLI), exactly as a sweep's Hydra
-composition does (``runners.config_schema`` registers these classes as Hydra's structured configs), so
+composition does (``runners.compose.schema`` registers these classes as Hydra's structured configs), so
 there is no second copy of any value. The values are those that actually ran in the paper
 (evaluation spec 6.3), not the ones printed in its appendix. Unknown keys and wrong types are
 errors that name the key, the file and the closest valid key.
@@ -31,7 +31,7 @@ from morality_gym.norms.reward_cost import PAPER_RETURN_BOUNDS, RewardCostSpec
 
 #: The configuration files (Hydra's config directory): ``conf/`` at the repository's root, reached
 #: through the link ``morality_gym/conf`` (a wheel installs the files themselves there). The one
-#: place that knows where they are; ``runners.paths.CONF_DIR`` is this.
+#: place that knows where they are: the sweep (``runners.compose``) and the leaderboard import it from here.
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 
 #: The baselines' classes, which the fleet trainers match by identity (``_target_`` of their
@@ -41,7 +41,7 @@ PPO_LAG = "morality_gym.baselines.safe.PPOLag"
 CPO = "morality_gym.baselines.safe.CPO"
 #: The short names that specs, run configs and model sidecars written before learners were named by
 #: class (commit c0db801) recorded as ``implementation``, and the class each one meant. Frozen
-#: history: read by :mod:`morality_gym.baselines.io` (old sidecars) and ``runners.rename_history``.
+#: history: read by :mod:`morality_gym.baselines.io` (old sidecars) and ``runners.record.rename_history``.
 LEGACY_IMPLEMENTATIONS = {
     "random": "morality_gym.baselines.learners.RandomLearner", "ppo": SB3_PPO, "ppo_lag": PPO_LAG, "cpo": CPO,
 }
@@ -187,7 +187,7 @@ def _read_file(group: str, name: str, what: str) -> tuple[Path, dict[str, Any]]:
 
 
 #: Keys of an algo file that are not learner settings: ``planning`` is the sweep's time estimate
-#: (``runners.estimate.Planning``), read by the sweep's plan only.
+#: (``runners.plan.estimate.Planning``), read by the sweep's plan only.
 ALGO_FILE_EXTRAS = ("planning",)
 
 
@@ -264,7 +264,7 @@ class ProtocolSpec:
     def apply(self, spec: LearnerSpec) -> LearnerSpec:
         """``spec`` with this protocol's overrides for its algorithm name, stamped with the protocol.
 
-        Called once per learner: by a sweep where it resolves its runs (``runners.config``), or by
+        Called once per learner: by a sweep where it resolves its runs (``runners.compose.sweep_config``), or by
         the library's :func:`~morality_gym.baselines.learners.build_learner` and
         :func:`~morality_gym.baselines.fleet.build_fleet` for a spec no protocol has touched yet.
         A spec already stamped with this protocol is returned unchanged (so that settings changed

@@ -1,6 +1,6 @@
 """The exception that ends a training early on request, apart from the modules that train.
 
-Apart (and free of torch) because the processes that ask for the stop (:mod:`runners.stopping`,
+Apart (and free of torch) because the processes that ask for the stop (:mod:`runners.execute.stopping`,
 the sweep's workers) must be able to catch it without loading torch, and the fleet's checkpoint
 (:mod:`morality_gym.baselines.fleet.checkpoint`) raises it.
 """

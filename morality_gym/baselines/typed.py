@@ -1,7 +1,7 @@
 """Frozen dataclasses as OmegaConf/Hydra schemas, and one-line messages for what they refuse.
 
 The configuration's types are the runtime classes themselves (:class:`~.specs.LearnerSpec`,
-:class:`~.specs.ProtocolSpec`, the sweep's ``runners.config_schema``): frozen, so that a resolved run can
+:class:`~.specs.ProtocolSpec`, the sweep's ``runners.compose.schema``): frozen, so that a resolved run can
 never be changed after it was hashed. OmegaConf turns a frozen dataclass into a *read-only* node,
 which Hydra cannot override, so :func:`schema` hands OmegaConf a writable copy of the class with
 the same fields, types and defaults (generated, not a second class to keep in step), and

@@ -7,7 +7,7 @@ A drawn dilemma (a :class:`Plan`) is made of, top to bottom:
   down onto the first trolley's line (PushStandard, Push3SelfSacrifice);
 * one or two **decks** (Switch2Trolley4Track): a trolley, the line it comes along from the right
   (straight, or a *long approach* that starts below and climbs the right edge, as in
-  Push2OrSwitch) and a junction tree near the left edge (:mod:`~morality_gym.generator.tracks`):
+  Push2OrSwitch) and a junction tree near the left edge (:mod:`~morality_gym.generator.rail_networks`):
   a plain line, a two- or three-way switch, or a cascade of switches (Switch5, Switch7);
 * optionally a **loop** through the agent's corridor (the self-sacrifice scenarios): the first
   deck's topmost route climbs the left edge and runs along row 1, over the landmark;
@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from typing import Final
 
 from morality_gym.generator.draws import Draws
-from morality_gym.generator.tracks import (
+from morality_gym.generator.rail_networks import (
     Canvas,
     Cell,
     Junction,

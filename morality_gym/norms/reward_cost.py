@@ -1,7 +1,7 @@
 """How a learner sees reward and cost (:class:`RewardCostSpec`), apart from the wrappers that apply it.
 
 Why its own module: the learner specs (:mod:`morality_gym.baselines.specs`) and through them the
-configuration readers (``runners.paths``, which the leaderboard asks for a preset's seeds) need
+configuration readers (``runners.compose.search_path``, which the leaderboard asks for a preset's seeds) need
 this small dataclass, and the wrappers import Stable-Baselines3 and with it torch (about a second
 of every leaderboard build). :mod:`morality_gym.norms.wrappers` re-exports both names.
 """

@@ -2,7 +2,7 @@
 
 A run's id is the SHA-256 of its resolved configuration (canonical JSON); the *configuration key*
 is the same hash without what varies inside one Table 1 cell (env, scenario, variant, seed), so
-every run of one cell and one configuration shares it. :mod:`runners.plan` builds the configs of a
+every run of one cell and one configuration shares it. :mod:`runners.plan.runs` builds the configs of a
 sweep, ``leaderboard.submit`` and ``leaderboard.llm`` those of submitted runs (which record their
 provenance beside what they are); this module alone says what a run's id and configuration key are,
 and the leaderboard recomputes the key from each run's recorded config (:func:`configuration_key`).

@@ -1,6 +1,6 @@
 """Presets (``conf/preset/<name>.yaml``): how much each run trains and evaluates, and which seeds make a cell whole.
 
-A sweep composes a preset into its configuration (``runners.config_schema.Sweep.preset``); readers
+A sweep composes a preset into its configuration (``runners.compose.schema.Sweep.preset``); readers
 of results that compose nothing (the leaderboard's cells, ``leaderboard.submit``) read the same
 file over the same schema here: :func:`load_preset`, and :func:`preset_seeds` for the seeds a
 complete Table 1 cell has.

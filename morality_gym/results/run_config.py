@@ -1,7 +1,7 @@
 """One resolved run: what a sweep's worker executes, what its id hashes and what its row records.
 
-:class:`RunConfig` is built once, where a sweep's configuration is validated (``runners.plan``
-from ``runners.config``'s resolved learners), and never changed after; workers receive the object
+:class:`RunConfig` is built once, where a sweep's configuration is validated (``runners.plan.runs``
+from ``runners.compose.sweep_config``'s resolved learners), and never changed after; workers receive the object
 itself. Its JSON form is the ``config`` column of the run's row (:mod:`morality_gym.results.schema`)
 and what its id hashes (:mod:`morality_gym.results.identity`).
 """
@@ -27,7 +27,7 @@ class RunConfig:
     """One run, fully resolved where the sweep's configuration is validated, and never changed after.
 
     ``algo`` is the learner's spec with everything applied (its algo file, the protocol, the
-    preset's overrides and rollout cap, the command line: :func:`runners.config.learner_layers`);
+    preset's overrides and rollout cap, the command line: :func:`runners.compose.sweep_config.learner_layers`);
     ``protocol`` is recorded whole because it is part of what the run is (and gives the random
     learner its own settings, :attr:`replay`); ``chain`` is the chain's full definition
     (``{"name", "norms": [[norm, modality], ...]}``), so that a changed chain is a new run.

@@ -83,7 +83,7 @@ RUN_FIELDS: list[pa.Field] = [
     pa.field("config", pa.string()),  # JSON of the resolved run config
     pa.field("model_path", pa.string()),  # relative to results_dir, null if none
     pa.field("gif_path", pa.string()),  # relative to results_dir, null if none
-    # how the run was trained: "single", or "fleet:K" (trained with K-1 other runs, runners/jobs.py);
+    # how the run was trained: "single", or "fleet:K" (trained with K-1 other runs, runners/execute/jobs.py);
     # null in files written before the column existed, and for runs that never started
     pa.field("engine", pa.string()),
 ]

@@ -33,7 +33,7 @@ raises ``RuntimeError`` for a short write, not ``OSError``) is one warning namin
 the free space; its temporary file is removed and training goes on.
 
 A stop can be requested (:meth:`FleetCheckpoint.request_stop`, from a SIGTERM handler:
-:mod:`runners.stopping`): the next update boundary writes the state and raises
+:mod:`runners.execute.stopping`): the next update boundary writes the state and raises
 :class:`TrainingStopped`, so a fleet killed by SLURM's time limit or by preemption resumes from
 where it was stopped, not from its last periodic write.
 """
@@ -85,7 +85,7 @@ class FleetCheckpoint:
     """
 
     path: Path
-    every_s: float  # no default here: the sweep's one lives in runners.config_schema.Sweep.checkpoint_every_s
+    every_s: float  # no default here: the sweep's one lives in runners.compose.schema.Sweep.checkpoint_every_s
     key: Mapping[str, Any] = field(default_factory=dict)
     extra: Callable[[], Any] | None = None
     on_resume: Callable[[int, Any], None] | None = None

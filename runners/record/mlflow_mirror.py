@@ -128,7 +128,7 @@ class Tracker:
     """Logs runs of one results directory to MLflow."""
 
     def __init__(self, results_dir: str | Path) -> None:
-        # MLflow waits: importing runners.tracking must not load it
+        # MLflow waits: importing runners.record.mlflow_mirror must not load it
         from mlflow.tracking import MlflowClient
 
         logging.getLogger("mlflow").setLevel(logging.WARNING)
@@ -217,7 +217,7 @@ class Tracker:
 
     def _log(self, mid: str, params: dict[str, str], points: list[MetricPoint], row: dict[str, Any]) -> None:
         """Params, metrics and the error in batches under MLflow's per-call limits."""
-        from mlflow.entities import Metric, Param, RunTag  # MLflow waits: importing runners.tracking must not load it
+        from mlflow.entities import Metric, Param, RunTag  # MLflow waits: importing this module must not load it
 
         items = list(params.items())
         for i in range(0, max(1, len(items)), 100):

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from morality_gym.results.recording import RunLock
 from morality_gym.results.schema import runs_dir
-from runners.fleet_checkpoints import checkpoints_dir, recorded_fleets
+from runners.record.fleet_checkpoints import checkpoints_dir, recorded_fleets
 
 
 @contextlib.contextmanager

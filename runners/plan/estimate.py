@@ -5,7 +5,7 @@ it), yet it used to be spread over six files, so that the configuration priced l
 job cutter priced fleets. Here, in the order a plan uses them:
 
 1. **Rates** (:class:`Planning`, :class:`DeviceRate`, ...): the schema of ``planning`` in each algo
-   file (typed by Hydra through :mod:`runners.config_schema`), resolved for one learner under one
+   file (typed by Hydra through :mod:`runners.compose.schema`), resolved for one learner under one
    protocol by :func:`learner_rates` (:class:`PlanningError` names the key and where it came from).
 2. **Runs and jobs**: a run costs its overhead plus its training steps at the learner's rate
    (:func:`run_seconds`); a fleet shares only the training, at the measured fleet speed-up
@@ -36,7 +36,7 @@ from typing import Any, Protocol
 from morality_gym.baselines import typed
 from morality_gym.baselines.specs import LearnerSpec
 from morality_gym.clitools import did_you_mean, duration
-from runners.tracking import tracking_uri
+from runners.record.mlflow_mirror import tracking_uri
 
 
 # ------------------------------------------------------------------------------------------ rates
@@ -115,7 +115,7 @@ class SweepOverheads:
 
 class PlanningError(ValueError):
     """A ``planning`` block that cannot price its learner; the message says which key and where.
-    (:mod:`runners.config` reports it as a configuration error.)"""
+    (:mod:`runners.compose.sweep_config` reports it as a configuration error.)"""
 
 
 @dataclass(frozen=True)
@@ -246,7 +246,7 @@ def _planning_values(where: str, planning: Mapping[str, Any]) -> tuple[float, fl
 
 # ----------------------------------------------------------------------------------- runs and jobs
 class PricedRun(Protocol):
-    """What the estimate reads of a planned run (:class:`runners.plan.PlannedRun`)."""
+    """What the estimate reads of a planned run (:class:`runners.plan.runs.PlannedRun`)."""
 
     @property
     def run_id(self) -> str: ...
@@ -269,7 +269,7 @@ class DeviceWork:
 
 
 class PricedJob(Protocol):
-    """What the estimate reads of a job (:class:`runners.jobs.Job`)."""
+    """What the estimate reads of a job (:class:`runners.execute.jobs.Job`)."""
 
     @property
     def runs(self) -> Sequence[PricedRun]: ...
@@ -488,7 +488,7 @@ class Estimate:
 
 # ------------------------------------------------------------------------------------------ notes
 class PricedLearner(Protocol):
-    """What the notes read of a selected learner (:class:`runners.config.AlgoChoice`)."""
+    """What the notes read of a selected learner (:class:`runners.compose.sweep_config.AlgoChoice`)."""
 
     @property
     def spec(self) -> LearnerSpec: ...

@@ -3,7 +3,7 @@
 ``concurrent.futures.ProcessPoolExecutor`` gives up entirely when one worker is killed; a sweep
 must instead record the runs it held as failed, start a replacement and carry on. Each worker is a
 spawned process (torch is imported once per worker, not once per run) that executes one job at a
-time (one run, or a fleet of runs trained together: :mod:`runners.jobs`), reports each run as
+time (one run, or a fleet of runs trained together: :mod:`runners.execute.jobs`), reports each run as
 soon as its result is written (so a worker killed late in a fleet's recording loses only the runs
 not yet written), and
 asks the kernel to kill it when the parent dies (``PR_SET_PDEATHSIG``), so ``kill -9`` of the
@@ -11,7 +11,7 @@ sweep leaves no orphan that could race a resumed sweep.
 
 SIGTERM (to the sweep, or to its whole process group: ``timeout``, a SLURM time limit of a job
 that runs the sweep) stops the pool cleanly: no new job starts, every worker ends as
-:mod:`runners.stopping` says (a fleet in training writes its checkpoint first), and :meth:`WorkerPool.run`
+:mod:`runners.execute.stopping` says (a fleet in training writes its checkpoint first), and :meth:`WorkerPool.run`
 raises :class:`PoolStopped` with the runs it interrupted, none of them recorded as failed. A worker
 that meets a full disk ends the same way and the pool raises its
 :class:`~morality_gym.clitools.DiskFullError`: every other run would fail to be written too.
@@ -36,10 +36,10 @@ from morality_gym.baselines.device import CPU, Device
 from morality_gym.baselines.stopped import TrainingStopped
 from morality_gym.clitools import DiskFullError
 from morality_gym.results.recording import git_commit
-from runners import stopping
-from runners.execute import limit_threads, training_code
-from runners.jobs import Job, execute_job
-from runners.plan import PlannedRun
+from runners.execute import stopping
+from runners.execute.jobs import Job, execute_job
+from runners.execute.run import limit_threads, training_code
+from runners.plan.runs import PlannedRun
 
 ResultHook = Callable[[PlannedRun, dict[str, Any]], None]
 
@@ -78,7 +78,7 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int,
 
     import morality_gym  # noqa: F401 - warm imports before the first run
 
-    stopping.install()  # SIGTERM: a fleet checkpoints and the worker ends (runners.stopping)
+    stopping.install()  # SIGTERM: a fleet checkpoints and the worker ends (runners.execute.stopping)
     _send(conn, ("ready", os.getpid()))
     try:
         _serve(conn, results_dir, gif, device, checkpoint_every_s)

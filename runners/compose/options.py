@@ -26,7 +26,7 @@ from hydra.core.config_store import ConfigStore
 from morality_gym.envs.naming import snake, squash
 from morality_gym.envs.registry import scenarios
 from morality_gym.norms.chain import ChainError, chain_file_stem, get_chain
-from runners.paths import find_config, group_options, split_list
+from runners.compose.search_path import find_config, group_options, split_list
 
 
 def options(group: str, argv: list[str]) -> list[str]:

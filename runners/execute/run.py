@@ -21,6 +21,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
+import morality_gym
 from morality_gym.clitools import disk_full_error, is_disk_full
 from morality_gym.results.recording import RunClock, finished_status, git_commit, utc_now, versions
 from morality_gym.results.run_config import RunConfig
@@ -40,12 +41,12 @@ def training_code() -> str:
     ``morality_gym`` package (its Python modules and its YAML scenarios, chains and learner
     settings) and of the versions of the libraries whose arithmetic it uses.
 
-    What a fleet checkpoint is keyed by (:mod:`runners.fleet_checkpoints`): a half-trained fleet
+    What a fleet checkpoint is keyed by (:mod:`runners.record.fleet_checkpoints`): a half-trained fleet
     must be finished by the code that began it, and the commit is too coarse for that (a commit
     of documentation or of the leaderboard would throw away every checkpoint) and too blind (an
     uncommitted edit keeps the commit). Asked once per process at the worker's start, as
     :func:`~morality_gym.results.recording.git_commit`, so that it describes the code the worker loaded."""
-    return code_fingerprint(Path(__file__).resolve().parents[1] / "morality_gym", versions())
+    return code_fingerprint(Path(morality_gym.__file__).resolve().parent, versions())
 
 
 #: The files of a package that decide what a run computes (modules and the data they read).
@@ -65,7 +66,7 @@ def limit_threads() -> None:
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ[var] = "1"
     try:
-        import torch  # torch waits: importing runners.execute must not load it
+        import torch  # torch waits: importing runners.execute.run must not load it
 
         torch.set_num_threads(1)
     except ImportError:  # pragma: no cover - torch is a dependency
@@ -104,7 +105,7 @@ def execute_locked(config: RunConfig, run_id: str, results_dir: Path, gif: bool)
     limit_threads()
     clock = RunClock.start()
     try:
-        # torch waits: importing runners.execute must not load it, and a failed import is this run's recorded error
+        # torch waits: importing runners.execute.run must not load it, and a failed import is this run's recorded error
         from morality_gym.baselines.learners import make_learner
 
         learner = make_learner(config.algo, config.bound_chain(), seed=config.seed, max_steps=config.max_steps,

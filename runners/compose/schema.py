@@ -1,7 +1,7 @@
 """The sweep's typed configuration: frozen dataclasses, registered as Hydra structured configs.
 
 Hydra composes ``conf/`` over these schemas, so a misspelt key or a value of the wrong type fails
-while the configuration is composed (:func:`runners.sweep_cli.compose_check` turns Hydra's message
+while the configuration is composed (:func:`runners.compose.command_line.compose_check` turns Hydra's message
 into one line with the closest valid key). Each default is defined once:
 
 * a default every option of a group shares is a field default here (or, for learners and
@@ -17,7 +17,7 @@ launchers differ in their keys, so each launcher file names its own schema
 (``defaults: [/schema/launcher/<name>@_here_, _self_]``).
 
 What a type cannot say (ranges, one setting against another, hyper-parameters against the
-learner's class, chain coverage) is checked by :mod:`runners.config` after composition.
+learner's class, chain coverage) is checked by :mod:`runners.compose.sweep_config` after composition.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from morality_gym.baselines import typed
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec
 from morality_gym.constants import BETA, MAX_STEPS
 from morality_gym.results.presets import Preset
-from runners.estimate import DeviceRate, Planning, PlanningOverride
+from runners.plan.estimate import DeviceRate, Planning, PlanningOverride
 
 #: The largest fleet a sweep forms when ``fleet_size`` is not given, by kind of device. On the CPU
 #: the fleet's gain saturates by about 12 runs (BENCHMARKS.md), and 36 leaves room for a row's
@@ -117,7 +117,7 @@ class Experiment:
     pairs: list[list[str]]
 
 
-#: The training engines of a sweep (:mod:`runners.jobs`).
+#: The training engines of a sweep (:mod:`runners.execute.jobs`).
 ENGINES = ("fleet", "single")
 
 
@@ -138,7 +138,7 @@ class Sweep:
     line at most this often (0: none); ``name``: the manifest's sweep name (null:
     derived from the selection); ``engine``: ``fleet`` trains the runs that differ only in variant,
     chain and seed together, up to ``fleet_size`` per fleet (null: :data:`FLEET_SIZES` for the
-    device), ``single`` trains one run per process (:mod:`runners.jobs`); ``device``: where
+    device), ``single`` trains one run per process (:mod:`runners.execute.jobs`); ``device``: where
     a fleet's networks and updates run (``cpu``, or ``cuda`` when torch sees a GPU; single runs and
     every run's evaluation stay on the CPU); ``checkpoint_every_s``: a fleet writes its training
     state to ``<results_dir>/checkpoints/`` at most every so many seconds (and when its training
@@ -181,7 +181,7 @@ SCHEMAS: dict[str, type] = {cls.__name__: cls for cls in (AlgoFile, Planning, Pl
 def register() -> None:
     """Store the schemas in Hydra's ConfigStore (idempotent): ``sweep_schema`` for the primary
     config, ``schema/launcher/<name>`` for the launcher files."""
-    # Hydra waits: importing runners.config_schema must not load it
+    # Hydra waits: importing runners.compose.schema must not load it
     from hydra.core.config_store import ConfigStore
 
     store = ConfigStore.instance()
@@ -194,7 +194,7 @@ def composition_error(exc: BaseException, find: Callable[[str, str], Path | None
     """One line for an error Hydra raised while composing the sweep: the key, the file or command-line
     override it came from, what is wrong and, for an unknown key, the closest valid key.
 
-    ``find(group, option)`` gives an option's file on the search path (``runners.paths.find_config``).
+    ``find(group, option)`` gives an option's file on the search path (``runners.compose.search_path.find_config``).
     """
     text = str(exc)
     lexer = re.search(r"LexerNoViableAltException: ([^=\s]+)=(.*?)\s+\^", text, re.DOTALL)

@@ -8,11 +8,11 @@ of any scenario of the same budget), of a learner the fleet engine reproduces
 Everything else (Random, the oracle, a user's learner, a group of one) stays a single-run job.
 
 Why per-run files stay exactly as before: a fleet only *trains*; every run is then evaluated,
-saved, rendered and written by :func:`runners.execute.record_outcome`, the same function the single
+saved, rendered and written by :func:`runners.execute.run.record_outcome`, the same function the single
 engine uses, one run after the other, each Parquet row last. A fleet killed while training loses
 the runs it had not finished; those, and only those, are planned again by the next sweep. Its
 training is not lost with them: a fleet checkpoints its training in the results directory
-(``checkpoint_every_s``, :mod:`runners.fleet_checkpoints`), the next sweep forms the same fleet
+(``checkpoint_every_s``, :mod:`runners.record.fleet_checkpoints`), the next sweep forms the same fleet
 again (:func:`make_jobs`) and it resumes from the checkpoint, ending bit for bit where it would
 have. Runs already finished by another process are skipped, and runs another process holds are
 reported ``busy`` and retried, as single runs are.
@@ -39,12 +39,12 @@ from morality_gym.baselines.specs import SpecError
 from morality_gym.baselines.stopped import TrainingStopped
 from morality_gym.results.recording import RunClock, RunLock, finished_status, git_commit
 from morality_gym.results.run_config import RunConfig
-from runners import stopping
-from runners.config_schema import ENGINES
-from runners.estimate import DeviceRate, DeviceWork, device_price, fleet_seconds
-from runners.execute import execute_locked, limit_threads, record_outcome, training_code
-from runners.fleet_checkpoints import fleet_to_train, remove_fleet, write_fleet_runs
-from runners.plan import PlannedRun
+from runners.compose.schema import ENGINES
+from runners.execute import stopping
+from runners.execute.run import execute_locked, limit_threads, record_outcome, training_code
+from runners.plan.estimate import DeviceRate, DeviceWork, device_price, fleet_seconds
+from runners.plan.runs import PlannedRun
+from runners.record.fleet_checkpoints import fleet_to_train, remove_fleet, write_fleet_runs
 
 #: Keys of a run config that may differ between the runs of one fleet (the rest must be equal).
 FLEET_FREE_KEYS = ("env_id", "variant", "chain", "seed")
@@ -63,7 +63,7 @@ class Job:
 
     runs: tuple[PlannedRun, ...]
     engine: str  # "single" (one run) | "fleet"
-    est_seconds: float  # alone on the machine (and on the device): what longest-first orders by (runners.estimate)
+    est_seconds: float  # alone on the machine (and on the device): what longest-first orders by (runners.plan.estimate)
     device: DeviceWork | None = None  # a fleet training on an accelerator that other workers share
 
     @property
@@ -75,7 +75,7 @@ class Job:
 @cache
 def fleet_trains(target: str) -> bool:
     """True if the fleet engine reproduces the learner class at ``target``."""
-    # torch waits: importing runners.jobs must not load it
+    # torch waits: importing runners.execute.jobs must not load it
     from morality_gym.baselines.fleet import fleet_class
 
     try:
@@ -120,15 +120,15 @@ def make_jobs(
     balanced fleets; while there are fewer jobs than ``workers``, the largest fleet is cut again
     (down to fleets of 2), so that no worker idles while one trains everything. ``speedups`` maps
     an algo name to its measured fleet speed-up (``planning.fleet_speedup``) for the estimate
-    (:func:`runners.estimate.fleet_seconds`).
+    (:func:`runners.plan.estimate.fleet_seconds`).
 
     ``checkpointed``: the run ids of fleets that have a training checkpoint
-    (:func:`runners.fleet_checkpoints.checkpointed_fleets`). A fleet whose runs are all among one
+    (:func:`runners.record.fleet_checkpoints.checkpointed_fleets`). A fleet whose runs are all among one
     group's runs is formed again first, exactly (whatever ``fleet_size`` and ``workers`` say), so
     that it resumes its training instead of starting over; the rest of the group is cut as above.
 
     ``device_rates``: an algo name's measured fleet rate on the sweep's device
-    (``planning.devices``); its fleets are priced at it (:func:`runners.estimate.device_price`)
+    (``planning.devices``); its fleets are priced at it (:func:`runners.plan.estimate.device_price`)
     instead of at the CPU rate and fleet speed-up.
     """
     if engine not in ENGINES:
@@ -158,7 +158,7 @@ def _jobs_of(item: str | PlannedRun, groups: Mapping[str, list[PlannedRun]], kep
 
 
 def _priced_on_device(job: Job, rates: Mapping[str, DeviceRate]) -> Job:
-    """A fleet of a learner with a device rate, priced at it (:func:`runners.estimate.device_price`);
+    """A fleet of a learner with a device rate, priced at it (:func:`runners.plan.estimate.device_price`);
     other jobs keep their price."""
     rate = rates.get(job.runs[0].config.algo.name)
     if job.engine != "fleet" or rate is None:
@@ -278,7 +278,7 @@ def execute_job_all(
     """:func:`execute_job` as one list (what a SLURM array task returns to the parent).
 
     A SLURM task stops on SIGTERM or submitit's SIGUSR2 (time limit, preemption) as
-    :mod:`runners.stopping` says: a fleet writes its checkpoint; the runs not recorded are returned
+    :mod:`runners.execute.stopping` says: a fleet writes its checkpoint; the runs not recorded are returned
     as ``interrupted`` (not failed), so the next sweep does them and the fleet resumes."""
     stopping.install()  # after submitit's own handlers (which ignore SIGTERM): ours win
     summaries: list[Summary] = []
@@ -310,8 +310,8 @@ def _train_fleet(
     With ``checkpoint_every_s > 0`` the training is checkpointed in the results directory
     (:class:`FleetTraining`), and the checkpoint is deleted once every run is recorded. A fleet
     killed while it recorded its runs is built again with all of its runs, to restore its
-    checkpoint (:func:`runners.fleet_checkpoints.fleet_to_train`); only ``mine`` are recorded."""
-    # torch waits: importing runners.jobs must not load it
+    checkpoint (:func:`runners.record.fleet_checkpoints.fleet_to_train`); only ``mine`` are recorded."""
+    # torch waits: importing runners.execute.jobs must not load it
     from morality_gym.baselines.fleet import FleetRun, make_fleet
 
     limit_threads()
@@ -371,7 +371,7 @@ def _record_trained(fleet: Any, training: FleetTraining, ours: set[str], results
 
     Each run's wall and CPU time is its share of the fleet's training (before a resume too) plus
     its own evaluation and writes, so that summing them over runs still gives what the fleet spent."""
-    # torch waits: importing runners.jobs must not load it
+    # torch waits: importing runners.execute.jobs must not load it
     from morality_gym.baselines.fleet.state import NonFiniteTraining
 
     trained = training.runs
@@ -400,11 +400,11 @@ class FleetTraining:
         self.learn_rows: list[list[dict[str, Any]]] = [[] for _ in runs]
 
     def checkpoint(self, results_dir: Path, spec: Any, protocol: Any, device: Device, every_s: float) -> Any:
-        """The fleet's checkpoint in ``results_dir`` (:mod:`runners.fleet_checkpoints`), keyed by
+        """The fleet's checkpoint in ``results_dir`` (:mod:`runners.record.fleet_checkpoints`), keyed by
         the runs, the learner, protocol and device, and the fingerprint of the training code
-        (:func:`runners.execute.training_code`; None,
+        (:func:`runners.execute.run.training_code`; None,
         with a warning, when the directory cannot be written)."""
-        # torch waits: importing runners.jobs must not load it
+        # torch waits: importing runners.execute.jobs must not load it
         from morality_gym.baselines.fleet import FleetCheckpoint
 
         key = {"runs": sorted(self.run_ids), "learner": spec.name, "protocol": protocol.name, "device": device.name,

@@ -8,7 +8,7 @@ the files themselves there (``pyproject.toml``'s package data), so a checkout, a
 and ``pip install .`` find it the same way. Users do not edit it: they add or override files from
 their own directory (``--config-dir``).
 
-Kept apart from :mod:`runners.config` (which validates whole sweeps and so imports the learners,
+Kept apart from :mod:`runners.compose.sweep_config` (which validates whole sweeps and so imports the learners,
 and with them torch). What readers of results need of the configuration (a preset's seeds) is
 :mod:`morality_gym.results.presets`, below the runners.
 """
@@ -20,9 +20,7 @@ import sys
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from morality_gym.baselines.specs import (
-    CONF_DIR,  # also public here: docs/how-to/sweeps.md names runners.paths.CONF_DIR
-)
+from morality_gym.baselines.specs import CONF_DIR
 
 #: Entry-point group of installed plugins: each entry point names a package that is a config root
 #: (holding ``algo/*.yaml`` and, if it likes, ``chain/``, ``scenario/``, ...), e.g. in a plugin's
@@ -75,7 +73,7 @@ def _hydra_sources() -> list[str] | None:
     which holds ``--config-dir`` in either form, ``hydra.searchpath`` and the plugins merged into
     it), or None where Hydra is not running (before it parses the command line, or a library caller)."""
     try:
-        # Hydra waits: importing runners.paths must not load it
+        # Hydra waits: importing runners.compose.search_path must not load it
         from hydra.core.hydra_config import HydraConfig
 
         if not HydraConfig.initialized():

@@ -1,13 +1,13 @@
 """Resolve a composed sweep configuration into a :class:`SweepConfig`, before anything runs.
 
-Hydra composes ``conf/`` over the typed schemas of :mod:`runners.config_schema`, so unknown keys and
+Hydra composes ``conf/`` over the typed schemas of :mod:`runners.compose.schema`, so unknown keys and
 wrong types have already failed at composition. What is left here is what a type cannot say:
 ranges (in the schemas' ``__post_init__``), one setting against another (a variant of the
 selected scenarios, a budget that trains nothing, a protocol or preset naming an algo that does
 not exist), hyper-parameters against the learner's class, chain coverage. :func:`validate` runs one
 small builder or check per config group; each raises :class:`ConfigError` naming the key, where it
 came from and the valid choices. Nothing here looks beyond the configuration: whether the results
-directory can be written and MLflow or SLURM answer is :mod:`runners.preflight`'s question, asked
+directory can be written and MLflow or SLURM answer is :mod:`runners.launch.preflight`'s question, asked
 by the sweep once the configuration is valid. Nothing is written and no run starts unless the
 whole sweep is valid.
 """
@@ -45,9 +45,9 @@ from morality_gym.envs.registry import scenarios as all_scenarios
 from morality_gym.evaluation.horizon import truncation_problem
 from morality_gym.norms.chain import ChainError, MoralityChain, check_name_collision, get_chain, parse_chain
 from morality_gym.norms.metric import bind_chain
-from runners.config_schema import ENGINES, FLEET_SIZES, LAUNCHERS, Preset, Sweep, register
-from runners.estimate import LearnerRates, PlanningError, learner_rates, planning_where
-from runners.paths import config_roots, find_config, group_options
+from runners.compose.schema import ENGINES, FLEET_SIZES, LAUNCHERS, Preset, Sweep, register
+from runners.compose.search_path import config_roots, find_config, group_options
+from runners.plan.estimate import LearnerRates, PlanningError, learner_rates, planning_where
 
 register()  # the schemas conf/config.yaml names (sweep_schema, schema/launcher/*): Hydra needs them stored
 
@@ -83,7 +83,7 @@ def _one_or_list(value: Any) -> list[Any]:
 @dataclass(frozen=True)
 class AlgoChoice:
     """A selected learner: its resolved spec, and its planning rates for the plan's estimate
-    (:mod:`runners.estimate`; never part of a run's identity)."""
+    (:mod:`runners.plan.estimate`; never part of a run's identity)."""
 
     spec: LearnerSpec
     rates: LearnerRates
@@ -108,7 +108,7 @@ class SweepConfig:
     mlflow: bool
     gif: bool
     name: str
-    engine: str  # fleet | single (runners/jobs.py; default: runners.config_schema.Sweep)
+    engine: str  # fleet | single (runners/execute/jobs.py; default: runners.compose.schema.Sweep)
     fleet_size: int  # most runs trained together in one fleet
     device: Device = CPU  # where fleets train, resolved once (morality_gym.baselines.device)
     progress_every_s: float = Sweep.progress_every_s  # plain progress lines when stderr is not a terminal
@@ -116,7 +116,7 @@ class SweepConfig:
     chain_files: Mapping[str, str] = field(default_factory=dict)  # chain name -> config option name
     warnings: tuple[str, ...] = ()  # shown with the plan: valid, but probably not what the user meant
     results_dir_setting: str = ""  # results_dir as written in the configuration, for messages about it
-    plan_file: Path | None = None  # where a dry run writes its plan (runners.config_schema.Sweep)
+    plan_file: Path | None = None  # where a dry run writes its plan (runners.compose.schema.Sweep)
 
 
 def _load_chain(option: str, node: Any) -> MoralityChain:
@@ -336,7 +336,7 @@ def results_path(value: Any) -> Path:
     """The results directory as an absolute path (relative to where the sweep was started).
 
     Only the setting is checked here; whether the directory can be written is a question about the
-    machine, answered by :func:`runners.preflight.check_results_dir` just before the sweep runs.
+    machine, answered by :func:`runners.launch.preflight.check_results_dir` just before the sweep runs.
     """
     if not isinstance(value, str) or not value:
         raise ConfigError(f"results_dir: expected a path, got {value!r}")
@@ -349,7 +349,7 @@ def results_path(value: Any) -> Path:
 def _without_hydra(cfg: DictConfig) -> DictConfig:
     """``cfg`` without its ``hydra`` node. A configuration composed with ``return_hydra_config=True``
     (as the sweep composes it) carries its search path there, which
-    :func:`runners.paths.config_roots` must see while the groups are resolved, so it is made current."""
+    :func:`runners.compose.search_path.config_roots` must see while the groups are resolved, so it is made current."""
     if "hydra" not in cfg:
         return cfg
     HydraConfig.instance().set_config(cfg)
@@ -529,7 +529,7 @@ def _check_budgets(algos: tuple[AlgoChoice, ...], pairs: list[tuple[MoralityChai
 
 
 def _launcher(node: Mapping[str, Any]) -> dict[str, Any]:
-    """The launcher's settings over its own schema (:data:`runners.config_schema.LAUNCHERS`)."""
+    """The launcher's settings over its own schema (:data:`runners.compose.schema.LAUNCHERS`)."""
     kind = node.get("name")
     if kind not in LAUNCHERS:
         raise ConfigError(f"launcher: unknown launcher {kind!r}{_hint(str(kind), list(LAUNCHERS))}; valid: {', '.join(LAUNCHERS)}")
@@ -575,7 +575,7 @@ def validate(cfg: DictConfig, overrides: Sequence[str] | None = None) -> SweepCo
     what a user sees): preset, chains, algos, protocol, scenarios, pairs, variants, coverage, seeds,
     the sweep-wide values, launcher, engine. Nothing outside the configuration is touched; the
     machine (a writable results directory, MLflow, SLURM) is checked by
-    :func:`runners.preflight.preflight` once the configuration is known to be valid.
+    :func:`runners.launch.preflight.preflight` once the configuration is known to be valid.
 
     ``overrides``: the command line it was composed with, whose ``algo.<option>.*`` settings are
     the top layer of each learner (:func:`learner_layers`); by default those Hydra recorded in the

@@ -1,11 +1,11 @@
 """Checks of the machine a valid sweep is about to use, before it writes its plan or starts a run.
 
-:func:`runners.config.validate` says whether a sweep's configuration makes sense; whether this
+:func:`runners.compose.sweep_config.validate` says whether a sweep's configuration makes sense; whether this
 machine can carry it out is a different question with different answers from one minute to the
 next: the results directory may not be writable, the MLflow store may not answer, no SLURM
 controller may be up. Each is asked here, after the configuration is known to be valid (a typo is
 reported before a slow network time-out), and answered with the same one-line
-:class:`~runners.config.ConfigError` the configuration's checks raise, so that the sweep stops
+:class:`~runners.compose.sweep_config.ConfigError` the configuration's checks raise, so that the sweep stops
 with exit status 2 before anything is written. A dry run trains nothing, mirrors nothing and writes
 nothing, so it asks only that the results directory, if it exists, is a directory.
 """
@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import tempfile
 
-from runners.config import ConfigError, SweepConfig
-from runners.slurm_controller import SlurmUnavailable, check_controller
-from runners.tracking import TrackingError, check_reachable
+from runners.compose.sweep_config import ConfigError, SweepConfig
+from runners.launch.slurm_controller import SlurmUnavailable, check_controller
+from runners.record.mlflow_mirror import TrackingError, check_reachable
 
 
 def check_results_dir(sweep: SweepConfig) -> None:
@@ -33,7 +33,7 @@ def check_results_dir(sweep: SweepConfig) -> None:
 
 
 def check_mlflow(sweep: SweepConfig) -> None:
-    """The sweep's MLflow store can be reached and written (:func:`runners.tracking.check_reachable`)."""
+    """The sweep's MLflow store can be reached and written (:func:`runners.record.mlflow_mirror.check_reachable`)."""
     try:
         check_reachable(sweep.results_dir)
     except TrackingError as exc:
@@ -41,7 +41,7 @@ def check_mlflow(sweep: SweepConfig) -> None:
 
 
 def check_slurm() -> None:
-    """A SLURM controller answers (:func:`runners.slurm_controller.check_controller`)."""
+    """A SLURM controller answers (:func:`runners.launch.slurm_controller.check_controller`)."""
     try:
         check_controller()
     except SlurmUnavailable as exc:
@@ -51,7 +51,7 @@ def check_slurm() -> None:
 def preflight(sweep: SweepConfig) -> None:
     """Every check the sweep needs of this machine, in the order the sweep has always asked them
     (its MLflow store, which lives in the results directory; the SLURM controller; the results
-    directory itself). Raises :class:`~runners.config.ConfigError` for the first that fails."""
+    directory itself). Raises :class:`~runners.compose.sweep_config.ConfigError` for the first that fails."""
     if sweep.mlflow and not sweep.dry_run:
         check_results_dir(sweep)
         check_mlflow(sweep)

@@ -1,8 +1,8 @@
 """Is a SLURM controller up? Checked before a sweep is planned, so that a missing cluster is one
 clear line instead of a traceback from inside submitit's ``sbatch``.
 
-Apart from :mod:`runners.slurm_launcher` (which dispatches planned runs and so builds on
-:mod:`runners.plan`) so that validating a configuration does not import the planner it feeds.
+Apart from :mod:`runners.launch.slurm` (which dispatches planned runs and so builds on
+:mod:`runners.plan.runs`) so that validating a configuration does not import the planner it feeds.
 """
 
 from __future__ import annotations

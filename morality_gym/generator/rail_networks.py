@@ -1,4 +1,4 @@
-"""Track networks: the junction trees of the grammar and where their rails go on the grid.
+"""Rail networks: the junction trees of the grammar and where their rails go on the grid.
 
 Every built-in scenario's rails are one shape: a trolley comes along a line from the right, meets
 a switch near the left edge, and each of the switch's exits leads either to the end of a line

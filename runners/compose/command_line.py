@@ -5,7 +5,7 @@ Steps 1 and 2 of :mod:`runners.sweep`'s path (that module's docstring lists the 
 are this command's own rather than a ``@hydra.main`` application's): :func:`parse_command_line`
 reads ``argv`` once; :func:`prepare_overrides` adds the installed plugins' config packages to the
 search path, rewrites user scenarios and chain files into options Hydra can compose
-(:mod:`runners.options`) and checks group options and hyper-parameter names, naming the closest
+(:mod:`runners.compose.options`) and checks group options and hyper-parameter names, naming the closest
 valid ones (:func:`precheck`); :func:`load_sweeps` composes ``conf/`` with Hydra's compose API
 (:func:`compose_sweep`) and validates each sweep. Kept apart from planning and dispatch so that
 each module reads as one concern: what the user typed, and what the sweep then does.
@@ -32,15 +32,20 @@ from morality_gym.baselines.targets import add_python_roots
 from morality_gym.clitools import DEBUG_ENV, did_you_mean
 from morality_gym.envs.naming import squash
 from morality_gym.envs.registry import skipped_scenario_files
-from runners.config import ConfigError, SweepConfig, validate  # also stores the schemas (runners.config_schema)
-from runners.config_schema import composition_error
-from runners.options import normalise_argv
-from runners.options import options as group_options
-from runners.paths import find_config, plugin_sources, source_dir, sources_from_argv, split_list
+from runners.compose.options import normalise_argv
+from runners.compose.options import options as group_options
+from runners.compose.schema import composition_error
+from runners.compose.search_path import find_config, plugin_sources, source_dir, sources_from_argv, split_list
+from runners.compose.sweep_config import (  # also stores the schemas (runners.compose.schema)
+    ConfigError,
+    SweepConfig,
+    validate,
+)
 
 #: How the manifest names the program (``sys.argv[0]`` of ``python -m runners.sweep``, also when
-#: :mod:`runners.table1` runs the sweep in its own process): the sweep's file, not this one.
-PROGRAM = os.path.join(os.path.dirname(__file__), "sweep.py")
+#: :mod:`runners.table1` runs the sweep in its own process): the sweep's file, not this one, which
+#: sits one folder below it (``runners/compose/``).
+PROGRAM = os.path.join(os.path.dirname(os.path.dirname(__file__)), "sweep.py")
 
 _GROUPS = ("scenario", "chain", "algo", "protocol", "preset", "launcher", "experiment")
 
@@ -240,7 +245,7 @@ def _with_config_dir(overrides: list[str], config_dir: str | None) -> list[str]:
 def prepare_overrides(line: CommandLine) -> tuple[list[str], str]:
     """The overrides to compose and the command line the manifest records.
 
-    The plugins' search path, the user's spellings of scenarios and chains (:mod:`runners.options`)
+    The plugins' search path, the user's spellings of scenarios and chains (:mod:`runners.compose.options`)
     and :func:`precheck` see ``--config-dir`` as typed; composition sees it as a search-path entry.
     Raises :class:`ConfigError` (or :class:`~morality_gym.norms.chain.ChainError` for a user's chain
     file that cannot be read) with one line.
@@ -269,7 +274,7 @@ def _recorded_command(line: CommandLine, rewritten: list[str]) -> str:
 
 # ---------------------------------------------------------------------------------------- composition
 def compose_sweep(overrides: Sequence[str], config_name: str = "config") -> DictConfig:
-    """``conf/`` composed with ``overrides`` over the typed schemas (:mod:`runners.config_schema`),
+    """``conf/`` composed with ``overrides`` over the typed schemas (:mod:`runners.compose.schema`),
     with its ``hydra`` node (the search path, logging). A key or value the schemas refuse is a
     :class:`ConfigError` of one line naming the key, its file or override and the closest valid key."""
     try:

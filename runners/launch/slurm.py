@@ -1,6 +1,6 @@
 """Dispatch jobs to SLURM as one submitit job array (one array task per job: a run or a fleet).
 
-Every array task calls :func:`runners.jobs.execute_job_all`, which records each run's result
+Every array task calls :func:`runners.execute.jobs.execute_job_all`, which records each run's result
 (including failures) in Parquet; the parent polls the jobs, and records the runs whose jobs died
 without a result (time limit, ``kill -9``, node failure) as failed with SLURM's view of what
 happened. A fleet job that died after writing some of its runs keeps those.
@@ -15,8 +15,8 @@ from pathlib import Path
 from typing import Any
 
 from morality_gym.baselines.device import CPU, Device
-from runners.jobs import Job, execute_job_all
-from runners.plan import PlannedRun
+from runners.execute.jobs import Job, execute_job_all
+from runners.plan.runs import PlannedRun
 
 
 def run_on_slurm(
@@ -46,7 +46,7 @@ def run_on_slurm(
 def _submit(jobs_: list[Job], launcher: Mapping[str, Any], results_dir: Path, gif: bool, sweep_name: str,
             device: Device, checkpoint_every_s: float = 0.0) -> list[Any]:
     """One submitit array task per job, with the launcher's partition and resources."""
-    import submitit  # submitit waits: importing runners.slurm_launcher must not load it
+    import submitit  # submitit waits: importing runners.launch.slurm must not load it
 
     folder = Path(launcher.get("folder") or results_dir / "slurm" / sweep_name)
     folder.mkdir(parents=True, exist_ok=True)

@@ -1,4 +1,4 @@
-"""Expand a validated sweep into runs and give each a content-hash identity (and its price, :mod:`runners.estimate`).
+"""Expand a validated sweep into runs and give each a content-hash identity (and its price, :mod:`runners.plan.estimate`).
 
 A run's identity is the SHA-256 of its resolved configuration (canonical JSON: env id, the chain's
 full definition, the learner's complete spec, the protocol, the preset's budget and evaluation
@@ -21,20 +21,21 @@ from morality_gym.envs.registry import scenario_named
 from morality_gym.norms.chain import chain_fingerprint
 from morality_gym.results.run_config import RunConfig
 from morality_gym.results.schema import SCHEMA_VERSION
-from runners.config import SweepConfig
-from runners.estimate import run_seconds
+from runners.compose.sweep_config import SweepConfig
+from runners.plan.estimate import run_seconds
 
 
 @dataclass(frozen=True)
 class PlannedRun:
     run_id: str
     config: RunConfig  # the resolved run (what the worker executes; its JSON form is what the id hashes)
-    est_seconds: float  # alone on a core (runners.estimate.run_seconds): what the jobs' prices start from
+    est_seconds: float  # alone on a core (runners.plan.estimate.run_seconds): what the jobs' prices start from
     overhead_s: float = 0.0  # the part of est_seconds every run pays whatever trains it (evaluations, writes)
     train_steps: int = 0  # the env steps it trains (what a device's fleet rate prices)
 
     @property
-    def identity(self) -> dict[str, Any]:
+    def manifest_entry(self) -> dict[str, Any]:
+        """What the sweep's manifest and a dry run's plan file list of this run (its id and what it is)."""
         c = self.config
         return {
             "run_id": self.run_id,
@@ -52,7 +53,7 @@ class PlannedRun:
         }
 
 
-def plan(sweep: SweepConfig) -> list[PlannedRun]:
+def expand_sweep(sweep: SweepConfig) -> list[PlannedRun]:
     """Every run of the sweep, in a stable order (chain, scenario, variant, algo, seed)."""
     runs: list[PlannedRun] = []
     seen: set[str] = set()
@@ -93,7 +94,7 @@ def plan(sweep: SweepConfig) -> list[PlannedRun]:
 def describe(runs: list[PlannedRun], done: set[str]) -> dict[str, Any]:
     """The plan's counts: runs in all, done and to do, and ``[runs, done]`` per learner.
 
-    (The wall-time estimate is the jobs' (:func:`runners.estimate.jobs_estimate`): a figure here
+    (The wall-time estimate is the jobs' (:func:`runners.plan.estimate.jobs_estimate`): a figure here
     from the runs alone, which an earlier version returned, was read by nothing.)"""
     by_algo: dict[str, list[int]] = {}
     for r in runs:
