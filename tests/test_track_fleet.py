@@ -463,3 +463,57 @@ def test_a_chains_track_trains_its_fleets_on_the_gpu(tmp_path, monkeypatch) -> N
         record = json.loads((tmp_path / "runs" / f"Utility-{name}-s1" / track.RESULT).read_text())
         # whole rollouts: PPO's is 8 copies x 2,048 steps, CPO's one copy's
         assert record["device"] == "cuda" and record["trained_steps"] == {"ppo": 16_384, "cpo": 2048}[name]
+
+
+#: A driver for the SIGTERM test: the chain's track on POOL_A, a SIGTERM sent to itself right after
+#: the fleet's second update (where the checkpoint asks whether it is due), as a stopping machine does.
+_SIGTERM_DRIVER = """
+import os, signal, sys
+sys.path.insert(0, {tests!r})
+from test_track_fleet import POOL_A, _chain_sets
+from morality_gym.baselines.fleet import checkpoint
+from runners import track
+track.load_sets = lambda *a, **k: (list(POOL_A), _chain_sets())
+due, calls = checkpoint.FleetCheckpoint.due, []
+def due_then_kill(self):
+    calls.append(1)
+    if len(calls) == 2 and {kill}:
+        os.kill(os.getpid(), signal.SIGTERM)
+    return due(self)
+checkpoint.FleetCheckpoint.due = due_then_kill
+sys.exit(track.cli({argv!r}))
+"""
+
+
+def test_a_sigterm_stops_a_chains_track_at_an_update_with_the_fleets_state_written(tmp_path) -> None:
+    """A SIGTERM while a chain's fleet trains (a session or machine that stops) writes the fleet's
+    state at the next update and exits 143 with one line; the rerun resumes there and ends with the
+    numbers of a run never stopped (without the handler, Python's default ended the process at once
+    and the rerun went back to the last periodic checkpoint: up to 5 minutes of every run)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import pandas as pd
+
+    def run(out: Path, kill: bool) -> subprocess.CompletedProcess:
+        argv = ["--chain", "Utility", "--learners", "ppo_lag", "--seeds", "1", "2", "--budget", str(3 * 2048),
+                "--curve-every", "100000", "--out", str(out)]
+        code = _SIGTERM_DRIVER.format(tests=str(Path(__file__).parent), kill=kill, argv=argv)
+        return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+
+    stopped = run(tmp_path / "a", kill=True)
+    assert stopped.returncode == 143, stopped.stderr[-2000:]
+    assert "stopped by SIGTERM: fleet of 2 runs stopped at 4,096 of 6,144 steps" in stopped.stderr
+    assert "run the same command again to resume" in stopped.stderr and "Traceback" not in stopped.stderr
+    assert len(list((tmp_path / "a" / "fleets").glob("*.pt"))) == 1
+    assert not (tmp_path / "a" / "runs" / "Utility-ppo_lag-s1").exists()
+    resumed = run(tmp_path / "a", kill=False)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert "resumed at 4,096 of 6,144 steps" in resumed.stderr
+    straight = run(tmp_path / "b", kill=False)
+    assert straight.returncode == 0, straight.stderr[-2000:]
+    for seed in (1, 2):
+        name = f"Utility-ppo_lag-s{seed}"
+        pd.testing.assert_frame_equal(pd.read_parquet(tmp_path / "a" / "runs" / name / "pairs.parquet"),
+                                      pd.read_parquet(tmp_path / "b" / "runs" / name / "pairs.parquet"))

@@ -11,7 +11,9 @@ share its fleet (tested), so a rerun trains only the seeds whose ``result.json``
 The fleet checkpoints to ``DIR/fleets/<run prefix>-<learner>.pt`` (at most every
 :data:`CHECKPOINT_EVERY_S` seconds and when training ends) and a rerun of the same command resumes
 from it bit for bit; a file of another command (seeds, budget, pool) is discarded with one warning.
-Progress: one line at most every :data:`PROGRESS_EVERY_S` seconds.
+Progress: one line at most every :data:`PROGRESS_EVERY_S` seconds. SIGTERM (a machine or session
+that stops, ``kill``) ends a fleet at its next update boundary with its state written
+(:mod:`runners.execute.stopping`), so a resume loses nothing, rather than up to 5 minutes of every run.
 
 A session's fleet reads its pool's simulator tables from ``$MORALITY_GYM_CACHE/tables``
 (:func:`table_cache_dir`, :mod:`morality_gym.envs.table_cache`) instead of enumerating the pool's
@@ -46,6 +48,7 @@ from morality_gym.generalisation.sets import EvalSet
 from morality_gym.generator.splits import cache_root
 from morality_gym.norms.metric import bind_chain
 from morality_gym.world.compact_observe import COMPACT_WIDTH
+from runners.execute import stopping
 
 CHECKPOINT_EVERY_S = 300.0
 PROGRESS_EVERY_S = 30.0
@@ -171,7 +174,8 @@ def train_fleet(learner: str, seeds: Sequence[int], budget: int, train_ids: Sequ
         curve.record(fleet, 0)  # the untrained policies; a resumed fleet's stored curve replaces this
         saved.extra = lambda: {"curve": curve.state()}
         saved.on_resume = curve.resume
-    fleet.learn(budget, on_progress=progress, checkpoint=saved)
+    with stopping.stop_at_update(saved):  # a SIGTERM (once installed) writes the state at the next update, then stops
+        fleet.learn(budget, on_progress=progress, checkpoint=saved)
     seconds = time.perf_counter() - t1
     failed = fleet.failed
     out: dict[int, tuple[Any, dict[str, Any]]] = {}
