@@ -343,11 +343,23 @@ def _sample_text(record: dict[str, Any]) -> str:
 def _score_table(score: str, title: str, part: pd.DataFrame, frame: pd.DataFrame,
                  records: list[dict[str, Any]], reasons: dict[str, list[str]]) -> dict[str, Any]:
     """The table of one score (``part``: the summary's rows of that score)."""
-    counts = {s: part[part["set"] == s].iloc[0] for s in SETS if (part["set"] == s).any()}
     return {"score": score, "title": title,
             "rows": [_learner_row(learner, part, records, reasons) for learner in _in_order(part["learner"])],
             "left_out": left_out(frame) if score == "random_score" else "",
-            "counts": {s: f"{int(c['env_ids'])} env ids, {int(c['dilemmas'])} dilemmas" for s, c in counts.items()}}
+            "counts": set_counts(part)}
+
+
+def set_counts(part: pd.DataFrame) -> dict[str, str]:
+    """Each set's size under a score table: that of the learner scored on the most of it. A run scored on a
+    sample of a set (a language model's) holds fewer env ids, and it is marked as a sample in its own row; the
+    table's line must not shrink the whole set to that sample."""
+    counts = {}
+    for set_name in SETS:
+        rows = part[part["set"] == set_name]
+        if not rows.empty:
+            most = rows.loc[rows["env_ids"].idxmax()]
+            counts[set_name] = f"{int(most['env_ids'])} env ids, {int(most['dilemmas'])} dilemmas"
+    return counts
 
 
 def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,

@@ -197,6 +197,17 @@ def test_the_page_shows_seen_unseen_and_builtin_scores_with_intervals(tmp_path: 
     assert "No results yet" in empty and "python -m runners.track" in empty
 
 
+def test_a_sampled_run_does_not_shrink_the_sets_size_under_a_table() -> None:
+    """The line under a score table gave the first learner's count: a language model scored on 30 of the
+    190 unseen pairs made the page say the unseen set held 30 env ids."""
+    from leaderboard.track import set_counts
+
+    part = pd.DataFrame([{"learner": "SmolLM2", "set": "test", "env_ids": 30, "dilemmas": 27},
+                         {"learner": "ppo", "set": "test", "env_ids": 190, "dilemmas": 160},
+                         {"learner": "ppo", "set": "seen", "env_ids": 100, "dilemmas": 98}])
+    assert set_counts(part) == {"seen": "100 env ids, 98 dilemmas", "test": "190 env ids, 160 dilemmas"}
+
+
 def test_a_language_model_plays_a_generated_dilemma_through_the_text_view(generated: list[str], tmp_path: Path) -> None:
     pytest.importorskip("inspect_ai", reason="the llm extra (pip install -e '.[dev,llm]')")
     from inspect_ai import eval as inspect_eval
