@@ -396,9 +396,7 @@ def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
             "key": "" if track == MIXED else f"-{track}", "title": TRACK_TITLES.get(track, track), "figure": figure,
             "tables": tables, "sources": [{"set": SET_LABELS[name], **source} for name, source in first["sets"].items()],
             "train_digest": first["train_digest"], "grammar_version": first["grammar_version"],
-            "train_pool": first["train_pool"], "hparams": trained[0].get("hparams") if trained else None,
-            "n_envs": trained[0].get("n_envs") if trained else None,
-            "policy": trained[0].get("policy", "MlpPolicy on the flattened (20, 16, 16) grid") if trained else "",
+            "train_pool": first["train_pool"], "trained": trained_learners(trained),
             "missing": [LABELS.get(lr, lr) for lr, why in reasons.items() if why == ["no run"]],
             "curves": _curves(track_dir, track, site, reasons, mine) if track != MIXED else None,
             "scoring": "every built-in chain under which a dilemma is one" if track == MIXED
@@ -406,6 +404,25 @@ def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
             + (", those of the v2 splits: Random leaves them headroom" if first.get("split_version", 1) != 1 else "")})
     context.update(has_runs=True, tracks=tracks, csv=CSV)
     return context
+
+
+def trained_learners(trained: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """How each trained learner of a track was trained, from its first run's record: a chain's track
+    trains every learner in fleets with its Table 1 hyper-parameters, the mixed track SB3's PPO, and
+    the page must not describe the one as the other."""
+    learners = []
+    for learner in _in_order([r["learner"] for r in trained]):
+        run = next(r for r in trained if r["learner"] == learner)
+        if run.get("engine") == "fleet":
+            how = f"fleet engine, {run['fleet_runs']} runs per fleet, {run.get('protocol', 'paper')} protocol"
+            if run.get("device", "cpu") != "cpu":
+                how += f", on {run['device']}"
+        else:
+            how = "SB3 PPO"
+        learners.append({"label": LABELS.get(learner, learner), "how": how, "n_envs": run.get("n_envs"),
+                         "policy": run.get("policy", "MlpPolicy on the flattened (20, 16, 16) grid"),
+                         "hparams": run.get("hparams") or {}})
+    return learners
 
 
 def _curves(root: Path, track: str, site: Path, reasons: dict[str, list[str]], frame: pd.DataFrame) -> dict[str, Any]:

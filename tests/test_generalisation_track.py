@@ -180,7 +180,7 @@ def test_the_page_shows_seen_unseen_and_builtin_scores_with_intervals(tmp_path: 
     html = write_page(site, tmp_path / "track", common, resamples=200).read_text()
     assert (site / FIGURE).stat().st_size > 0 and f'src="{FIGURE}"' in html
     for text in ("seen (train-split sample)", "unseen (test split)", "built-in (Table 1 envs)", "Gap seen − unseen",
-                 "5,000 steps", "exact, untrained", "7208e3b4"):
+                 "5,000 steps", "exact, untrained", "7208e3b4", "PPO: SB3 PPO, MlpPolicy on the flattened"):
         assert text in html
     row = re.search(r'<tr data-learner="PPO">(.*?)</tr>', html).group(1)
     # three sets and the gap; each interval to the decimals (at most three) its bounds are stable to
@@ -206,6 +206,21 @@ def test_a_sampled_run_does_not_shrink_the_sets_size_under_a_table() -> None:
                          {"learner": "ppo", "set": "test", "env_ids": 190, "dilemmas": 160},
                          {"learner": "ppo", "set": "seen", "env_ids": 100, "dilemmas": 98}])
     assert set_counts(part) == {"seen": "100 env ids, 98 dilemmas", "test": "190 env ids, 160 dilemmas"}
+
+
+def test_a_chains_track_says_its_learners_trained_in_fleets_not_sb3() -> None:
+    """The page said "PPO: SB3 PPO" with PPO's hyper-parameters under every track, while a chain's track
+    trains each learner in fleets with its own Table 1 hyper-parameters."""
+    from leaderboard.track import trained_learners
+
+    fleet = {"engine": "fleet", "fleet_runs": 5, "protocol": "paper", "device": "cpu", "n_envs": 8,
+             "policy": "MlpPolicy on the compact observation", "hparams": {"n_steps": 2048}}
+    runs = [fleet | {"learner": "cpo", "hparams": {"n_steps": 20000}}, fleet | {"learner": "ppo"},
+            fleet | {"learner": "ppo", "seed": 42}]
+    said = trained_learners(runs)
+    assert [(lr["label"], lr["hparams"]["n_steps"]) for lr in said] == [("PPO", 2048), ("CPO", 20000)]
+    assert said[0]["how"] == "fleet engine, 5 runs per fleet, paper protocol"
+    assert trained_learners([{"learner": "ppo", "n_envs": 8}])[0]["how"] == "SB3 PPO"
 
 
 def test_a_language_model_plays_a_generated_dilemma_through_the_text_view(generated: list[str], tmp_path: Path) -> None:
