@@ -59,6 +59,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
+from morality_gym.baselines.specs import fleet_trains
 from morality_gym.baselines.targets import learner_trains
 from morality_gym.clitools import DEBUG_ENV, debug_enabled, duration, one_line, run_cli, version_text
 from morality_gym.norms.chain import ChainError
@@ -74,7 +75,6 @@ from runners.compose.command_line import (
     show,
 )
 from runners.compose.sweep_config import ConfigError, SweepConfig  # also stores the schemas (runners.compose.schema)
-from runners.execute.jobs import Job, fleet_trains, make_jobs
 from runners.execute.run import record_failure
 from runners.launch.local_pool import JobProgress, PoolStopped, WorkerPool
 from runners.launch.preflight import preflight
@@ -89,6 +89,7 @@ from runners.plan.estimate import (
     jobs_estimate,
     sweep_overheads,
 )
+from runners.plan.fleets import Job, make_jobs
 from runners.plan.runs import PlannedRun, describe, expand_sweep
 from runners.record.fleet_checkpoints import fleets_to_form, remove_stale
 from runners.record.leftovers import remove_leftovers
@@ -107,7 +108,7 @@ class Plan:
     """A sweep's runs and what is left of them, as a value: printed, recorded and dispatched.
 
     ``status``: each run's result before the sweep (``ok``, ``failed`` or None); ``todo``: the runs
-    to train, cut into ``jobs`` for ``workers`` parallel workers (:mod:`runners.execute.jobs`); ``counts``:
+    to train, cut into ``jobs`` for ``workers`` parallel workers (:mod:`runners.plan.fleets`); ``counts``:
     :func:`runners.plan.runs.describe`'s totals per learner; ``estimate_s``: the wall time of what
     remains on an idle machine, and ``estimate`` the same at the machine's load when the plan was
     made (:mod:`runners.plan.estimate`); ``moved``: unreadable result files moved aside while the plan was made.

@@ -16,11 +16,16 @@ from pathlib import Path
 import pytest
 
 from morality_gym.baselines.device import CPU, Device
+from morality_gym.baselines.fleet import TRAINERS
+from morality_gym.baselines.specs import FLEET_ALGORITHMS, fleet_trains
+from morality_gym.baselines.targets import resolve
 from morality_gym.results.recording import RunLock, finished_status
 from morality_gym.results.schema import read_runs, read_updates
 from runners.compose.sweep_config import validate
-from runners.execute.jobs import execute_job, fleet_trains, make_jobs
+from runners.execute.jobs import execute_job
+from runners.launch import entry_points
 from runners.plan.estimate import dispatch_order, fleet_speedup, jobs_estimate, makespan
+from runners.plan.fleets import make_jobs
 from runners.plan.runs import expand_sweep
 from tests.sweep_tools import run_files, wait_for_results
 
@@ -144,6 +149,25 @@ def test_several_workers_take_the_longest_jobs_first(tmp_path: Path) -> None:
 def test_only_learners_the_fleet_reproduces_are_grouped() -> None:
     assert fleet_trains("stable_baselines3.PPO")
     assert not fleet_trains("stable_baselines3.A2C")  # a user's learner runs on the single engine
+    assert not fleet_trains("no_such_package.Learner")  # reported by the sweep's checks, not here
+
+
+def test_the_fleet_learners_the_plan_reads_are_the_fleets_trainers() -> None:
+    """The plan cuts runs into fleets from a list below the fleet (so that planning imports no
+    torch); it must name exactly the classes the fleet's trainers reproduce, in their order."""
+    assert [resolve(t.algorithm) for t in TRAINERS] == [resolve(a) for a in FLEET_ALGORITHMS]
+    assert all(fleet_trains(a) for a in FLEET_ALGORITHMS)
+
+
+def test_the_sweeps_own_process_plans_without_the_training_code() -> None:
+    """The sweep's process checks, plans and waits: importing it (and the launchers, the plan) loads
+    no torch; the workers import the training code by the name the launchers hand them."""
+    code = ("import sys, runners.sweep, runners.launch.local_pool, runners.launch.slurm, runners.plan.fleets; "
+            "print('torch' in sys.modules, 'runners.execute.jobs' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False False"
+    jobs = entry_points.training()
+    assert jobs.execute_job is execute_job and callable(jobs.execute_job_all)
 
 
 def test_engine_is_validated(tmp_path: Path) -> None:
@@ -336,3 +360,4 @@ def test_a_run_written_before_its_worker_died_counts_as_written(tmp_path: Path) 
     assert df.loc[written.run_id, "status"] == "ok" and df.loc[written.run_id, "metric"] is not None
     assert df.loc[unwritten.run_id, "status"] == "failed"
     assert df.loc[unwritten.run_id, "error"].startswith("worker process died (signal 9)")
+

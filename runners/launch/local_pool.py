@@ -26,7 +26,7 @@ import signal
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
@@ -37,8 +37,9 @@ from morality_gym.baselines.stopped import TrainingStopped
 from morality_gym.clitools import DiskFullError
 from morality_gym.results.recording import git_commit
 from runners.execute import stopping
-from runners.execute.jobs import Job, execute_job
 from runners.execute.run import limit_threads, training_code
+from runners.launch.entry_points import training
+from runners.plan.fleets import Job
 from runners.plan.runs import PlannedRun
 
 ResultHook = Callable[[PlannedRun, dict[str, Any]], None]
@@ -74,14 +75,12 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int,
     limit_threads()
     git_commit()  # the commit of the code this worker loads now, recorded for every run it trains
     training_code()  # and its fingerprint, which keys the fleet checkpoints it writes
-    import stable_baselines3  # noqa: F401
-
-    import morality_gym  # noqa: F401 - warm imports before the first run
+    jobs = training()  # the training code (torch) loads here, before the first job
 
     stopping.install()  # SIGTERM: a fleet checkpoints and the worker ends (runners.execute.stopping)
     _send(conn, ("ready", os.getpid()))
     try:
-        _serve(conn, results_dir, gif, device, checkpoint_every_s)
+        _serve(jobs.execute_job, conn, results_dir, gif, device, checkpoint_every_s)
     except TrainingStopped as exc:
         stopping.ignore()  # stopping already: a second signal has nothing left to stop
         _send(conn, ("stopped", str(exc)))
@@ -92,8 +91,10 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int,
         stopping.ignore()  # nothing runs after this: a late SIGTERM must not raise while the process exits
 
 
-def _serve(conn: Connection, results_dir: str, gif: bool, device: Device, checkpoint_every_s: float) -> None:
-    """Execute the jobs the parent sends until it sends None or goes away."""
+def _serve(execute_job: Callable[..., Iterator[dict[str, Any]]], conn: Connection, results_dir: str, gif: bool,
+           device: Device, checkpoint_every_s: float) -> None:
+    """Execute the jobs the parent sends (with :func:`runners.execute.jobs.execute_job`) until it sends
+    None or goes away."""
     while True:
         try:
             message = conn.recv()

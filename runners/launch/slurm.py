@@ -1,6 +1,6 @@
 """Dispatch jobs to SLURM as one submitit job array (one array task per job: a run or a fleet).
 
-Every array task calls :func:`runners.execute.jobs.execute_job_all`, which records each run's result
+Every array task calls :func:`runners.execute.jobs.execute_job_all` (named: :mod:`runners.launch.entry_points`), which records each run's result
 (including failures) in Parquet; the parent polls the jobs, and records the runs whose jobs died
 without a result (time limit, ``kill -9``, node failure) as failed with SLURM's view of what
 happened. A fleet job that died after writing some of its runs keeps those.
@@ -15,7 +15,8 @@ from pathlib import Path
 from typing import Any
 
 from morality_gym.baselines.device import CPU, Device
-from runners.execute.jobs import Job, execute_job_all
+from runners.launch.entry_points import execute_job_all
+from runners.plan.fleets import Job
 from runners.plan.runs import PlannedRun
 
 

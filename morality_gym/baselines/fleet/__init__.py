@@ -33,11 +33,17 @@ from pathlib import Path
 from morality_gym.baselines.fleet.base import FleetRun, FleetTrainer
 from morality_gym.baselines.fleet.checkpoint import FleetCheckpoint
 from morality_gym.baselines.fleet.compiled import DEFAULT_UPDATE_ENGINE
+from morality_gym.baselines.fleet.cpo import FleetCPO
 from morality_gym.baselines.fleet.env import Simulator
 from morality_gym.baselines.fleet.ppo import FleetPPO
+from morality_gym.baselines.fleet.ppo_lag import FleetPPOLag
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError, protocol_spec
 from morality_gym.baselines.targets import resolve
 from morality_gym.constants import MAX_STEPS
+
+#: One trainer per class in :data:`morality_gym.baselines.specs.FLEET_ALGORITHMS`, which the sweep
+#: reads to cut its runs into fleets without importing these.
+TRAINERS: tuple[type[FleetTrainer], ...] = (FleetPPO, FleetPPOLag, FleetCPO)
 
 
 def fleet_class(target: str) -> type[FleetTrainer]:
@@ -45,25 +51,12 @@ def fleet_class(target: str) -> type[FleetTrainer]:
 
     Matched by class identity: a subclass may train differently, so it has no fleet trainer.
     """
-    trainers: list[type[FleetTrainer]] = [FleetPPO]
-    try:
-        from morality_gym.baselines.fleet.ppo_lag import FleetPPOLag
-
-        trainers.append(FleetPPOLag)
-    except ImportError:  # pragma: no cover - built learner by learner
-        pass
-    try:
-        from morality_gym.baselines.fleet.cpo import FleetCPO
-
-        trainers.append(FleetCPO)
-    except ImportError:  # pragma: no cover
-        pass
     cls = resolve(target)
-    for trainer in trainers:
+    for trainer in TRAINERS:
         if resolve(trainer.algorithm) is cls:
             return trainer
     raise SpecError(
-        f"the fleet engine does not train {target!r}; fleet learners: {', '.join(t.algorithm for t in trainers)}"
+        f"the fleet engine does not train {target!r}; fleet learners: {', '.join(t.algorithm for t in TRAINERS)}"
     )
 
 

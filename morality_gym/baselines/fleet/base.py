@@ -61,7 +61,8 @@ from morality_gym.baselines.fleet.optim import BatchedAdam
 from morality_gym.baselines.fleet.rollout import Rollout, RolloutCollector, RolloutSettings
 from morality_gym.baselines.fleet.state import CheckpointMismatch, identity_difference, plain_data
 from morality_gym.baselines.fleet.streams import RunStreams
-from morality_gym.baselines.learners import SB3Learner, make_learner
+from morality_gym.baselines.learners import make_learner
+from morality_gym.baselines.sb3_learner import SB3Learner
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError, protocol_spec, training_steps
 from morality_gym.baselines.targets import resolve
 from morality_gym.constants import LEARN_EVAL_EPISODES, MAX_STEPS
