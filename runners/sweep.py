@@ -59,7 +59,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
-from morality_gym.baselines.specs import fleet_trains
+from morality_gym.baselines.specs import DEFAULT_UPDATE_ENGINE, fleet_trains
 from morality_gym.baselines.targets import learner_trains
 from morality_gym.clitools import DEBUG_ENV, debug_enabled, duration, one_line, run_cli, version_text
 from morality_gym.norms.chain import ChainError
@@ -176,7 +176,9 @@ def _engine_line(plan_: Plan, sweep: SweepConfig) -> str | None:
         return (f"engine [bold]fleet[/bold]: {in_fleets} of {len(todo)} runs to do train in {len(fleets)} fleet(s) of "
                 f"{min(len(j.runs) for j in fleets)}-{max(len(j.runs) for j in fleets)} runs, the other {len(todo) - in_fleets} "
                 "one by one (engine=single trains every run on its own)"
-                + (f"; {resuming} fleet(s) resume their training from a checkpoint" if resuming else ""))
+                + (f"; {resuming} fleet(s) resume their training from a checkpoint" if resuming else "")
+                + (f"; update engine [bold]{sweep.fleet_update}[/bold] (fleet_update=eager reruns a release bit for bit)"
+                   if sweep.fleet_update != DEFAULT_UPDATE_ENGINE else ""))
     if todo:
         return "engine [bold]single[/bold]: every run trains on its own" + (
             "" if sweep.engine == "single" else " (no two runs to do can share a fleet)")
@@ -408,9 +410,10 @@ def dispatch(plan_: Plan, sweep: SweepConfig, tracker: Tracker | None, console: 
             return []
         if sweep.launcher["name"] == "slurm":
             run_on_slurm(list(plan_.jobs), sweep.launcher, sweep.results_dir, sweep.gif, sweep.name, outcomes.finish,
-                         outcomes.fail, sweep.device, sweep.checkpoint_every_s)
+                         outcomes.fail, sweep.device, sweep.checkpoint_every_s, sweep.fleet_update)
         else:
-            WorkerPool(plan_.workers, sweep.results_dir, sweep.gif, sweep.device, sweep.checkpoint_every_s).run(
+            WorkerPool(plan_.workers, sweep.results_dir, sweep.gif, sweep.device, sweep.checkpoint_every_s,
+                       sweep.fleet_update).run(
                 list(plan_.jobs), outcomes.finish, outcomes.fail, FleetBars(progress) if lines is None else _Both(FleetBars(progress), lines))
     return outcomes.interrupted
 

@@ -240,7 +240,7 @@ def test_buffers_a_step_writes_are_static_for_cuda_graphs(name: str, protocol: s
 @pytest.mark.parametrize("name", ["ppo", "cpo"])
 def test_eager_stays_the_default_engine(name: str) -> None:
     """Only the eager engine reruns a release bit for bit (docs/engines.md), and the sweep builds
-    its fleets without naming an engine (runners.execute.jobs): so a fleet built without ``update=``, by
+    its fleets with ``fleet_update``, whose default is this one: so a fleet built without ``update=``, by
     either entry point, is eager and trains without compiling anything."""
     assert compiled.DEFAULT_UPDATE_ENGINE == "eager"
     spec = learner_spec(name, {"hparams": SMALL[name]})

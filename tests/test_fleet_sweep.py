@@ -17,12 +17,19 @@ import pytest
 
 from morality_gym.baselines.device import CPU, Device
 from morality_gym.baselines.fleet import TRAINERS
-from morality_gym.baselines.specs import FLEET_ALGORITHMS, fleet_trains
+from morality_gym.baselines.fleet.compiled import compiler_missing
+from morality_gym.baselines.specs import (
+    DEFAULT_UPDATE_ENGINE,
+    FLEET_ALGORITHMS,
+    fleet_trains,
+    learner_spec,
+    protocol_spec,
+)
 from morality_gym.baselines.targets import resolve
-from morality_gym.results.recording import RunLock, finished_status
+from morality_gym.results.recording import RunClock, RunLock, finished_status
 from morality_gym.results.schema import read_runs, read_updates
-from runners.compose.sweep_config import validate
-from runners.execute.jobs import execute_job
+from runners.compose.sweep_config import ConfigError, validate
+from runners.execute.jobs import FleetTraining, execute_job
 from runners.launch import entry_points
 from runners.plan.estimate import dispatch_order, fleet_speedup, jobs_estimate, makespan
 from runners.plan.fleets import make_jobs
@@ -361,3 +368,47 @@ def test_a_run_written_before_its_worker_died_counts_as_written(tmp_path: Path) 
     assert df.loc[unwritten.run_id, "status"] == "failed"
     assert df.loc[unwritten.run_id, "error"].startswith("worker process died (signal 9)")
 
+
+# ------------------------------------------------------------------------------------------ fleet_update
+def test_fleet_update_is_checked_with_close_matches(tmp_path: Path) -> None:
+    """``fleet_update`` defaults to the engine every release was trained with; a misspelt engine,
+    or an engine where no fleet trains, is refused in one line naming the setting."""
+    assert _sweep_config(tmp_path, "algo=ppo").fleet_update == DEFAULT_UPDATE_ENGINE == "eager"
+    assert _sweep_config(tmp_path, "algo=ppo", "fleet_update=compiled").fleet_update == "compiled"
+    with pytest.raises(ConfigError, match=r"^fleet_update: expected eager or compiled, got 'compild' \(did you mean 'compiled'\?\)$"):
+        _sweep_config(tmp_path, "algo=ppo", "fleet_update=compild")
+    with pytest.raises(ConfigError, match=r"^fleet_update=compiled: only the fleet engine has update engines; use engine=fleet"):
+        _sweep_config(tmp_path, "algo=ppo", "engine=single", "fleet_update=compiled")
+    done = _sweep(tmp_path / "r", "algo=ppo", "fleet_update=eagr", "dry_run=true")
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert "fleet_update: expected eager or compiled, got 'eagr' (did you mean 'eager'?)" in done.stderr
+
+
+def test_the_update_engine_keys_a_fleet_checkpoint_only_when_compiled(tmp_path: Path) -> None:
+    """A compiled fleet's checkpoint is never resumed by an eager fleet (nor the other way round);
+    an eager fleet's key is the one every checkpoint written before the setting has, so those resume."""
+    sweep = _sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
+                          "seed=[1]", "variant=[HumanA,HumanB]")
+    runs = [(r.run_id, r.config) for r in expand_sweep(sweep)]
+    spec, protocol = learner_spec("ppo"), protocol_spec("paper")
+    eager = FleetTraining(runs, RunClock.start()).checkpoint(tmp_path / "r", spec, protocol, CPU, 60.0)
+    compiled = FleetTraining(runs, RunClock.start()).checkpoint(tmp_path / "r", spec, protocol, CPU, 60.0, "compiled")
+    assert eager is not None and compiled is not None
+    assert set(eager.key) == {"runs", "learner", "protocol", "device", "fleet_size", "code"}
+    assert compiled.key == {**eager.key, "update": "compiled"}
+
+
+def test_a_sweep_with_fleet_update_compiled_trains_its_fleets_compiled(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The setting reaches the worker's fleets: they compile their update steps (kernels written to
+    the compile cache, which an eager fleet never touches) and every run is recorded as usual."""
+    if compiler_missing():
+        pytest.skip(str(compiler_missing()))
+    cache = tmp_path / "kernels"
+    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", str(cache))
+    done = _sweep(tmp_path / "r", "algo=ppo", "chain=utility", "scenario=[switch_standard]", "variant=[HumanA]",
+                  "seed=[1,2]", "preset=smoke", "fleet_update=compiled")
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "update engine compiled" in done.stderr, done.stderr  # the plan, as the sweep prints it
+    df = read_runs(tmp_path / "r")
+    assert set(df.status) == {"ok"} and set(df.engine) == {"fleet:2"}, df[["status", "engine", "error"]]
+    assert cache.is_dir() and any(p.is_file() for p in cache.rglob("*")), "the fleet trained without compiling"

@@ -44,6 +44,13 @@ CPO = "morality_gym.baselines.safe.CPO"
 #: tests/test_fleet_sweep.py holds this list to them). Named here, below the fleet, so that the
 #: sweep can cut its runs into fleets without importing the fleet's trainers.
 FLEET_ALGORITHMS = (SB3_PPO, PPO_LAG, CPO)
+#: The fleet's update engines: ``eager`` (per-operation PyTorch; reruns the releases bit for bit)
+#: and ``compiled`` (:mod:`morality_gym.baselines.fleet.compiled`, which re-exports both names).
+UPDATE_ENGINES = ("eager", "compiled")
+#: The one place the default lives: the sweep's ``fleet_update`` (``runners.compose.schema.Sweep``)
+#: and :func:`~morality_gym.baselines.fleet.build_fleet` read it. Here, below the fleet, so that the
+#: sweep's configuration knows it without importing torch.
+DEFAULT_UPDATE_ENGINE = "eager"
 #: The short names that specs, run configs and model sidecars written before learners were named by
 #: class (commit c0db801) recorded as ``implementation``, and the class each one meant. Frozen
 #: history: read by :mod:`morality_gym.baselines.io` (old sidecars) and ``runners.record.rename_history``.

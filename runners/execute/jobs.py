@@ -30,7 +30,7 @@ from typing import Any
 from morality_gym.baselines.device import CPU, Device
 from morality_gym.baselines.fleet import FleetCheckpoint, FleetRun, make_fleet
 from morality_gym.baselines.fleet.state import NonFiniteTraining
-from morality_gym.baselines.specs import SpecError
+from morality_gym.baselines.specs import DEFAULT_UPDATE_ENGINE, SpecError
 from morality_gym.baselines.stopped import TrainingStopped
 from morality_gym.results.recording import RunClock, RunLock, finished_status, git_commit
 from morality_gym.results.run_config import RunConfig
@@ -51,12 +51,14 @@ def execute_job(
     device: Device = CPU,
     progress: Callable[[int, int], None] | None = None,
     checkpoint_every_s: float = 0.0,
+    update: str = DEFAULT_UPDATE_ENGINE,
 ) -> Iterator[Summary]:
     """Execute a job's runs, yielding each run's summary as soon as its result is written.
 
     Each run is locked first (a run another live process holds is yielded as ``busy``; one already
     finished ``ok`` as skipped); the rest are trained together when ``engine == "fleet"`` and more
-    than one remains, else one by one. A fleet's networks and updates run on ``device``, it
+    than one remains, else one by one. A fleet's networks and updates run on ``device``, with the
+    update engine ``update`` (``eager`` reruns the releases bit for bit; docs/engines.md), it
     calls ``progress(steps, total)`` as it trains, and, with ``checkpoint_every_s > 0``, it
     checkpoints its training at most that often (and resumes from a checkpoint it finds).
     """
@@ -77,7 +79,7 @@ def execute_job(
                 continue
             mine.append((run_id, config))
         if engine == "fleet" and len(mine) > 1:
-            yield from _train_fleet(mine, results_dir, gif, device, progress, checkpoint_every_s)
+            yield from _train_fleet(mine, results_dir, gif, device, progress, checkpoint_every_s, update)
         else:
             for run_id, config in mine:
                 yield execute_locked(config, run_id, results_dir, gif)
@@ -88,7 +90,7 @@ def execute_job(
 
 def execute_job_all(
     items: Sequence[tuple[str, RunConfig]], results_dir: str, gif: bool = True, engine: str = "single", device: Device = CPU,
-    checkpoint_every_s: float = 0.0,
+    checkpoint_every_s: float = 0.0, update: str = DEFAULT_UPDATE_ENGINE,
 ) -> list[Summary]:
     """:func:`execute_job` as one list (what a SLURM array task returns to the parent).
 
@@ -98,7 +100,8 @@ def execute_job_all(
     stopping.install()  # after submitit's own handlers (which ignore SIGTERM): ours win
     summaries: list[Summary] = []
     try:
-        for summary in execute_job(items, results_dir, gif, engine, device, checkpoint_every_s=checkpoint_every_s):
+        for summary in execute_job(items, results_dir, gif, engine, device, checkpoint_every_s=checkpoint_every_s,
+                                   update=update):
             with stopping.signals_held():
                 summaries.append(summary)
     except TrainingStopped as exc:
@@ -119,6 +122,7 @@ def _train_fleet(
     device: Device = CPU,
     progress: Callable[[int, int], None] | None = None,
     checkpoint_every_s: float = 0.0,
+    update: str = DEFAULT_UPDATE_ENGINE,
 ) -> Iterator[Summary]:
     """Train the locked runs ``mine`` as one fleet, then record them one after the other.
 
@@ -140,7 +144,7 @@ def _train_fleet(
     try:
         spec, protocol = first.algo, first.protocol  # resolved: the fleet applies nothing again
         fleet = make_fleet(spec, [FleetRun(c.bound_chain(), c.seed) for _, c in trained], protocol, max_steps=first.max_steps,
-                           device=device.name)
+                           device=device.name, update=update)
     except SpecError:
         # A setting the fleet does not reproduce (e.g. a learner option it has no batched form
         # of): the runs are trained one by one, as the single engine would.
@@ -151,7 +155,7 @@ def _train_fleet(
         yield from _all_failed(mine, results_dir, gif, clock, engine, exc)
         return
     training = FleetTraining(trained, clock)
-    checkpoint = training.checkpoint(results_dir, spec, protocol, device, checkpoint_every_s) if checkpoint_every_s > 0 else None
+    checkpoint = training.checkpoint(results_dir, spec, protocol, device, checkpoint_every_s, update) if checkpoint_every_s > 0 else None
     try:
         with stopping.stop_at_update(checkpoint):  # a SIGTERM checkpoints at the next update, then stops
             fleet.learn(
@@ -208,13 +212,16 @@ class FleetTraining:
         self.clock = clock
         self.learn_rows: list[list[dict[str, Any]]] = [[] for _ in runs]
 
-    def checkpoint(self, results_dir: Path, spec: Any, protocol: Any, device: Device, every_s: float) -> FleetCheckpoint | None:
+    def checkpoint(self, results_dir: Path, spec: Any, protocol: Any, device: Device, every_s: float,
+                   update: str = DEFAULT_UPDATE_ENGINE) -> FleetCheckpoint | None:
         """The fleet's checkpoint in ``results_dir`` (:mod:`runners.record.fleet_checkpoints`), keyed by
-        the runs, the learner, protocol and device, and the fingerprint of the training code
+        the runs, the learner, protocol and device (and the update engine, when not the default), and the fingerprint of the training code
         (:func:`runners.execute.run.training_code`; None,
         with a warning, when the directory cannot be written)."""
         key = {"runs": sorted(self.run_ids), "learner": spec.name, "protocol": protocol.name, "device": device.name,
                "fleet_size": len(self.run_ids), "code": training_code()}
+        if update != DEFAULT_UPDATE_ENGINE:  # as the fleet's own state says it: eager keys stay those of the releases
+            key["update"] = update
         try:
             path = write_fleet_runs(results_dir, self.runs)
         except OSError as exc:  # e.g. a full disk: train without checkpoints rather than not at all

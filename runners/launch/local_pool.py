@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from morality_gym.baselines.device import CPU, Device
+from morality_gym.baselines.specs import DEFAULT_UPDATE_ENGINE
 from morality_gym.baselines.stopped import TrainingStopped
 from morality_gym.clitools import DiskFullError
 from morality_gym.results.recording import git_commit
@@ -66,7 +67,7 @@ def _die_with_parent() -> None:
 
 
 def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int, device: Device = CPU,
-                 checkpoint_every_s: float = 0.0) -> None:
+                 checkpoint_every_s: float = 0.0, fleet_update: str = DEFAULT_UPDATE_ENGINE) -> None:
     _die_with_parent()
     if os.getppid() != parent_pid:  # the parent died before prctl took effect
         os._exit(1)
@@ -80,7 +81,7 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int,
     stopping.install()  # SIGTERM: a fleet checkpoints and the worker ends (runners.execute.stopping)
     _send(conn, ("ready", os.getpid()))
     try:
-        _serve(jobs.execute_job, conn, results_dir, gif, device, checkpoint_every_s)
+        _serve(jobs.execute_job, conn, results_dir, gif, device, checkpoint_every_s, fleet_update)
     except TrainingStopped as exc:
         stopping.ignore()  # stopping already: a second signal has nothing left to stop
         _send(conn, ("stopped", str(exc)))
@@ -92,7 +93,7 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int,
 
 
 def _serve(execute_job: Callable[..., Iterator[dict[str, Any]]], conn: Connection, results_dir: str, gif: bool,
-           device: Device, checkpoint_every_s: float) -> None:
+           device: Device, checkpoint_every_s: float, fleet_update: str = DEFAULT_UPDATE_ENGINE) -> None:
     """Execute the jobs the parent sends (with :func:`runners.execute.jobs.execute_job`) until it sends
     None or goes away."""
     while True:
@@ -103,7 +104,8 @@ def _serve(execute_job: Callable[..., Iterator[dict[str, Any]]], conn: Connectio
         if message is None:
             return
         items, engine = message
-        for summary in execute_job(items, results_dir, gif, engine, device, _throttled_progress(conn), checkpoint_every_s):
+        for summary in execute_job(items, results_dir, gif, engine, device, _throttled_progress(conn), checkpoint_every_s,
+                                   fleet_update):
             _send(conn, ("done", summary))
         _send(conn, ("free", None))
 
@@ -158,19 +160,22 @@ class PoolStopped(Exception):
 class WorkerPool:
     """Run planned runs on ``n_workers`` processes; ``on_result`` is called in the parent."""
 
-    def __init__(self, n_workers: int, results_dir: Path, gif: bool, device: Device = CPU, checkpoint_every_s: float = 0.0) -> None:
+    def __init__(self, n_workers: int, results_dir: Path, gif: bool, device: Device = CPU, checkpoint_every_s: float = 0.0,
+                 fleet_update: str = DEFAULT_UPDATE_ENGINE) -> None:
         self.n_workers = n_workers
         self.results_dir = str(results_dir)
         self.gif = gif
         self.device = device
         self.checkpoint_every_s = checkpoint_every_s  # how often fleets checkpoint their training (0: never)
+        self.fleet_update = fleet_update  # the fleets' update engine (eager reruns the releases bit for bit)
         self._ctx = mp.get_context("spawn")
         self._workers: list[_Worker] = []
 
     def _start(self) -> _Worker:
         parent, child = self._ctx.Pipe()
         process = self._ctx.Process(
-            target=_worker_main, args=(child, self.results_dir, self.gif, os.getpid(), self.device, self.checkpoint_every_s),
+            target=_worker_main,
+            args=(child, self.results_dir, self.gif, os.getpid(), self.device, self.checkpoint_every_s, self.fleet_update),
             daemon=True,
             name="morality-gym-worker"
         )
