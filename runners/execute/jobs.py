@@ -137,14 +137,14 @@ def _train_fleet(
     engine = f"fleet:{len(trained)}"
     first = mine[0][1]
     try:
-        device.usable()  # checked once on this machine, or here on a SLURM node (morality_gym.baselines.device)
+        device = device.checked(here=True)  # checked once on this machine, or here on a SLURM node; the fleet takes it as it is
     except SpecError as exc:  # e.g. a SLURM node without the GPU the submitting host had: a failure, not a silent CPU run
         yield from _all_failed(mine, results_dir, gif, clock, engine, exc)
         return
     try:
         spec, protocol = first.algo, first.protocol  # resolved: the fleet applies nothing again
         fleet = make_fleet(spec, [FleetRun(c.bound_chain(), c.seed) for _, c in trained], protocol, max_steps=first.max_steps,
-                           device=device.name, update=update)
+                           device=device, update=update)
     except SpecError:
         # A setting the fleet does not reproduce (e.g. a learner option it has no batched form
         # of): the runs are trained one by one, as the single engine would.

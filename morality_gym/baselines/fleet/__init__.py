@@ -30,6 +30,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
+from morality_gym.baselines.device import Device
 from morality_gym.baselines.fleet.base import FleetRun, FleetTrainer
 from morality_gym.baselines.fleet.checkpoint import FleetCheckpoint
 from morality_gym.baselines.fleet.compiled import DEFAULT_UPDATE_ENGINE
@@ -65,7 +66,7 @@ def build_fleet(
     runs: Sequence[FleetRun],
     protocol: ProtocolSpec | str = "paper",
     max_steps: int | None = MAX_STEPS,
-    device: str = "cpu",
+    device: str | Device = "cpu",
     simulator: Simulator = "auto",
     update: str = DEFAULT_UPDATE_ENGINE,
     table_cache: Path | None = None,
@@ -91,12 +92,14 @@ def make_fleet(
     runs: Sequence[FleetRun],
     protocol: ProtocolSpec,
     max_steps: int | None = MAX_STEPS,
-    device: str = "cpu",
+    device: str | Device = "cpu",
     simulator: Simulator = "auto",
     update: str = DEFAULT_UPDATE_ENGINE,
     table_cache: Path | None = None,
 ) -> FleetTrainer:
-    """The fleet trainer of a ``spec`` already resolved for ``protocol`` (a sweep's runs carry one)."""
+    """The fleet trainer of a ``spec`` already resolved for ``protocol`` (a sweep's runs carry one);
+    a sweep's ``device`` arrives as the :class:`~morality_gym.baselines.device.Device` it resolved
+    and checked once, which the fleet takes as it is."""
     return fleet_class(spec.target)(spec, runs, protocol=protocol, max_steps=max_steps, device=device, simulator=simulator,
                                     update=update, table_cache=table_cache)
 

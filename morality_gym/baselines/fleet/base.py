@@ -45,6 +45,7 @@ import torch as th
 from stable_baselines3.common.logger import configure
 
 from morality_gym.baselines.callbacks import MoralityEvalCallback
+from morality_gym.baselines.device import Device
 from morality_gym.baselines.fleet.compiled import (
     DEFAULT_UPDATE_ENGINE,
     UPDATE_ENGINES,
@@ -122,10 +123,18 @@ class FleetRun:
         return hashlib.sha256(text.encode()).hexdigest()
 
 
-def fleet_device(device: str | th.device, here: bool = True) -> th.device:
+def fleet_device(device: str | th.device | Device, here: bool = True) -> th.device:
     """``device`` as a torch device, refused (:class:`SpecError`) when it is not one the fleet
     engine runs on, or, with ``here``, when torch cannot use it in this process (a dry run, or a
-    SLURM submission whose GPUs are on the compute nodes, passes ``here=False``)."""
+    SLURM submission whose GPUs are on the compute nodes, passes ``here=False``).
+
+    A :class:`~morality_gym.baselines.device.Device` (what a sweep resolves once and carries down)
+    is not parsed or checked again: it was checked on this machine, or is checked now if it was
+    not (:meth:`~morality_gym.baselines.device.Device.usable`). A string is a library caller's."""
+    if isinstance(device, Device):
+        if here:
+            device.usable()
+        return th.device(device.name)
     try:
         dev = th.device(device)
     except RuntimeError as exc:
@@ -164,7 +173,7 @@ class FleetTrainer:
         runs: Sequence[FleetRun],
         protocol: ProtocolSpec | str = "paper",
         max_steps: int | None = MAX_STEPS,
-        device: str | th.device = "cpu",
+        device: str | th.device | Device = "cpu",
         simulator: Simulator = "auto",
         update: str = DEFAULT_UPDATE_ENGINE,
         table_cache: Path | None = None,
