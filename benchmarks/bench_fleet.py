@@ -5,9 +5,11 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import torch
 
 import morality_gym
 from benchmarks import Context, Section, best_time, register
+from morality_gym.baselines.fleet import FleetRun, build_fleet
 from morality_gym.baselines.learners import build_learner
 from morality_gym.baselines.specs import learner_spec
 
@@ -60,11 +62,6 @@ def _single_cpu(spec: Any, bound: Any, protocol: str, budget: int, seeds: range,
 
 @register("fleet", "Fleet engine: training steps per second per core, single run vs K runs at once", order=75)
 def fleet_speed(ctx: Context) -> Section:
-    # torch waits: only the benchmark that runs it needs it
-    import torch
-
-    from morality_gym.baselines.fleet import FleetRun, build_fleet
-
     torch.set_num_threads(1)
     sizes = (2, 4) if ctx.quick else (12, 36)
     seeds = range(max(sizes))
@@ -126,11 +123,6 @@ def fleet_cost(ctx: Context) -> Section:
     VectorCost per pair in a Python loop at every step. StackedCost does all copies in one pass with
     the same bits. Measured: the fleet simulator's step with its cost (random actions), and a short
     PPO-Lag and PPO training of the fleet, each with the loop and with the stacked cost."""
-    # torch waits: only the benchmark that runs it needs it
-    import torch
-
-    from morality_gym.baselines.fleet import FleetRun, build_fleet
-
     torch.set_num_threads(1)
     ids = morality_gym.env_ids("PushOrSwitch")
     runs = [FleetRun(morality_gym.bind_chain(c, i), 41) for c in ("DualProcess", "Utility", "Outcome") for i in ids][:36]

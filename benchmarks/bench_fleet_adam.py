@@ -15,8 +15,12 @@ import tempfile
 from collections.abc import Callable
 from typing import Any
 
+import torch
+
 import morality_gym
 from benchmarks import Context, Section, best_time, register
+from morality_gym.baselines.fleet import FleetRun, build_fleet, compiled
+from morality_gym.baselines.fleet.nets import backward_layers
 from morality_gym.baselines.specs import learner_spec
 
 #: Minibatch steps timed per figure (per repeat).
@@ -25,8 +29,6 @@ CALLS = 100
 
 def _rates_in_graph(flat: Any, exp_avg: Any, exp_avg_sq: Any, steps: Any, grads: list[Any], lr: Any, consts: Any) -> None:
     """The engine before this change: Adam's per-run rates computed inside the compiled graph."""
-    from morality_gym.baselines.fleet import compiled
-
     compiled.adam_(flat, exp_avg, exp_avg_sq, steps, grads, compiled.adam_rates(steps, lr, None, consts), None, consts)
 
 
@@ -35,9 +37,6 @@ def _engine(transposed_first_layer: bool, rates_in_graph: bool) -> Callable[...,
     pieces: a fresh copy of the module (its own globals, so its graph is its own) whose first-layer
     gradient is the eager transposed product, and/or a step that computes Adam's rates in the graph
     from the learning rate (argument 9)."""
-    from morality_gym.baselines.fleet import compiled
-    from morality_gym.baselines.fleet.nets import backward_layers
-
     spec = importlib.util.spec_from_file_location(f"{compiled.__name__}_{int(transposed_first_layer)}{int(rates_in_graph)}",
                                                   compiled.__file__)
     assert spec is not None and spec.loader is not None
@@ -67,11 +66,6 @@ STEPS = {
 
 @register("fleet_adam", "Fleet compiled update: Adam's per-run rates inside vs outside the graph", order=78)
 def fleet_adam(ctx: Context) -> Section:
-    # torch waits: only the benchmarks that train load it
-    import torch
-
-    from morality_gym.baselines.fleet import compiled
-
     torch.set_num_threads(1)
     os.environ["TORCHINDUCTOR_CACHE_DIR"] = tempfile.mkdtemp(prefix="inductor-bench-")
     sizes = (2,) if ctx.quick else (12, 36)
@@ -148,10 +142,6 @@ def _notes(measured: list[tuple[int, dict[str, float]]], load_start: float, load
 def _measure(k: int, spec: Any, ids: list[str], compiled_fns: dict[str, Callable[..., Any]], repeats: int
              ) -> tuple[int, dict[str, float]]:
     """CPU ms per call of every variant on a PPO fleet of ``k`` runs (its optimiser's buffers, a random minibatch)."""
-    import torch
-
-    from morality_gym.baselines.fleet import FleetRun, build_fleet, compiled
-
     fleet = build_fleet(spec, [FleetRun(morality_gym.bind_chain("DualProcess", ids[i % len(ids)]), i) for i in range(k)],
                         "paper", update="compiled")
     opt = fleet.optimizer
@@ -193,8 +183,6 @@ def _measure(k: int, spec: Any, ids: list[str], compiled_fns: dict[str, Callable
 def _call_step(step: Callable[..., Any], minibatch: tuple[Any, ...], lr: Any, clip: Any, net: Any, consts: Any,
                rates_in_graph: bool, state: list[Any]) -> Any:
     """One minibatch step; a step with its rates outside the graph gets them computed here (timed with it)."""
-    from morality_gym.baselines.fleet import compiled
-
     rates = lr if rates_in_graph else compiled.adam_rates(state[3], lr, None, consts)
     return step(*state, *minibatch, rates, clip, net, consts, 0.0, 0.5, True)
 
@@ -202,8 +190,6 @@ def _call_step(step: Callable[..., Any], minibatch: tuple[Any, ...], lr: Any, cl
 def _fused_eager(state: list[Any], grads: list[Any], consts: Any) -> None:
     """PyTorch's fused Adam on every run's row (as :class:`~morality_gym.baselines.fleet.optim.BatchedAdam`
     calls it; no clipping)."""
-    import torch
-
     flat, exp_avg, exp_avg_sq, steps = state
     k = flat.shape[0]
     g = torch.cat([x.reshape(k, -1) for x in grads], dim=1)

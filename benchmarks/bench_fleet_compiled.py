@@ -4,7 +4,7 @@ Why a whole row: the issue's target (core time per learner down 2x) is about wha
 a sweep trains a row's runs as the fleet it forms from them (every variant x seed of the row, cut
 to at most ``fleet_size`` runs): the fleet here is that one, formed by the sweep's own planner
 (:func:`benchmarks.project_table1.table1_plan` and :func:`~benchmarks.project_table1.plan_jobs`,
-i.e. :func:`runners.execute.jobs.make_jobs`), and built as the sweep builds it (:func:`~morality_gym.baselines.fleet.make_fleet`
+i.e. :func:`runners.plan.fleets.make_jobs`), and built as the sweep builds it (:func:`~morality_gym.baselines.fleet.make_fleet`
 with the run's resolved learner). Each learner is trained eager and compiled, one after the
 other in the same process, on the same reduced budget (the ratio is per env step).
 
@@ -26,8 +26,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
+import torch._dynamo
+import torch._inductor.config as inductor_config
+from torch._inductor.utils import clear_caches, fresh_cache
 
 from benchmarks import Context, Section, register
+from benchmarks.project_table1 import plan_jobs, table1_plan
+from morality_gym.baselines.fleet import FleetRun, compiled, make_fleet
 from morality_gym.baselines.specs import learner_spec
 
 #: The Table 1 row (chain, scenario) every learner is trained on: its sweep fleet holds all 10
@@ -73,10 +79,6 @@ def row_fleets(learners: Sequence[str], chain: str, scenario: str, quick: bool) 
     """Per learner, the fleets a paper Table 1 sweep forms of the row ``(chain, scenario)``:
     ``(resolved spec, [FleetRun, ...])`` each, with the protocol and ``max_steps`` of its runs.
     ``quick``: the first 3 runs of each fleet only (a smoke check)."""
-    # Hydra, pyarrow and the sweep's planner wait: only this benchmark plans a sweep
-    from benchmarks.project_table1 import plan_jobs, table1_plan
-    from morality_gym.baselines.fleet import FleetRun
-
     with tempfile.TemporaryDirectory() as scratch:
         runs, sweep = table1_plan("paper", "paper", "fleet", Path(scratch))
         jobs = plan_jobs(runs, sweep, 2)
@@ -121,9 +123,6 @@ class Trained:
 def _train(fleets: list[tuple[Any, list[Any]]], rollouts: int, update: str, batched_actor: bool = False) -> tuple[Phases, Any]:
     """Train each fleet of the row on ``rollouts`` rollouts with the ``update`` engine; building
     untimed. Returns the summed phases and the last fleet trained."""
-    # torch waits: only the benchmarks that train load it
-    from morality_gym.baselines.fleet import make_fleet
-
     phases, fleet = Phases(), None
     for config, runs in fleets:
         spec = config.algo
@@ -144,13 +143,6 @@ def measure(name: str, fleets: list[tuple[Any, list[Any]]], rollouts: int, quick
     """Train ``name``'s row fleets: eager, compiled into an empty cache (first), compiled again
     after ``torch._dynamo.reset()`` with the kernels on disk (cached), compiled with the graphs in
     memory (steady); for CPO also compiled with the batched actor step."""
-    # torch waits: only the benchmarks that train load it
-    import torch._dynamo
-    import torch._inductor.config as inductor_config
-    from torch._inductor.utils import clear_caches, fresh_cache
-
-    from morality_gym.baselines.fleet import compiled
-
     inductor_config.compile_threads = 1  # the C++ compiler a direct child: its CPU is counted (module docstring)
     eager, _ = _train(fleets, rollouts, "eager")
     with fresh_cache():  # an empty inductor cache, in memory and on disk: a cold compile
@@ -172,9 +164,6 @@ def measure(name: str, fleets: list[tuple[Any, list[Any]]], rollouts: int, quick
 
 @register("fleet_compiled", "Fleet update engines on a whole Table 1 row: eager vs compiled, CPU core time per learner", order=77)
 def fleet_compiled(ctx: Context) -> Section:
-    # torch waits: only the benchmarks that train load it
-    import torch
-
     torch.set_num_threads(1)
     chain, scenario = ROW
     load_start = os.getloadavg()[0]
@@ -258,7 +247,7 @@ def _section(results: list[Trained], shares: list[float], quick: bool, load: tup
     return Section(
         intro=f"""
 The Table 1 row ({chain}, {scenario}) as a paper-preset sweep trains it: the fleet its planner forms of the row's
-runs (every variant x seeds 41-43, `fleet_size` 36 on the CPU: one fleet of K runs; `runners.execute.jobs.make_jobs`),
+runs (every variant x seeds 41-43, `fleet_size` 36 on the CPU: one fleet of K runs; `runners.plan.fleets.make_jobs`),
 built as the sweep builds it (`make_fleet` with the runs' resolved learner and protocol), paper protocol, torch on
 one thread. Each learner is trained on a reduced budget (the steps per run below, a few rollouts instead of the
 paper's 1M; the ratio is per env step), in one process, in this order: eager (`update=eager`, the default, which

@@ -14,8 +14,12 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import torch
+
 import morality_gym
 from benchmarks import Context, Section, register
+from morality_gym.baselines.fleet import FleetRun, build_fleet
+from morality_gym.baselines.fleet.env import fleet_env
 from morality_gym.baselines.specs import learner_spec
 from morality_gym.paper import table1
 from morality_gym.results.presets import load_preset
@@ -38,9 +42,6 @@ def _chosen_sizes(quick: bool) -> tuple[int, ...]:
 
 
 def _sync(device: str) -> None:
-    # torch waits: only the benchmark that runs it needs it
-    import torch
-
     if device == "cuda":
         torch.cuda.synchronize()
 
@@ -57,8 +58,6 @@ def _timed(work: Callable[[], Any], device: str) -> tuple[float, float]:
 def _fleet_rate(name: str, protocol: str, k: int, device: str) -> float:
     """Env steps/s of a fleet of ``k`` runs (Switch5's variants x seeds) over one rollout and update
     (two for the constrained learners, whose rollouts are short), after a warm-up rollout on a GPU."""
-    from morality_gym.baselines.fleet import FleetRun, build_fleet
-
     ids = morality_gym.env_ids(SCENARIO)
     runs = [FleetRun(morality_gym.bind_chain(CHAIN, ids[i % len(ids)]), 41 + i // len(ids)) for i in range(k)]
     spec = learner_spec(name)
@@ -73,10 +72,6 @@ def _fleet_rate(name: str, protocol: str, k: int, device: str) -> float:
 
 def _simulator_rate(simulator: str, k: int, device: str, steps: int) -> float:
     """Env steps/s of the fleet's simulator with its step-wise cost and reward, random actions."""
-    import torch
-
-    from morality_gym.baselines.fleet.env import fleet_env
-
     ids = morality_gym.env_ids(SCENARIO)
     bounds = [morality_gym.bind_chain(CHAIN, ids[i % len(ids)]) for i in range(k)]
     spec = learner_spec("ppo_lag").reward_cost()
@@ -102,8 +97,6 @@ def table1_steps() -> dict[str, int]:
 
 
 def _devices() -> list[str]:
-    import torch
-
     present = ["cpu", "cuda"] if torch.cuda.is_available() else ["cpu"]
     chosen = os.environ.get(DEVICES_ENV)
     return [d for d in present if d in chosen.split(",")] if chosen else present
@@ -111,8 +104,6 @@ def _devices() -> list[str]:
 
 def _absent(device: str) -> str:
     """The cell of a device not measured: no GPU here, or left out by :data:`DEVICES_ENV`."""
-    import torch
-
     return "skipped" if device == "cuda" and not torch.cuda.is_available() else "not run"
 
 
@@ -174,8 +165,6 @@ def _projection(rates: dict[tuple[str, str, str, int], float]) -> list[str]:
 
 @register("fleet_device", "Fleet engine per device: env steps/s at K = 21 to 1,512 runs, and Table 1 projected", order=77)
 def fleet_device(ctx: Context) -> Section:
-    import torch
-
     torch.set_num_threads(1)
     rates: dict[tuple[str, str, str, int], float] = {}
     rows = _learner_rows(ctx, rates) + _simulator_rows(ctx)

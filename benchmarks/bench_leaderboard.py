@@ -25,7 +25,10 @@ from typing import Any
 import numpy as np
 
 from benchmarks import Context, Section, register, timed_command
+from leaderboard.release import find_releases, load
 from morality_gym.norms.chain import get_chain
+from morality_gym.results.schema import MF_PREFIX, SCHEMA_VERSION, run_schema, write_learn, write_run, write_updates
+from tests.stats_data import synthetic_runs
 
 REPO = Path(__file__).resolve().parents[1]
 FINISHED_AT = "2026-01-01T00:00:00+00:00"
@@ -57,10 +60,6 @@ def write_results(root: Path, seeds: tuple[int, ...] = (41, 42), updates: int = 
     """A results directory of synthetic runs (all 126 variants x 5 learners x ``seeds``); returns the run count.
 
     PPO-Lag and CPO runs get ``updates`` per-update diagnostics (0: none), thinned to every ``stride``-th."""
-    # pandas, pyarrow wait: only the benchmark that runs it needs them
-    from morality_gym.results.schema import MF_PREFIX, SCHEMA_VERSION, run_schema, write_learn, write_run, write_updates
-    from tests.stats_data import synthetic_runs
-
     runs, learn = synthetic_runs(seeds=seeds, preset="quick")
     algo = {"CPO": "cpo", "PPO": "ppo", "PPO Lag": "ppo_lag", "PPO Shaped": "ppo_shaped", "Random": "random"}
     curves = {run_id: part for run_id, part in learn.groupby("run_id", sort=False)}
@@ -172,9 +171,6 @@ def leaderboard_release(ctx: Context) -> Section:
     release and no runs of its own, and the release beside a results directory of one's own
     (``--results``, e.g. the quick Table 1 under both protocols). Each in a temporary directory,
     first build (nothing cached) and rebuild (nothing changed)."""
-    # leaderboard waits: importing the benchmarks must not load pandas
-    from leaderboard.release import find_releases, load
-
     releases = ctx.releases or tuple(find_releases())
     if not releases:
         return Section(intro="No results release to time: none under `releases/` and no `--release DIR`.", headers=[], rows=[])

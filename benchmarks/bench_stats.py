@@ -18,6 +18,8 @@ import pandas as pd
 
 from benchmarks import Context, Section, best_time, register
 from leaderboard.runs.aggregate import row_order
+from leaderboard.stats import RESAMPLES, compute_stats
+from leaderboard.stats import plots as F
 from tests.stats_data import reference_frame, synthetic_runs
 
 if TYPE_CHECKING:
@@ -25,15 +27,11 @@ if TYPE_CHECKING:
 
 
 def _collect(runs: pd.DataFrame, learn: pd.DataFrame, into: list[LeaderboardStats]) -> Callable[[], None]:
-    from leaderboard.stats import compute_stats  # SciPy waits: only the benchmark that runs it needs it
-
     return lambda: into.append(compute_stats(runs, reference_frame(), learn))
 
 
 def _figures(stats: LeaderboardStats, out: Path) -> int:
     """Every figure of the first (protocol, preset): ranking figures, both grids, both per-row figures for each row."""
-    from leaderboard.stats import plots as F  # matplotlib, SciPy wait: only the benchmark that runs it needs them
-
     group = stats.aggregates[["protocol", "preset"]].iloc[0]
 
     def only(frame: pd.DataFrame) -> pd.DataFrame:
@@ -54,8 +52,6 @@ def _figures(stats: LeaderboardStats, out: Path) -> int:
 
 @register("stats", "Leaderboard statistics: intervals, ranking, curves and their figures", order=80)
 def stats_speed(ctx: Context) -> Section:
-    from leaderboard.stats import RESAMPLES  # SciPy waits: only the benchmark that runs it needs it
-
     settings = [((41,), ("paper",)), ((41, 42, 43), ("paper",)), ((41, 42, 43), ("paper", "corrected"))]
     if ctx.quick:
         settings = settings[:1]

@@ -10,10 +10,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch as th
 
 import morality_gym
 from benchmarks import Context, Section, best_time, register
+from leaderboard.submit import select_cells
+from morality_gym.baselines.fleet import FleetRun, build_fleet
+from morality_gym.baselines.specs import learner_spec
 from morality_gym.envs.batched import BatchedTrolleyEnv
+from morality_gym.envs.registry import scenario_named
 from morality_gym.norms.cost import VectorCost
 
 ENV_ID = "PushOrSwitch-Human-v1"
@@ -51,8 +56,6 @@ def _host_work(copies: int, steps: int, cost: bool) -> tuple[Callable[[], object
 def _device_work(copies: int, steps: int, cost: bool, device: str) -> tuple[Callable[[], object], Callable[[], object]]:
     """(setup, work) stepping :class:`TorchTrolleyVectorEnv` (actions unchecked, as a tuned loop runs it),
     optionally wrapped with :class:`TorchCostWrapper`; a CUDA measurement ends with a synchronize."""
-    import torch as th  # torch waits: only the benchmark that runs it needs it
-
     held: dict[str, Any] = {}
 
     def setup() -> None:
@@ -81,8 +84,6 @@ def _rate(setup: Callable[[], object], work: Callable[[], object], env_steps: in
 
 @register("torch_vector", "Device vector env: env steps per second at 256 to 65,536 copies, cpu and cuda", order=77)
 def torch_vector_speed(ctx: Context) -> Section:
-    import torch as th  # torch waits: only the benchmark that runs it needs it
-
     th.set_num_threads(1)
     gpu = th.cuda.is_available()
     sizes = SIZES[:2] if ctx.quick else SIZES
@@ -135,13 +136,6 @@ def _load_example() -> Any:
 def example_speed(ctx: Context) -> Section:
     """Why: the issue asks the example algorithm on the vector env to be at least as fast per run as the
     fleet's PPO-Lag. Both train the 12 SwitchStandard variants under Utility (seeds 41.. for K > 12)."""
-    import torch as th  # torch waits: only the benchmark that runs it needs it
-
-    from leaderboard.submit import select_cells
-    from morality_gym.baselines.fleet import FleetRun, build_fleet
-    from morality_gym.baselines.specs import learner_spec
-    from morality_gym.envs.registry import scenario_named
-
     th.set_num_threads(1)
     example = _load_example()
     cell = select_cells(["Utility"], ["SwitchStandard"], [])[0]

@@ -20,6 +20,8 @@ from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from benchmarks import Context, Section, register
 from morality_gym.baselines.fleet import FleetRun, build_fleet
 from morality_gym.baselines.specs import learner_spec, protocol_spec
@@ -184,8 +186,6 @@ seconds, not in the rate. One measurement each. The last column projects one cha
 
 
 def main() -> None:
-    import torch
-
     torch.set_num_threads(1)
     parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_track_fleet", description=__doc__.split("\n\n")[0])
     parser.add_argument("--chain", default="Utility", choices=("Utility", "DualProcess"))

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import torch
+
 import morality_gym
 from benchmarks import Context, Section, best_time, register
 from morality_gym.baselines.learners import build_learner
@@ -14,8 +16,6 @@ ENV_ID = "PushOrSwitch-Human-v1"
 
 @register("training", "Training steps per second per learner (8 envs, one thread)", order=70)
 def training_speed(ctx: Context) -> Section:
-    import torch  # torch waits: only the benchmark that runs it needs it
-
     torch.set_num_threads(1)
     bound = morality_gym.bind_chain("DualProcess", ENV_ID)
     # (learner, protocol): the corrected protocol changes PPO-Lag's and CPO's update arithmetic (the

@@ -7,7 +7,7 @@ on runs that were measured, not on the planner alone. This tool reads the finish
 results directory or a results release (a few Table 1 rows run at the preset in question), measures each learner's
 core-seconds per training step (every run's ``cpu_time_s``, or its ``wall_time_s`` in files written
 before that column: its share of its fleet's training plus its own evaluations and writes), and prices every job of the full Table 1 plan with it. The
-jobs are those the sweep itself would make (:func:`runners.execute.jobs.make_jobs`, fleets of up to
+jobs are those the sweep itself would make (:func:`runners.plan.fleets.make_jobs`, fleets of up to
 ``fleet_size``), handed to ``W`` workers in the sweep's dispatch order (longest estimated job
 first) as each becomes free, as the local pool does, so the projection includes the tail where
 one long fleet keeps a worker busy.
@@ -31,9 +31,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from morality_gym.baselines.specs import CONF_DIR, learner_spec
+import pandas as pd
+from hydra import compose, initialize_config_dir
+
+from leaderboard.runs.releases import MANIFEST, load
+from morality_gym.baselines.specs import CONF_DIR, fleet_trains, learner_spec
 from morality_gym.clitools import duration, write_atomically
-from morality_gym.results.schema import compute_seconds
+from morality_gym.results.schema import compute_seconds, read_runs
+from runners.compose.sweep_config import validate
+from runners.plan.estimate import dispatch_order, jobs_estimate, makespan
+from runners.plan.fleets import make_jobs
+from runners.plan.runs import expand_sweep
 
 
 @dataclass(frozen=True)
@@ -67,11 +75,6 @@ def finished_runs(results_dir: Path, protocol: str, preset: str | None, engine: 
     A run that trains nothing, or whose learner the fleet engine does not reproduce, counts
     whatever ``engine`` says: it never joins a fleet.
     """
-    # pandas, pyarrow, OmegaConf wait: only the benchmark that runs it needs them
-    import pandas as pd
-
-    from runners.execute.jobs import fleet_trains
-
     frame = _run_rows(results_dir)
     if frame.empty:
         return frame
@@ -87,18 +90,12 @@ def finished_runs(results_dir: Path, protocol: str, preset: str | None, engine: 
 
 def readable(path: Path) -> bool:
     """Whether ``path`` holds runs this tool reads: a results directory or a results release."""
-    from leaderboard.runs.releases import MANIFEST  # with the readers below
-
     return (path / "runs").is_dir() or (path / MANIFEST).is_file()
 
 
 def _run_rows(results_dir: Path) -> Any:
     """Every run row of a results directory, or of a results release (``release.json``, checked
     against its checksums first), so a shipped sweep's cost can be re-measured from the repository."""
-    # pandas-backed readers wait like the imports above
-    from leaderboard.runs.releases import MANIFEST, load
-    from morality_gym.results.schema import read_runs
-
     if (results_dir / MANIFEST).is_file():
         return load(results_dir).runs
     return read_runs(results_dir, skipped=[])
@@ -162,12 +159,6 @@ def scenario_factors(reference_dir: Path, protocol: str, engine: str, rates: dic
 
 def table1_plan(preset: str, protocol: str, engine: str, scratch: Path, extra: Sequence[str] = ()) -> tuple[list[Any], Any]:
     """The full Table 1 plan (its runs and validated sweep), composed as the sweep would compose it."""
-    # pyarrow, Hydra, OmegaConf wait: only the benchmark that runs it needs them
-    from hydra import compose, initialize_config_dir
-
-    from runners.compose.sweep_config import validate
-    from runners.plan.runs import expand_sweep
-
     overrides = ["experiment=table1", f"protocol={protocol}", f"preset={preset}", f"engine={engine}",
                  f"results_dir={scratch}", "mlflow=false", "dry_run=true"]
     if protocol == "corrected":  # the corrected table re-runs only the learners the fixes touch
@@ -181,10 +172,6 @@ def table1_plan(preset: str, protocol: str, engine: str, scratch: Path, extra: S
 
 def plan_jobs(runs: list[Any], sweep: Any, workers: int) -> list[Any]:
     """The plan cut into the jobs a sweep with ``workers`` workers runs, in the order they take them."""
-    # pyarrow, OmegaConf wait: only the benchmark that runs it needs them
-    from runners.execute.jobs import make_jobs
-    from runners.plan.estimate import dispatch_order
-
     speedups = {a.spec.name: a.rates.fleet_speedup for a in sweep.algos}
     return dispatch_order(make_jobs(runs, sweep.engine, sweep.fleet_size, workers, speedups), workers)
 
@@ -283,9 +270,6 @@ def _projected_table(preset: str, protocol: str, engine: str, workers: Sequence[
                      rates: dict[str, Rate], factors: dict[tuple[str, str], float], runs: list[Any],
                      sweep: Any) -> list[str]:
     """One row per worker count: the whole Table 1's jobs (``runs`` of ``sweep``) priced at the measured rates."""
-    # pyarrow, OmegaConf wait: only the benchmark that runs it needs them
-    from runners.plan.estimate import jobs_estimate, makespan
-
     title = f" ({', '.join(extra)})" if extra else ""
     lines = ["", f"### Projected: the whole Table 1 ({preset} preset, {protocol} protocol, engine {engine}){title}", "",
              "| workers (cores) | runs | jobs | core time | projected wall time | planner's estimate | unmeasured learners |",

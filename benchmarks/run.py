@@ -36,6 +36,9 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+import torch
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 import benchmarks
 from benchmarks import Benchmark, Context, Section, Timing, best_time, fmt_rate, ordered, register
@@ -43,6 +46,7 @@ from benchmarks.baseline import comparison, measure_at
 from morality_gym import BatchedTrolleyEnv, TrolleyEnv
 from morality_gym.constants import MAX_STEPS as PAPER_MAX_STEPS
 from morality_gym.envs.registry import BUILTIN_DIR, parse_env_id, scenarios
+from morality_gym.envs.vector import TrolleyVecEnv, TrolleyVectorEnv
 from morality_gym.world.graph import N_ACTIONS, StateGraph
 from morality_gym.world.observe import ObservationCodec
 from morality_gym.world.rules import World
@@ -247,9 +251,6 @@ def _vector_work(step: Callable[[np.ndarray], Any], copies: int, calls: int, gen
 @register("batched", "Batched simulator and vector environments", order=30)
 def batched(ctx: Context) -> Section:
     """Env steps per second of the batched simulator and its Gymnasium and SB3 faces."""
-    # torch waits: the vector faces load SB3 (morality_gym's lazy names); only this benchmark needs them
-    from morality_gym import TrolleyVecEnv, TrolleyVectorEnv
-
     big_steps = ctx.size(10_000_000, 1_000_000)
     small_steps = ctx.size(1_000_000, 100_000)
     cases: list[tuple[str, int, bool, Callable[[int], Any]]] = [
@@ -413,8 +414,6 @@ def machine_facts(cpu: int | None) -> list[tuple[str, str]]:
         ),
         platform.system(),
     )
-    import torch  # torch waits: only the benchmark that runs it needs it
-
     code = _code_version()
     pinned = f"run pinned to CPU {cpu}" if cpu is not None else "not pinned"
     return [
@@ -561,14 +560,7 @@ def main(argv: list[str] | None = None) -> int:
 
     cpu = _pin_cpu(args.cpu)
     load_before = load_average()
-    import torch  # torch waits: only the benchmark that runs it needs it
-
     torch.set_num_threads(1)
-    # rich waits: only the benchmark that runs it needs it
-    from rich.console import Console
-
-    import morality_gym  # noqa: F401  (registers the env ids)
-
     console = Console(stderr=True)
     repeats = args.repeats or (2 if args.quick else 5)
     started = time.perf_counter()
@@ -598,15 +590,6 @@ def main(argv: list[str] | None = None) -> int:
 
 def _run_sections(selected: list[Benchmark], args: argparse.Namespace, repeats: int, console: Any) -> list[Section]:
     """Each selected benchmark's section, under a progress bar (none with ``--no-progress``)."""
-    from rich.progress import (  # rich waits: only the benchmark that runs it needs it
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-
     sections: list[Section] = []
     with Progress(
         TextColumn("{task.description}"),

@@ -63,6 +63,7 @@ from morality_gym.envs.registry import UnknownEnvError, scenario_named, scenario
 from morality_gym.envs.trolley import InvalidActionError
 from morality_gym.evaluation.deadline import Deadline, PolicyTimeout
 from morality_gym.evaluation.exact import exact_evaluate
+from morality_gym.evaluation.gif import record_episode
 from morality_gym.evaluation.montecarlo import evaluate
 from morality_gym.evaluation.policies import PolicyFailure
 from morality_gym.norms.chain import ChainError, MoralityChain, get_chain
@@ -72,6 +73,9 @@ from morality_gym.results.identity import PROVENANCE_KEY as PROVENANCE
 from morality_gym.results.identity import SUBMITTED_ALGO as SUBMITTED
 from morality_gym.results.identity import run_identity
 from morality_gym.results.presets import PresetError, load_preset
+from morality_gym.results.quarantine import read_table_or_quarantine
+from morality_gym.results.recording import RunClock, RunLock, finished_status, git_commit, utc_now, versions
+from morality_gym.results.schema import MF_PREFIX, SCHEMA_VERSION, run_path, runs_dir, write_run
 
 DEFAULT_PROTOCOL = "paper"
 DEFAULT_PRESET = "paper"
@@ -164,9 +168,6 @@ def preset_facts(preset: str) -> tuple[tuple[int, ...], int]:
 # ---------------------------------------------------------------------------------------- provenance
 def code_version() -> str:
     """The git commit of this checkout, else the installed package's version."""
-    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
-    from morality_gym.results.recording import git_commit
-
     commit = git_commit()
     if commit != "unknown":
         return commit
@@ -228,9 +229,6 @@ def build_hint(results: Path, cwd: Path | None = None) -> str:
 
 def run_config(sub: Submission, cell: Cell, variant: str, seed: int, stationary: bool) -> dict[str, Any]:
     """The recorded config of one submitted run (identity + ``provenance``)."""
-    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
-    from morality_gym.results.schema import SCHEMA_VERSION
-
     target = sub.loaded.ref.rsplit(":", 1)[1] if sub.loaded.kind == "callable" and ":" in sub.loaded.ref else None
     return {
         "schema_version": SCHEMA_VERSION,
@@ -269,10 +267,6 @@ def bounded(loaded: LoadedPolicy, seconds: float) -> LoadedPolicy:
 
 def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: str, results: Path) -> dict[str, Any]:
     """Evaluate one (cell, variant, seed) and return its schema row (nothing written yet)."""
-    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
-    from morality_gym.results.recording import RunClock, git_commit, utc_now, versions
-    from morality_gym.results.schema import MF_PREFIX, SCHEMA_VERSION, runs_dir
-
     clock = RunClock.start()
     env_id = config["env_id"]
     bound = bind_chain(cell.chain, env_id, sub.beta)
@@ -285,9 +279,6 @@ def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: st
     gif_rel = None
     if sub.gif:
         at(sub, f"{where}, GIF episode")
-        # PIL waits: importing leaderboard.submit (its --help too) must not load it
-        from morality_gym.evaluation.gif import record_episode
-
         gif = runs_dir(results) / run_id / "episode.gif"
         with writing(gif):
             record_episode(env_id, sub.loaded.policy, gif, max_steps=GIF_STEPS, seed=config["seed"] + 7919,
@@ -314,9 +305,6 @@ def evaluate_run(sub: Submission, cell: Cell, config: dict[str, Any], run_id: st
 
 def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = print) -> dict[str, int]:
     """Evaluate and write every run of ``cells`` that is not in ``results`` yet; returns counts."""
-    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
-    from morality_gym.results.recording import RunLock, finished_status
-
     counts = {"written": 0, "present": 0}
     for cell in cells:
         scenario = scenario_named(cell.scenario)
@@ -361,9 +349,6 @@ def submit(sub: Submission, cells: Sequence[Cell], results: Path, say: Any = pri
 def evaluate_and_write(sub: Submission, cell: Cell, config: dict[str, Any], run_id: str, results: Path) -> dict[str, Any]:
     """Evaluate one run and write its row; any failure (of the policy, of the disk) is one named
     line, and leaves nothing of this run behind (its GIF is removed with it): runs written before stay."""
-    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
-    from morality_gym.results.schema import write_run
-
     where = f"{config['env_id']}, seed {config['seed']}"
     try:
         try:
@@ -385,18 +370,11 @@ def evaluate_and_write(sub: Submission, cell: Cell, config: dict[str, Any], run_
 
 def remove_artifacts(results: Path, run_id: str) -> None:
     """Remove ``runs/<run_id>/`` (what a run writes besides its row) of a run whose row was not written."""
-    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
-    from morality_gym.results.schema import runs_dir
-
     shutil.rmtree(runs_dir(results) / run_id, ignore_errors=True)
 
 
 def stored_scores(results: Path, run_id: str) -> tuple[float, float | None]:
     """(metric, exact metric or None) of a run already in ``results`` (re-submission: shown again)."""
-    # pyarrow waits: importing leaderboard.submit (its --help too) must not load it
-    from morality_gym.results.quarantine import read_table_or_quarantine
-    from morality_gym.results.schema import run_path
-
     table = read_table_or_quarantine(results, run_path(results, run_id), columns=["metric", "exact_metric"])
     if table is None:
         return math.nan, None

@@ -40,6 +40,7 @@ from morality_gym.clitools import non_negative_int, one_line, positive_int
 from morality_gym.constants import MAX_STEPS
 from morality_gym.envs.registry import UnknownEnvError
 from morality_gym.envs.trolley import InvalidActionError, TrolleyEnv
+from morality_gym.evaluation.gif import record_episode
 from morality_gym.evaluation.policies import PolicyFailure, step_actor
 from morality_gym.render.ansi import render_ansi
 from morality_gym.world.rules import ACTION_NAMES, DOWN, FOUND, HARMED, INTERACT, LEFT, RIGHT, STAY, UP
@@ -340,8 +341,6 @@ def gif_paths(target: str, episodes: int) -> list[Path]:
 
 def record(args: argparse.Namespace, loaded: Any, out: TextIO) -> int:
     """``--render OUT.gif``: each episode to a GIF, with a one-line summary of it."""
-    from morality_gym.evaluation.gif import record_episode  # PIL waits: the command line starts without it
-
     for k, path in enumerate(gif_paths(args.render, args.episodes)):
         seed = None if args.seed is None else args.seed + k
         # max_steps + 1 frames at most: the env truncates on step max_steps + 1.

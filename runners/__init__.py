@@ -12,16 +12,18 @@ top level (``python -m runners.<tool>``), as in :mod:`leaderboard`:
     :mod:`~runners.compose.sweep_config` (the composed configuration checked and resolved into a
     :class:`~runners.compose.sweep_config.SweepConfig`).
 ``plan/`` - what the sweep will run, and how long it will take
-    :mod:`~runners.plan.runs` (the runs, each with its content-hash id), :mod:`~runners.plan.estimate`
-    (the time estimate: rates, sharing, machine load, notes; ``compose/`` reads its rate types,
-    since an algo file's ``planning`` is part of its configuration).
+    :mod:`~runners.plan.runs` (the runs, each with its content-hash id), :mod:`~runners.plan.fleets`
+    (the runs cut into jobs: single runs or fleets), :mod:`~runners.plan.estimate` (the time
+    estimate: rates, sharing, machine load, notes; ``compose/`` reads its rate types, since an algo
+    file's ``planning`` is part of its configuration).
 ``execute/`` - the work, in a worker process
-    :mod:`~runners.execute.jobs` (runs cut into jobs, single runs or fleets, and a job executed),
+    :mod:`~runners.execute.jobs` (a job executed: its runs trained one by one or as one fleet),
     :mod:`~runners.execute.run` (one run: learn, evaluate, save, its Parquet row last),
     :mod:`~runners.execute.stopping` (SIGTERM: checkpoint the fleet, then end cleanly),
     :mod:`~runners.execute.track_fleet` (the generalisation track's learners trained as fleets).
 ``launch/`` - where the jobs run
     :mod:`~runners.launch.preflight` (the machine checked before anything is written),
+    :mod:`~runners.launch.entry_points` (what a worker runs, named, so that torch loads only there),
     :mod:`~runners.launch.local_pool` (worker processes that survive each other's death),
     :mod:`~runners.launch.slurm` (one submitit job array), :mod:`~runners.launch.slurm_controller`
     (whether a SLURM controller is up).

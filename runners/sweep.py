@@ -59,6 +59,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
+from morality_gym.baselines.specs import DEFAULT_UPDATE_ENGINE, fleet_trains
 from morality_gym.baselines.targets import learner_trains
 from morality_gym.clitools import DEBUG_ENV, debug_enabled, duration, one_line, run_cli, version_text
 from morality_gym.norms.chain import ChainError
@@ -74,7 +75,6 @@ from runners.compose.command_line import (
     show,
 )
 from runners.compose.sweep_config import ConfigError, SweepConfig  # also stores the schemas (runners.compose.schema)
-from runners.execute.jobs import Job, fleet_trains, make_jobs
 from runners.execute.run import record_failure
 from runners.launch.local_pool import JobProgress, PoolStopped, WorkerPool
 from runners.launch.preflight import preflight
@@ -89,6 +89,7 @@ from runners.plan.estimate import (
     jobs_estimate,
     sweep_overheads,
 )
+from runners.plan.fleets import Job, make_jobs
 from runners.plan.runs import PlannedRun, describe, expand_sweep
 from runners.record.fleet_checkpoints import fleets_to_form, remove_stale
 from runners.record.leftovers import remove_leftovers
@@ -107,7 +108,7 @@ class Plan:
     """A sweep's runs and what is left of them, as a value: printed, recorded and dispatched.
 
     ``status``: each run's result before the sweep (``ok``, ``failed`` or None); ``todo``: the runs
-    to train, cut into ``jobs`` for ``workers`` parallel workers (:mod:`runners.execute.jobs`); ``counts``:
+    to train, cut into ``jobs`` for ``workers`` parallel workers (:mod:`runners.plan.fleets`); ``counts``:
     :func:`runners.plan.runs.describe`'s totals per learner; ``estimate_s``: the wall time of what
     remains on an idle machine, and ``estimate`` the same at the machine's load when the plan was
     made (:mod:`runners.plan.estimate`); ``moved``: unreadable result files moved aside while the plan was made.
@@ -175,7 +176,9 @@ def _engine_line(plan_: Plan, sweep: SweepConfig) -> str | None:
         return (f"engine [bold]fleet[/bold]: {in_fleets} of {len(todo)} runs to do train in {len(fleets)} fleet(s) of "
                 f"{min(len(j.runs) for j in fleets)}-{max(len(j.runs) for j in fleets)} runs, the other {len(todo) - in_fleets} "
                 "one by one (engine=single trains every run on its own)"
-                + (f"; {resuming} fleet(s) resume their training from a checkpoint" if resuming else ""))
+                + (f"; {resuming} fleet(s) resume their training from a checkpoint" if resuming else "")
+                + (f"; update engine [bold]{sweep.fleet_update}[/bold] (fleet_update=eager reruns a release bit for bit)"
+                   if sweep.fleet_update != DEFAULT_UPDATE_ENGINE else ""))
     if todo:
         return "engine [bold]single[/bold]: every run trains on its own" + (
             "" if sweep.engine == "single" else " (no two runs to do can share a fleet)")
@@ -407,9 +410,10 @@ def dispatch(plan_: Plan, sweep: SweepConfig, tracker: Tracker | None, console: 
             return []
         if sweep.launcher["name"] == "slurm":
             run_on_slurm(list(plan_.jobs), sweep.launcher, sweep.results_dir, sweep.gif, sweep.name, outcomes.finish,
-                         outcomes.fail, sweep.device, sweep.checkpoint_every_s)
+                         outcomes.fail, sweep.device, sweep.checkpoint_every_s, sweep.fleet_update)
         else:
-            WorkerPool(plan_.workers, sweep.results_dir, sweep.gif, sweep.device, sweep.checkpoint_every_s).run(
+            WorkerPool(plan_.workers, sweep.results_dir, sweep.gif, sweep.device, sweep.checkpoint_every_s,
+                       sweep.fleet_update).run(
                 list(plan_.jobs), outcomes.finish, outcomes.fail, FleetBars(progress) if lines is None else _Both(FleetBars(progress), lines))
     return outcomes.interrupted
 

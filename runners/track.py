@@ -43,8 +43,8 @@ from pathlib import Path
 from typing import Any
 
 from morality_gym.baselines.device import Device
-from morality_gym.baselines.learners import silent_logger
 from morality_gym.baselines.policy_ref import load_policy
+from morality_gym.baselines.sb3_learner import silent_logger
 from morality_gym.baselines.specs import SpecError, learner_spec, protocol_spec, training_steps
 from morality_gym.baselines.stopped import TrainingStopped
 from morality_gym.clitools import EXIT_TERMINATED, OneLineParser, UserError, add_debug_flag, run_cli, write_atomically

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from morality_gym.baselines.device import CPU, Device
+from morality_gym.baselines.fleet.base import fleet_device
 from morality_gym.baselines.specs import SpecError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -56,3 +57,17 @@ def test_without_a_gpu_an_accelerator_is_refused_with_the_fix() -> None:
     with pytest.raises(SpecError, match="torch sees no GPU"):
         Device("cuda").usable()
     Device("cuda", checked_here=True).usable()  # checked on its machine: not asked again
+
+
+def test_a_fleet_takes_the_device_the_sweep_checked_as_it_is(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The sweep resolves ``device`` once into a :class:`Device` and the job checks it on the
+    machine that trains; the fleet receives that object and neither parses nor checks it again
+    (a device not yet checked on this machine is checked once, here)."""
+    import torch
+
+    asked: list[str] = []
+    monkeypatch.setattr(Device, "check_here", lambda self: asked.append(self.name))
+    assert fleet_device(Device("cuda:1", checked_here=True)) == torch.device("cuda:1") and asked == []
+    assert fleet_device(Device("cuda")) == torch.device("cuda") and asked == ["cuda"]
+    assert fleet_device(CPU) == torch.device("cpu") and asked == ["cuda"]
+

@@ -24,7 +24,8 @@ import torch as th
 import morality_gym
 from morality_gym.baselines.fleet import FleetRun, build_fleet
 from morality_gym.baselines.fleet.optim import BatchedAdam, clip_grad_norm
-from morality_gym.baselines.learners import SB3Learner, build_learner
+from morality_gym.baselines.learners import build_learner
+from morality_gym.baselines.sb3_learner import SB3Learner
 from morality_gym.baselines.specs import LearnerSpec, SpecError, learner_spec
 
 SMALL = {

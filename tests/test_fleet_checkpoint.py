@@ -269,7 +269,8 @@ def assert_same_records(a: dict[str, Any], b: dict[str, Any]) -> None:
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory: pytest.TempPathFactory) -> tuple[list[Any], dict[str, Any]]:
     """The sweep's runs and what an uninterrupted fleet job records for them."""
-    from runners.execute.jobs import execute_job, make_jobs
+    from runners.execute.jobs import execute_job
+    from runners.plan.fleets import make_jobs
     from runners.plan.runs import expand_sweep
 
     tmp = tmp_path_factory.mktemp("whole")
@@ -346,7 +347,7 @@ def test_a_killed_fleet_sweep_resumes_its_training_from_the_checkpoint(tmp_path:
 
 
 def test_make_jobs_forms_a_checkpointed_fleet_again(tmp_path: Path) -> None:
-    from runners.execute.jobs import make_jobs
+    from runners.plan.fleets import make_jobs
     from runners.plan.runs import expand_sweep
 
     runs = expand_sweep(_sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch_standard]", "preset=smoke", "seed=[1,2]"))

@@ -211,8 +211,8 @@ def test_no_compiler_falls_back_to_eager_with_a_message(monkeypatch: pytest.Monk
 def test_compiled_checkpoints_name_their_engine() -> None:
     """A checkpoint of a compiled fleet does not resume an eager one (their floats differ); an
     eager fleet's identity is what it was before the setting existed."""
-    assert "update" not in _fleet("ppo", "paper", FLEET_A, update="eager").identity()
-    assert _fleet("ppo", "paper", FLEET_A).identity()["update"] == "compiled"
+    assert "update" not in _fleet("ppo", "paper", FLEET_A, update="eager").checkpoint_key()
+    assert _fleet("ppo", "paper", FLEET_A).checkpoint_key()["update"] == "compiled"
 
 
 @pytest.mark.parametrize(("name", "protocol"), [("ppo", "paper"), ("ppo_lag", "corrected"), ("cpo", "paper")])
@@ -240,7 +240,7 @@ def test_buffers_a_step_writes_are_static_for_cuda_graphs(name: str, protocol: s
 @pytest.mark.parametrize("name", ["ppo", "cpo"])
 def test_eager_stays_the_default_engine(name: str) -> None:
     """Only the eager engine reruns a release bit for bit (docs/engines.md), and the sweep builds
-    its fleets without naming an engine (runners.execute.jobs): so a fleet built without ``update=``, by
+    its fleets with ``fleet_update``, whose default is this one: so a fleet built without ``update=``, by
     either entry point, is eager and trains without compiling anything."""
     assert compiled.DEFAULT_UPDATE_ENGINE == "eager"
     spec = learner_spec(name, {"hparams": SMALL[name]})
@@ -249,7 +249,7 @@ def test_eager_stays_the_default_engine(name: str) -> None:
     for fleet in (build_fleet(spec, runs, "paper"), make_fleet(protocol.apply(spec), runs, protocol)):
         assert fleet.update_engine == "eager" and not fleet.compiled
         fleet.learn(ROLLOUT)
-        assert "update" not in fleet.identity()  # its checkpoints are those of the releases' engine
+        assert "update" not in fleet.checkpoint_key()  # its checkpoints are those of the releases' engine
     assert torch._dynamo.utils.counters["stats"]["unique_graphs"] == 0
 
 

@@ -201,7 +201,8 @@ def test_the_sweep_records_the_non_finite_run_failed_with_its_own_error_and_the_
     """Through runners.execute.jobs: the poisoned run's row is failed with its own error, the other runs'
     rows are the very rows an undamaged fleet job records (timing aside)."""
     from morality_gym.results.schema import read_runs
-    from runners.execute.jobs import execute_job, make_jobs
+    from runners.execute.jobs import execute_job
+    from runners.plan.fleets import make_jobs
     from runners.plan.runs import expand_sweep
     from tests.test_fleet_checkpoint import SWEEP, TIMING, _sweep_config
 

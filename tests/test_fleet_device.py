@@ -107,6 +107,6 @@ def test_the_device_simulator_and_dense_bootstrap_train_the_host_simulators_bits
 
 def test_auto_picks_the_host_simulator_on_the_cpu_and_refuses_unknown_ones() -> None:
     fleet = build_fleet(learner_spec("ppo", {"hparams": SMALL["ppo"]}), _runs(), "paper")
-    assert fleet.collector.env.name == "host" and fleet.identity()["simulator"] == "host"
+    assert fleet.collector.env.name == "host" and fleet.checkpoint_key()["simulator"] == "host"
     with pytest.raises(ValueError, match="simulator='gpu'"):
         build_fleet(learner_spec("ppo", {"hparams": SMALL["ppo"]}), _runs(), "paper", simulator="gpu")  # type: ignore[arg-type]

@@ -16,11 +16,23 @@ from pathlib import Path
 import pytest
 
 from morality_gym.baselines.device import CPU, Device
-from morality_gym.results.recording import RunLock, finished_status
+from morality_gym.baselines.fleet import TRAINERS
+from morality_gym.baselines.fleet.compiled import compiler_missing
+from morality_gym.baselines.specs import (
+    DEFAULT_UPDATE_ENGINE,
+    FLEET_ALGORITHMS,
+    fleet_trains,
+    learner_spec,
+    protocol_spec,
+)
+from morality_gym.baselines.targets import resolve
+from morality_gym.results.recording import RunClock, RunLock, finished_status
 from morality_gym.results.schema import read_runs, read_updates
-from runners.compose.sweep_config import validate
-from runners.execute.jobs import execute_job, fleet_trains, make_jobs
+from runners.compose.sweep_config import ConfigError, validate
+from runners.execute.jobs import FleetTraining, execute_job
+from runners.launch import entry_points
 from runners.plan.estimate import dispatch_order, fleet_speedup, jobs_estimate, makespan
+from runners.plan.fleets import make_jobs
 from runners.plan.runs import expand_sweep
 from tests.sweep_tools import run_files, wait_for_results
 
@@ -144,6 +156,25 @@ def test_several_workers_take_the_longest_jobs_first(tmp_path: Path) -> None:
 def test_only_learners_the_fleet_reproduces_are_grouped() -> None:
     assert fleet_trains("stable_baselines3.PPO")
     assert not fleet_trains("stable_baselines3.A2C")  # a user's learner runs on the single engine
+    assert not fleet_trains("no_such_package.Learner")  # reported by the sweep's checks, not here
+
+
+def test_the_fleet_learners_the_plan_reads_are_the_fleets_trainers() -> None:
+    """The plan cuts runs into fleets from a list below the fleet (so that planning imports no
+    torch); it must name exactly the classes the fleet's trainers reproduce, in their order."""
+    assert [resolve(t.algorithm) for t in TRAINERS] == [resolve(a) for a in FLEET_ALGORITHMS]
+    assert all(fleet_trains(a) for a in FLEET_ALGORITHMS)
+
+
+def test_the_sweeps_own_process_plans_without_the_training_code() -> None:
+    """The sweep's process checks, plans and waits: importing it (and the launchers, the plan) loads
+    no torch; the workers import the training code by the name the launchers hand them."""
+    code = ("import sys, runners.sweep, runners.launch.local_pool, runners.launch.slurm, runners.plan.fleets; "
+            "print('torch' in sys.modules, 'runners.execute.jobs' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False False"
+    jobs = entry_points.training()
+    assert jobs.execute_job is execute_job and callable(jobs.execute_job_all)
 
 
 def test_engine_is_validated(tmp_path: Path) -> None:
@@ -336,3 +367,48 @@ def test_a_run_written_before_its_worker_died_counts_as_written(tmp_path: Path) 
     assert df.loc[written.run_id, "status"] == "ok" and df.loc[written.run_id, "metric"] is not None
     assert df.loc[unwritten.run_id, "status"] == "failed"
     assert df.loc[unwritten.run_id, "error"].startswith("worker process died (signal 9)")
+
+
+# ------------------------------------------------------------------------------------------ fleet_update
+def test_fleet_update_is_checked_with_close_matches(tmp_path: Path) -> None:
+    """``fleet_update`` defaults to the engine every release was trained with; a misspelt engine,
+    or an engine where no fleet trains, is refused in one line naming the setting."""
+    assert _sweep_config(tmp_path, "algo=ppo").fleet_update == DEFAULT_UPDATE_ENGINE == "eager"
+    assert _sweep_config(tmp_path, "algo=ppo", "fleet_update=compiled").fleet_update == "compiled"
+    with pytest.raises(ConfigError, match=r"^fleet_update: expected eager or compiled, got 'compild' \(did you mean 'compiled'\?\)$"):
+        _sweep_config(tmp_path, "algo=ppo", "fleet_update=compild")
+    with pytest.raises(ConfigError, match=r"^fleet_update=compiled: only the fleet engine has update engines; use engine=fleet"):
+        _sweep_config(tmp_path, "algo=ppo", "engine=single", "fleet_update=compiled")
+    done = _sweep(tmp_path / "r", "algo=ppo", "fleet_update=eagr", "dry_run=true")
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert "fleet_update: expected eager or compiled, got 'eagr' (did you mean 'eager'?)" in done.stderr
+
+
+def test_the_update_engine_keys_a_fleet_checkpoint_only_when_compiled(tmp_path: Path) -> None:
+    """A compiled fleet's checkpoint is never resumed by an eager fleet (nor the other way round);
+    an eager fleet's key is the one every checkpoint written before the setting has, so those resume."""
+    sweep = _sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch_standard]", "preset=smoke",
+                          "seed=[1]", "variant=[HumanA,HumanB]")
+    runs = [(r.run_id, r.config) for r in expand_sweep(sweep)]
+    spec, protocol = learner_spec("ppo"), protocol_spec("paper")
+    eager = FleetTraining(runs, RunClock.start()).checkpoint(tmp_path / "r", spec, protocol, CPU, 60.0)
+    compiled = FleetTraining(runs, RunClock.start()).checkpoint(tmp_path / "r", spec, protocol, CPU, 60.0, "compiled")
+    assert eager is not None and compiled is not None
+    assert set(eager.key) == {"runs", "learner", "protocol", "device", "fleet_size", "code"}
+    assert compiled.key == {**eager.key, "update": "compiled"}
+
+
+def test_a_sweep_with_fleet_update_compiled_trains_its_fleets_compiled(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The setting reaches the worker's fleets: they compile their update steps (kernels written to
+    the compile cache, which an eager fleet never touches) and every run is recorded as usual."""
+    if compiler_missing():
+        pytest.skip(str(compiler_missing()))
+    cache = tmp_path / "kernels"
+    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", str(cache))
+    done = _sweep(tmp_path / "r", "algo=ppo", "chain=utility", "scenario=[switch_standard]", "variant=[HumanA]",
+                  "seed=[1,2]", "preset=smoke", "fleet_update=compiled")
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "update engine compiled" in done.stderr, done.stderr  # the plan, as the sweep prints it
+    df = read_runs(tmp_path / "r")
+    assert set(df.status) == {"ok"} and set(df.engine) == {"fleet:2"}, df[["status", "engine", "error"]]
+    assert cache.is_dir() and any(p.is_file() for p in cache.rglob("*")), "the fleet trained without compiling"

@@ -87,9 +87,10 @@ def test_fleets_sharing_a_device_speed_up_as_others_finish() -> None:
 def test_a_gpu_sweep_is_priced_at_the_measured_device_rates(tmp_path: Path) -> None:
     """The estimate of a device=cuda plan comes from planning.devices and says on which card those
     were measured; a learner without one is named as priced at its CPU rate."""
+    from morality_gym.baselines.specs import fleet_trains
     from morality_gym.baselines.targets import learner_trains
-    from runners.execute.jobs import fleet_trains, make_jobs
     from runners.plan.estimate import device_estimate_note, device_rates
+    from runners.plan.fleets import make_jobs
     from runners.plan.runs import expand_sweep
 
     def note_of(sweep):  # what the sweep prints: the learners whose runs fleets train

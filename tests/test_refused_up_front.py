@@ -82,6 +82,7 @@ WORKER = """
 import os, signal, sys
 from multiprocessing import Pipe
 from morality_gym.clitools import DiskFullError
+from runners.execute import jobs
 from runners.launch import local_pool as pool
 
 def full(*args, **kwargs):
@@ -94,7 +95,7 @@ def send_then_stopped(conn, message):
     if message[0] == "fatal":  # the sweep's SIGTERM to every worker follows the report at once
         os.kill(os.getpid(), signal.SIGTERM)
 
-pool.execute_job = full
+jobs.execute_job = full  # what the worker runs (it imports the training code by name: runners.launch.entry_points)
 pool._send = send_then_stopped
 mine, theirs = Pipe()
 theirs.send(([("r1", None)], "single"))

@@ -37,16 +37,24 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
+from PIL import Image
+
 from leaderboard.outputs.downloads import write_downloads
 from leaderboard.outputs.paper_figures import FigureSet
 from leaderboard.runs.aggregate import Group, Leaderboard, safe_name
 from leaderboard.runs.sources import Sources
+from leaderboard.track import track_source
+from leaderboard.track import write_page as write_track_page
 from leaderboard.web.leftovers import building_in
 from leaderboard.web.page_cache import PageCache, link_or_copy
+from leaderboard.web.pages import index_context, run_context, runs_context, scenario_context
+from leaderboard.web.ranking_page import ranking_context
 from leaderboard.web.render import STATIC, STATIC_FILES, render
 from leaderboard.web.site_state import SiteBuild
 from morality_gym.clitools import public_mode, writing
 from morality_gym.envs.registry import scenario_named
+from morality_gym.envs.trolley import TrolleyEnv
+from morality_gym.render.rgb import render_rgb
 
 SITE_MARKER = ".leaderboard-site"
 Progress = Callable[[Iterable[Any], str, int], Iterable[Any]]
@@ -147,16 +155,6 @@ def _place_gif(sb: SiteBuild, run_id: str, path: Path) -> None:
 
 def render_layouts(sb: SiteBuild, scenarios: list[str]) -> None:
     """A PNG of each scenario's initial state (first variant); the reason when it cannot be drawn."""
-    try:
-        from PIL import Image
-
-        from morality_gym.envs.trolley import TrolleyEnv
-        from morality_gym.render.rgb import render_rgb
-    except Exception as exc:  # noqa: BLE001 - the renderer may be unfinished; the ASCII picture remains
-        for scenario in scenarios:
-            sb.layout_notes[scenario] = f"rendering unavailable ({type(exc).__name__}: {exc}); ASCII picture only"
-        return
-
     for scenario in scenarios:
         try:
             env_id = scenario_named(scenario).env_ids[0]
@@ -232,13 +230,6 @@ def _build_site(lb: Leaderboard, sources: Sources, site_dir: Path, figures: Figu
                 progress: Progress | None, *, stats: Any, stat_figures: Any, stamp: str,
                 cache_dir: Path | None) -> SiteBuild:
     """:func:`build_site` while this build holds the site's parent (:mod:`leaderboard.web.leftovers`)."""
-    # SciPy waits: leaderboard.build imports this module (check_target) before it has checked
-    # SOURCE_DATE_EPOCH, which numpy's f2py, loaded with SciPy, reads at import and dies on
-    from leaderboard.track import track_source
-    from leaderboard.track import write_page as write_track_page
-    from leaderboard.web.pages import index_context, run_context, runs_context, scenario_context
-    from leaderboard.web.ranking_page import ranking_context
-
     tmp = _prepare_target(site_dir)
     try:
         sb = SiteBuild(lb=lb, sources=sources, results_name=results_name or sources.name,

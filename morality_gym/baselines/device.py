@@ -4,8 +4,10 @@ Why one object: the setting used to cross about 16 modules as a string, be cut i
 (``cuda:1`` -> ``cuda``) in two places and be checked by the fleet engine's ``fleet_device`` three
 times (the configuration, the job, the fleet). :meth:`Device.parse` and :meth:`Device.checked` check it once, when the
 configuration is validated, on the machine that trains (a dry run plans and a SLURM submission
-trains on other nodes: there the check waits for the node, :meth:`Device.check_here`). Its
-spelling (``name``) is what the fleet engine and a fleet checkpoint's key receive.
+trains on other nodes: there the check waits for the node, :meth:`Device.check_here`). The
+fleet engine receives the object itself and takes it as it is
+(:func:`morality_gym.baselines.fleet.base.fleet_device`); its spelling (``name``) is what a fleet
+checkpoint's key holds.
 
 torch is imported only by :meth:`Device.check_here`, and only for an accelerator: whether it sees a
 GPU is torch's answer, and a CPU sweep's checks must not load it (seconds).

@@ -181,10 +181,15 @@ def _type_problem(value: Any, parameter: inspect.Parameter) -> str | None:
         return None if "bool" in kinds else "expected a number, got true/false"
     if _fits_scalar(value, kinds):
         return "must be a finite number" if isinstance(value, float) and not math.isfinite(value) else None
+    return f"expected {_expected(kinds, choices)}, got {value!r}"
+
+
+def _expected(kinds: set[str], choices: tuple[Any, ...]) -> str:
+    """What an annotation of ``kinds`` (and literal ``choices``) accepts, in words."""
     expected = [k for k in ("bool", "int", "float", "str") if k in kinds]
     if "literal" in kinds:
         expected.append("one of " + ", ".join(repr(c) for c in choices))
-    return f"expected {' or '.join(expected) or 'another value'}, got {value!r}"
+    return " or ".join(expected) or "another value"
 
 
 def _fits_scalar(value: Any, kinds: set[str]) -> bool:
@@ -230,22 +235,40 @@ def validate_hparams(algo_name: str, target: str, hparams: Mapping[str, Any]) ->
 
 
 def validate_learner(spec: LearnerSpec) -> None:
-    """Check the spec's own fields (network, envs, reward and cost settings), then its ``hparams``.
+    """Check the spec's own fields (network, reward and cost settings), then its ``hparams``.
 
-    A flat checklist, one ``if`` per field in the order of the config file, each with its own message:
-    its complexity is the number of fields checked, and splitting it would only scatter the list.
+    The checklist is the tuple below, one check per field in the order of the config file, each a
+    function with its own message: the first problem found is the one reported.
     """
-    where = f"learner {spec.name!r}"
-    arch = spec.net_arch
-    if not isinstance(arch, (tuple, list)) or not arch or not all(
-            isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in arch):
-        raise HyperParameterError(f"{where}: net_arch={list(arch) if isinstance(arch, (tuple, list)) else arch!r}: "
-                                  "expected a non-empty list of layer sizes, each an integer >= 1 (e.g. [64, 64])")
-    if not _is_number(spec.cost_scale) or not math.isfinite(spec.cost_scale) or spec.cost_scale < 0:
-        raise HyperParameterError(f"{where}: cost_scale={spec.cost_scale!r}: must be a finite number >= 0")
-    bounds = spec.return_bounds
-    if (not isinstance(bounds, (tuple, list)) or len(bounds) != 2 or not all(_is_number(b) and math.isfinite(b) for b in bounds)
-            or not bounds[0] < bounds[1]):
-        raise HyperParameterError(f"{where}: return_bounds={list(bounds) if isinstance(bounds, (tuple, list)) else bounds!r}: "
-                                  "expected [low, high] with low < high")
+    for problem in (_net_arch_problem(spec.net_arch), _cost_scale_problem(spec.cost_scale),
+                    _return_bounds_problem(spec.return_bounds)):
+        if problem is not None:
+            raise HyperParameterError(f"learner {spec.name!r}: {problem}")
     validate_hparams(spec.name, spec.target, spec.hparams)
+
+
+def _shown(value: Any) -> str:
+    """A list-like setting as the user wrote it (a list), anything else as its repr."""
+    return str(list(value)) if isinstance(value, (tuple, list)) else repr(value)
+
+
+def _net_arch_problem(arch: Any) -> str | None:
+    """``net_arch``: a non-empty list of layer sizes, each an integer >= 1."""
+    if isinstance(arch, (tuple, list)) and arch and all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in arch):
+        return None
+    return f"net_arch={_shown(arch)}: expected a non-empty list of layer sizes, each an integer >= 1 (e.g. [64, 64])"
+
+
+def _cost_scale_problem(scale: Any) -> str | None:
+    """``cost_scale``: a finite number >= 0."""
+    if _is_number(scale) and math.isfinite(scale) and scale >= 0:
+        return None
+    return f"cost_scale={scale!r}: must be a finite number >= 0"
+
+
+def _return_bounds_problem(bounds: Any) -> str | None:
+    """``return_bounds``: ``[low, high]``, two finite numbers, low < high."""
+    if (isinstance(bounds, (tuple, list)) and len(bounds) == 2 and all(_is_number(b) and math.isfinite(b) for b in bounds)
+            and bounds[0] < bounds[1]):
+        return None
+    return f"return_bounds={_shown(bounds)}: expected [low, high] with low < high"

@@ -9,15 +9,13 @@ exact expectation of the same policy, and the trained policy (``learner.policy``
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from morality_gym.baselines.hparams import algorithm_class, validate_learner
 from morality_gym.baselines.learn_evals import EvalHook, learn_eval_row
 from morality_gym.baselines.specs import (
     LearnerSpec,
@@ -25,21 +23,23 @@ from morality_gym.baselines.specs import (
     RandomReplay,
     SpecError,
     protocol_spec,
-    training_steps,
 )
-from morality_gym.baselines.targets import import_root, resolve
+from morality_gym.baselines.targets import resolve
 from morality_gym.clitools import write_atomically
 from morality_gym.constants import EVAL_EPISODES, LEARN_EVAL_EPISODES, LEARN_EVAL_EVERY, MAX_STEPS, SEED
 from morality_gym.envs.registry import parse_env_id
 from morality_gym.envs.trolley import TrolleyEnv
 from morality_gym.evaluation.exact import exact_evaluate
+from morality_gym.evaluation.gif import record_episode
 from morality_gym.evaluation.montecarlo import evaluate, evaluate_sequential
 from morality_gym.evaluation.policies import PolicyAdapter, sample_actions
 from morality_gym.evaluation.result import EvaluationResult
 from morality_gym.norms.metric import BoundChain
 
-if TYPE_CHECKING:  # imported when used: it loads SB3 and torch, which the random learner never needs
-    from morality_gym.baselines.callbacks import MoralityEvalCallback
+#: The learner that drives an SB3 algorithm, named like any learner (:mod:`morality_gym.baselines.targets`):
+#: it imports SB3 and torch, which the random learner and the sweep's planning never need, and an
+#: SB3 target has loaded them by the time it is resolved.
+SB3_DRIVER = "morality_gym.baselines.sb3_learner.SB3Learner"
 
 
 #: Random's settings when no protocol asks for a replay: its final evaluation starts its own stream.
@@ -89,20 +89,6 @@ class Learner:
     def save(self, path: str | Path) -> Path:
         raise NotImplementedError
 
-    def eval_callback(self, eval_every: int, eval_episodes: int, on_eval: EvalHook | None = None) -> MoralityEvalCallback:
-        """The SB3 callback that evaluates this learner's policy while it learns; its rows go to
-        :attr:`learn_evals`, then to ``on_eval``."""
-        # torch waits: importing morality_gym.baselines.learners must not load it
-        from morality_gym.baselines.callbacks import MoralityEvalCallback
-
-        def record(row: dict[str, Any]) -> None:
-            self.learn_evals.append(row)
-            if on_eval:
-                on_eval(row)
-
-        return MoralityEvalCallback(self.policy, self.env_id, self.bound, seed=self.seed, max_steps=self.max_steps,
-                                    eval_every=eval_every, eval_episodes=eval_episodes, on_eval=record)
-
     @classmethod
     def load_policy(cls, path: Path, metadata: dict[str, Any]) -> Any:
         """The policy saved at ``path`` by :meth:`save` (for :func:`~morality_gym.baselines.io.load_model`)."""
@@ -123,9 +109,6 @@ class Learner:
 
     def record_gif(self, path: str | Path, max_steps: int = 50) -> dict[str, Any]:
         """One evaluation episode of the stochastic policy as a GIF (like the reference's render episode)."""
-        # PIL waits: importing morality_gym.baselines.learners must not load it
-        from morality_gym.evaluation.gif import record_episode
-
         adapter = PolicyAdapter(self.policy)
         rng = np.random.default_rng(self.seed + 7919)
 
@@ -215,120 +198,6 @@ class RandomLearner(Learner):
         return write_atomically(path, lambda fh: fh.write(text.encode()))
 
 
-class SB3Learner(Learner):
-    """Any SB3 algorithm named by the spec's ``target``: PPO and PPO-Shaped on SB3's PPO,
-    PPO-Lagrangian and CPO on this package's subclasses, and any user's (A2C, TRPO, ...)."""
-
-    def __init__(self, *args: Any, model: Any = None, obs_type: str = "flat", **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        #: ``flat`` (the env id's own vector) or ``compact`` (one width for every env id: a policy
-        #: for the generalisation track's mixture, trained by a fleet; :mod:`morality_gym.envs.drawn`).
-        self.obs_type = obs_type
-        self.model = model if model is not None else self._build()
-
-    def _algorithm_class(self) -> type:
-        return algorithm_class(self.spec.target)
-
-    def make_vec_env(self) -> Any:
-        """The training VecEnv: batched simulator (or SB3 DummyVecEnv) -> VecMonitor -> cost/reward wrapper."""
-        # torch waits: importing morality_gym.baselines.learners must not load it
-        from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
-
-        from morality_gym.envs.vector import TrolleyVecEnv
-        from morality_gym.norms.wrappers import VecMoralityWrapper
-
-        if self.spec.vec_env == "batched" or self.obs_type != "flat":
-            venv: Any = TrolleyVecEnv(self.env_id, self.spec.n_envs, max_steps=self.max_steps, obs_type=self.obs_type)
-        else:
-            env_id, max_steps = self.env_id, self.max_steps
-            venv = DummyVecEnv([lambda: TrolleyEnv(env_id, max_steps=max_steps) for _ in range(self.spec.n_envs)])
-        venv = VecMonitor(venv)
-        return VecMoralityWrapper(venv, self.bound, self.spec.reward_cost())
-
-    def _build(self) -> Any:
-        import torch  # torch waits: importing morality_gym.baselines.learners must not load it
-
-        validate_learner(self.spec)  # sweeps check this before planning; library users get the same messages
-        cls = self._algorithm_class()
-        activation = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}[self.spec.activation]
-        arch = list(self.spec.net_arch)
-        policy_kwargs: dict[str, Any] = {"activation_fn": activation}
-        # torch waits: importing morality_gym.baselines.learners must not load it
-        from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
-
-        if issubclass(cls, OnPolicyAlgorithm):  # actor-critic: one network each (and a cost critic for ours)
-            keys = _net_arch_keys(cls)
-            policy_kwargs["net_arch"] = {key: arch for key in ("pi", "vf", "cf") if key in keys}
-        else:  # off-policy algorithms (DQN, ...) take one list
-            policy_kwargs["net_arch"] = arch
-        model = cls(
-            "MlpPolicy",
-            self.make_vec_env(),
-            seed=self.seed,
-            device="cpu",
-            verbose=0,
-            policy_kwargs=policy_kwargs,
-            **dict(self.spec.hparams),
-        )
-        model.set_logger(silent_logger())
-        return model
-
-    @property
-    def policy(self) -> Any:
-        return self.model
-
-    def update_diagnostics(self) -> list[dict[str, Any]]:
-        return [dict(row) for row in getattr(self.model, "update_log", [])]
-
-    def learn(
-        self, budget: int, eval_every: int = LEARN_EVAL_EVERY, eval_episodes: int = LEARN_EVAL_EPISODES, on_eval: EvalHook | None = None
-    ) -> int:
-        total = training_steps(self.spec, budget)
-        callback = self.eval_callback(eval_every, eval_episodes, on_eval)
-        if total > 0:
-            self.model.learn(total_timesteps=total, callback=callback, reset_num_timesteps=True)
-        else:
-            callback.evaluate_now(0)
-        self.trained_steps = int(self.model.num_timesteps)
-        return self.trained_steps
-
-    def save(self, path: str | Path) -> Path:
-        # Each file under a temporary name, renamed into place (a kill or a full disk never leaves
-        # a truncated model.zip); the sidecar last, so a model.json always has its model.zip.
-        path = Path(path).with_suffix(".zip")
-        write_atomically(path, self.model.save)
-        meta = {**self.metadata(), "spec": _spec_dict(self.spec), **({"obs_type": self.obs_type} if self.obs_type != "flat" else {})}
-        root = import_root(type(self.model))
-        if root is not None:  # a user's class from a plain file: where to import it from again
-            meta["import_root"] = root
-        text = json.dumps(meta, indent=1)
-        write_atomically(path.with_suffix(".json"), lambda fh: fh.write(text.encode()))
-        return path
-
-
-def silent_logger() -> Any:
-    """An SB3 logger that writes nothing anywhere.
-
-    Why: SB3's ``learn()`` configures its own logger unless one is set, and even at ``verbose=0``
-    that creates a directory ``$TMPDIR/SB3-<date>`` and leaves it behind: one per run, thousands
-    per sweep. Our learners record what they report themselves (``update_log``, the run files)."""
-    # SB3 waits: importing morality_gym.baselines.learners must not load torch
-    from stable_baselines3.common.logger import Logger
-
-    return Logger(folder=None, output_formats=[])
-
-
-def _net_arch_keys(cls: type) -> set[str]:
-    keys = getattr(cls, "net_arch_keys", None)
-    return set(keys) if keys else {"pi", "vf"}
-
-
-def _spec_dict(spec: LearnerSpec) -> dict[str, Any]:
-    out = dataclasses.asdict(spec)
-    out["hparams"] = dict(spec.hparams)
-    return out
-
-
 def build_learner(
     spec: LearnerSpec,
     bound: BoundChain,
@@ -354,13 +223,16 @@ def make_learner(
 ) -> Learner:
     """The learner of a resolved ``spec`` (a sweep's run carries one): ``spec.target`` is either a
     :class:`Learner` subclass (built directly; the random baseline also gets its ``replay``
-    settings) or an SB3 algorithm (driven by :class:`SB3Learner`)."""
+    settings) or an SB3 algorithm (driven by :class:`~morality_gym.baselines.sb3_learner.SB3Learner`)."""
     cls = resolve(spec.target, where=f"learner {spec.name!r}: _target_")
     if issubclass(cls, RandomLearner):
         return cls(spec, bound, seed=seed, max_steps=max_steps, replay=replay)
-    learner_cls = cls if issubclass(cls, Learner) else SB3Learner
-    if obs_type != "flat":  # only SB3 learners build their policy on another observation
-        if not issubclass(learner_cls, SB3Learner):
-            raise SpecError(f"learner {spec.name!r}: obs_type={obs_type!r} needs an SB3 algorithm")
+    if issubclass(cls, Learner) and obs_type == "flat":  # a self-driving learner: SB3 is not loaded for it
+        return cls(spec, bound, seed=seed, max_steps=max_steps)
+    driver = resolve(SB3_DRIVER)
+    learner_cls = cls if issubclass(cls, Learner) else driver
+    if not issubclass(learner_cls, driver):  # only SB3 learners build their policy on another observation
+        raise SpecError(f"learner {spec.name!r}: obs_type={obs_type!r} needs an SB3 algorithm")
+    if obs_type != "flat":
         return learner_cls(spec, bound, seed=seed, max_steps=max_steps, obs_type=obs_type)
     return learner_cls(spec, bound, seed=seed, max_steps=max_steps)

@@ -17,13 +17,14 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import cache
 from pathlib import Path
 from typing import Any
 
 import yaml
 
 from morality_gym.baselines import typed
-from morality_gym.baselines.targets import learner_trains
+from morality_gym.baselines.targets import TargetError, learner_trains, resolve
 from morality_gym.clitools import did_you_mean
 from morality_gym.constants import LEARN_EVAL_EVERY
 from morality_gym.norms.cost import COST_MODES, RESET_POLICIES
@@ -39,6 +40,17 @@ CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 SB3_PPO = "stable_baselines3.PPO"
 PPO_LAG = "morality_gym.baselines.safe.PPOLag"
 CPO = "morality_gym.baselines.safe.CPO"
+#: The classes the fleet engine trains (one trainer each in :mod:`morality_gym.baselines.fleet`;
+#: tests/test_fleet_sweep.py holds this list to them). Named here, below the fleet, so that the
+#: sweep can cut its runs into fleets without importing the fleet's trainers.
+FLEET_ALGORITHMS = (SB3_PPO, PPO_LAG, CPO)
+#: The fleet's update engines: ``eager`` (per-operation PyTorch; reruns the releases bit for bit)
+#: and ``compiled`` (:mod:`morality_gym.baselines.fleet.compiled`, which re-exports both names).
+UPDATE_ENGINES = ("eager", "compiled")
+#: The one place the default lives: the sweep's ``fleet_update`` (``runners.compose.schema.Sweep``)
+#: and :func:`~morality_gym.baselines.fleet.build_fleet` read it. Here, below the fleet, so that the
+#: sweep's configuration knows it without importing torch.
+DEFAULT_UPDATE_ENGINE = "eager"
 #: The short names that specs, run configs and model sidecars written before learners were named by
 #: class (commit c0db801) recorded as ``implementation``, and the class each one meant. Frozen
 #: history: read by :mod:`morality_gym.baselines.io` (old sidecars) and ``runners.record.rename_history``.
@@ -51,6 +63,20 @@ STEP_ACCOUNTING = ("rollouts", "floor")
 
 class SpecError(ValueError):
     """A learner or protocol setting is invalid; the message names the key and the valid choices."""
+
+
+@cache
+def fleet_trains(target: str) -> bool:
+    """True if the fleet engine trains the learner class at ``target``.
+
+    Matched by class identity, as the fleet's trainers are (``fleet_class``): a subclass may train
+    differently, so it trains on the single engine. A target that cannot be imported is no fleet
+    learner (the sweep's checks report it)."""
+    try:
+        cls = resolve(target)
+    except TargetError:
+        return False
+    return any(resolve(algorithm) is cls for algorithm in FLEET_ALGORITHMS)
 
 
 def check_keys(where: str, given: Mapping[str, Any], allowed: list[str]) -> None:

@@ -2,7 +2,7 @@
 
 A learner is whatever class its configuration names: an SB3 algorithm (``stable_baselines3.PPO``,
 ``sb3_contrib.TRPO``, this package's ``morality_gym.baselines.safe.CPO``, or a user's own subclass),
-which :class:`~morality_gym.baselines.learners.SB3Learner` drives, or a
+which :class:`~morality_gym.baselines.sb3_learner.SB3Learner` drives, or a
 :class:`~morality_gym.baselines.learners.Learner` subclass that drives itself (the random
 baseline). The five baselines are named this way too; no table of learners exists anywhere.
 

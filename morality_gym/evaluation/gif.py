@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -89,56 +90,73 @@ def record_episode(
     occurred (vocabulary order) and ``utility`` sums each harm count over the episode, so the
     episode can be replayed and checked.
     """
-    if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 0:
-        raise ValueError(f"max_steps must be a non-negative int, got {max_steps!r}")
     kwargs = dict(env_kwargs or {})
-    if "render_mode" in kwargs:
-        raise ValueError("record_episode renders rgb_array frames itself; do not pass render_mode in env_kwargs")
-
-    if isinstance(policy, (str, os.PathLike)) and policy != "random":
-        raise ValueError(f"record_episode takes a policy object or 'random', not the reference {str(policy)!r}: "
-                         "resolve it first with load_policy(ref).policy from morality_gym.baselines.policy_ref")
+    _check_arguments(policy, max_steps, kwargs)
     rng = np.random.default_rng(seed)
     act = step_actor(policy, rng)
     env = TrolleyEnv(env_id, render_mode="rgb_array", **kwargs)
     flat = env.graph.tables().obs if env.obs_type != "flat" else None
     try:
         obs, _info = env.reset(seed=seed)
-        frames = [render_rgb(env.world, env.state, cell_size, caption=_caption(0, None, 0.0, 0.0))]
-        actions: list[int] = []
-        occurred: set[str] = set()
-        utility = dict.fromkeys(UTILITIES, 0)
-        total = 0.0
-        terminated = truncated = False
-        while len(actions) < max_steps and not (terminated or truncated):
+        episode = _Episode(frames=[render_rgb(env.world, env.state, cell_size, caption=_caption(0, None, 0.0, 0.0))])
+        while len(episode.actions) < max_steps and not (episode.terminated or episode.truncated):
             action = act(obs if flat is None else flat[env.state_id], env.state_id)
-            obs, reward, terminated, truncated, info = env.step(action)
-            actions.append(action)
-            total += float(reward)
-            ne = info["norm_events"]
-            occurred.update(ne["action"], ne["outcome"], ne["causal"])
-            for name, value in ne["utility"].items():
-                utility[name] += value
-            frames.append(
+            obs, reward, episode.terminated, episode.truncated, info = env.step(action)
+            episode.add(action, float(reward), info["norm_events"])
+            episode.frames.append(
                 render_rgb(
-                    env.world, env.state, cell_size, caption=_caption(len(actions), action, float(reward), total)
+                    env.world, env.state, cell_size,
+                    caption=_caption(len(episode.actions), action, float(reward), episode.total),
                 )
             )
     finally:
         env.close()
-    written = write_gif(frames, path, fps=fps)
+    written = write_gif(episode.frames, path, fps=fps)
     return {
         "env_id": env.env_id,
         "path": str(written),
-        "steps": len(actions),
-        "return": total,
-        "terminated": bool(terminated),
-        "truncated": bool(truncated),
-        "actions": actions,
-        "events": [name for name in EVENTS if name in occurred],
-        "utility": utility,
-        "frames": len(frames),
+        "steps": len(episode.actions),
+        "return": episode.total,
+        "terminated": bool(episode.terminated),
+        "truncated": bool(episode.truncated),
+        "actions": episode.actions,
+        "events": [name for name in EVENTS if name in episode.occurred],
+        "utility": episode.utility,
+        "frames": len(episode.frames),
     }
+
+
+def _check_arguments(policy: Any, max_steps: Any, env_kwargs: Mapping[str, Any]) -> None:
+    """:func:`record_episode`'s arguments, each refused with what to pass instead."""
+    if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 0:
+        raise ValueError(f"max_steps must be a non-negative int, got {max_steps!r}")
+    if "render_mode" in env_kwargs:
+        raise ValueError("record_episode renders rgb_array frames itself; do not pass render_mode in env_kwargs")
+    if isinstance(policy, (str, os.PathLike)) and policy != "random":
+        raise ValueError(f"record_episode takes a policy object or 'random', not the reference {str(policy)!r}: "
+                         "resolve it first with load_policy(ref).policy from morality_gym.baselines.policy_ref")
+
+
+@dataclass
+class _Episode:
+    """What :func:`record_episode` keeps of an episode as it plays: its frames, actions, return,
+    the norm events that occurred and the summed harm counts."""
+
+    frames: list[Any]
+    actions: list[int] = field(default_factory=list)
+    occurred: set[str] = field(default_factory=set)
+    utility: dict[str, int] = field(default_factory=lambda: dict.fromkeys(UTILITIES, 0))
+    total: float = 0.0
+    terminated: bool = False
+    truncated: bool = False
+
+    def add(self, action: int, reward: float, norm_events: Mapping[str, Any]) -> None:
+        """One step: its action, reward and norm events."""
+        self.actions.append(action)
+        self.total += reward
+        self.occurred.update(norm_events["action"], norm_events["outcome"], norm_events["causal"])
+        for name, value in norm_events["utility"].items():
+            self.utility[name] += value
 
 
 __all__ = ["record_episode", "write_gif"]

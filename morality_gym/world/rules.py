@@ -360,12 +360,7 @@ class World:
         movers = [i for i in range(len(pos)) if movable[i]]
         still = [i for i in range(len(pos)) if not movable[i]]
         pairs = [(m, n) for m in movers for n in still if target[m] == pos[n]]
-        for k, a in enumerate(movers):
-            for b in movers[k + 1 :]:
-                swap = tries[a] and tries[b] and pos[a] == target[b] and target[a] == pos[b]
-                if target[a] == target[b] or swap:
-                    pairs.append((a, b))
-        return pairs
+        return pairs + _mover_pairs(movers, pos, target, tries)
 
     def _move(self, s: _Step) -> None:
         """3d iii: everyone moves to its target; a character that moves was pushed, which marks it
@@ -475,3 +470,15 @@ def _utility(totals: dict[str, int], any_living: bool) -> dict[str, int]:
     if any_living:
         utility["n_harm"] = sum(totals.values())
     return utility
+
+
+def _mover_pairs(movers: list[int], pos: list[int], target: list[int], tries: list[bool]) -> list[tuple[int, int]]:
+    """The colliding pairs of movers, in detection order (spec 4.3): the same target, or a head-on
+    swap where both really try to move."""
+    pairs = []
+    for k, a in enumerate(movers):
+        for b in movers[k + 1 :]:
+            swap = tries[a] and tries[b] and pos[a] == target[b] and target[a] == pos[b]
+            if target[a] == target[b] or swap:
+                pairs.append((a, b))
+    return pairs

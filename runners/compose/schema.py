@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from morality_gym.baselines import typed
-from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec
+from morality_gym.baselines.specs import DEFAULT_UPDATE_ENGINE, LearnerSpec, ProtocolSpec
 from morality_gym.constants import BETA, MAX_STEPS
 from morality_gym.results.presets import Preset
 from runners.plan.estimate import DeviceRate, Planning, PlanningOverride
@@ -140,7 +140,11 @@ class Sweep:
     chain and seed together, up to ``fleet_size`` per fleet (null: :data:`FLEET_SIZES` for the
     device), ``single`` trains one run per process (:mod:`runners.execute.jobs`); ``device``: where
     a fleet's networks and updates run (``cpu``, or ``cuda`` when torch sees a GPU; single runs and
-    every run's evaluation stay on the CPU); ``checkpoint_every_s``: a fleet writes its training
+    every run's evaluation stay on the CPU); ``fleet_update``: how a fleet's minibatch updates run,
+    ``eager`` (one PyTorch operation at a time, as every release was trained: reruns a release bit
+    for bit) or ``compiled`` (``torch.compile``; other float order, so a release's runs are not
+    rerun bit for bit; docs/engines.md), the default :data:`morality_gym.baselines.specs.DEFAULT_UPDATE_ENGINE`;
+    ``checkpoint_every_s``: a fleet writes its training
     state to ``<results_dir>/checkpoints/`` at most every so many seconds (and when its training
     ends), and a sweep resumed after a kill continues the fleet from there, bit for bit, instead of
     training it again (0: no checkpoints). Like the other sweep-wide settings it is no part of any
@@ -169,6 +173,7 @@ class Sweep:
     engine: str = "fleet"
     fleet_size: int | None = None
     device: str = "cpu"
+    fleet_update: str = DEFAULT_UPDATE_ENGINE
     checkpoint_every_s: float = 300.0
 
 

@@ -32,6 +32,8 @@ from morality_gym.baselines.device import CPU, Device
 from morality_gym.baselines.hparams import algorithm_class, validate_learner
 from morality_gym.baselines.specs import (
     ALGO_FILE_EXTRAS,
+    DEFAULT_UPDATE_ENGINE,
+    UPDATE_ENGINES,
     LearnerSpec,
     ProtocolSpec,
     SpecError,
@@ -108,9 +110,10 @@ class SweepConfig:
     mlflow: bool
     gif: bool
     name: str
-    engine: str  # fleet | single (runners/execute/jobs.py; default: runners.compose.schema.Sweep)
+    engine: str  # fleet | single (runners/plan/fleets.py; default: runners.compose.schema.Sweep)
     fleet_size: int  # most runs trained together in one fleet
     device: Device = CPU  # where fleets train, resolved once (morality_gym.baselines.device)
+    fleet_update: str = Sweep.fleet_update  # a fleet's update engine: eager (reruns the releases) | compiled
     progress_every_s: float = Sweep.progress_every_s  # plain progress lines when stderr is not a terminal
     checkpoint_every_s: float = Sweep.checkpoint_every_s  # how often a fleet checkpoints its training; 0: never
     chain_files: Mapping[str, str] = field(default_factory=dict)  # chain name -> config option name
@@ -559,6 +562,18 @@ def _engine(cfg: DictConfig) -> tuple[str, int, Device]:
     return str(engine), fleet_size, device
 
 
+def _fleet_update(value: Any, engine: str) -> str:
+    """``fleet_update``: one of the fleet's update engines; another than the default only where
+    fleets train (with ``engine=single`` it would change nothing, silently)."""
+    if value not in UPDATE_ENGINES:
+        raise ConfigError(f"fleet_update: expected {' or '.join(UPDATE_ENGINES)}, got {value!r}"
+                          f"{_hint(str(value), list(UPDATE_ENGINES))}")
+    if engine != "fleet" and value != DEFAULT_UPDATE_ENGINE:
+        raise ConfigError(f"fleet_update={value}: only the fleet engine has update engines; use engine=fleet "
+                          f"or fleet_update={DEFAULT_UPDATE_ENGINE}")
+    return str(value)
+
+
 def _sweep_name(name: Any, experiment: Mapping[str, Any], algos: tuple[AlgoChoice, ...],
                 chains: Mapping[str, MoralityChain], protocol: ProtocolSpec, preset: Preset) -> str:
     """``name=``, else the experiment's name or the algos and chains, then the protocol and preset."""
@@ -573,7 +588,7 @@ def validate(cfg: DictConfig, overrides: Sequence[str] | None = None) -> SweepCo
 
     The checks run in a fixed order (the first error is the one reported, so the order is part of
     what a user sees): preset, chains, algos, protocol, scenarios, pairs, variants, coverage, seeds,
-    the sweep-wide values, launcher, engine. Nothing outside the configuration is touched; the
+    the sweep-wide values, launcher, engine, fleet update. Nothing outside the configuration is touched; the
     machine (a writable results directory, MLflow, SLURM) is checked by
     :func:`runners.launch.preflight.preflight` once the configuration is known to be valid.
 
@@ -610,6 +625,7 @@ def validate(cfg: DictConfig, overrides: Sequence[str] | None = None) -> SweepCo
     warnings = tuple(w for algo in algos if (w := _rollout_warning(algo.spec, preset, pairs)))
     launcher = _launcher(_group(cfg, "launcher"))
     engine, fleet_size, device = _engine(cfg)
+    fleet_update = _fleet_update(cfg.get("fleet_update"), engine)
     checkpoint_every_s = _interval_s("checkpoint_every_s", cfg.get("checkpoint_every_s"), "no checkpoints")
     return SweepConfig(
         pairs=tuple(pairs),
@@ -634,6 +650,7 @@ def validate(cfg: DictConfig, overrides: Sequence[str] | None = None) -> SweepCo
         engine=engine,
         fleet_size=fleet_size,
         device=device,
+        fleet_update=fleet_update,
         checkpoint_every_s=checkpoint_every_s,
         warnings=warnings,
     )

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import morality_gym
+from morality_gym.baselines.learners import make_learner
 from morality_gym.clitools import disk_full_error, is_disk_full
 from morality_gym.results.recording import RunClock, finished_status, git_commit, utc_now, versions
 from morality_gym.results.run_config import RunConfig
@@ -105,9 +106,6 @@ def execute_locked(config: RunConfig, run_id: str, results_dir: Path, gif: bool)
     limit_threads()
     clock = RunClock.start()
     try:
-        # torch waits: importing runners.execute.run must not load it, and a failed import is this run's recorded error
-        from morality_gym.baselines.learners import make_learner
-
         learner = make_learner(config.algo, config.bound_chain(), seed=config.seed, max_steps=config.max_steps,
                                replay=config.replay)
         learn_rows: list[dict[str, Any]] = []

@@ -26,19 +26,21 @@ import signal
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
 from typing import Any
 
 from morality_gym.baselines.device import CPU, Device
+from morality_gym.baselines.specs import DEFAULT_UPDATE_ENGINE
 from morality_gym.baselines.stopped import TrainingStopped
 from morality_gym.clitools import DiskFullError
 from morality_gym.results.recording import git_commit
 from runners.execute import stopping
-from runners.execute.jobs import Job, execute_job
 from runners.execute.run import limit_threads, training_code
+from runners.launch.entry_points import training
+from runners.plan.fleets import Job
 from runners.plan.runs import PlannedRun
 
 ResultHook = Callable[[PlannedRun, dict[str, Any]], None]
@@ -65,7 +67,7 @@ def _die_with_parent() -> None:
 
 
 def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int, device: Device = CPU,
-                 checkpoint_every_s: float = 0.0) -> None:
+                 checkpoint_every_s: float = 0.0, fleet_update: str = DEFAULT_UPDATE_ENGINE) -> None:
     _die_with_parent()
     if os.getppid() != parent_pid:  # the parent died before prctl took effect
         os._exit(1)
@@ -74,14 +76,12 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int,
     limit_threads()
     git_commit()  # the commit of the code this worker loads now, recorded for every run it trains
     training_code()  # and its fingerprint, which keys the fleet checkpoints it writes
-    import stable_baselines3  # noqa: F401
-
-    import morality_gym  # noqa: F401 - warm imports before the first run
+    jobs = training()  # the training code (torch) loads here, before the first job
 
     stopping.install()  # SIGTERM: a fleet checkpoints and the worker ends (runners.execute.stopping)
     _send(conn, ("ready", os.getpid()))
     try:
-        _serve(conn, results_dir, gif, device, checkpoint_every_s)
+        _serve(jobs.execute_job, conn, results_dir, gif, device, checkpoint_every_s, fleet_update)
     except TrainingStopped as exc:
         stopping.ignore()  # stopping already: a second signal has nothing left to stop
         _send(conn, ("stopped", str(exc)))
@@ -92,8 +92,10 @@ def _worker_main(conn: Connection, results_dir: str, gif: bool, parent_pid: int,
         stopping.ignore()  # nothing runs after this: a late SIGTERM must not raise while the process exits
 
 
-def _serve(conn: Connection, results_dir: str, gif: bool, device: Device, checkpoint_every_s: float) -> None:
-    """Execute the jobs the parent sends until it sends None or goes away."""
+def _serve(execute_job: Callable[..., Iterator[dict[str, Any]]], conn: Connection, results_dir: str, gif: bool,
+           device: Device, checkpoint_every_s: float, fleet_update: str = DEFAULT_UPDATE_ENGINE) -> None:
+    """Execute the jobs the parent sends (with :func:`runners.execute.jobs.execute_job`) until it sends
+    None or goes away."""
     while True:
         try:
             message = conn.recv()
@@ -102,7 +104,8 @@ def _serve(conn: Connection, results_dir: str, gif: bool, device: Device, checkp
         if message is None:
             return
         items, engine = message
-        for summary in execute_job(items, results_dir, gif, engine, device, _throttled_progress(conn), checkpoint_every_s):
+        for summary in execute_job(items, results_dir, gif, engine, device, _throttled_progress(conn), checkpoint_every_s,
+                                   fleet_update):
             _send(conn, ("done", summary))
         _send(conn, ("free", None))
 
@@ -157,19 +160,22 @@ class PoolStopped(Exception):
 class WorkerPool:
     """Run planned runs on ``n_workers`` processes; ``on_result`` is called in the parent."""
 
-    def __init__(self, n_workers: int, results_dir: Path, gif: bool, device: Device = CPU, checkpoint_every_s: float = 0.0) -> None:
+    def __init__(self, n_workers: int, results_dir: Path, gif: bool, device: Device = CPU, checkpoint_every_s: float = 0.0,
+                 fleet_update: str = DEFAULT_UPDATE_ENGINE) -> None:
         self.n_workers = n_workers
         self.results_dir = str(results_dir)
         self.gif = gif
         self.device = device
         self.checkpoint_every_s = checkpoint_every_s  # how often fleets checkpoint their training (0: never)
+        self.fleet_update = fleet_update  # the fleets' update engine (eager reruns the releases bit for bit)
         self._ctx = mp.get_context("spawn")
         self._workers: list[_Worker] = []
 
     def _start(self) -> _Worker:
         parent, child = self._ctx.Pipe()
         process = self._ctx.Process(
-            target=_worker_main, args=(child, self.results_dir, self.gif, os.getpid(), self.device, self.checkpoint_every_s),
+            target=_worker_main,
+            args=(child, self.results_dir, self.gif, os.getpid(), self.device, self.checkpoint_every_s, self.fleet_update),
             daemon=True,
             name="morality-gym-worker"
         )

@@ -1,6 +1,6 @@
 """Dispatch jobs to SLURM as one submitit job array (one array task per job: a run or a fleet).
 
-Every array task calls :func:`runners.execute.jobs.execute_job_all`, which records each run's result
+Every array task calls :func:`runners.execute.jobs.execute_job_all` (named: :mod:`runners.launch.entry_points`), which records each run's result
 (including failures) in Parquet; the parent polls the jobs, and records the runs whose jobs died
 without a result (time limit, ``kill -9``, node failure) as failed with SLURM's view of what
 happened. A fleet job that died after writing some of its runs keeps those.
@@ -15,7 +15,9 @@ from pathlib import Path
 from typing import Any
 
 from morality_gym.baselines.device import CPU, Device
-from runners.execute.jobs import Job, execute_job_all
+from morality_gym.baselines.specs import DEFAULT_UPDATE_ENGINE
+from runners.launch.entry_points import execute_job_all
+from runners.plan.fleets import Job
 from runners.plan.runs import PlannedRun
 
 
@@ -29,10 +31,12 @@ def run_on_slurm(
     on_failure: Callable[[PlannedRun, str], None],
     device: Device = CPU,
     checkpoint_every_s: float = 0.0,
+    fleet_update: str = DEFAULT_UPDATE_ENGINE,
 ) -> None:
     """Submit ``jobs_`` as one array and poll it, reporting each run as its array task ends (a
-    fleet checkpoints its training every ``checkpoint_every_s`` seconds; 0: never)."""
-    jobs = _submit(jobs_, launcher, results_dir, gif, sweep_name, device, checkpoint_every_s)
+    fleet checkpoints its training every ``checkpoint_every_s`` seconds; 0: never; its updates run
+    on the ``fleet_update`` engine)."""
+    jobs = _submit(jobs_, launcher, results_dir, gif, sweep_name, device, checkpoint_every_s, fleet_update)
     pending = dict(zip(range(len(jobs_)), jobs))
     poll = float(launcher.get("poll_s", 2.0))
     while pending:
@@ -44,7 +48,7 @@ def run_on_slurm(
 
 
 def _submit(jobs_: list[Job], launcher: Mapping[str, Any], results_dir: Path, gif: bool, sweep_name: str,
-            device: Device, checkpoint_every_s: float = 0.0) -> list[Any]:
+            device: Device, checkpoint_every_s: float = 0.0, fleet_update: str = DEFAULT_UPDATE_ENGINE) -> list[Any]:
     """One submitit array task per job, with the launcher's partition and resources."""
     import submitit  # submitit waits: importing runners.launch.slurm must not load it
 
@@ -69,6 +73,7 @@ def _submit(jobs_: list[Job], launcher: Mapping[str, Any], results_dir: Path, gi
         [j.engine for j in jobs_],
         [device] * len(jobs_),
         [checkpoint_every_s] * len(jobs_),
+        [fleet_update] * len(jobs_),
     )
 
 

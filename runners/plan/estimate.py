@@ -269,7 +269,7 @@ class DeviceWork:
 
 
 class PricedJob(Protocol):
-    """What the estimate reads of a job (:class:`runners.execute.jobs.Job`)."""
+    """What the estimate reads of a job (:class:`runners.plan.fleets.Job`)."""
 
     @property
     def runs(self) -> Sequence[PricedRun]: ...

@@ -7,7 +7,7 @@ the fleet's training instead of starting it over. Each fleet has two files in
 
 * ``fleet-<hash>.pt``: the training state (written by the fleet, atomically);
 * ``fleet-<hash>.json``: the fleet's runs in its order, with their configs, plain JSON, written
-  before training starts, so that planning (:func:`fleets_to_form`, :func:`runners.execute.jobs.make_jobs`)
+  before training starts, so that planning (:func:`fleets_to_form`, :func:`runners.plan.fleets.make_jobs`)
   can form the same fleet again without loading torch, and a worker can build it again even when
   some of its runs were recorded before a kill (:func:`fleet_to_train`).
 
@@ -106,7 +106,7 @@ def _recorded(results_dir: Path, run_ids: Iterable[str]) -> bool:
 def fleets_to_form(results_dir: str | Path, todo: Iterable[str]) -> list[tuple[str, ...]]:
     """The runs still to do of each checkpointed fleet whose other runs are all recorded (a fleet
     killed while it recorded its runs after training): the fleets planning forms again
-    (:func:`runners.execute.jobs.make_jobs`), so that they resume from their checkpoints."""
+    (:func:`runners.plan.fleets.make_jobs`), so that they resume from their checkpoints."""
     todo = set(todo)
     out = []
     for fleet in recorded_fleets(results_dir):

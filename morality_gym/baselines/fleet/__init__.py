@@ -30,14 +30,21 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
+from morality_gym.baselines.device import Device
 from morality_gym.baselines.fleet.base import FleetRun, FleetTrainer
 from morality_gym.baselines.fleet.checkpoint import FleetCheckpoint
 from morality_gym.baselines.fleet.compiled import DEFAULT_UPDATE_ENGINE
+from morality_gym.baselines.fleet.cpo import FleetCPO
 from morality_gym.baselines.fleet.env import Simulator
 from morality_gym.baselines.fleet.ppo import FleetPPO
+from morality_gym.baselines.fleet.ppo_lag import FleetPPOLag
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError, protocol_spec
 from morality_gym.baselines.targets import resolve
 from morality_gym.constants import MAX_STEPS
+
+#: One trainer per class in :data:`morality_gym.baselines.specs.FLEET_ALGORITHMS`, which the sweep
+#: reads to cut its runs into fleets without importing these.
+TRAINERS: tuple[type[FleetTrainer], ...] = (FleetPPO, FleetPPOLag, FleetCPO)
 
 
 def fleet_class(target: str) -> type[FleetTrainer]:
@@ -45,25 +52,12 @@ def fleet_class(target: str) -> type[FleetTrainer]:
 
     Matched by class identity: a subclass may train differently, so it has no fleet trainer.
     """
-    trainers: list[type[FleetTrainer]] = [FleetPPO]
-    try:
-        from morality_gym.baselines.fleet.ppo_lag import FleetPPOLag
-
-        trainers.append(FleetPPOLag)
-    except ImportError:  # pragma: no cover - built learner by learner
-        pass
-    try:
-        from morality_gym.baselines.fleet.cpo import FleetCPO
-
-        trainers.append(FleetCPO)
-    except ImportError:  # pragma: no cover
-        pass
     cls = resolve(target)
-    for trainer in trainers:
+    for trainer in TRAINERS:
         if resolve(trainer.algorithm) is cls:
             return trainer
     raise SpecError(
-        f"the fleet engine does not train {target!r}; fleet learners: {', '.join(t.algorithm for t in trainers)}"
+        f"the fleet engine does not train {target!r}; fleet learners: {', '.join(t.algorithm for t in TRAINERS)}"
     )
 
 
@@ -72,7 +66,7 @@ def build_fleet(
     runs: Sequence[FleetRun],
     protocol: ProtocolSpec | str = "paper",
     max_steps: int | None = MAX_STEPS,
-    device: str = "cpu",
+    device: str | Device = "cpu",
     simulator: Simulator = "auto",
     update: str = DEFAULT_UPDATE_ENGINE,
     table_cache: Path | None = None,
@@ -98,12 +92,14 @@ def make_fleet(
     runs: Sequence[FleetRun],
     protocol: ProtocolSpec,
     max_steps: int | None = MAX_STEPS,
-    device: str = "cpu",
+    device: str | Device = "cpu",
     simulator: Simulator = "auto",
     update: str = DEFAULT_UPDATE_ENGINE,
     table_cache: Path | None = None,
 ) -> FleetTrainer:
-    """The fleet trainer of a ``spec`` already resolved for ``protocol`` (a sweep's runs carry one)."""
+    """The fleet trainer of a ``spec`` already resolved for ``protocol`` (a sweep's runs carry one);
+    a sweep's ``device`` arrives as the :class:`~morality_gym.baselines.device.Device` it resolved
+    and checked once, which the fleet takes as it is."""
     return fleet_class(spec.target)(spec, runs, protocol=protocol, max_steps=max_steps, device=device, simulator=simulator,
                                     update=update, table_cache=table_cache)
 

@@ -45,6 +45,7 @@ import torch as th
 from stable_baselines3.common.logger import configure
 
 from morality_gym.baselines.callbacks import MoralityEvalCallback
+from morality_gym.baselines.device import Device
 from morality_gym.baselines.fleet.compiled import (
     DEFAULT_UPDATE_ENGINE,
     UPDATE_ENGINES,
@@ -59,9 +60,10 @@ from morality_gym.baselines.fleet.env import DeviceFleetEnv, FleetEnv, Simulator
 from morality_gym.baselines.fleet.nets import FleetNetworks, policy_linears
 from morality_gym.baselines.fleet.optim import BatchedAdam
 from morality_gym.baselines.fleet.rollout import Rollout, RolloutCollector, RolloutSettings
-from morality_gym.baselines.fleet.state import CheckpointMismatch, identity_difference, plain_data
+from morality_gym.baselines.fleet.state import CheckpointMismatch, key_difference, plain_data
 from morality_gym.baselines.fleet.streams import RunStreams
-from morality_gym.baselines.learners import SB3Learner, make_learner
+from morality_gym.baselines.learners import make_learner
+from morality_gym.baselines.sb3_learner import SB3Learner
 from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError, protocol_spec, training_steps
 from morality_gym.baselines.targets import resolve
 from morality_gym.constants import LEARN_EVAL_EPISODES, MAX_STEPS
@@ -121,10 +123,18 @@ class FleetRun:
         return hashlib.sha256(text.encode()).hexdigest()
 
 
-def fleet_device(device: str | th.device, here: bool = True) -> th.device:
+def fleet_device(device: str | th.device | Device, here: bool = True) -> th.device:
     """``device`` as a torch device, refused (:class:`SpecError`) when it is not one the fleet
     engine runs on, or, with ``here``, when torch cannot use it in this process (a dry run, or a
-    SLURM submission whose GPUs are on the compute nodes, passes ``here=False``)."""
+    SLURM submission whose GPUs are on the compute nodes, passes ``here=False``).
+
+    A :class:`~morality_gym.baselines.device.Device` (what a sweep resolves once and carries down)
+    is not parsed or checked again: it was checked on this machine, or is checked now if it was
+    not (:meth:`~morality_gym.baselines.device.Device.usable`). A string is a library caller's."""
+    if isinstance(device, Device):
+        if here:
+            device.usable()
+        return th.device(device.name)
     try:
         dev = th.device(device)
     except RuntimeError as exc:
@@ -163,7 +173,7 @@ class FleetTrainer:
         runs: Sequence[FleetRun],
         protocol: ProtocolSpec | str = "paper",
         max_steps: int | None = MAX_STEPS,
-        device: str | th.device = "cpu",
+        device: str | th.device | Device = "cpu",
         simulator: Simulator = "auto",
         update: str = DEFAULT_UPDATE_ENGINE,
         table_cache: Path | None = None,
@@ -470,10 +480,12 @@ class FleetTrainer:
         return th.from_numpy(arr).to(self.device)
 
     # ------------------------------------------------------------------ checkpoints
-    def identity(self) -> dict[str, Any]:
+    def checkpoint_key(self) -> dict[str, Any]:
         """What a checkpoint of this fleet's training only fits: the learner (every hyper-parameter),
         the protocol, each run's env id, chain and seed, the budget, the evaluation schedule, the
-        device and the simulator. :meth:`load_state_dict` refuses a state of another identity."""
+        device and the simulator. :meth:`load_state_dict` refuses a state of another key. (Not a
+        run's identity, :mod:`morality_gym.results.identity`: a fleet of the same runs on another
+        device is the same runs, but not the same training state.)"""
         return {
             "algorithm": self.algorithm,
             "spec": repr(self.spec),
@@ -506,7 +518,7 @@ class FleetTrainer:
         own), so they are not kept either (a test changes them between interruption and resume).
         """
         return {
-            "identity": self.identity(),
+            "identity": self.checkpoint_key(),  # stored under its old name: earlier checkpoints still resume
             "num_timesteps": int(self.num_timesteps),
             "progress_remaining": float(self.progress_remaining),
             "next_eval": int(self._next_eval),
@@ -522,14 +534,14 @@ class FleetTrainer:
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Continue from :meth:`state_dict` of a fleet of the same :meth:`identity` (raises
+        """Continue from :meth:`state_dict` of a fleet of the same :meth:`checkpoint_key` (raises
         :class:`CheckpointMismatch` otherwise, before changing anything). Called by :meth:`learn`
         after it set up step 0 and the evaluations. Tensors are copied *in place*: the networks'
         parameters are views into their optimisers' flat buffers. Should a part fail to load
         (a damaged file), the state from before the call is put back and the error raised."""
-        mine, theirs = self.identity(), state.get("identity")
+        mine, theirs = self.checkpoint_key(), state.get("identity")
         if theirs != mine:
-            raise CheckpointMismatch(identity_difference(mine, theirs))
+            raise CheckpointMismatch(key_difference(mine, theirs))
         before = self.state_dict()
         try:
             self._load(state)

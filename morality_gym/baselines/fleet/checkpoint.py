@@ -26,7 +26,7 @@ from the start; a file of another fleet or code is only stale, and is removed.
 
 A file is used only if it matches: the caller's ``key`` (e.g. the runs' ids and the code's commit:
 a fleet half-trained by other code must not be finished by this one) and the fleet's own
-:meth:`~morality_gym.baselines.fleet.base.FleetTrainer.identity` (learner, runs, budget, device).
+:meth:`~morality_gym.baselines.fleet.base.FleetTrainer.checkpoint_key` (learner, runs, budget, device).
 A file that does not match, or cannot be read, is discarded with one warning, and training starts
 from step 0: a checkpoint never fails a sweep. A file that cannot be written (a full disk: torch
 raises ``RuntimeError`` for a short write, not ``OSError``) is one warning naming the path and
@@ -79,7 +79,7 @@ class FleetCheckpoint:
     :param every_s: the least wall time between two writes during training (0: after every
         update); the last write, when training ends, is always made.
     :param key: plain data that identifies what the file is for; a file saved under another key is
-        discarded (the fleet also checks its own identity).
+        discarded (the fleet also checks its own checkpoint key).
     :param extra: called at every write: plain data of the caller's to keep with the state.
     :param on_resume: called with ``(steps, extra)`` when a file was restored, before training goes on.
     """

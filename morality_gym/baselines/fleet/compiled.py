@@ -52,12 +52,7 @@ import torch as th
 
 from morality_gym.baselines.fleet.losses import Policy, mse
 from morality_gym.baselines.fleet.nets import ACTIVATIONS, Layers, Trace, backward_layers, trace_layers
-
-#: The update engines of a fleet: ``eager`` (per-operation PyTorch; reruns the releases bit for bit)
-#: and ``compiled`` (this module).
-UPDATE_ENGINES = ("eager", "compiled")
-#: The one place the default lives (the sweep's ``fleet_update`` and :func:`~.build_fleet` read it).
-DEFAULT_UPDATE_ENGINE = "eager"
+from morality_gym.baselines.specs import DEFAULT_UPDATE_ENGINE, UPDATE_ENGINES
 
 Step = Callable[..., Any]
 #: A ``torch.compile`` backend: None (inductor), a registered name, or a backend function.

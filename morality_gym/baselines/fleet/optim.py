@@ -97,13 +97,7 @@ class BatchedAdam:
         runs = np.flatnonzero(active)
         if not len(runs):
             return
-        rows = grads[0].shape[0]
-        g = th.cat([x.reshape(rows, -1) for x in grads], dim=1)
-        if rows == self.n_runs and len(runs) < rows:
-            g = g[th.from_numpy(runs)]
-        elif rows != len(runs):
-            raise ValueError(f"gradients for {rows} runs, but {len(runs)} runs are masked in")
-        # From here on ``g``'s rows are the active runs'.
+        g = self._active_gradient(grads, runs)  # from here on ``g``'s rows are the active runs'
         if l2:
             params = self.flat if len(runs) == self.n_runs else self.flat[th.from_numpy(runs)]
             g.add_(params * (2.0 * l2))  # = l2 * (2 * theta) exactly: doubling is exact in binary floats
@@ -114,9 +108,24 @@ class BatchedAdam:
             self._step_counts.add_(1.0)
         else:
             self._step_counts[th.from_numpy(runs).to(self._step_counts.device)] += 1.0
+        self._fused_step(g, runs, lr[runs])
+
+    def _active_gradient(self, grads: Sequence[th.Tensor], runs: np.ndarray) -> th.Tensor:
+        """The gradients as one ``[R, P]`` matrix whose rows are the active ``runs``' (given for
+        every run, or for the active runs only)."""
+        rows = grads[0].shape[0]
+        g = th.cat([x.reshape(rows, -1) for x in grads], dim=1)
+        if rows == self.n_runs and len(runs) < rows:
+            return g[th.from_numpy(runs)]
+        if rows != len(runs):
+            raise ValueError(f"gradients for {rows} runs, but {len(runs)} runs are masked in")
+        return g
+
+    def _fused_step(self, g: th.Tensor, runs: np.ndarray, rates: np.ndarray) -> None:
+        """PyTorch's fused Adam kernel on the active ``runs`` (``g``'s rows), once per distinct
+        learning rate among ``rates`` (one call when they share one, as they usually do)."""
         flat, avg, avg_sq = self._rows
         g_rows = g.unbind()
-        rates = lr[runs]
         for rate in (rates[:1] if (rates == rates[0]).all() else np.unique(rates)):
             group = range(len(runs)) if len(rates) == 1 or (rates == rate).all() else np.flatnonzero(rates == rate).tolist()
             members = runs[list(group)].tolist()

@@ -22,10 +22,10 @@ class NonFiniteTraining(ArithmeticError):
     """One run of a fleet whose training went non-finite: that run's failure, not its fleet's."""
 
 
-def identity_difference(mine: dict[str, Any], theirs: Any) -> str:
-    """The first field in which a saved identity differs from this fleet's, in words."""
+def key_difference(mine: dict[str, Any], theirs: Any) -> str:
+    """The first field in which a saved checkpoint key differs from this fleet's, in words."""
     if not isinstance(theirs, dict):
-        return "the file holds no fleet identity"
+        return "the file holds no fleet checkpoint key"
     for key, value in mine.items():
         if theirs.get(key) != value:
             return f"{key} differs (saved {theirs.get(key)!r}, this fleet {value!r})"
