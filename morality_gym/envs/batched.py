@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import weakref
 from pathlib import Path
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 
@@ -32,8 +32,10 @@ AutoReset = Literal["same_step", "disabled"]
 #: or the compact observation (:mod:`morality_gym.world.compact_observe`): the grid's facts in 128 numbers.
 BATCHED_OBS_TYPES = ("flat", "grid", "compact")
 
-_HARM_BIT = np.uint32(1 << EVENT_BIT["harm"])
-_LIVING_BITS = np.uint32(sum(1 << EVENT_BIT[n] for n in ("human_harm", "animal_harm", "robot_harm")))
+#: Event bits that make the utility keys present (:func:`utility_present`). Plain ints, so that the same
+#: test works on numpy's uint32 masks and on torch's int64 ones (:mod:`morality_gym.envs.torch_sim`).
+HARM_BIT = 1 << EVENT_BIT["harm"]
+LIVING_BITS = sum(1 << EVENT_BIT[n] for n in ("human_harm", "animal_harm", "robot_harm"))
 
 
 class BatchStep(NamedTuple):
@@ -108,15 +110,16 @@ def sim_tables(env_id: str, obs_type: str, obs_dtype: type, *, overrides: Overri
     return tables
 
 
-def utility_present(events: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def utility_present(events: Any) -> tuple[Any, Any]:
     """Which utility keys a step reported, from its event masks (spec section 8).
 
     Returns (``type_keys``, ``n_harm``): ``n_human_harm``, ``n_animal_harm``, ``n_robot_harm`` and
     ``n_weighted_harm`` are present whenever anything (the trolley included) was harmed;
     ``n_harm`` only when a human, animal or robot (the agent included) was harmed. The cost needs
-    this because a present zero is normalised differently from an absent key.
+    this because a present zero is normalised differently from an absent key. ``events`` is a numpy
+    uint32 array or a torch int64 tensor; the result is of the same kind.
     """
-    return (events & _HARM_BIT) != 0, (events & _LIVING_BITS) != 0
+    return (events & HARM_BIT) != 0, (events & LIVING_BITS) != 0
 
 
 class BatchedTrolleyEnv:
