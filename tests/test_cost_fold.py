@@ -6,8 +6,8 @@ evaluation spec section 5 evaluated term by term in plain Python floats on each 
 always summed (event norms, then utility norms, each in the chain's order): every built-in chain on
 every env id it binds to, all three modes and both reset policies, compared bit for bit with
 :meth:`VectorCost.from_norm_events` (the single-env path) and with :class:`StackedCost` on numpy and on
-torch (all copies in one pass). The second part pins :func:`~morality_gym.norms.cost.fold`, the one
-vectorised sum, to the left-to-right sum on inputs where a reduction's pairing changes the last bit.
+torch (all copies in one pass). The second part pins :func:`~morality_gym.norms.cost.fold` to the
+left-to-right sum on inputs where a reduction's pairing changes the last bit.
 """
 
 from __future__ import annotations
@@ -148,16 +148,19 @@ def _left_fold(terms: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("n_copies", [1, 3, 1000])
 def test_fold_is_the_left_to_right_sum_where_a_reduction_is_not(n_copies: int) -> None:
     """Terms of very different sizes (what a chain's lexicographic weights give), 1 to 20 of them:
-    ``fold`` on numpy and on torch equals ``((0 + t0) + t1) + ...`` bit for bit; numpy's ``sum``
-    does not on some of them (it pairs 8 or more contiguous values), which is why the cost folds."""
+    ``fold`` on numpy and on torch equals ``((0 + t0) + t1) + ...`` bit for bit; ``sum`` over the
+    term axis does not on some of them (numpy adds a lone copy's terms as ``t0 + (t1 + ...)``),
+    which is why the cost folds instead of reducing."""
     rng = np.random.default_rng(n_copies)
     reduction_differs = False
     for n_terms in range(1, 21):
         terms = rng.standard_normal((n_terms, n_copies)) * 10.0 ** rng.integers(-8, 8, size=(n_terms, n_copies))
         want = _left_fold(terms)
-        assert fold(terms).tobytes() == want.tobytes()
+        zero = np.zeros((1, n_copies))
+        assert fold([zero, terms]).tobytes() == want.tobytes()
         for device in DEVICES:
-            assert fold(th.from_numpy(terms).to(device)).cpu().numpy().tobytes() == want.tobytes()
-        reduction_differs |= terms.sum(0).tobytes() != want.tobytes()
+            blocks = [th.from_numpy(zero).to(device), th.from_numpy(terms).to(device)]
+            assert fold(blocks).cpu().numpy().tobytes() == want.tobytes()
+        reduction_differs |= np.concatenate([zero, terms]).sum(0).tobytes() != want.tobytes()
     if n_copies == 1:
         assert reduction_differs  # the evidence that the order matters on these inputs
