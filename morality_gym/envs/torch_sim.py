@@ -30,7 +30,8 @@ import numpy as np
 import torch as th
 
 from morality_gym.constants import MAX_STEPS
-from morality_gym.envs.registry import parse_env_id, state_graph
+from morality_gym.envs.batched import canonical_env_id
+from morality_gym.envs.registry import state_graph
 from morality_gym.envs.trolley import _overrides
 from morality_gym.world.graph import N_ACTIONS, GraphTables
 
@@ -45,12 +46,6 @@ class TorchStep(NamedTuple):
     events: th.Tensor  # int64 [n]: bit masks over vocab.EVENTS
     transition: th.Tensor  # int64 [n]: the row of each copy's transition (for utility, goal_reached)
     final_obs: th.Tensor  # float32 [n, obs_dim]: last observation of the copies that ended, zeros elsewhere
-
-
-def canonical_env_id(env_id: str) -> str:
-    """``env_id`` as the registry spells it (``PushOrSwitch-Human-v1``), or its one-line error."""
-    scenario, variant = parse_env_id(env_id)
-    return scenario.env_id(variant)
 
 
 class TorchTrolleySim:
