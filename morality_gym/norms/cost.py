@@ -404,13 +404,16 @@ class StackedCost:
         """One step's terms in the order they are summed, as blocks ``[terms, copies]`` (the ``0.0``
         the sum starts from, the event norms', the utility norms'), and the event bits violated for
         the first time (``new``); nothing is changed."""
-        type_present, living_present = present
+        blocks = [self._zero_row]
         new = events & self.event_mask & ~self.charged
-        fired = (new >> self.event_bits) & 1
-        x = _namespace(utility).take(utility, self._rows + self.utility_column)  # [utilities, copies]
-        shown = _where(self.utility_living, living_present, type_present)
-        utilities = _where(shown, self.utility_weights * ((x - self.utility_lo) / self.utility_span), 0.0)
-        return [self._zero_row, self.event_weights * fired, utilities], new
+        if len(self.event_bits):  # a chain without event norms (Utility) skips the block's operations
+            blocks.append(self.event_weights * ((new >> self.event_bits) & 1))
+        if len(self.utility_column):  # and one without utility norms (Outcome) this one's
+            type_present, living_present = present
+            x = _namespace(utility).take(utility, self._rows + self.utility_column)  # [utilities, copies]
+            shown = _where(self.utility_living, living_present, type_present)
+            blocks.append(_where(shown, self.utility_weights * ((x - self.utility_lo) / self.utility_span), 0.0))
+        return blocks, new
 
     def __call__(self, events: Any, utility: Any, ended: Any) -> Any:
         """float64 costs of one step of every copy: uint32 event masks ``[n]`` (int64 on a device),
