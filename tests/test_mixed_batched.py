@@ -69,3 +69,21 @@ def test_mixed_simulator_pads_observations_of_different_sizes_when_asked() -> No
         alone = MixedBatchedTrolleyEnv([env_id]).reset()[0]
         np.testing.assert_array_equal(obs[i, : len(alone)], alone)
         assert not obs[i, len(alone):].any()
+
+
+def test_one_env_id_is_a_mixture_of_one_sharing_its_graphs_tables() -> None:
+    """The simulator is built once, for the general case: a simulator of one env id is a mixture
+    of one (the same layout attributes, its starts in one graph) whose tables are the graph's own
+    arrays, not copies, whichever class builds it; a mixture does not build a simulator of its
+    first id and then replace its tables."""
+    single = BatchedTrolleyEnv("PushOrSwitch-Human-v1", 3, max_steps=20)
+    mixture = MixedBatchedTrolleyEnv(["PushOrSwitch-Human-v1"] * 3, max_steps=20)
+    for sim in (single, mixture):
+        assert sim.env_ids == ["PushOrSwitch-Human-v1"] * 3 and sim.unique_env_ids == ["PushOrSwitch-Human-v1"]
+        np.testing.assert_array_equal(sim.copy_graph, [0, 0, 0])
+        np.testing.assert_array_equal(sim.graph_offsets, [0])
+        assert sim.obs_dims == {"PushOrSwitch-Human-v1": sim.obs_dim}
+    for table in ("_next", "_events", "_done"):
+        assert np.shares_memory(getattr(single, table), getattr(mixture, table)), table
+    with pytest.raises(ValueError, match="at least one env id"):
+        MixedBatchedTrolleyEnv("PushOrSwitch-Human-v1")  # type: ignore[arg-type]

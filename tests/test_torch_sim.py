@@ -19,7 +19,6 @@ from morality_gym.envs.torch_sim import TorchStep, TorchTrolleySim
 from morality_gym.norms.chain import ChainError
 from morality_gym.norms.cost import StackedCost, VectorCost
 from morality_gym.norms.reward_cost import RewardCostSpec
-from morality_gym.norms.torch_cost import TorchCost
 
 COPIES = 3
 STEPS = 120
@@ -107,7 +106,7 @@ def test_the_device_cost_of_every_builtin_chain_matches_the_host_cost(mode: str,
     assert len({b.chain.name for b in bounds}) >= 4 and len(bounds) >= 98
     spec = RewardCostSpec(cost_mode=mode, cost_reset=reset, cost_scale=2.0)  # type: ignore[arg-type]
     sim = TorchTrolleySim([b.env_id for b in bounds], device, max_steps=30)
-    device_cost = TorchCost.for_copies(bounds, spec, device)
+    device_cost = StackedCost.for_copies(bounds, spec, device)
     groups = [
         (np.array([i]), VectorCost(b, 1, mode=spec.cost_mode, scale=spec.cost_scale, reset=spec.cost_reset))
         for i, b in enumerate(bounds)

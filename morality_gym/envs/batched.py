@@ -11,8 +11,9 @@ environment step for step (tested), including truncation on step ``max_steps + 1
 from __future__ import annotations
 
 import weakref
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 
@@ -32,8 +33,10 @@ AutoReset = Literal["same_step", "disabled"]
 #: or the compact observation (:mod:`morality_gym.world.compact_observe`): the grid's facts in 128 numbers.
 BATCHED_OBS_TYPES = ("flat", "grid", "compact")
 
-_HARM_BIT = np.uint32(1 << EVENT_BIT["harm"])
-_LIVING_BITS = np.uint32(sum(1 << EVENT_BIT[n] for n in ("human_harm", "animal_harm", "robot_harm")))
+#: Event bits that make the utility keys present (:func:`utility_present`). Plain ints, so that the same
+#: test works on numpy's uint32 masks and on torch's int64 ones (:mod:`morality_gym.envs.torch_sim`).
+HARM_BIT = 1 << EVENT_BIT["harm"]
+LIVING_BITS = sum(1 << EVENT_BIT[n] for n in ("human_harm", "animal_harm", "robot_harm"))
 
 
 class BatchStep(NamedTuple):
@@ -108,15 +111,16 @@ def sim_tables(env_id: str, obs_type: str, obs_dtype: type, *, overrides: Overri
     return tables
 
 
-def utility_present(events: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def utility_present(events: Any) -> tuple[Any, Any]:
     """Which utility keys a step reported, from its event masks (spec section 8).
 
     Returns (``type_keys``, ``n_harm``): ``n_human_harm``, ``n_animal_harm``, ``n_robot_harm`` and
     ``n_weighted_harm`` are present whenever anything (the trolley included) was harmed;
     ``n_harm`` only when a human, animal or robot (the agent included) was harmed. The cost needs
-    this because a present zero is normalised differently from an absent key.
+    this because a present zero is normalised differently from an absent key. ``events`` is a numpy
+    uint32 array or a torch int64 tensor; the result is of the same kind.
     """
-    return (events & _HARM_BIT) != 0, (events & _LIVING_BITS) != 0
+    return (events & HARM_BIT) != 0, (events & LIVING_BITS) != 0
 
 
 class BatchedTrolleyEnv:
@@ -134,6 +138,10 @@ class BatchedTrolleyEnv:
         obs_type: ``"flat"`` (default) the scenario's flat vector; ``"grid"`` the fixed-shape grid
             observation, flattened; ``"compact"`` the compact observation (:func:`observation_table`).
         table_cache: a folder that keeps the graphs' tables between processes (:func:`sim_tables`).
+
+    The simulator is built for the general case, copies of several env ids whose graphs are laid
+    end to end (:class:`~morality_gym.envs.mixed.MixedBatchedTrolleyEnv`, :meth:`_build`); one env id
+    is a mixture of one, whose tables are used as they are (no copy).
     """
 
     #: The batched simulator does not render (SB3 and Gymnasium probe this attribute).
@@ -154,47 +162,96 @@ class BatchedTrolleyEnv:
     ) -> None:
         if not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+        self._build([env_id] * num_envs, max_steps=max_steps, obs_dtype=obs_dtype, autoreset=autoreset,
+                    normalise_obs=normalise_obs, overrides=overrides, obs_type=obs_type, table_cache=table_cache)
+
+    def _build(
+        self,
+        env_ids: Sequence[str],
+        *,
+        max_steps: int | None,
+        obs_dtype: type,
+        autoreset: AutoReset,
+        normalise_obs: bool,
+        overrides: dict | None,
+        obs_type: str,
+        table_cache: Path | None,
+        pad_obs: bool = False,
+        graphs: Sequence[str] | None = None,
+    ) -> None:
+        """Set up ``len(env_ids)`` copies, copy ``i`` running ``env_ids[i]``, over the tables of
+        ``graphs`` (default: the copies' distinct env ids), loaded once each and laid end to end."""
         if autoreset not in ("same_step", "disabled"):
             raise ValueError(f"autoreset must be 'same_step' or 'disabled', got {autoreset!r}")
         if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 0):
             raise ValueError(f"max_steps must be a non-negative int or None, got {max_steps!r}")
-        scenario, variant = parse_env_id(env_id)
-        self.env_id = scenario.env_id(variant)
-        self.num_envs = num_envs
+        spelled = {e: canonical_env_id(e) for e in dict.fromkeys(env_ids)}
+        #: Every copy's env id, as the registry spells it.
+        self.env_ids: list[str] = [spelled[e] for e in env_ids]
+        #: The first copy's env id (the only one of a simulator of one env id).
+        self.env_id = self.env_ids[0]
+        #: The graphs whose tables are loaded, in order: ``graphs`` when given (every copy's id must
+        #: be one of them), else the copies' distinct env ids.
+        self.unique_env_ids: list[str] = list(dict.fromkeys(self.env_ids if graphs is None else map(canonical_env_id, graphs)))
+        unknown = sorted(set(self.env_ids) - set(self.unique_env_ids))
+        if unknown:
+            raise ValueError(f"copies run env ids that are not among graphs: {', '.join(unknown[:3])}")
+        self.num_envs = len(self.env_ids)
         self.max_steps = max_steps
         self.autoreset = autoreset
-        self._graph_args = (_overrides(overrides), normalise_obs)
-        t = self._first_tables(obs_type, obs_dtype, table_cache)
-        self._next = t.next
-        self._reward = t.reward.astype(np.float32)
-        self._events = t.events
-        self._done = t.done
         self.obs_type = obs_type
-        self._obs = t.obs
-        # One extra, empty row after the graph's transitions: what an ended copy "did" in a step.
-        self.no_transition = len(t.next)
-        self._utility = np.vstack([t.utility, np.zeros((1, t.utility.shape[1]), dtype=t.utility.dtype)])
-        self._goal = np.append(t.goal, False)
-        self.obs_dim = self._obs.shape[1]
+        self._graph_args = (_overrides(overrides), normalise_obs)
+        tables = [sim_tables(e, obs_type, obs_dtype, overrides=self._graph_args[0], normalise=normalise_obs, cache_dir=table_cache)
+                  for e in self.unique_env_ids]
+        self._lay_out(tables, pad_obs)
+        index = {e: i for i, e in enumerate(self.unique_env_ids)}
+        #: Each copy's graph, as an index into :attr:`unique_env_ids`.
+        self.copy_graph = np.array([index[e] for e in self.env_ids], dtype=np.int32)
+        #: Each copy's start state: its own graph's first state in the tables.
+        self._start = self.graph_offsets[self.copy_graph].astype(np.int32)
         self._limit = np.iinfo(np.int32).max if max_steps is None else max_steps
-        #: Each copy's start state (all 0 here; :class:`~morality_gym.envs.mixed.MixedBatchedTrolleyEnv`
-        #: gives each copy the start of its own graph inside concatenated tables).
-        self._start = np.zeros(num_envs, dtype=np.int32)
-        self.state = np.zeros(num_envs, dtype=np.int32)
-        self.elapsed = np.zeros(num_envs, dtype=np.int32)
-        self.ended = np.zeros(num_envs, dtype=bool)
+        self.state = self._start.copy()
+        self.elapsed = np.zeros(self.num_envs, dtype=np.int32)
+        self.ended = np.zeros(self.num_envs, dtype=bool)
         self._zero_reward = np.float32(0.0)
+
+    def _lay_out(self, tables: list[SimTables], pad_obs: bool) -> None:
+        """The graphs' tables end to end, each graph's states shifted by its offset, so that
+        transition row ``s * 6 + a`` of a global state is the same row of the copy's own graph;
+        observations zero-padded on the right to one width where ``pad_obs`` allows."""
+        dims = {e: int(t.obs.shape[1]) for e, t in zip(self.unique_env_ids, tables)}
+        #: Each env id's own observation width (before any padding).
+        self.obs_dims = dims
+        observations = [t.obs for t in tables]
+        if len(set(dims.values())) > 1:
+            if not pad_obs:
+                raise ValueError(
+                    f"the copies of one simulator must share an observation size, got {dims}; "
+                    "fleet only variants of one scenario together, use obs_type='grid', or pad_obs=True"
+                )
+            width = max(dims.values())
+            observations = [np.pad(o, ((0, 0), (0, width - o.shape[1]))) for o in observations]
+        offsets = np.cumsum([0] + [t.n_states for t in tables])[:-1].astype(np.int32)
+        #: Each graph's first state id in the tables (its start state).
+        self.graph_offsets = offsets
+        self._next = _joined([t.next.astype(np.int32, copy=False) + off if off else t.next for t, off in zip(tables, offsets)])
+        self._reward = _joined([t.reward for t in tables]).astype(np.float32)
+        self._events = _joined([t.events for t in tables])
+        self._done = _joined([t.done for t in tables])
+        self._obs = np.ascontiguousarray(_joined(observations))
+        self.obs_dim = self._obs.shape[1]
+        # One extra, empty row after the graphs' transitions: what an ended copy "did" in a step.
+        self.no_transition = len(self._next)
+        utility = _joined([t.utility for t in tables])
+        self._utility = np.vstack([utility, np.zeros((1, utility.shape[1]), dtype=utility.dtype)])
+        self._goal = np.append(_joined([t.goal for t in tables]), False)
+        assert len(self._next) == N_ACTIONS * len(self._done)
 
     @property
     def graph(self) -> StateGraph:
         """The (shared, memoised) state graph of :attr:`env_id`: enumerated only if asked for, since
         tables read from a cache need none."""
         return state_graph(self.env_id, *self._graph_args)
-
-    def _first_tables(self, obs_type: str, obs_dtype: type, table_cache: Path | None) -> SimTables:
-        """The tables of :attr:`env_id` (a subclass that replaces them may skip the work)."""
-        overrides, normalise = self._graph_args
-        return sim_tables(self.env_id, obs_type, obs_dtype, overrides=overrides, normalise=normalise, cache_dir=table_cache)
 
     # ------------------------------------------------------------------ API
     def reset(self, mask: np.ndarray | None = None) -> np.ndarray:
@@ -299,3 +356,15 @@ def _check_range(name: str, values: np.ndarray, low: int, high: int) -> None:
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise ValueError(f"simulator {name}: copy {i} holds {int(wide[i])}, outside {low}..{high}")
+
+
+def canonical_env_id(env_id: str) -> str:
+    """``env_id`` as the registry spells it (``PushOrSwitch-Human-v1``), or its one-line error."""
+    scenario, variant = parse_env_id(env_id)
+    return scenario.env_id(variant)
+
+
+def _joined(arrays: list[np.ndarray]) -> np.ndarray:
+    """The arrays one after another; a single array as it is (a simulator of one env id shares its
+    graph's tables instead of copying them)."""
+    return arrays[0] if len(arrays) == 1 else np.concatenate(arrays)

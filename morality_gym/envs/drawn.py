@@ -25,7 +25,8 @@ from typing import Final
 import numpy as np
 
 from morality_gym.constants import MAX_STEPS
-from morality_gym.envs.mixed import MixedBatchedTrolleyEnv, _canonical
+from morality_gym.envs.batched import canonical_env_id
+from morality_gym.envs.mixed import MixedBatchedTrolleyEnv
 
 _GOLDEN: Final = np.uint64(0x9E3779B97F4A7C15)
 _MIX1: Final = np.uint64(0xBF58476D1CE4E5B9)
@@ -77,7 +78,7 @@ class DrawnBatchedTrolleyEnv(MixedBatchedTrolleyEnv):
             raise ValueError(f"one seed per stream: {len(pools)} pools, {len(seeds)} seeds")
         if not isinstance(copies_per_stream, int) or copies_per_stream < 1:
             raise ValueError(f"copies_per_stream must be a positive int, got {copies_per_stream!r}")
-        canonical = [[_canonical(e) for e in pool] for pool in pools]
+        canonical = [[canonical_env_id(e) for e in pool] for pool in pools]
         graphs = list(dict.fromkeys(e for pool in canonical for e in pool))
         first = [pool[0] for pool in canonical for _ in range(copies_per_stream)]
         self.n_streams = len(pools)

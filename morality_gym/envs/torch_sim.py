@@ -30,14 +30,10 @@ import numpy as np
 import torch as th
 
 from morality_gym.constants import MAX_STEPS
-from morality_gym.envs.registry import parse_env_id, state_graph
+from morality_gym.envs.batched import canonical_env_id
+from morality_gym.envs.registry import state_graph
 from morality_gym.envs.trolley import _overrides
 from morality_gym.world.graph import N_ACTIONS, GraphTables
-from morality_gym.world.vocab import EVENT_BIT
-
-#: Event bits that make the utility keys present (spec section 8; see ``batched.utility_present``).
-HARM_BIT = 1 << EVENT_BIT["harm"]
-LIVING_BITS = sum(1 << EVENT_BIT[n] for n in ("human_harm", "animal_harm", "robot_harm"))
 
 
 class TorchStep(NamedTuple):
@@ -50,12 +46,6 @@ class TorchStep(NamedTuple):
     events: th.Tensor  # int64 [n]: bit masks over vocab.EVENTS
     transition: th.Tensor  # int64 [n]: the row of each copy's transition (for utility, goal_reached)
     final_obs: th.Tensor  # float32 [n, obs_dim]: last observation of the copies that ended, zeros elsewhere
-
-
-def canonical_env_id(env_id: str) -> str:
-    """``env_id`` as the registry spells it (``PushOrSwitch-Human-v1``), or its one-line error."""
-    scenario, variant = parse_env_id(env_id)
-    return scenario.env_id(variant)
 
 
 class TorchTrolleySim:
@@ -194,8 +184,3 @@ def _check_arguments(env_ids: Sequence[str], max_steps: int | None) -> None:
         raise ValueError("TorchTrolleySim needs a non-empty list of env ids, one per copy")
     if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 0):
         raise ValueError(f"max_steps must be a non-negative int or None, got {max_steps!r}")
-
-
-def utility_present(events: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-    """Which utility keys a step reported (``batched.utility_present`` for int64 event tensors)."""
-    return (events & HARM_BIT) != 0, (events & LIVING_BITS) != 0

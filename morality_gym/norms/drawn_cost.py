@@ -16,18 +16,12 @@ single-env PPO-Lag and CPO runs has no meaning here; docs/protocols.md).
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Sequence
 
 import numpy as np
 
 from morality_gym.norms.cost import CostMode, StackedCost, VectorCost
 from morality_gym.norms.metric import BoundChain
-
-#: StackedCost's per-copy arrays: 1-D ``[copies]`` and 2-D ``[terms, copies]``.
-_COLUMNS_1D = ("event_mask", "scale", "weight_sum", "per_episode", "normalise")
-_COLUMNS_2D = ("event_bits", "event_weights", "utility_column", "utility_weights", "utility_lo", "utility_span",
-               "utility_degenerate", "utility_living")
 
 
 class DrawnCost:
@@ -45,8 +39,7 @@ class DrawnCost:
         self.table = table
         self.entries = list(entries)
         self.rows = np.zeros(n_copies, dtype=np.int64)
-        self.copies = _gathered(table, self.rows)
-
+        self.copies = table.gathered(self.rows)
 
     def assign(self, mask: np.ndarray, rows: np.ndarray) -> None:
         """Copies where ``mask`` is true start an episode under entries ``rows`` (one per copy, all
@@ -54,9 +47,9 @@ class DrawnCost:
         mask = np.asarray(mask, dtype=bool)
         chosen = np.asarray(rows, dtype=np.int64)[mask]
         self.rows[mask] = chosen
-        for name in _COLUMNS_1D:
+        for name in StackedCost.COLUMNS_1D:
             getattr(self.copies, name)[mask] = getattr(self.table, name)[chosen]
-        for name in _COLUMNS_2D:
+        for name in StackedCost.COLUMNS_2D:
             getattr(self.copies, name)[:, mask] = getattr(self.table, name)[:, chosen]
         self.copies.charged[mask] = 0
 
@@ -75,15 +68,3 @@ class DrawnCost:
         self.assign(np.ones(len(rows), dtype=bool), rows)
         self.copies.load_state_dict({"charged": state["charged"]})
 
-
-def _gathered(table: StackedCost, rows: np.ndarray) -> StackedCost:
-    """A stacked cost over ``len(rows)`` copies whose columns are ``table``'s rows ``rows``, memory empty."""
-    out = copy.copy(table)
-    for name in _COLUMNS_1D:
-        setattr(out, name, getattr(table, name)[rows].copy())
-    for name in _COLUMNS_2D:
-        setattr(out, name, getattr(table, name)[:, rows].copy())
-    out.n_copies = len(rows)
-    out.charged = np.zeros(len(rows), dtype=np.uint32)
-    out._rows = np.arange(len(rows))
-    return out

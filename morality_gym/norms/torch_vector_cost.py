@@ -2,8 +2,8 @@
 
 :class:`TorchCostWrapper` is the device counterpart of :class:`~morality_gym.norms.wrappers.VecMoralityWrapper`'s
 cost: each copy is scored by its own chain bound to its own env id (any mix of chains over any mix
-of env ids), with :class:`~morality_gym.norms.torch_cost.TorchCost`, whose float64 arithmetic gives
-the host :class:`~morality_gym.norms.cost.StackedCost`'s bits. It lives in the norms layer because
+of env ids), with the one step-wise cost, :class:`~morality_gym.norms.cost.StackedCost`, on the env's
+device (the same code and bits as on the host). It lives in the norms layer because
 the env does not know about chains (the layering is world -> envs -> norms).
 
 It adds ``infos["cost"]`` and leaves the reward as the env gives it: how reward and cost are combined
@@ -20,12 +20,12 @@ import torch as th
 from gymnasium.vector import VectorEnv, VectorWrapper
 
 from morality_gym.constants import BETA
-from morality_gym.envs.torch_sim import canonical_env_id
+from morality_gym.envs.batched import canonical_env_id
 from morality_gym.envs.torch_vector import TorchTrolleyVectorEnv
 from morality_gym.norms.chain import MoralityChain
+from morality_gym.norms.cost import StackedCost
 from morality_gym.norms.metric import BoundChain, bind_chain
 from morality_gym.norms.reward_cost import RewardCostSpec
-from morality_gym.norms.torch_cost import TorchCost
 
 ChainRef = str | MoralityChain | BoundChain
 #: The paper's cost: all chain norms, scenario-wide bounds ("minimal"), scale 1, memory cleared per episode.
@@ -67,7 +67,7 @@ class TorchCostWrapper(VectorWrapper):
         self.base = base
         self.reward_cost = reward_cost
         self.bounds: list[BoundChain] = per_copy_bounds(base, chains, beta)
-        self.cost = TorchCost.for_copies(self.bounds, reward_cost, base.device)
+        self.cost = StackedCost.for_copies(self.bounds, reward_cost, base.device)
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         """Reset the env; under ``cost_reset="per_episode"`` also the reset copies' first-violation memory."""

@@ -12,8 +12,8 @@ Two simulators give the same bits (tested), and both take and return tensors on 
   :class:`~morality_gym.norms.cost.StackedCost`). On the CPU that is the fastest: numpy's small-array
   operations cost a third of torch's, and the tensors share the arrays' memory.
 * :class:`DeviceFleetEnv` keeps the tables and the cost memory on the device
-  (:class:`~morality_gym.envs.torch_sim.TorchTrolleySim`, :class:`~morality_gym.norms.torch_cost.TorchCost`),
-  so a GPU fleet never sends a step's data to the host and back.
+  (:class:`~morality_gym.envs.torch_sim.TorchTrolleySim`, the same :class:`~morality_gym.norms.cost.StackedCost`
+  on tensors), so a GPU fleet never sends a step's data to the host and back.
 
 :func:`fleet_env` picks one (``simulator="auto"``: the device's on a GPU, the host's on the CPU).
 """
@@ -32,7 +32,6 @@ from morality_gym.envs.torch_sim import TorchTrolleySim
 from morality_gym.norms.cost import StackedCost, VectorCost
 from morality_gym.norms.metric import BoundChain
 from morality_gym.norms.reward_cost import RewardCostSpec
-from morality_gym.norms.torch_cost import TorchCost
 
 #: Which simulator a fleet steps: ``auto`` (the device's on a GPU, else the host's), ``host``, ``device``.
 Simulator = Literal["auto", "host", "device"]
@@ -180,7 +179,7 @@ class DeviceFleetEnv(_OneCostMemory):
     ) -> None:
         super().__init__(bounds, n_envs, reward_cost, device)
         copies = [b for b in bounds for _ in range(n_envs)]
-        self.cost = TorchCost.for_copies(copies, reward_cost, self.device)  # first: refuses prescribed norms
+        self.cost = StackedCost.for_copies(copies, reward_cost, self.device)  # first: refuses prescribed norms
         self.sim = TorchTrolleySim([b.env_id for b in copies], self.device, max_steps=max_steps)
         self.obs_dim = self.sim.obs_dim
         self.run_obs_dims = [self.sim.obs_dims[self.sim.env_ids[k * n_envs]] for k in range(self.n_runs)]
