@@ -308,7 +308,23 @@ class StackedCost:
                 # else lo 0 and span 1: (x - 0) / 1 is x, exactly: the raw value
             self.scale[copies], self.weight_sum[copies] = cost.scale, cost.weight_sum
             self.per_episode[copies] = cost.reset_policy == "per_episode"
+        one_group = len(groups) == 1 and len(np.unique(groups[0][0])) == n_copies > 0
+        self._uniform = self._uniform_terms() if one_group else None
         self._sized(n_copies, np.zeros(n_copies, dtype=np.uint32), np.arange(n_copies) * len(UTILITIES), np.zeros((1, n_copies)))
+
+    def _uniform_terms(self) -> tuple[list[tuple[int, float]], list[tuple[int, bool, float, float, float]]]:
+        """The terms as plain numbers, for copies that all have the same ones (one group: every
+        :class:`VectorCost`); numpy only (:meth:`to` drops them: torch would take a Python float
+        times an int64 tensor as float32).
+
+        Why: a step then computes each term on one column of ``[copies]`` with scalar parameters,
+        the arithmetic of the blocks one row at a time. At 65,536 copies the blocks' ``[terms,
+        copies]`` arrays and their per-copy parameters took 1.9x the time of this form (2.2-2.9 ms
+        against 1.3-1.4 ms per step); below 16,384 copies the two are alike."""
+        events = [(int(bit[0]), float(w[0])) for bit, w in zip(self.event_bits, self.event_weights)]
+        utilities = [(int(self.utility_column[j, 0]), bool(self.utility_living[j, 0]), float(self.utility_weights[j, 0]),
+                      float(self.utility_lo[j, 0]), float(self.utility_span[j, 0])) for j in range(len(self.utility_column))]
+        return events, utilities
 
     def _sized(self, n_copies: int, charged: Any, rows: Any, zero_row: Any) -> None:
         """Set what follows from the number of copies: an empty memory, where each copy's row of the
@@ -377,6 +393,7 @@ class StackedCost:
         for name in (*self.COLUMNS_1D, *self.COLUMNS_2D):
             setattr(out, name, tensor(getattr(self, name)))
         out._sized(self.n_copies, tensor(self.charged), tensor(self._rows), tensor(self._zero_row))
+        out._uniform = None  # the blocks keep float64 on torch (see _uniform_terms)
         out.device = dev
         return out
 
@@ -406,6 +423,8 @@ class StackedCost:
         the first time (``new``); nothing is changed."""
         blocks = [self._zero_row]
         new = events & self.event_mask & ~self.charged
+        if self._uniform is not None:
+            return [*blocks, *self._uniform_rows(new, utility, present)], new
         if len(self.event_bits):  # a chain without event norms (Utility) skips the block's operations
             blocks.append(self.event_weights * ((new >> self.event_bits) & 1))
         if len(self.utility_column):  # and one without utility norms (Outcome) this one's
@@ -414,6 +433,17 @@ class StackedCost:
             shown = _where(self.utility_living, living_present, type_present)
             blocks.append(_where(shown, self.utility_weights * ((x - self.utility_lo) / self.utility_span), 0.0))
         return blocks, new
+
+    def _uniform_rows(self, new: Any, utility: Any, present: tuple[Any, Any]) -> list[list[Any]]:
+        """:meth:`terms`' blocks, one row each, for copies that share their terms (:meth:`_uniform_terms`):
+        the same operations in the same order, on one column at a time with scalar parameters."""
+        events, utilities = self._uniform
+        rows = [[w * ((new >> bit) & 1)] for bit, w in events]
+        type_present, living_present = present
+        for column, living, w, lo, span in utilities:
+            shown = living_present if living else type_present
+            rows.append([_where(shown, w * ((utility[:, column] - lo) / span), 0.0)])
+        return rows
 
     def __call__(self, events: Any, utility: Any, ended: Any) -> Any:
         """float64 costs of one step of every copy: uint32 event masks ``[n]`` (int64 on a device),
@@ -440,9 +470,11 @@ def fold(blocks: Sequence[Any]) -> Any:
     has a handful of terms (the built-in ones 3 to 7), so the loop is a handful of additions.
     """
     rows = [row for block in blocks for row in block]
-    total = rows[0]
-    for row in rows[1:]:
-        total = total + row
+    if len(rows) == 1:
+        return rows[0]
+    total = rows[0] + rows[1]
+    for row in rows[2:]:
+        total += row  # in place on the sum's own new array: the same additions, no temporary each
     return total
 
 
