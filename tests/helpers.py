@@ -1,4 +1,5 @@
-"""Helpers shared by the environment tests: the committed route facts and small episode tools.
+"""Helpers shared by the environment and cost tests: the committed route facts, small episode tools,
+and every (chain, env id) pair the built-in chains bind to.
 
 The facts come from ``tests/data/route_tables.yaml`` (recorded from the reference), never from
 the library under test, so that a test compares the library against something independent of it.
@@ -13,6 +14,9 @@ from typing import Any
 
 import numpy as np
 import yaml
+
+import morality_gym  # only bound_pairs() reads the library: the route facts stay independent of it
+from morality_gym.norms.chain import ChainError
 
 DATA = Path(__file__).resolve().parent / "data"
 
@@ -77,3 +81,16 @@ def position(obs: dict[str, dict[str, np.ndarray]], entity: str, height: int, wi
     """The (row, col) of an entity from a normalised observation (positions are row/H, col/W)."""
     r, c = obs[entity]["pos"]
     return round(float(r) * height), round(float(c) * width)
+
+
+def bound_pairs() -> list[morality_gym.BoundChain]:
+    """Every built-in chain bound to every env id it binds to (a chain that does not bind to an env
+    id is skipped): the cost tests' whole domain."""
+    pairs = []
+    for chain in morality_gym.builtin_chains():
+        for env_id in morality_gym.env_ids():
+            try:
+                pairs.append(morality_gym.bind_chain(chain, env_id))
+            except (ChainError, ValueError):
+                continue
+    return pairs

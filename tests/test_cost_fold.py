@@ -18,25 +18,14 @@ import torch as th
 
 import morality_gym
 from morality_gym.envs.batched import utility_present
-from morality_gym.norms.chain import ChainError
 from morality_gym.norms.cost import StackedCost, VectorCost, fold
 from morality_gym.norms.metric import BoundChain, compute_weights
 from morality_gym.norms.reward_cost import RewardCostSpec
 from morality_gym.world.vocab import EVENTS, UTILITIES, names_to_mask
+from tests.helpers import bound_pairs
 
 DEVICES = ["cpu", *(["cuda"] if th.cuda.is_available() else [])]
 STEPS = 40
-
-
-def _bound_pairs() -> list[BoundChain]:
-    pairs = []
-    for chain in morality_gym.builtin_chains():
-        for env_id in morality_gym.env_ids():
-            try:
-                pairs.append(morality_gym.bind_chain(chain, env_id))
-            except (ChainError, ValueError):
-                continue
-    return pairs
 
 
 class _SpecCost:
@@ -80,7 +69,7 @@ def _step(cost: StackedCost, where: str, events: np.ndarray, utility: np.ndarray
 
 @pytest.mark.parametrize(("mode", "reset"), [("minimal", "never"), ("full", "per_episode"), ("partial", "per_episode")])
 def test_the_one_cost_is_the_spec_formula_on_the_scalar_env_bit_for_bit(mode: str, reset: str) -> None:
-    bounds = _bound_pairs()
+    bounds = bound_pairs()
     assert len({b.chain.name for b in bounds}) >= 4 and len(bounds) >= 98
     spec = RewardCostSpec(cost_mode=mode, cost_reset=reset, cost_scale=2.0)  # type: ignore[arg-type]
     envs = {env_id: morality_gym.TrolleyEnv(env_id, max_steps=15) for env_id in {b.env_id for b in bounds}}
@@ -117,7 +106,7 @@ def test_the_one_cost_is_the_spec_formula_on_the_scalar_env_bit_for_bit(mode: st
 def test_the_one_cost_sums_many_terms_in_the_specs_order(mode: str) -> None:
     """Steps where many norms fire at once (random event masks and utilities, which the scenarios
     rarely give: there two nonzero terms commute), so that the order of the sum shows in the bits."""
-    bounds = _bound_pairs()
+    bounds = bound_pairs()
     spec = RewardCostSpec(cost_mode=mode, cost_reset="per_episode", cost_scale=3.0)  # type: ignore[arg-type]
     references = [_SpecCost(b, mode, 3.0, "per_episode") for b in bounds]
     stacked = {"numpy": StackedCost.for_copies(bounds, spec)} | {d: StackedCost.for_copies(bounds, spec, d) for d in DEVICES}
@@ -172,7 +161,7 @@ def test_copies_that_share_their_terms_are_stepped_as_the_blocks_step_them(mode:
     with scalar parameters, which at 65,536 copies is 1.9x faster than the blocks; it must give the
     blocks' bits (the blocks are held to the spec's formula above), on steps where many norms fire."""
     rng = np.random.default_rng(23)
-    for bound in _bound_pairs():
+    for bound in bound_pairs():
         columns = VectorCost(bound, 64, mode=mode, scale=3.0, reset="per_episode")  # type: ignore[arg-type]
         blocks = VectorCost(bound, 64, mode=mode, scale=3.0, reset="per_episode")  # type: ignore[arg-type]
         assert columns._stack._uniform is not None

@@ -16,9 +16,9 @@ import torch as th
 import morality_gym
 from morality_gym.envs.batched import BatchedTrolleyEnv
 from morality_gym.envs.torch_sim import TorchStep, TorchTrolleySim
-from morality_gym.norms.chain import ChainError
 from morality_gym.norms.cost import StackedCost, VectorCost
 from morality_gym.norms.reward_cost import RewardCostSpec
+from tests.helpers import bound_pairs
 
 COPIES = 3
 STEPS = 120
@@ -88,21 +88,10 @@ def test_bad_arguments_are_refused_with_one_line() -> None:
         TorchTrolleySim(["SwitchStandrd-HumanA-v1"])
 
 
-def _bound_pairs() -> list[morality_gym.BoundChain]:
-    pairs = []
-    for chain in morality_gym.builtin_chains():
-        for env_id in morality_gym.env_ids():
-            try:
-                pairs.append(morality_gym.bind_chain(chain, env_id))
-            except (ChainError, ValueError):
-                continue
-    return pairs
-
-
 @pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize(("mode", "reset"), [("minimal", "never"), ("full", "per_episode"), ("partial", "per_episode")])
 def test_the_device_cost_of_every_builtin_chain_matches_the_host_cost(mode: str, reset: str, device: str) -> None:
-    bounds = _bound_pairs()
+    bounds = bound_pairs()
     assert len({b.chain.name for b in bounds}) >= 4 and len(bounds) >= 98
     spec = RewardCostSpec(cost_mode=mode, cost_reset=reset, cost_scale=2.0)  # type: ignore[arg-type]
     sim = TorchTrolleySim([b.env_id for b in bounds], device, max_steps=30)
