@@ -22,7 +22,8 @@ The package is grouped by job, one folder per floor, each importing only the flo
     (Figure 2 bars and radars), :mod:`~leaderboard.outputs.stats_figures` (the statistics' figures),
     :mod:`~leaderboard.outputs.downloads` (every table as CSV, all runs as Parquet).
 ``web/`` - the static site
-    :mod:`~leaderboard.web.site` (the build), :mod:`~leaderboard.web.pages`,
+    :mod:`~leaderboard.web.site` (the build), :mod:`~leaderboard.web.site_target` (where a site may
+    be written), :mod:`~leaderboard.web.pages`,
     :mod:`~leaderboard.web.ranking_page`, :mod:`~leaderboard.web.table1_grid`,
     :mod:`~leaderboard.web.llm_entries` (each page's data), :mod:`~leaderboard.web.run_charts`,
     :mod:`~leaderboard.web.run_figures` (the run pages' charts), :mod:`~leaderboard.web.render`
@@ -30,7 +31,8 @@ The package is grouped by job, one folder per floor, each importing only the flo
     (:mod:`~leaderboard.web.content_cache`, :mod:`~leaderboard.web.cached_stages`,
     :mod:`~leaderboard.web.page_cache`, :mod:`~leaderboard.web.leftovers`).
 the top level - the command-line tools (``python -m leaderboard.<tool>``)
-    :mod:`~leaderboard.build` (results -> tables, figures, site), :mod:`~leaderboard.submit`
+    :mod:`~leaderboard.build` (results -> tables, figures, site; its stages:
+    :mod:`~leaderboard.build_stages`), :mod:`~leaderboard.submit`
     (score a policy trained elsewhere), :mod:`~leaderboard.llm` (a language-model agent),
     :mod:`~leaderboard.release` (freeze runs into ``releases/``), :mod:`~leaderboard.reproduction`
     (Table 1 against the paper, cell by cell), :mod:`~leaderboard.compare` and

@@ -16,6 +16,8 @@ and the radars, the statistics figures (:mod:`leaderboard.web.cached_stages`), t
 (:mod:`leaderboard.web.run_figures`) and the run pages (:mod:`leaderboard.web.page_cache`), each keyed by a
 digest of its inputs and code, so what is reused is what a fresh build would write, byte for byte.
 Deleting ``cache/`` only makes the next build slower.
+
+The stages themselves are :mod:`leaderboard.build_stages`; this module is the command around them.
 """
 
 from __future__ import annotations
@@ -23,45 +25,19 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
-import time
-from collections.abc import Iterable, Sequence
-from dataclasses import replace
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
-from leaderboard.outputs.tables import write_tables
-from leaderboard.runs.aggregate import (
-    Leaderboard,
-    aggregate,
-    chain_definitions,
-    choose_primary,
-    compute_reference,
-    reference_requests,
-    with_reference,
-)
-from leaderboard.runs.opening import primary_choice
+from leaderboard.runs.aggregate import Leaderboard
 from leaderboard.runs.releases import Release, ReleaseError, resolve
 from leaderboard.runs.sources import RESULTS_SOURCE, Sources, load_sources
-from leaderboard.runs.stamp import StampError, source_date_epoch, stamp_text
-from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, did_you_mean, run_cli, writing
+from leaderboard.runs.stamp import StampError, source_date_epoch
+from leaderboard.web.site_target import SiteError, check_target
+from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli, writing
 from morality_gym.results.quarantine import quarantined_files
 
-REFERENCE_CACHE = Path("cache") / "reference_rows.json"
 EXIT_OK = 0
-T = TypeVar("T")
-
-
-def progress(items: Iterable[T], description: str, total: int) -> Iterable[T]:
-    """A rich progress bar on a terminal; one line per stage otherwise (logs stay readable)."""
-    # rich waits: importing leaderboard.build (its --help too) must not load it
-    from rich.console import Console
-    from rich.progress import track
-
-    console = Console(stderr=True)
-    if console.is_terminal:
-        return track(items, description=description, total=total, console=console, transient=True)
-    print(f"  {description}: {total} item(s)", file=sys.stderr, flush=True)
-    return items
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -119,73 +95,6 @@ def releases_of(args: argparse.Namespace) -> list[Release]:
         return resolve(args.release or [])
     except ReleaseError as exc:
         raise UserError(str(exc)) from exc
-
-
-def check_primary_choice(args: argparse.Namespace, lb: Leaderboard) -> None:
-    """``--protocol`` / ``--preset`` must name a sweep of the results (a typo silently chose none)."""
-    for flag, wanted, have in (("--protocol", args.protocol, {g.protocol for g in lb.groups}),
-                               ("--preset", args.preset, {g.preset for g in lb.groups})):
-        if wanted is not None and wanted not in have:
-            hint = did_you_mean(wanted, sorted(have), quote=False)
-            raise UserError(f"{flag} {wanted}: no sweep in the results has it{hint}; they have: {', '.join(sorted(have))}")
-
-
-def build(args: argparse.Namespace, sources: Sources, quarantined: list[dict[str, str]] | None = None,
-          ) -> tuple[Leaderboard, dict[str, Any]]:
-    """Run every stage on loaded runs; returns the leaderboard and what was written (for the summary)."""
-    # matplotlib, SciPy, Jinja wait: importing leaderboard.build (its --help too) must not load them
-    from leaderboard.outputs.intervals import with_intervals
-    from leaderboard.web.cached_stages import paper_figures, statistics, statistics_figures
-    from leaderboard.web.run_figures import write_run_charts
-    from leaderboard.web.site import build_site
-
-    runs, planned, skipped = sources.runs, sources.planned, sources.skipped
-    out_dir: Path = args.out
-    timings: dict[str, float] = {}
-    cached: dict[str, bool] = {}  # stage -> reused from <out>/cache
-    start = time.perf_counter()
-    lb = aggregate(runs, planned, primary_protocol=args.protocol, primary_preset=args.preset)
-    check_primary_choice(args, lb)
-    protocol, preset = primary_choice(lb, args.protocol, args.preset)  # the user's newest sweep, issue 36
-    lb = replace(lb, primary=choose_primary(lb.table, lb.groups, protocol, preset))
-    reference = None
-    if not args.no_reference:
-        reference = compute_reference(reference_requests(lb.table), out_dir / REFERENCE_CACHE, progress,
-                                      chain_definitions(lb.runs))
-        lb = with_reference(lb, reference.entries, reference.errors, protocol, preset)
-    lb.skipped, lb.quarantined = list(skipped or []), list(quarantined or [])
-    stamp = stamp_text(lb.runs)
-    timings["aggregate"] = time.perf_counter() - start
-
-    start = time.perf_counter()
-    stats, stats_key, cached["statistics"] = statistics(lb, reference is not None, sources, out_dir)
-    lb = with_intervals(lb, stats.cells)
-    timings["statistics"] = time.perf_counter() - start
-
-    start = time.perf_counter()
-    tables = write_tables(lb, out_dir, sources.name, stamp)
-    timings["tables"] = time.perf_counter() - start
-
-    start = time.perf_counter()
-    figures, cached["figures"] = paper_figures(lb, out_dir, progress)
-    timings["figures"] = time.perf_counter() - start
-
-    start = time.perf_counter()
-    drawn = write_run_charts(lb, sources, out_dir / "figures" / "learn", figures, out_dir, progress)
-    timings["run charts"] = time.perf_counter() - start
-
-    start = time.perf_counter()
-    stat_figures, cached["statistics figures"] = statistics_figures(lb, stats, stats_key, out_dir, figures.colours,
-                                                                    progress)
-    timings["statistics figures"] = time.perf_counter() - start
-
-    start = time.perf_counter()
-    site = build_site(lb, sources, args.site, figures, sources.name, progress, stats=stats, stat_figures=stat_figures,
-                      stamp=stamp, cache_dir=out_dir / "cache" / "pages")
-    timings["site"] = time.perf_counter() - start
-    return lb, {"tables": tables, "figures": figures, "stat_figures": stat_figures, "site": site,
-                "reference": reference, "timings": timings, "sources": sources, "cached": cached,
-                "charts_drawn": drawn}
 
 
 def summary(lb: Leaderboard, out: dict[str, Any], args: argparse.Namespace) -> str:
@@ -277,9 +186,9 @@ def run(args: argparse.Namespace) -> int:
         source_date_epoch()  # before scipy is imported: numpy.f2py reads the variable too and crashes on it
     except StampError as exc:
         raise UserError(str(exc)) from exc
-    # matplotlib, Jinja and SciPy wait: importing leaderboard.build (its --help too) must not load them,
-    # and SciPy only after SOURCE_DATE_EPOCH was checked (the site's cache codec loads the statistics)
-    from leaderboard.web.site import SiteError, check_target
+    # The stages load matplotlib, Jinja and SciPy: not before --help, and SciPy not before
+    # SOURCE_DATE_EPOCH was checked (numpy.f2py reads it at SciPy's import and dies on a bad one)
+    from leaderboard.build_stages import build
 
     results: Path = args.results
     releases = releases_of(args)

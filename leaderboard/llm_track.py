@@ -35,7 +35,7 @@ from leaderboard.submit import check_name
 from morality_gym.clitools import OneLineParser, UserError, run_cli, write_atomically
 from morality_gym.generalisation.scoring import score_pair
 from morality_gym.generalisation.sets import TRACK_CHAINS, EvalSet, PairValues, load_sets
-from runners.track import PAIRS, RESULT, expected_record, run_name
+from morality_gym.results.track_runs import PAIRS, RESULT, expected_record, run_name
 
 PARTIAL = "pairs.partial.jsonl"
 #: What a played pair's row keeps besides the track's columns: the episode's costs.

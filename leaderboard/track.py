@@ -50,7 +50,7 @@ from leaderboard.web.render import render
 from leaderboard.web.site_state import NAV
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli
 from morality_gym.generalisation.sets import MIN_HEADROOM, SET_LABELS, SETS, TRACK_CHAINS, scenario_of
-from runners.track import PAIRS, RESULT
+from morality_gym.results.track_runs import PAIRS, RESULT
 
 SCORES = {"range_score": "Range score (0 = oracle worst, 1 = oracle best)",
           "random_score": "Random-relative score (0 = Random, 1 = oracle best)",

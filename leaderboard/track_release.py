@@ -54,7 +54,7 @@ from leaderboard.track_status import CURVES_DIR, CurveError, Requirement, read_c
 from leaderboard.web.leftovers import building_in
 from morality_gym.clitools import OneLineParser, UserError, add_debug_flag, run_cli, writing
 from morality_gym.results.recording import git_commit
-from runners.track import PAIRS, RESULT
+from morality_gym.results.track_runs import PAIRS, RESULT
 
 MANIFEST = "track-release.json"
 FORMAT = "track-1"

@@ -42,19 +42,23 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
+import torch
+from stable_baselines3 import PPO
+from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
+
 from morality_gym.baselines.device import Device
 from morality_gym.baselines.policy_ref import load_policy
 from morality_gym.baselines.sb3_learner import silent_logger
 from morality_gym.baselines.specs import SpecError, learner_spec, protocol_spec, training_steps
 from morality_gym.baselines.stopped import TrainingStopped
-from morality_gym.clitools import EXIT_TERMINATED, OneLineParser, UserError, add_debug_flag, run_cli, write_atomically
+from morality_gym.clitools import EXIT_TERMINATED, OneLineParser, add_debug_flag, run_cli, write_atomically
 from morality_gym.constants import MAX_STEPS
 from morality_gym.generalisation.mixture import DilemmaMixtureEnv
 from morality_gym.generalisation.scoring import score_set
 from morality_gym.generalisation.sets import SEEN_SAMPLE, SETS, TRACK_CHAINS, EvalSet, load_sets, training_chain
-from morality_gym.generator.grammar import GRAMMAR_VERSION
-from morality_gym.generator.splits import split_manifest
 from morality_gym.results.recording import git_commit
+from morality_gym.results.track_runs import PAIRS, RESULT, TrackError, check_done, expected_record, run_name
 from runners.execute import stopping
 from runners.execute.track_fleet import CURVE_EVERY, CurveRecorder, fleet_key, table_cache_dir, train_fleet
 
@@ -69,29 +73,11 @@ DEFAULT_N_STEPS = 256
 DEFAULT_N_ENVS = 8
 DEFAULT_BATCH = 256
 DEFAULT_EPOCHS = 5
-RESULT = "result.json"
-PAIRS = "pairs.parquet"
-FORMAT = 1
-
-
-class TrackError(UserError):
-    """A results directory whose done runs disagree with the command (budget, splits)."""
-
-
-def run_name(learner: str, seed: int | None, submitted: bool = False, chain: str | None = None, version: int = 1) -> str:
-    """``<learner>-s<seed>``; a chain's track prefixes the chain (``Utility-ppo-s41``), on v2 splits
-    with the version (``Utility-v2-ppo-s41``)."""
-    name = f"{learner}-{'submitted' if submitted else 'sexact' if seed is None else f's{seed}'}"
-    return name if chain is None else f"{chain}-{name}" if version == 1 else f"{chain}-v{version}-{name}"
 
 
 def _train_ppo(learner: str, seed: int, budget: int, train_ids: Sequence[str], n_envs: int, n_steps: int,
                out: Path, batch_size: int = 256, n_epochs: int = 5, chain: str | None = None) -> tuple[Any, dict[str, Any]]:
-    import torch
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
-
-
+    """SB3's PPO on the mixture of every train dilemma (the mixed track; a chain's track trains fleets)."""
     torch.set_num_threads(1)
     # SB3 takes any 3-D uint8 Box for an image; the grid is not one (images are not normalised: normalize_images=False)
     warnings.filterwarnings("ignore", message="Treating image space as channels-last")
@@ -119,33 +105,16 @@ def _train_ppo(learner: str, seed: int, budget: int, train_ids: Sequence[str], n
 
 
 def dataclass_dict(value: Any) -> dict[str, Any]:
-
+    """A dataclass as JSON-ready data (tuples as lists), for the run's record."""
     return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(value).items()}
 
 
 def evaluate_sets(policy: Any, sets: dict[str, EvalSet]) -> list[dict[str, Any]]:
-
+    """One row per (env id, chain) pair of every set: the policy's exact score there."""
     rows: list[dict[str, Any]] = []
     for eval_set in sets.values():
         rows.extend(score_set(policy, eval_set))
     return rows
-
-
-def expected_record(budget: int, sets: dict[str, EvalSet], chain: str | None = None, version: int = 1) -> dict[str, Any]:
-    """What every run of this command must agree on (``chain``: None for the mixed track)."""
-    return {"format": FORMAT, "train_split": "train", "train_digest": split_manifest("train").digest,
-            "grammar_version": GRAMMAR_VERSION, "chain": chain, **({"split_version": version} if version != 1 else {}),
-            "sets": {name: s.source for name, s in sets.items()}}
-
-
-def check_done(record: dict[str, Any], expected: dict[str, Any], budget: int, path: Path) -> None:
-    for key, value in expected.items():
-        if record.get(key) != value:
-            raise TrackError(f"{path}: its {key} is {record.get(key)!r}, this command's {value!r}. Fix: use another "
-                             "--out, or delete that run to redo it")
-    if record["learner"] != "random" and not record.get("submitted") and record.get("budget") != budget:
-        raise TrackError(f"{path}: trained for {record.get('budget')} steps, this command asks {budget}. Fix: use "
-                         "another --out, or the same --budget")
 
 
 def do_run(learner: str, seed: int | None, budget: int, train_ids: Sequence[str], sets: dict[str, EvalSet],
@@ -158,8 +127,6 @@ def do_run(learner: str, seed: int | None, budget: int, train_ids: Sequence[str]
     done run is checked and skipped. ``chain``: the chain's track (``sets`` and ``train_ids`` are
     then that chain's, :func:`load_sets`). ``trained``: the run's learner and record, trained by a
     fleet (:mod:`runners.execute.track_fleet`); a run its fleet failed is reported and not written (None)."""
-    import pandas as pd
-
     run_dir = out_dir / "runs" / run_name(learner, seed, submitted=policy_ref is not None, chain=chain, version=version)
     expected = expected_record(budget, sets, chain, version)
     if (run_dir / RESULT).is_file():

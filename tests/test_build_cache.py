@@ -175,3 +175,16 @@ def test_a_presets_seeds_are_read_without_torch() -> None:
     proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120,
                           check=True)
     assert proc.stdout.strip() == "False"
+
+
+def test_the_site_build_loads_no_trainer() -> None:
+    """The site (with its Generalisation page) and the track's release read a track's run files;
+    their names came from ``runners.track``, the trainer, which loaded SB3 and torch (about a
+    second and a half of every build) and made the leaderboard import a runner. They are now the
+    results contract's (:mod:`morality_gym.results.track_runs`)."""
+    code = ("import sys, leaderboard.build_stages, leaderboard.track_release, leaderboard.llm_track; "
+            "print('torch' in sys.modules, 'stable_baselines3' in sys.modules, "
+            "any(m == 'runners' or m.startswith('runners.') for m in sys.modules))")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120,
+                          check=True)
+    assert proc.stdout.strip() == "False False False"

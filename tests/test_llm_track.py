@@ -15,7 +15,7 @@ from leaderboard import llm_track
 from leaderboard.track import _learner_row, load_runs
 from leaderboard.track import main as track_main
 from morality_gym.generalisation.sets import EvalSet, PairValues
-from runners.track import PAIRS, RESULT
+from morality_gym.results.track_runs import PAIRS, RESULT
 
 #: Two built-in envs standing in for the test split's pairs (the split itself takes minutes to generate).
 PAIRS_OF_SET = (PairValues("SwitchStandard-HumanA-v1", "Utility", best=1.0, worst=0.0, random=0.5),

@@ -38,6 +38,8 @@ from leaderboard.runs.aggregate import (
     not_comparable_text,
 )
 from leaderboard.runs.stamp import stamp_text
+from leaderboard.stats.cells import SEED_RANGE
+from leaderboard.stats.core import fewest_units_for_interval
 from morality_gym.clitools import write_atomically
 
 #: The paper's abbreviations in Table 1 (its caption); other names are written in full.
@@ -120,23 +122,10 @@ def interval_text(cell: dict[str, Any], digits: int = 3) -> str:
     low, high = cell.get("ci_low"), cell.get("ci_high")
     if _missing(low) or _missing(high):
         return ""
-    from leaderboard.stats.cells import SEED_RANGE  # SciPy waits: see _fewest_seeds
-
     if cell.get("ci_kind") == SEED_RANGE:
         return seed_values_text(cell, digits)
     decimals = min(stable_decimals(cell.get("ci_low_mcse"), digits), stable_decimals(cell.get("ci_high_mcse"), digits))
     return f"[{fmt(low, decimals)}, {fmt(high, decimals)}]"
-
-
-def _fewest_seeds() -> int:
-    """The fewest seeds whose bootstrap is an interval (:func:`leaderboard.stats.core.fewest_units_for_interval`).
-
-    leaderboard.stats is imported here, when a table is written, not with this module: it loads SciPy,
-    whose numpy.f2py reads SOURCE_DATE_EPOCH at import and dies on a malformed one with a traceback,
-    before ``python -m leaderboard.build`` (which imports this module) can refuse it in one line."""
-    from leaderboard.stats.core import fewest_units_for_interval
-
-    return fewest_units_for_interval()
 
 
 def seed_values_text(cell: dict[str, Any], digits: int = 3) -> str:
@@ -149,8 +138,6 @@ def seed_values_text(cell: dict[str, Any], digits: int = 3) -> str:
 
 def interval_label(cell: dict[str, Any]) -> str:
     """``95% CI [low, high]``, or the per-seed values where there is no interval (:func:`interval_text`)."""
-    from leaderboard.stats.cells import SEED_RANGE  # SciPy waits: see _fewest_seeds
-
     text = interval_text(cell)
     if not text:
         return ""
@@ -304,7 +291,7 @@ def explanation_lines() -> list[str]:
         ("Each learner cell: mean of the final evaluation's morality metric over all variants and seeds of the "
         f"scenario ± standard deviation over seeds of the per-seed means (ddof={STD_DDOF}); 95% CI = percentile "
         f"bootstrap interval of the mean, resampling whole seeds (each with all its variants; absent with one seed; "
-        f"{DIGITS_RULE}); with fewer than {_fewest_seeds()} seeds a bootstrap has too few distinct resamples to be an "
+        f"{DIGITS_RULE}); with fewer than {fewest_units_for_interval()} seeds a bootstrap has too few distinct resamples to be an "
         "interval, and the cell shows its per-seed means instead (\"seeds a, b, c\"; their range is what the "
         "bootstrap's bounds would be); "
         "**bold** = "
@@ -460,7 +447,7 @@ def _latex_foot(lb: Leaderboard, group: Group, incomplete: list[str]) -> list[st
     lines = ["\\bottomrule", "\\end{tabular}"]
     lines.append(f"\\par\\smallskip{{\\footnotesize Brackets: 95\\% bootstrap interval of the mean (whole seeds "
                  f"resampled, each with all its variants; {tex_escape(DIGITS_RULE)}); with fewer than "
-                 f"{_fewest_seeds()} seeds, the per-seed means instead; {BOLD_RULE_TEX}}}")
+                 f"{fewest_units_for_interval()} seeds, the per-seed means instead; {BOLD_RULE_TEX}}}")
     if not comparable_preset(group.preset):
         lines.append(f"\\par\\smallskip{{\\footnotesize {tex_escape(not_comparable_text(group.preset))}: trained at another "
                      "budget than the paper's (preset paper); not to be compared with the paper's Table 1.}}")

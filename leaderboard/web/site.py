@@ -51,17 +51,13 @@ from leaderboard.web.pages import index_context, run_context, runs_context, scen
 from leaderboard.web.ranking_page import ranking_context
 from leaderboard.web.render import STATIC, STATIC_FILES, render
 from leaderboard.web.site_state import SiteBuild
+from leaderboard.web.site_target import SITE_MARKER, check_target
 from morality_gym.clitools import public_mode, writing
 from morality_gym.envs.registry import scenario_named
 from morality_gym.envs.trolley import TrolleyEnv
 from morality_gym.render.rgb import render_rgb
 
-SITE_MARKER = ".leaderboard-site"
 Progress = Callable[[Iterable[Any], str, int], Iterable[Any]]
-
-
-class SiteError(RuntimeError):
-    """The site cannot be built where asked (e.g. the target is a directory we did not create)."""
 
 
 def _copy(src: Path, dst: Path) -> None:
@@ -171,19 +167,6 @@ def render_layouts(sb: SiteBuild, scenarios: list[str]) -> None:
 
 
 # ---------------------------------------------------------------------------------------- build
-def check_target(site_dir: Path) -> None:
-    """Raise :class:`SiteError` unless ``site_dir`` is absent, empty, or a previous build of this module.
-
-    Called before anything is built, so that a wrong ``--site`` costs nothing and deletes nothing.
-    """
-    if site_dir.exists():
-        if not site_dir.is_dir():
-            raise SiteError(f"{site_dir} exists and is not a directory")
-        if any(site_dir.iterdir()) and not (site_dir / SITE_MARKER).is_file():
-            raise SiteError(f"{site_dir} is not empty and was not built by leaderboard.web.site (no {SITE_MARKER}); "
-                            "refusing to replace it: choose another --site or remove it yourself")
-
-
 def _prepare_target(site_dir: Path) -> Path:
     """A fresh temporary directory next to ``site_dir``, where the new site is assembled."""
     check_target(site_dir)

@@ -22,6 +22,7 @@ from gymnasium.error import ResetNeeded
 from morality_gym.constants import MAX_STEPS
 from morality_gym.envs.registry import DEFAULT_MAX_STEPS, parse_env_id, state_graph  # DEFAULT_MAX_STEPS: re-exported
 from morality_gym.render.ansi import render_ansi
+from morality_gym.render.rgb import render_rgb
 from morality_gym.render.window import show_frame
 from morality_gym.world.graph import EMPTY_NORM_EVENTS, StateGraph, norm_events_dict
 from morality_gym.world.grid_observe import GridCodec
@@ -262,8 +263,6 @@ class TrolleyEnv(gym.Env[Any, int]):
             return None
         if self.render_mode == "ansi":
             return render_ansi(self.world, self.state, colour=False)
-        from morality_gym.render.rgb import render_rgb  # PIL: loaded by the first picture, not by import
-
         frame = render_rgb(self.world, self.state)
         if self.render_mode == "rgb_array":
             return frame

@@ -13,7 +13,8 @@ through these modules, and nothing here imports either side:
 - :mod:`.quarantine`: unreadable result files moved aside, with the reason;
 - :mod:`.recording`: what every writer of a row uses (the per-run lock, finished status, commit,
   versions, clock);
-- :mod:`.presets`: the presets' files (how much a run trains, which seeds make a cell whole).
+- :mod:`.presets`: the presets' files (how much a run trains, which seeds make a cell whole);
+- :mod:`.track_runs`: a generalisation-track run's files, the record its command shares, the check of a done run.
 
 Layer: ``results``, above ``baselines`` (a run's configuration holds a learner's spec) and below
 ``runners`` and ``leaderboard`` (docs/architecture.md).
