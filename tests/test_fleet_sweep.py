@@ -25,7 +25,6 @@ from morality_gym.baselines.specs import (
     learner_spec,
     protocol_spec,
 )
-from morality_gym.baselines.targets import resolve
 from morality_gym.results.recording import RunClock, RunLock, finished_status
 from morality_gym.results.schema import read_runs, read_updates
 from runners.compose.sweep_config import ConfigError, validate
@@ -162,7 +161,8 @@ def test_only_learners_the_fleet_reproduces_are_grouped() -> None:
 def test_the_fleet_learners_the_plan_reads_are_the_fleets_trainers() -> None:
     """The plan cuts runs into fleets from a list below the fleet (so that planning imports no
     torch); it must name exactly the classes the fleet's trainers reproduce, in their order."""
-    assert [resolve(t.algorithm) for t in TRAINERS] == [resolve(a) for a in FLEET_ALGORITHMS]
+    assert list(TRAINERS) == list(FLEET_ALGORITHMS)
+    assert all(trainer.algorithm == algorithm for algorithm, trainer in TRAINERS.items())
     assert all(fleet_trains(a) for a in FLEET_ALGORITHMS)
 
 

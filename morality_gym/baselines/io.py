@@ -21,7 +21,7 @@ from typing import Any
 from morality_gym.baselines.learners import Learner
 from morality_gym.baselines.specs import LEGACY_IMPLEMENTATIONS as _LEGACY_TARGETS  # old sidecars' ``implementation``
 from morality_gym.baselines.targets import TargetError, resolve
-from morality_gym.envs.registry import parse_env_id, state_graph
+from morality_gym.envs.registry import canonical_env_id, state_graph
 
 
 class ModelError(ValueError):
@@ -101,10 +101,9 @@ def check_model_env(path: str | Path, policy: Any, env_id: str, allow_other_env:
         return
 
     trained = str(meta.get("env_id", ""))
-    wanted = parse_env_id(env_id)[0].env_id(parse_env_id(env_id)[1])
+    wanted = canonical_env_id(env_id)
     try:
-        scenario, variant = parse_env_id(trained)
-        trained = scenario.env_id(variant)
+        trained = canonical_env_id(trained)
     except (KeyError, TypeError):
         pass  # an env this installation does not know: compared by name below
     if trained == wanted:

@@ -66,17 +66,23 @@ class SpecError(ValueError):
 
 
 @cache
-def fleet_trains(target: str) -> bool:
-    """True if the fleet engine trains the learner class at ``target``.
+def fleet_algorithm(target: str) -> str | None:
+    """The entry of :data:`FLEET_ALGORITHMS` that names the learner class at ``target``, or None.
 
-    Matched by class identity, as the fleet's trainers are (``fleet_class``): a subclass may train
-    differently, so it trains on the single engine. A target that cannot be imported is no fleet
-    learner (the sweep's checks report it)."""
+    Matched by class identity (``stable_baselines3.ppo.PPO`` is ``stable_baselines3.PPO``): a
+    subclass may train differently, so it trains on the single engine. A target that cannot be
+    imported is no fleet learner (the sweep's checks report it). The sweep's cut into fleets
+    (:func:`fleet_trains`) and the fleet's choice of trainer (``fleet_class``) both ask this."""
     try:
         cls = resolve(target)
     except TargetError:
-        return False
-    return any(resolve(algorithm) is cls for algorithm in FLEET_ALGORITHMS)
+        return None
+    return next((algorithm for algorithm in FLEET_ALGORITHMS if resolve(algorithm) is cls), None)
+
+
+def fleet_trains(target: str) -> bool:
+    """True if the fleet engine trains the learner class at ``target`` (:func:`fleet_algorithm`)."""
+    return fleet_algorithm(target) is not None
 
 
 def check_keys(where: str, given: Mapping[str, Any], allowed: list[str]) -> None:

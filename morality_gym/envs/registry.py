@@ -323,6 +323,14 @@ def parse_env_id(env_id: str) -> tuple[Scenario, str]:
     raise UnknownEnvError(_unknown_id_message(env_id, parts, known))
 
 
+def canonical_env_id(env_id: str) -> str:
+    """``env_id`` as the registry spells it (``PushOrSwitch-Human-v1``: no namespace nor ``Trolley-``
+    prefix), or :class:`UnknownEnvError`; the one key under which tables, checkpoints and trained
+    policies compare env ids."""
+    scenario, variant = parse_env_id(env_id)
+    return scenario.env_id(variant)
+
+
 def _unknown_id_message(env_id: str, parts: list[str], known: dict[str, Scenario]) -> str:
     """Why an env id is unknown: a skipped scenario's reason, else the closest valid ids."""
     skipped = _skipped_hint(parts[0]) if parts else ""

@@ -42,7 +42,7 @@ from inspect_ai.tool import ToolCall, ToolInfo, ToolParam, ToolParams
 from inspect_ai.util import JSONSchema
 
 from morality_gym.constants import BETA
-from morality_gym.envs.registry import UnknownEnvError, parse_env_id, scenario_named, scenarios
+from morality_gym.envs.registry import UnknownEnvError, canonical_env_id, scenario_named, scenarios
 from morality_gym.envs.trolley import TrolleyEnv
 from morality_gym.llm.agent import EpisodeLog, Message, Reply, play_episode
 from morality_gym.llm.episode import EPISODE_KEY, EpisodeOutcome, score_episode
@@ -91,7 +91,7 @@ def select_env_ids(chain: MoralityChain, scenario: Any = None, variant: Any = No
     the ``scenario`` s, by default the chain's Table 1 scenarios (every scenario for a chain with none);
     variants where no norm of the chain is relevant are left out."""
     if _split(env):
-        return [scenario_named(parse_env_id(e)[0].name).env_id(parse_env_id(e)[1]) for e in _split(env)]
+        return [canonical_env_id(e) for e in _split(env)]
     names = _split(scenario)
     if not names:
         names = [row.scenario for row in table1() if get_chain(row.chain).name == chain.name] or list(scenarios())

@@ -20,7 +20,7 @@ import torch as th
 from gymnasium.vector import VectorEnv, VectorWrapper
 
 from morality_gym.constants import BETA
-from morality_gym.envs.batched import canonical_env_id
+from morality_gym.envs.registry import canonical_env_id
 from morality_gym.envs.torch_vector import TorchTrolleyVectorEnv
 from morality_gym.norms.chain import MoralityChain
 from morality_gym.norms.cost import StackedCost

@@ -38,27 +38,26 @@ from morality_gym.baselines.fleet.cpo import FleetCPO
 from morality_gym.baselines.fleet.env import Simulator
 from morality_gym.baselines.fleet.ppo import FleetPPO
 from morality_gym.baselines.fleet.ppo_lag import FleetPPOLag
-from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError, protocol_spec
+from morality_gym.baselines.specs import LearnerSpec, ProtocolSpec, SpecError, fleet_algorithm, protocol_spec
 from morality_gym.baselines.targets import resolve
 from morality_gym.constants import MAX_STEPS
 
-#: One trainer per class in :data:`morality_gym.baselines.specs.FLEET_ALGORITHMS`, which the sweep
-#: reads to cut its runs into fleets without importing these.
-TRAINERS: tuple[type[FleetTrainer], ...] = (FleetPPO, FleetPPOLag, FleetCPO)
+#: The trainer of each class in :data:`morality_gym.baselines.specs.FLEET_ALGORITHMS`, which the
+#: sweep reads to cut its runs into fleets without importing these (a test holds the two together).
+TRAINERS: dict[str, type[FleetTrainer]] = {trainer.algorithm: trainer for trainer in (FleetPPO, FleetPPOLag, FleetCPO)}
 
 
 def fleet_class(target: str) -> type[FleetTrainer]:
     """The fleet trainer that reproduces the algorithm class at ``target`` (SB3's PPO, PPOLag, CPO).
 
-    Matched by class identity: a subclass may train differently, so it has no fleet trainer.
+    Matched as the sweep matches it (:func:`~morality_gym.baselines.specs.fleet_algorithm`): by
+    class identity, so a subclass, which may train differently, has no fleet trainer.
     """
-    cls = resolve(target)
-    for trainer in TRAINERS:
-        if resolve(trainer.algorithm) is cls:
-            return trainer
-    raise SpecError(
-        f"the fleet engine does not train {target!r}; fleet learners: {', '.join(t.algorithm for t in TRAINERS)}"
-    )
+    algorithm = fleet_algorithm(target)
+    if algorithm is None:
+        resolve(target)  # a target that cannot be imported says so (TargetError), as before
+        raise SpecError(f"the fleet engine does not train {target!r}; fleet learners: {', '.join(TRAINERS)}")
+    return TRAINERS[algorithm]
 
 
 def build_fleet(
