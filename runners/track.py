@@ -216,21 +216,12 @@ def _device(text: str, chain: str | None) -> Device:
         raise TrackError(f"--device: {exc}") from None
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def _check_args(args: argparse.Namespace) -> None:
+    """The budget, the curve's spacing, and the options that only a chain's track has."""
     if args.budget <= 0:
         raise TrackError(f"--budget must be positive, got {args.budget}")
     if args.curve_every <= 0:
         raise TrackError(f"--curve-every must be positive, got {args.curve_every}")
-    # Everything the command line can get wrong is refused before the splits are generated (minutes).
-    device = _device(args.device, args.chain)
-    loaded = None
-    if args.policy is not None:
-        if not args.name:
-            raise TrackError("--policy needs --name (how the page calls it)")
-        loaded = load_policy(args.policy, allow_other_env=True)
-    t0 = time.perf_counter()
-    version = int(args.splits.removeprefix("v"))
     cost_learners = [name for name in args.learners if name in COST_LEARNERS]
     if cost_learners and args.chain is None:
         raise TrackError(f"--learners {' '.join(cost_learners)} train on a chain's step-wise cost: add --chain "
@@ -242,8 +233,22 @@ def main(argv: Sequence[str] | None = None) -> int:
             if name != "random" and training_steps(spec, args.budget) == 0:
                 raise TrackError(f"--budget {args.budget}: {name} trains whole rollouts of {rollout:,} steps; ask at "
                                  f"least {rollout:,}")
-    if version != 1 and args.chain is None:
+    if args.splits != "v1" and args.chain is None:
         raise TrackError(f"--splits {args.splits} selects pairs per chain: add --chain ({' or '.join(TRACK_CHAINS)})")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    # Everything the command line can get wrong is refused before the splits are generated (minutes).
+    _check_args(args)
+    device = _device(args.device, args.chain)
+    loaded = None
+    if args.policy is not None:
+        if not args.name:
+            raise TrackError("--policy needs --name (how the page calls it)")
+        loaded = load_policy(args.policy, allow_other_env=True)
+    t0 = time.perf_counter()
+    version = int(args.splits.removeprefix("v"))
     train_ids, sets = load_sets(args.sets, progress=lambda m: print(m, flush=True), seen_size=args.seen_size,
                                 chain=args.chain, version=version)
     print(f"splits and values ready in {time.perf_counter() - t0:.0f} s: train {len(train_ids)} env ids, "

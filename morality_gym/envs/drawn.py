@@ -25,8 +25,8 @@ from typing import Final
 import numpy as np
 
 from morality_gym.constants import MAX_STEPS
-from morality_gym.envs.batched import canonical_env_id
 from morality_gym.envs.mixed import MixedBatchedTrolleyEnv
+from morality_gym.envs.registry import canonical_env_id
 
 _GOLDEN: Final = np.uint64(0x9E3779B97F4A7C15)
 _MIX1: Final = np.uint64(0xBF58476D1CE4E5B9)
@@ -53,6 +53,16 @@ def draw_entries(keys: np.ndarray, draws: np.ndarray, pool_sizes: np.ndarray) ->
         return (_splitmix(z) % np.asarray(pool_sizes, dtype=np.uint64)).astype(np.int64)
 
 
+def _check_streams(pools: Sequence[Sequence[str]], copies_per_stream: int, seeds: Sequence[int]) -> None:
+    """Refuse streams that cannot be drawn from: an empty pool, a seed missing, no copies."""
+    if not pools or any(len(p) == 0 for p in pools):
+        raise ValueError("every stream needs a pool of at least one env id")
+    if len(seeds) != len(pools):
+        raise ValueError(f"one seed per stream: {len(pools)} pools, {len(seeds)} seeds")
+    if not isinstance(copies_per_stream, int) or copies_per_stream < 1:
+        raise ValueError(f"copies_per_stream must be a positive int, got {copies_per_stream!r}")
+
+
 class DrawnBatchedTrolleyEnv(MixedBatchedTrolleyEnv):
     """``len(pools) * copies_per_stream`` copies; stream ``s`` (copies ``s * copies_per_stream`` on)
     draws its episodes' env ids from ``pools[s]`` with seed ``seeds[s]`` (module docstring).
@@ -72,12 +82,7 @@ class DrawnBatchedTrolleyEnv(MixedBatchedTrolleyEnv):
         obs_dtype: type = np.float32,
         table_cache: Path | None = None,
     ) -> None:
-        if not pools or any(len(p) == 0 for p in pools):
-            raise ValueError("every stream needs a pool of at least one env id")
-        if len(seeds) != len(pools):
-            raise ValueError(f"one seed per stream: {len(pools)} pools, {len(seeds)} seeds")
-        if not isinstance(copies_per_stream, int) or copies_per_stream < 1:
-            raise ValueError(f"copies_per_stream must be a positive int, got {copies_per_stream!r}")
+        _check_streams(pools, copies_per_stream, seeds)
         canonical = [[canonical_env_id(e) for e in pool] for pool in pools]
         graphs = list(dict.fromkeys(e for pool in canonical for e in pool))
         first = [pool[0] for pool in canonical for _ in range(copies_per_stream)]
@@ -88,18 +93,22 @@ class DrawnBatchedTrolleyEnv(MixedBatchedTrolleyEnv):
         self._drawing = False  # no draw while the base class builds (its reset-free __init__ sets the starts)
         super().__init__(first, max_steps=max_steps, obs_type=obs_type, obs_dtype=obs_dtype, graphs=graphs,
                          table_cache=table_cache)
-        index = {e: g for g, e in enumerate(self.unique_env_ids)}
-        #: Per stream: its pool's entries as graph indices.
-        self.pool_graphs = [np.array([index[e] for e in pool], dtype=np.int32) for pool in canonical]
-        self.stream_of_copy = np.repeat(np.arange(self.n_streams), copies_per_stream)
-        self._keys = stream_keys(self.seeds)
-        self._pool_sizes = np.array([len(p) for p in self.pool_graphs], dtype=np.int64)
-        self._pool_offsets = np.concatenate([[0], np.cumsum(self._pool_sizes)[:-1]]).astype(np.int64)
-        self._pool_flat = np.concatenate(self.pool_graphs)
+        self._index_pools()
         #: Draws made so far per stream (the next draw's number).
         self.draws = np.zeros(self.n_streams, dtype=np.int64)
         self.copy_entry = np.zeros(self.num_envs, dtype=np.int64)
         self._drawing = True
+
+    def _index_pools(self) -> None:
+        """Each pool as graph indices, flattened with offsets, so a draw is one gather for every copy."""
+        index = {e: g for g, e in enumerate(self.unique_env_ids)}
+        #: Per stream: its pool's entries as graph indices.
+        self.pool_graphs = [np.array([index[e] for e in pool], dtype=np.int32) for pool in self.pools]
+        self.stream_of_copy = np.repeat(np.arange(self.n_streams), self.copies_per_stream)
+        self._keys = stream_keys(self.seeds)
+        self._pool_sizes = np.array([len(p) for p in self.pool_graphs], dtype=np.int64)
+        self._pool_offsets = np.concatenate([[0], np.cumsum(self._pool_sizes)[:-1]]).astype(np.int64)
+        self._pool_flat = np.concatenate(self.pool_graphs)
 
     def _redraw(self, mask: np.ndarray | None) -> None:
         if not self._drawing:

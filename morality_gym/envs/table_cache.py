@@ -159,7 +159,12 @@ def read_entry(path: Path, key: str, obs_dtype: Any) -> SimTables | None:
 
 
 def _unsound(meta: Any, arrays: dict[str, np.ndarray], key: str, obs_dtype: np.dtype) -> str:
-    """Why an entry must not be used ("" when it may)."""
+    """Why an entry must not be used ("" when it may): first its record, then its arrays."""
+    return _record_problem(meta, arrays, key) or _array_problem(arrays, obs_dtype)
+
+
+def _record_problem(meta: Any, arrays: dict[str, np.ndarray], key: str) -> str:
+    """Why the entry's record disqualifies it: another format, another key, arrays off their checksums."""
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         return f"it is not a format-{FORMAT} entry"
     if meta.get("key") != key:
@@ -167,6 +172,14 @@ def _unsound(meta: Any, arrays: dict[str, np.ndarray], key: str, obs_dtype: np.d
     sums = meta.get("sha256")
     if not isinstance(sums, dict) or any(sums.get(n) != _array_digest(a) for n, a in arrays.items()):
         return "its arrays do not match their checksums: edited or damaged"
+    return ""
+
+
+def _array_problem(arrays: dict[str, np.ndarray], obs_dtype: np.dtype) -> str:
+    """Why the (checksummed) arrays cannot be a simulator's tables: dtypes, shapes, transitions out of range.
+
+    A checksum only says the file is what was written; an entry written by another version of the
+    code could still hold tables this one would index out of bounds."""
     for name, dtype in {**_DTYPES, "obs": obs_dtype.str}.items():
         if arrays[name].dtype != np.dtype(dtype):
             return f"its {name} array is {arrays[name].dtype}, expected {np.dtype(dtype)}"

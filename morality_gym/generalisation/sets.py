@@ -290,51 +290,77 @@ def load_sets(
     only): the pool, the seen sample and the test set keep only the pairs of the v2 splits
     (:mod:`~morality_gym.generalisation.headroom`: Random leaves headroom under the chain).
     """
+    _check_track(chain, version)
+    train_ids, pool, selection = _training_pool(chain, version, cache_dir, progress)
+    builders: dict[str, Callable[[], EvalSet]] = {
+        "seen": lambda: _seen_set(train_ids, pool, selection, chain, seen_size, cache_dir, progress),
+        "test": lambda: _test_set(chain, version, cache_dir, progress),
+        "builtin": lambda: _builtin_set(chain, cache_dir, progress),
+    }
+    sets: dict[str, EvalSet] = {}
+    for name in names:
+        if name not in builders:
+            raise ValueError(f"unknown set {name!r}; use one of {', '.join(SETS)}")
+        sets[name] = builders[name]()
+    return train_ids, sets
+
+
+def _check_track(chain: str | None, version: int) -> None:
+    """Refuse a chain without a track, and a v2 split without a chain (v2 selects pairs per chain)."""
     if chain is not None and chain not in TRACK_CHAINS:
         raise ValueError(f"no track for chain {chain!r}; use one of {', '.join(TRACK_CHAINS)}")
     if version not in (1, VERSION) or (version == VERSION and chain is None):
         raise ValueError(f"split version {version!r}: use 1, or {VERSION} with a chain (a v{VERSION} split selects "
                          "pairs per chain)")
+
+
+def _training_pool(chain: str | None, version: int, cache_dir: Path | None, progress: Callable[[str], None] | None,
+                   ) -> tuple[list[str], list[PairValues] | None, dict[str, str]]:
+    """The train env ids a run draws from; for a chain's track also its (dilemma) pairs and, on v2
+    splits, what the result records of the selection (``None`` and ``{}`` for the mixed track)."""
     train_ids = load_split("train", cache_dir)
-    train = split_manifest("train")
-    only: list[str] | None = None if chain is None else [chain]
-    pool = chain_values("train", train_ids, chain, cache_dir, progress) if chain is not None else None
+    if chain is None:
+        return train_ids, None, {}
+    pool = chain_values("train", train_ids, chain, cache_dir, progress)
     selection: dict[str, str] = {}
-    if pool is not None and version == VERSION:
-        pool, selection = _selected("train", pool, chain)  # type: ignore[arg-type]
-    if pool is not None:
-        train_ids = list(dict.fromkeys(p.env_id for p in pool))
-    sets: dict[str, EvalSet] = {}
-    for name in names:
-        if name == "seen":
-            ids = seen_sample(train_ids, seen_size)
-            source = {"split": "train", "split_digest": train.digest, "sample": f"{len(ids)} of {len(train_ids)}, seed {SEEN_SEED}"}
-            if pool is not None:
-                chosen = set(ids)
-                sets[name] = EvalSet(name, tuple(p for p in pool if p.env_id in chosen),
-                                     {**source, "chain": str(chain), **selection})
-                continue
-            pairs = compute_values(dict.fromkeys(ids), _values_file(f"seen{len(ids)}", train.digest, cache_dir), progress)
-        elif name == "test":
-            test_ids = load_split("test", cache_dir)
-            source = {"split": "test", "split_digest": split_manifest("test").digest}
-            if chain is None:
-                pairs = compute_values(dict.fromkeys(test_ids), _values_file("test", source["split_digest"], cache_dir),
-                                       progress)
-            else:
-                pairs = chain_values("test", test_ids, chain, cache_dir, progress)
-                if version == VERSION:
-                    pairs, chosen_test = _selected("test", pairs, chain)
-                    source |= chosen_test
-        elif name == "builtin":
-            chains = {env_id: [c for c in cs if only is None or c in only] for env_id, cs in builtin_pairs().items()}
-            source = {"split": "builtin", "split_digest": builtin_digest()}
-            suffix = "" if chain is None else f"-{chain}"
-            pairs = compute_values({env_id: cs for env_id, cs in chains.items() if cs},
-                                   _values_file(f"builtin{suffix}", source["split_digest"], cache_dir), progress)
-        else:
-            raise ValueError(f"unknown set {name!r}; use one of {', '.join(SETS)}")
-        if chain is not None:
-            source = {**source, "chain": chain}
-        sets[name] = EvalSet(name, tuple(pairs), source)
-    return train_ids, sets
+    if version == VERSION:
+        pool, selection = _selected("train", pool, chain)
+    return list(dict.fromkeys(p.env_id for p in pool)), pool, selection
+
+
+def _seen_set(train_ids: list[str], pool: list[PairValues] | None, selection: dict[str, str], chain: str | None,
+              seen_size: int, cache_dir: Path | None, progress: Callable[[str], None] | None) -> EvalSet:
+    """A fixed sample of the training pool, scored as a test set is: what the policy was trained on."""
+    train = split_manifest("train")
+    ids = seen_sample(train_ids, seen_size)
+    source = {"split": "train", "split_digest": train.digest, "sample": f"{len(ids)} of {len(train_ids)}, seed {SEEN_SEED}"}
+    if pool is not None:  # a chain's track: the pool's pairs already hold the values
+        chosen = set(ids)
+        return EvalSet("seen", tuple(p for p in pool if p.env_id in chosen), {**source, "chain": str(chain), **selection})
+    pairs = compute_values(dict.fromkeys(ids), _values_file(f"seen{len(ids)}", train.digest, cache_dir), progress)
+    return EvalSet("seen", tuple(pairs), source)
+
+
+def _test_set(chain: str | None, version: int, cache_dir: Path | None,
+              progress: Callable[[str], None] | None) -> EvalSet:
+    """The held-out ``test`` split: under every chain (mixed track) or under ``chain`` alone."""
+    test_ids = load_split("test", cache_dir)
+    source = {"split": "test", "split_digest": split_manifest("test").digest}
+    if chain is None:
+        pairs = compute_values(dict.fromkeys(test_ids), _values_file("test", source["split_digest"], cache_dir), progress)
+        return EvalSet("test", tuple(pairs), source)
+    pairs = chain_values("test", test_ids, chain, cache_dir, progress)
+    if version == VERSION:
+        pairs, chosen = _selected("test", pairs, chain)
+        source |= chosen
+    return EvalSet("test", tuple(pairs), {**source, "chain": chain})
+
+
+def _builtin_set(chain: str | None, cache_dir: Path | None, progress: Callable[[str], None] | None) -> EvalSet:
+    """The 98 built-in envs' dilemma pairs (a chain's track: Table 1's pairs of the chain)."""
+    chains = {env_id: [c for c in cs if chain is None or c == chain] for env_id, cs in builtin_pairs().items()}
+    source = {"split": "builtin", "split_digest": builtin_digest()}
+    suffix = "" if chain is None else f"-{chain}"
+    pairs = compute_values({env_id: cs for env_id, cs in chains.items() if cs},
+                           _values_file(f"builtin{suffix}", source["split_digest"], cache_dir), progress)
+    return EvalSet("builtin", tuple(pairs), source if chain is None else {**source, "chain": chain})
