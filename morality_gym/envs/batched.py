@@ -18,7 +18,7 @@ from typing import Any, Literal, NamedTuple
 import numpy as np
 
 from morality_gym.constants import MAX_STEPS
-from morality_gym.envs.registry import parse_env_id, state_graph
+from morality_gym.envs.registry import canonical_env_id, parse_env_id, state_graph
 from morality_gym.envs.table_cache import CACHED_OBS_TYPES, SimTables, entry_key, read_entry, write_entry
 from morality_gym.envs.trolley import _overrides
 from morality_gym.world.compact_observe import compact_from_grid
@@ -123,6 +123,74 @@ def utility_present(events: Any) -> tuple[Any, Any]:
     return (events & HARM_BIT) != 0, (events & LIVING_BITS) != 0
 
 
+class Layout(NamedTuple):
+    """The tables of several graphs laid end to end: what both batched simulators gather from.
+
+    Each graph's states are shifted by its offset, so transition row ``s * 6 + a`` of a global
+    state is the same row of the copy's own graph; observations are zero-padded on the right to one
+    width (padding appends zeros and changes no value). ``utility`` and ``goal`` have one extra,
+    empty row (:attr:`no_transition`): what a copy that had already ended "did" in a step.
+    """
+
+    obs_dims: dict[str, int]  # each env id's own observation width
+    graph_offsets: np.ndarray  # int32 [G]: each graph's first state
+    next: np.ndarray  # int32 [S*6], global state ids
+    reward: np.ndarray  # float32 [S*6]
+    events: np.ndarray  # uint32 [S*6]
+    done: np.ndarray  # bool [S]
+    obs: np.ndarray  # [S, width], C-contiguous
+    utility: np.ndarray  # [S*6 + 1, len(UTILITIES)]
+    goal: np.ndarray  # bool [S*6 + 1]
+    no_transition: int  # S*6: the empty row
+
+
+def lay_out(tables: Sequence[SimTables], env_ids: Sequence[str], width: int | None = None) -> Layout:
+    """``tables`` (of ``env_ids``, one each) end to end, observations padded to ``width``.
+
+    ``width=None``: every graph must have one observation width (copies of one simulator are fed
+    to one network). The host simulator and the device one (:mod:`morality_gym.envs.torch_sim`)
+    both lay out their tables here, so they step the same tables by construction.
+    """
+    dims = {e: int(t.obs.shape[1]) for e, t in zip(env_ids, tables)}
+    observations = [t.obs for t in tables]
+    if width is None and len(set(dims.values())) > 1:
+        raise ValueError(
+            f"the copies of one simulator must share an observation size, got {dims}; "
+            "fleet only variants of one scenario together, use obs_type='grid', or pad_obs=True"
+        )
+    if width is not None:
+        if width < max(dims.values()):
+            raise ValueError(f"obs_dim={width} is narrower than the widest observation ({max(dims.values())}) of "
+                             f"{list(env_ids)}")
+        observations = [o if o.shape[1] == width else np.pad(o, ((0, 0), (0, width - o.shape[1]))) for o in observations]
+    offsets = np.cumsum([0] + [t.n_states for t in tables])[:-1].astype(np.int32)
+    nxt = _joined([t.next.astype(np.int32, copy=False) + off if off else t.next for t, off in zip(tables, offsets)])
+    done = _joined([t.done for t in tables])
+    assert len(nxt) == N_ACTIONS * len(done)
+    utility = _joined([t.utility for t in tables])
+    return Layout(
+        obs_dims=dims, graph_offsets=offsets, next=nxt, reward=_joined([t.reward for t in tables]).astype(np.float32),
+        events=_joined([t.events for t in tables]), done=done, obs=np.ascontiguousarray(_joined(observations)),
+        utility=np.vstack([utility, np.zeros((1, utility.shape[1]), dtype=utility.dtype)]),
+        goal=np.append(_joined([t.goal for t in tables]), False), no_transition=len(nxt),
+    )
+
+
+def advance(next_state: Any, done: Any, state: Any, elapsed: Any, actions: Any, limit: int) -> tuple[Any, Any, Any, Any, Any]:
+    """One step of every copy before any reset: the transition rows, the next states, the steps
+    taken, and which copies terminated and which were truncated (on step ``limit + 1``).
+
+    Written once for both simulators: only indexing, ``*``, ``+`` and ``>``, which numpy arrays (the
+    host's) and torch tensors (:mod:`morality_gym.envs.torch_sim`) do alike. What happens to the
+    copies that ended is each simulator's own (the host's may leave them inert; the device's never
+    branches on data).
+    """
+    k = state * N_ACTIONS + actions
+    nxt = next_state[k]
+    elapsed = elapsed + 1
+    return k, nxt, elapsed, done[nxt], elapsed > limit
+
+
 class BatchedTrolleyEnv:
     """``num_envs`` copies of one env id, stepped together with arrays.
 
@@ -216,36 +284,18 @@ class BatchedTrolleyEnv:
         self._zero_reward = np.float32(0.0)
 
     def _lay_out(self, tables: list[SimTables], pad_obs: bool) -> None:
-        """The graphs' tables end to end, each graph's states shifted by its offset, so that
-        transition row ``s * 6 + a`` of a global state is the same row of the copy's own graph;
-        observations zero-padded on the right to one width where ``pad_obs`` allows."""
-        dims = {e: int(t.obs.shape[1]) for e, t in zip(self.unique_env_ids, tables)}
+        """The graphs' tables end to end (:func:`lay_out`), kept as this simulator's arrays."""
+        width = max(int(t.obs.shape[1]) for t in tables) if pad_obs else None
+        laid = lay_out(tables, self.unique_env_ids, width)
         #: Each env id's own observation width (before any padding).
-        self.obs_dims = dims
-        observations = [t.obs for t in tables]
-        if len(set(dims.values())) > 1:
-            if not pad_obs:
-                raise ValueError(
-                    f"the copies of one simulator must share an observation size, got {dims}; "
-                    "fleet only variants of one scenario together, use obs_type='grid', or pad_obs=True"
-                )
-            width = max(dims.values())
-            observations = [np.pad(o, ((0, 0), (0, width - o.shape[1]))) for o in observations]
-        offsets = np.cumsum([0] + [t.n_states for t in tables])[:-1].astype(np.int32)
+        self.obs_dims = laid.obs_dims
         #: Each graph's first state id in the tables (its start state).
-        self.graph_offsets = offsets
-        self._next = _joined([t.next.astype(np.int32, copy=False) + off if off else t.next for t, off in zip(tables, offsets)])
-        self._reward = _joined([t.reward for t in tables]).astype(np.float32)
-        self._events = _joined([t.events for t in tables])
-        self._done = _joined([t.done for t in tables])
-        self._obs = np.ascontiguousarray(_joined(observations))
+        self.graph_offsets = laid.graph_offsets
+        self._next, self._reward, self._events, self._done = laid.next, laid.reward, laid.events, laid.done
+        self._obs, self._utility, self._goal = laid.obs, laid.utility, laid.goal
         self.obs_dim = self._obs.shape[1]
-        # One extra, empty row after the graphs' transitions: what an ended copy "did" in a step.
-        self.no_transition = len(self._next)
-        utility = _joined([t.utility for t in tables])
-        self._utility = np.vstack([utility, np.zeros((1, utility.shape[1]), dtype=utility.dtype)])
-        self._goal = np.append(_joined([t.goal for t in tables]), False)
-        assert len(self._next) == N_ACTIONS * len(self._done)
+        #: The extra, empty row after the graphs' transitions: what an ended copy "did" in a step.
+        self.no_transition = laid.no_transition
 
     @property
     def graph(self) -> StateGraph:
@@ -277,13 +327,10 @@ class BatchedTrolleyEnv:
         if actions.size and (actions.min() < 0 or actions.max() >= N_ACTIONS):
             bad = actions[(actions < 0) | (actions >= N_ACTIONS)][0]
             raise ValueError(f"invalid action {bad}: expected integers in 0..5")
-        k = self.state * N_ACTIONS + actions
-        nxt = self._next[k]
+        k, nxt, self.elapsed, terminated, truncated = advance(self._next, self._done, self.state, self.elapsed,
+                                                              actions, self._limit)
         reward = self._reward[k]
         events = self._events[k]
-        self.elapsed += 1
-        terminated = self._done[nxt]
-        truncated = self.elapsed > self._limit
         final_obs = None
         if self.autoreset == "disabled":
             if self.ended.any():
@@ -356,12 +403,6 @@ def _check_range(name: str, values: np.ndarray, low: int, high: int) -> None:
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise ValueError(f"simulator {name}: copy {i} holds {int(wide[i])}, outside {low}..{high}")
-
-
-def canonical_env_id(env_id: str) -> str:
-    """``env_id`` as the registry spells it (``PushOrSwitch-Human-v1``), or its one-line error."""
-    scenario, variant = parse_env_id(env_id)
-    return scenario.env_id(variant)
 
 
 def _joined(arrays: list[np.ndarray]) -> np.ndarray:

@@ -8,10 +8,11 @@ device that trains (a GPU, or the CPU), so a training loop never moves a step's 
 back. It is the engine of the device-resident fleet rollout and of the public
 :class:`~morality_gym.envs.torch_vector.TorchTrolleyVectorEnv`.
 
-Why it can mix scenarios: the graphs of all env ids are laid end to end (each graph's states shifted
-by its offset, so row ``s * 6 + a`` of a global state is the same row of the copy's own graph) and
-observations are zero-padded on the right to one width. Padding appends zeros to an observation and
-changes none of its values.
+It is the host simulator on tensors, not a second one: its tables are the host's, built and laid out
+by the same code (:func:`~morality_gym.envs.batched.sim_tables`, :func:`~morality_gym.envs.batched.lay_out`:
+the graphs of all env ids end to end, observations zero-padded to one width, so it mixes scenarios),
+and a step's transition is the host's :func:`~morality_gym.envs.batched.advance`. Only the restart of
+the copies that ended is its own, written without a data-dependent branch.
 
 Same transitions as the host simulator, bit for bit (tested on all registered envs): observations are
 the graph's float64 values rounded to float32, rewards the float64 table rounded to float32, events
@@ -24,16 +25,16 @@ copies), with no data-dependent branch, so a step never waits for the device.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 import torch as th
 
 from morality_gym.constants import MAX_STEPS
-from morality_gym.envs.batched import canonical_env_id
-from morality_gym.envs.registry import state_graph
+from morality_gym.envs.batched import Layout, advance, lay_out, sim_tables
+from morality_gym.envs.registry import canonical_env_id
 from morality_gym.envs.trolley import _overrides
-from morality_gym.world.graph import N_ACTIONS, GraphTables
 
 
 class TorchStep(NamedTuple):
@@ -58,6 +59,11 @@ class TorchTrolleySim:
         obs_dim: pad observations to this width (default: the widest of the env ids').
         normalise_obs: the observation codec's normalisation, as the single env's option.
         overrides: variant overrides, as the single env's ``overrides``.
+        obs_type: the observation rows, as the host simulator's (``flat``, ``grid``, ``compact``).
+        table_cache: a folder that keeps the graphs' tables between processes, as the host's.
+
+    The tables are the host simulator's (:func:`~morality_gym.envs.batched.sim_tables`, laid out by
+    :func:`~morality_gym.envs.batched.lay_out`), moved to the device once.
     """
 
     def __init__(
@@ -69,6 +75,8 @@ class TorchTrolleySim:
         obs_dim: int | None = None,
         normalise_obs: bool = True,
         overrides: dict | None = None,
+        obs_type: str = "flat",
+        table_cache: Path | None = None,
     ) -> None:
         _check_arguments(env_ids, max_steps)
         self.device = th.device(device)
@@ -76,38 +84,36 @@ class TorchTrolleySim:
         self.unique_env_ids: list[str] = list(dict.fromkeys(self.env_ids))
         self.num_envs = len(self.env_ids)
         self.max_steps = max_steps
-        graphs = [state_graph(e, _overrides(overrides), normalise_obs).tables() for e in self.unique_env_ids]
-        self.obs_dims = {e: int(t.obs.shape[1]) for e, t in zip(self.unique_env_ids, graphs)}
-        widest = max(self.obs_dims.values())
-        if obs_dim is not None and obs_dim < widest:
-            raise ValueError(f"obs_dim={obs_dim} is narrower than the widest observation ({widest}) of {self.unique_env_ids}")
-        self.obs_dim = widest if obs_dim is None else int(obs_dim)
-        offsets = np.cumsum([0] + [t.n_states for t in graphs])[:-1]
-        self._load_tables(graphs, offsets)
+        tables = [sim_tables(e, obs_type, np.float32, overrides=_overrides(overrides), normalise=normalise_obs,
+                             cache_dir=table_cache) for e in self.unique_env_ids]
+        width = max(int(t.obs.shape[1]) for t in tables) if obs_dim is None else int(obs_dim)
+        laid = lay_out(tables, self.unique_env_ids, width)
+        self.obs_dims = laid.obs_dims
+        self.obs_dim = width
+        self._load_tables(laid)
         index = {e: i for i, e in enumerate(self.unique_env_ids)}
         self.copy_graph = th.tensor([index[e] for e in self.env_ids], dtype=th.int64, device=self.device)
+        offsets = laid.graph_offsets.astype(np.int64)
         self._start = th.as_tensor(offsets, dtype=th.int64, device=self.device)[self.copy_graph]
         #: One past each copy's last state in the tables (a restored state must lie in its own graph's block).
-        self._end = th.as_tensor(offsets + np.array([t.n_states for t in graphs]), dtype=th.int64, device=self.device)[self.copy_graph]
+        ends = offsets + np.array([t.n_states for t in tables], dtype=np.int64)
+        self._end = th.as_tensor(ends, dtype=th.int64, device=self.device)[self.copy_graph]
         self._limit = np.iinfo(np.int32).max if max_steps is None else max_steps
         self.state = self._start.clone()
         self.elapsed = th.zeros(self.num_envs, dtype=th.int64, device=self.device)
 
-    def _load_tables(self, graphs: list[GraphTables], offsets: np.ndarray) -> None:
-        """The graphs' tables laid end to end, as tensors on the device (observations padded)."""
+    def _load_tables(self, laid: Layout) -> None:
+        """The laid-out tables as tensors on the device: states and event masks as int64 (torch has
+        no unsigned 32-bit bit operations on every device), utilities as float64. Copied, never
+        shared: a host table may be a cached, read-only array of the graph."""
         dev = self.device
-        nxt = np.concatenate([t.next.astype(np.int64) + off for t, off in zip(graphs, offsets)])
-        obs = np.zeros((int(sum(t.n_states for t in graphs)), self.obs_dim), dtype=np.float32)
-        for t, off in zip(graphs, offsets):
-            obs[off : off + t.n_states, : t.obs.shape[1]] = t.obs.astype(np.float32)
-        self._next = th.as_tensor(nxt, device=dev)
-        self._reward = th.as_tensor(np.concatenate([t.reward for t in graphs]).astype(np.float32), device=dev)
-        self._events = th.as_tensor(np.concatenate([t.events for t in graphs]).astype(np.int64), device=dev)
-        self._utility = th.as_tensor(np.concatenate([t.utility for t in graphs]).astype(np.float64), device=dev)
-        self._goal = th.as_tensor(np.concatenate([t.goal for t in graphs]), device=dev)
-        self._done = th.as_tensor(np.concatenate([t.done for t in graphs]), device=dev)
-        self._obs = th.as_tensor(obs, device=dev)
-        assert len(self._next) == N_ACTIONS * len(self._done)
+        self._next = th.tensor(laid.next.astype(np.int64), device=dev)
+        self._reward = th.tensor(laid.reward, device=dev)
+        self._events = th.tensor(laid.events.astype(np.int64), device=dev)
+        self._utility = th.tensor(laid.utility.astype(np.float64), device=dev)
+        self._goal = th.tensor(laid.goal, device=dev)
+        self._done = th.tensor(laid.done, device=dev)
+        self._obs = th.tensor(laid.obs.astype(np.float32, copy=False), device=dev)
 
     # ------------------------------------------------------------------ API
     def reset(self, mask: th.Tensor | None = None) -> th.Tensor:
@@ -126,11 +132,8 @@ class TorchTrolleySim:
         Actions are not range-checked here (that would make every step wait for the device);
         :class:`~morality_gym.envs.torch_vector.TorchTrolleyVectorEnv` checks them by default.
         """
-        k = self.state * N_ACTIONS + actions.to(th.int64)
-        nxt = self._next[k]
-        self.elapsed = self.elapsed + 1
-        terminated = self._done[nxt]
-        truncated = self.elapsed > self._limit
+        k, nxt, self.elapsed, terminated, truncated = advance(self._next, self._done, self.state, self.elapsed,
+                                                              actions.to(th.int64), self._limit)
         ended = terminated | truncated
         final_obs = th.where(ended.unsqueeze(1), self._obs[nxt], 0.0)
         self.state = th.where(ended, self._start, nxt)
