@@ -15,6 +15,7 @@ import torch as th
 
 import morality_gym
 from morality_gym.envs.batched import BatchedTrolleyEnv
+from morality_gym.envs.mixed import MixedBatchedTrolleyEnv
 from morality_gym.envs.torch_sim import TorchStep, TorchTrolleySim
 from morality_gym.norms.cost import StackedCost, VectorCost
 from morality_gym.norms.reward_cost import RewardCostSpec
@@ -61,6 +62,27 @@ def test_all_98_envs_in_one_device_simulator_step_as_the_host_simulator(max_step
             np.testing.assert_array_equal(goal[rows], env.goal_reached(want.transition))
             final = np.zeros_like(want.obs) if want.final_obs is None else want.final_obs
             np.testing.assert_array_equal(got.final_obs[rows, :d].numpy(), final)
+
+
+@pytest.mark.parametrize("obs_type", ["compact", "grid"])
+def test_the_device_simulator_steps_the_host_tables_of_every_observation_type(obs_type: str, tmp_path) -> None:
+    """The device simulator's tables are the host's (one layout, :func:`~morality_gym.envs.batched.lay_out`),
+    so it offers the host's observation types and table cache too: a mixture of scenarios with
+    compact or grid rows, its tables read back from the cache, steps as the host mixture does."""
+    ids = ["SwitchStandard-HumanA-v1", "PushOrSwitch-Human-v1", "Switch7-Human-v1"]
+    copies = [e for e in ids for _ in range(COPIES)]
+    host = MixedBatchedTrolleyEnv(copies, obs_type=obs_type)
+    for cache in (tmp_path, tmp_path):  # the second build reads the entries the first wrote (compact only)
+        sim = TorchTrolleySim(copies, "cpu", obs_type=obs_type, table_cache=cache)
+        assert sim.obs_dim == host.obs_dim
+    np.testing.assert_array_equal(sim.reset().numpy(), host.reset())
+    rng = np.random.default_rng(1)
+    for _ in range(60):
+        act = _actions(rng, len(copies))
+        got, want = sim.step(th.from_numpy(act)), host.step(act)
+        np.testing.assert_array_equal(got.obs.numpy(), want.obs)
+        np.testing.assert_array_equal(got.reward.numpy(), want.reward)
+        np.testing.assert_array_equal((got.terminated | got.truncated).numpy(), want.terminated | want.truncated)
 
 
 def test_reset_of_some_copies_and_state_round_trip() -> None:
