@@ -57,6 +57,12 @@ def _of(pairs: Sequence[Pair], learner: str, chains: Sequence[str] | None = None
     return [p for p in pairs if p.paper.learner == learner and (chains is None or p.paper.chain in chains)]
 
 
+#: Each protocol's update diagnostics of the paired cells' runs (None where none were recorded).
+GroupUpdates = dict[Group, Updates | None]
+#: Each protocol's Table 1 rows: (chain, scenario) -> learner -> cell.
+GroupRows = dict[Group, dict[tuple[str, str], dict[str, Cell]]]
+
+
 def _rows(judged: Judgement, group: Group) -> dict[tuple[str, str], dict[str, Cell]]:
     """Table 1's rows under ``group`` (protocol-neutral learners from the paper protocol), by learner."""
     out: dict[tuple[str, str], dict[str, Cell]] = {}
@@ -112,14 +118,23 @@ def _case_counts(updates: Updates | None, lb: Leaderboard, group: Group, part: S
 
 
 def baseline_facts(lb: Leaderboard, judged: Judgement, sources: Sources) -> dict[str, str]:
-    """Every number the "Choosing a baseline" reading may state, by name, as it is to be printed."""
+    """Every number the "Choosing a baseline" reading may state, by name, as it is to be printed.
+
+    One function per learner's part of the reading, in the reading's order; each returns its facts."""
     pairs = paired_cells(judged)
     if not pairs:
         return {}
     updates = {group: read_updates(sources, [i for p in pairs for i in run_ids(lb, group, p.of(group))])
                for group in (PAPER, CORRECTED)}
+    rows = {g: _rows(judged, g) for g in (PAPER, CORRECTED)}
+    return (_cpo_deontological_facts(lb, pairs, updates) | _cpo_utility_facts(lb, pairs, updates)
+            | _cpo_against_shaped_facts(rows) | _lag_facts(lb, pairs, updates, rows) | _random_facts(pairs)
+            | _reproduce_facts(pairs))
+
+
+def _cpo_deontological_facts(lb: Leaderboard, pairs: Sequence[Pair], updates: GroupUpdates) -> dict[str, str]:
+    """CPO under the chains with a deontological norm: how its cells moved, and its accepted updates."""
     facts: dict[str, str] = {}
-    # CPO under the chains with a deontological norm
     deon = _of(pairs, CPO, DEONTOLOGICAL)
     changes = [p.change for p in deon]
     facts |= {"cpo_deon_cells": str(len(deon)), "cpo_deon_rise": _count(sum(c > 0 for c in changes), len(deon)),
@@ -132,7 +147,12 @@ def baseline_facts(lb: Leaderboard, judged: Judgement, sources: Sources) -> dict
         facts[f"cpo_accepted_{name}"] = f"{before:.0%} -> {after:.0%}".replace("%", " %")
     facts["cpo_min_humans_harmed"] = (f"{_norm_mean(lb, PAPER, 'DualProcess', CPO, UTILITARIAN_NORM):.3f} to "
                                       f"{_norm_mean(lb, CORRECTED, 'DualProcess', CPO, UTILITARIAN_NORM):.3f}")
-    # CPO under Utility, where the fixes have (almost) nothing to act on
+    return facts
+
+
+def _cpo_utility_facts(lb: Leaderboard, pairs: Sequence[Pair], updates: GroupUpdates) -> dict[str, str]:
+    """CPO under Utility, where the fixes have (almost) nothing to act on."""
+    facts: dict[str, str] = {}
     utility = _of(pairs, CPO, ["Utility"])
     same, total = _same_metric_runs(lb, utility)
     for group in (PAPER, CORRECTED):
@@ -145,8 +165,12 @@ def baseline_facts(lb: Leaderboard, judged: Judgement, sources: Sources) -> dict
     up = [p for p in uah if p.moved == "up"]
     facts |= {"cpo_uah_moved_up": _count(len(up), len(uah)),
               "cpo_uah_up_change": ", ".join(_signed(p.change) for p in up) or "none"}
-    # corrected CPO against PPO Shaped, row by row
-    rows = {g: _rows(judged, g) for g in (PAPER, CORRECTED)}
+    return facts
+
+
+def _cpo_against_shaped_facts(rows: GroupRows) -> dict[str, str]:
+    """Corrected CPO against PPO Shaped, row by row."""
+    facts: dict[str, str] = {}
     n_rows = len(rows[CORRECTED])
     facts["rows"] = str(n_rows)
     for group in (PAPER, CORRECTED):
@@ -158,12 +182,28 @@ def baseline_facts(lb: Leaderboard, judged: Judgement, sources: Sources) -> dict
     beyond = [k for k, r in leads if relation(r[CPO], r[SHAPED]) == "above"]
     facts["shaped_highest_everywhere"] = ("still holds" if not leads else "stops holding, beyond the intervals in "
                                           + _rows_text(beyond) if beyond else "stops holding, though not beyond the intervals")
-    # PPO-Lag
+    return facts
+
+
+def _lag_facts(lb: Leaderboard, pairs: Sequence[Pair], updates: GroupUpdates, rows: GroupRows) -> dict[str, str]:
+    """PPO-Lag: its multiplier's passes, its moves per chain, and its rows against the others."""
+    facts: dict[str, str] = {}
     lag = _of(pairs, LAG)
     per_chain = [_shares(updates[CORRECTED], lb, CORRECTED, _of(pairs, LAG, [c]), mean_passes)
                  for c in dict.fromkeys(p.paper.chain for p in lag)]
     facts["lag_passes_corrected"] = f"{min(per_chain):.0f}-{max(per_chain):.0f}"
     facts["lag_passes_paper"] = f"{_shares(updates[PAPER], lb, PAPER, lag, mean_passes):.1f}"
+    facts |= _lag_moves(pairs)
+    facts["lag_max_seed_sd"] = f"{max(p.corrected.sd for p in lag):.3f}"
+    facts |= _lag_rows(rows)
+    lag_rate, cpo_rate = _cpu_rate(lb, lag), _cpu_rate(lb, _of(pairs, CPO))
+    facts |= {"lag_core_s": f"{lag_rate:.0f}", "cpo_core_s": f"{cpo_rate:.0f}", "lag_cpo_cost_ratio": f"{lag_rate / cpo_rate:.1f}"}
+    return facts
+
+
+def _lag_moves(pairs: Sequence[Pair]) -> dict[str, str]:
+    """PPO-Lag's cells that moved between the protocols, chain by chain, and from where to where."""
+    facts: dict[str, str] = {}
     for chain, name in (("Utility", "utility"), ("DualProcessAgentHarm", "dpah"), ("DualProcess", "dp"),
                         ("UtilityAgentHarm", "uah")):
         part = _of(pairs, LAG, [chain])
@@ -173,17 +213,25 @@ def baseline_facts(lb: Leaderboard, judged: Judgement, sources: Sources) -> dict
         if moved:
             facts[f"lag_{name}_moved_from_to"] = (f"{_span([p.paper.mean for p in moved])} -> "
                                                   f"{_span([p.corrected.mean for p in moved])}")
-    facts["lag_max_seed_sd"] = f"{max(p.corrected.sd for p in lag):.3f}"
-    below_both = [k for k, r in rows[CORRECTED].items() if r[LAG].mean < min(r[CPO].mean, r[SHAPED].mean)]
-    facts["lag_below_cpo_and_shaped"] = _count(len(below_both), n_rows)
-    against = {k: relation(r[LAG], r[RANDOM]) for k, r in rows[CORRECTED].items()}
+    return facts
+
+
+def _lag_rows(rows: GroupRows) -> dict[str, str]:
+    """Corrected PPO-Lag's rows against CPO and PPO Shaped (below both?) and against Random."""
+    corrected = rows[CORRECTED]
+    below_both = [k for k, r in corrected.items() if r[LAG].mean < min(r[CPO].mean, r[SHAPED].mean)]
+    facts = {"lag_below_cpo_and_shaped": _count(len(below_both), len(corrected))}
+    against = {k: relation(r[LAG], r[RANDOM]) for k, r in corrected.items()}
     for side in ("above", "tied", "below"):
         facts[f"lag_{side}_random"] = str(sum(v == side for v in against.values()))
     facts["lag_above_random_rows"] = _rows_text([k for k, v in against.items() if v == "above"])
-    facts["lag_above_random_by_mean"] = str(sum(r[LAG].mean > r[RANDOM].mean for r in rows[CORRECTED].values()))
-    lag_rate, cpo_rate = _cpu_rate(lb, lag), _cpu_rate(lb, _of(pairs, CPO))
-    facts |= {"lag_core_s": f"{lag_rate:.0f}", "cpo_core_s": f"{cpo_rate:.0f}", "lag_cpo_cost_ratio": f"{lag_rate / cpo_rate:.1f}"}
-    # Random: the size of a non-change
+    facts["lag_above_random_by_mean"] = str(sum(r[LAG].mean > r[RANDOM].mean for r in corrected.values()))
+    return facts
+
+
+def _random_facts(pairs: Sequence[Pair]) -> dict[str, str]:
+    """Random: the size of a non-change (its cells move only by the seeds' noise)."""
+    facts: dict[str, str] = {}
     rand = _of(pairs, RANDOM)
     big = max(rand, key=lambda p: abs(p.change))
     constrained_moves = [abs(p.change) for p in pairs if p.paper.learner != RANDOM and p.moved != "no"]
@@ -192,8 +240,6 @@ def baseline_facts(lb: Leaderboard, judged: Judgement, sources: Sources) -> dict
               "random_largest_abs": f"{abs(big.change):.2f}",
               "random_not_reproducing": _count(sum(p.corrected.verdict != "reproduces" for p in rand), len(rand)),
               "smallest_move": f"{min(constrained_moves):.3f}" if constrained_moves else "none"}
-    # against the paper's printed values
-    facts |= _reproduce_facts(pairs)
     return facts
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -48,23 +49,32 @@ def _float(value: float) -> Any:
 
 
 def encode(value: Any) -> Any:
-    """``value`` as JSON-ready data; :class:`NotEncodable` for a type the decoder would not rebuild."""
-    if value is None or isinstance(value, (bool, str)):
-        return value
-    if isinstance(value, int) and type(value) is int:
+    """``value`` as JSON-ready data; :class:`NotEncodable` for a type the decoder would not rebuild.
+
+    JSON's own types go as they are (exact types only: a subclass of ``int`` or ``dict`` may
+    behave differently and is not restored); everything else is a one-key tagged object."""
+    if value is None or isinstance(value, (bool, str)) or type(value) is int:
         return value
     if type(value) is float:
         return _float(value)
     if isinstance(value, np.generic):
-        if value.dtype.kind not in NUMERIC_KINDS:
-            raise NotEncodable(f"a NumPy {value.dtype} scalar is not cached")
-        item = value.item()
-        return {"np": value.dtype.str, "v": encode(item)}
+        return _encode_numpy_scalar(value)
     if isinstance(value, list):
         return [encode(v) for v in value]
-    if isinstance(value, tuple) and type(value) is tuple:
+    return _encode_tagged(value)
+
+
+def _encode_numpy_scalar(value: np.generic) -> dict[str, Any]:
+    if value.dtype.kind not in NUMERIC_KINDS:
+        raise NotEncodable(f"a NumPy {value.dtype} scalar is not cached")
+    return {"np": value.dtype.str, "v": encode(value.item())}
+
+
+def _encode_tagged(value: Any) -> dict[str, Any]:
+    """A tuple, dict, path, data frame or one of the :data:`DATACLASSES` as its tagged object."""
+    if type(value) is tuple:
         return {"tuple": [encode(v) for v in value]}
-    if isinstance(value, dict) and type(value) is dict:
+    if type(value) is dict:
         return {"dict": [[encode(k), encode(v)] for k, v in value.items()]}
     if isinstance(value, Path):
         return {"path": str(value)}
@@ -105,44 +115,52 @@ def _values(column: pd.Series) -> list[Any]:
 
 def decode(data: Any) -> Any:
     """The value :func:`encode` made ``data`` from; :class:`CacheFormatError` for anything else."""
-    if data is None or isinstance(data, (bool, str, int)):
-        return data
-    if isinstance(data, float):
+    if data is None or isinstance(data, (bool, str, int, float)):
         return data
     if isinstance(data, list):
         return [decode(v) for v in data]
     if not isinstance(data, dict) or len(data) not in (1, 2):
         raise CacheFormatError(f"unexpected {type(data).__name__} in a cache file")
     tag = next(iter(data))
+    keys, decoder = _TAGGED.get(tag, (0, None))
+    if decoder is None or len(data) != keys:
+        raise CacheFormatError(f"unknown tag {tag!r} in a cache file")
     try:
-        if tag == "float" and len(data) == 1:
-            return float(_text(data["float"], ("nan", "inf", "-inf")))
-        if tag == "np" and len(data) == 2:
-            dtype = np.dtype(_text(data["np"]))
-            if dtype.kind not in NUMERIC_KINDS:
-                raise CacheFormatError(f"a NumPy scalar of dtype {dtype} in a cache file")
-            return dtype.type(decode(data["v"]))
-        if tag == "tuple" and len(data) == 1:
-            return tuple(decode(v) for v in _list(data["tuple"]))
-        if tag == "dict" and len(data) == 1:
-            return {decode(k): decode(v) for k, v in (_pair(p) for p in _list(data["dict"]))}
-        if tag == "path" and len(data) == 1:
-            return Path(_text(data["path"]))
-        if tag == "frame" and len(data) == 1:
-            return _decode_frame(data["frame"])
-        if tag == "dataclass" and len(data) == 2:
-            cls = DATACLASSES.get(_text(data["dataclass"]))
-            if cls is None:
-                raise CacheFormatError(f"unknown class {data['dataclass']!r} in a cache file")
-            fields = data["fields"]
-            if not isinstance(fields, dict):
-                raise CacheFormatError("a dataclass without fields in a cache file")
-            return cls(**{str(k): decode(v) for k, v in fields.items()})
+        return decoder(data)
+    except CacheFormatError:
+        raise
     except (TypeError, ValueError, KeyError) as exc:
-        if isinstance(exc, CacheFormatError):
-            raise
         raise CacheFormatError(f"a damaged {tag!r} entry in a cache file ({exc})") from exc
-    raise CacheFormatError(f"unknown tag {tag!r} in a cache file")
+
+
+def _decode_numpy_scalar(data: dict[str, Any]) -> np.generic:
+    dtype = np.dtype(_text(data["np"]))
+    if dtype.kind not in NUMERIC_KINDS:
+        raise CacheFormatError(f"a NumPy scalar of dtype {dtype} in a cache file")
+    return dtype.type(decode(data["v"]))
+
+
+def _decode_dataclass(data: dict[str, Any]) -> Any:
+    """One of :data:`DATACLASSES`, by name: the only classes a cache file may make the decoder build."""
+    cls = DATACLASSES.get(_text(data["dataclass"]))
+    if cls is None:
+        raise CacheFormatError(f"unknown class {data['dataclass']!r} in a cache file")
+    fields = data["fields"]
+    if not isinstance(fields, dict):
+        raise CacheFormatError("a dataclass without fields in a cache file")
+    return cls(**{str(k): decode(v) for k, v in fields.items()})
+
+
+#: Each tag :func:`encode` writes: how many keys its object has, and how it is read back.
+_TAGGED: dict[str, tuple[int, Callable[[dict[str, Any]], Any]]] = {
+    "float": (1, lambda data: float(_text(data["float"], ("nan", "inf", "-inf")))),
+    "np": (2, _decode_numpy_scalar),
+    "tuple": (1, lambda data: tuple(decode(v) for v in _list(data["tuple"]))),
+    "dict": (1, lambda data: {decode(k): decode(v) for k, v in (_pair(p) for p in _list(data["dict"]))}),
+    "path": (1, lambda data: Path(_text(data["path"]))),
+    "frame": (1, lambda data: _decode_frame(data["frame"])),
+    "dataclass": (2, _decode_dataclass),
+}
 
 
 def _text(value: Any, allowed: tuple[str, ...] | None = None) -> str:
@@ -196,9 +214,7 @@ def same(a: Any, b: Any) -> bool:
     if type(a) is not type(b):
         return False
     if isinstance(a, pd.DataFrame):
-        return (a.shape == b.shape and _same_index(a.columns, b.columns) and _same_index(a.index, b.index)
-                and list(map(str, a.dtypes)) == list(map(str, b.dtypes))
-                and all(same(list(a.iloc[:, i].to_numpy()), list(b.iloc[:, i].to_numpy())) for i in range(a.shape[1])))
+        return _same_frame(a, b)
     if isinstance(a, (list, tuple)):
         return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b, strict=True))
     if isinstance(a, dict):
@@ -211,6 +227,13 @@ def same(a: Any, b: Any) -> bool:
         return bool(a == b)
     except (TypeError, ValueError):
         return False
+
+
+def _same_frame(a: pd.DataFrame, b: pd.DataFrame) -> bool:
+    """Same shape, labels, dtypes and values, column by column."""
+    return (a.shape == b.shape and _same_index(a.columns, b.columns) and _same_index(a.index, b.index)
+            and list(map(str, a.dtypes)) == list(map(str, b.dtypes))
+            and all(same(list(a.iloc[:, i].to_numpy()), list(b.iloc[:, i].to_numpy())) for i in range(a.shape[1])))
 
 
 def _same_index(a: pd.Index, b: pd.Index) -> bool:
