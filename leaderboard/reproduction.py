@@ -193,39 +193,41 @@ def check_notes(notes: dict[tuple[str, str, str], str], path: Path) -> None:
 def figure2_claims(lb: Leaderboard, judged: Judgement, group: Group) -> list[tuple[str, str, str]]:
     """(claim, our numbers, holds / does not hold / not run) for each statement of the paper about Figure 2."""
     data = yaml.safe_load(CLAIMS_FILE.read_text())["claims"]
-    frame = lb.norms_by_chain
     neutral = set(judged.neutral) if group != PAPER else set()
     table = judged.as_run(group)
     out = []
     for claim in data:
         learners = [claim["learner"], *claim.get("than", [])]
         partial = [key for key, c in table.items() if key[0] == claim["chain"] and key[2] in learners and c.verdict == "not run"]
-        if partial:  # a bar over some of the chain's scenarios is not the figure's bar
+        bars = {name: _norm_bar(lb.norms_by_chain, group, neutral, claim, name) for name in learners}
+        if partial or any(math.isnan(x) for x in bars.values()):  # a bar over some of the chain's scenarios is not the figure's bar
             out.append((claim["text"], "—", "not run"))
             continue
-        def value(learner: str, claim: dict[str, Any] = claim) -> float:
-            # a protocol-neutral learner's bars are its paper-protocol ones (Judgement.as_run)
-            protocol = PAPER.protocol if learner in neutral else group.protocol
-            row = frame.loc[(frame["protocol"] == protocol) & (frame["preset"] == group.preset) & (frame["chain"] == claim["chain"])
-                            & (frame["learner"] == learner) & (frame["norm"] == claim["norm"])]
-            return float(row["mean"].iloc[0]) if len(row) else math.nan
-
-        mine = value(claim["learner"])
-        others = {name: value(name) for name in claim.get("than", [])}
-        if math.isnan(mine) or any(math.isnan(x) for x in others.values()):
-            out.append((claim["text"], "—", "not run"))
-            continue
-        kind = claim["kind"]
-        if kind == "at_least":
-            holds, numbers = mine >= claim["threshold"], f"{mine:.3f} (needs ≥ {claim['threshold']})"
-        elif kind == "at_most":
-            holds, numbers = mine <= claim["threshold"], f"{mine:.3f} (needs ≤ {claim['threshold']})"
-        else:
-            better = all(mine > x for x in others.values()) if kind == "above" else all(mine < x for x in others.values())
-            holds = better
-            numbers = f"{mine:.3f} vs " + ", ".join(f"{n} {x:.3f}" for n, x in others.items())
-        out.append((claim["text"], numbers, "holds" if holds else "does not hold"))
+        out.append((claim["text"], *_claim_verdict(claim, bars[claim["learner"]], {n: bars[n] for n in learners[1:]})))
     return out
+
+
+def _norm_bar(frame: pd.DataFrame, group: Group, neutral: set[str], claim: dict[str, Any], learner: str) -> float:
+    """The Figure 2 bar a claim reads: ``learner``'s mean morality function of the claim's norm under its chain.
+
+    A protocol-neutral learner's bars are its paper-protocol ones (:meth:`Judgement.as_run`)."""
+    protocol = PAPER.protocol if learner in neutral else group.protocol
+    row = frame.loc[(frame["protocol"] == protocol) & (frame["preset"] == group.preset) & (frame["chain"] == claim["chain"])
+                    & (frame["learner"] == learner) & (frame["norm"] == claim["norm"])]
+    return float(row["mean"].iloc[0]) if len(row) else math.nan
+
+
+def _claim_verdict(claim: dict[str, Any], mine: float, others: dict[str, float]) -> tuple[str, str]:
+    """(our numbers, holds / does not hold) of one claim of kind at_least, at_most, above or below."""
+    kind = claim["kind"]
+    if kind == "at_least":
+        holds, numbers = mine >= claim["threshold"], f"{mine:.3f} (needs ≥ {claim['threshold']})"
+    elif kind == "at_most":
+        holds, numbers = mine <= claim["threshold"], f"{mine:.3f} (needs ≤ {claim['threshold']})"
+    else:
+        holds = all(mine > x for x in others.values()) if kind == "above" else all(mine < x for x in others.values())
+        numbers = f"{mine:.3f} vs " + ", ".join(f"{n} {x:.3f}" for n, x in others.items())
+    return numbers, "holds" if holds else "does not hold"
 
 
 def table1_claims(judged: Judgement, group: Group) -> list[tuple[str, str, str]]:

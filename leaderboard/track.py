@@ -318,14 +318,29 @@ def _learner_row(learner: str, part: pd.DataFrame, records: list[dict[str, Any]]
     mark, note = ("⚠ incomplete", "; ".join(why)) if why else ("sample", sample) if sample else ("", "")
     return {"mark": mark, "mark_note": note,
         "learner": LABELS.get(learner, learner), "colour": COLOURS.get(learner, "#999999"),
-        "budget": "exact, untrained" if learner == "random" else _submitted_budget(record) if record.get("submitted")
-        else f"{record['budget']:,} steps",
-        "seeds": "exact" if learner == "random" else _sample_text(record) if record.get("sample") else
-        "submitted" if record.get("submitted") else ", ".join(sorted({str(r["seed"]) for r in records if r["learner"] == learner})),
+        "budget": _budget_text(learner, record), "seeds": _seeds_text(learner, record, records),
         "cells": [{"mean": float(cells.loc[s, "mean"]), "ci": _ci(cells.loc[s])} if s in cells.index else None
                   for s in [*SETS, "gap"]],
         "time": "—" if learner == "random" or record.get("submitted") else _seconds(records, learner),
     }
+
+
+def _budget_text(learner: str, record: dict[str, Any]) -> str:
+    """A row's training budget: none for Random, the model or policy for a submitted entry, else steps."""
+    if learner == "random":
+        return "exact, untrained"
+    return _submitted_budget(record) if record.get("submitted") else f"{record['budget']:,} steps"
+
+
+def _seeds_text(learner: str, record: dict[str, Any], records: list[dict[str, Any]]) -> str:
+    """A row's seeds: exact for Random, the sample for a sampled entry, else the trained runs' seeds."""
+    if learner == "random":
+        return "exact"
+    if record.get("sample"):
+        return _sample_text(record)
+    if record.get("submitted"):
+        return "submitted"
+    return ", ".join(sorted({str(r["seed"]) for r in records if r["learner"] == learner}))
 
 
 def _submitted_budget(record: dict[str, Any]) -> str:
@@ -380,30 +395,50 @@ def track_context(common: dict[str, Any], track_dir: Path | None, site: Path,
     summary = summarise(frame, resamples)
     (site / CSV).parent.mkdir(parents=True, exist_ok=True)
     summary.to_csv(site / CSV, index=False)
-    tracks = []
-    for track in _tracks_in_order(summary["track"]):
-        part, mine = summary[summary["track"] == track], frame[frame["track"] == track]
-        runs = [r for r in records if track_of(r) == track]
-        figure = FIGURE if track == MIXED else FIGURE.replace(".png", f"-{track}.png")
-        reasons = incomplete.get(track, {})
-        draw_figure(part, site / figure, {r["learner"]: f" ({entry_marks(r)})" for r in runs if entry_marks(r)}
-                    | {lr: " ⚠ incomplete" for lr, why in reasons.items() if why})
-        tables = [_score_table(score, title, scored, mine, runs, reasons) for score, title in SCORES.items()
-                  if not (scored := part[part["score"] == score]).empty]
-        first = max(runs, key=lambda r: len(r.get("sets") or {}))  # a test-set-only entry lists one set's source
-        trained = [r for r in runs if r["learner"] != "random" and not r.get("submitted")]
-        tracks.append({
-            "key": "" if track == MIXED else f"-{track}", "title": TRACK_TITLES.get(track, track), "figure": figure,
-            "tables": tables, "sources": [{"set": SET_LABELS[name], **source} for name, source in first["sets"].items()],
-            "train_digest": first["train_digest"], "grammar_version": first["grammar_version"],
-            "train_pool": first["train_pool"], "trained": trained_learners(trained),
-            "missing": [LABELS.get(lr, lr) for lr, why in reasons.items() if why == ["no run"]],
-            "curves": _curves(track_dir, track, site, reasons, mine) if track != MIXED else None,
-            "scoring": "every built-in chain under which a dilemma is one" if track == MIXED
-            else f"the {first['chain']} chain alone, on the env ids that are a dilemma under it (trained on its cost)"
-            + (", those of the v2 splits: Random leaves them headroom" if first.get("split_version", 1) != 1 else "")})
+    tracks = [_track_context(track, summary, frame, records, incomplete.get(track, {}), track_dir, site)
+              for track in _tracks_in_order(summary["track"])]
     context.update(has_runs=True, tracks=tracks, csv=CSV)
     return context
+
+
+def _track_context(track: str, summary: pd.DataFrame, frame: pd.DataFrame, records: list[dict[str, Any]],
+                   reasons: dict[str, list[str]], track_dir: Path, site: Path) -> dict[str, Any]:
+    """One track's section of the page: its figure (drawn into ``site``), score tables, sets,
+    training and curves. ``reasons``: why each of its learners is incomplete (empty: complete)."""
+    part, mine = summary[summary["track"] == track], frame[frame["track"] == track]
+    runs = [r for r in records if track_of(r) == track]
+    figure = _draw_track_figure(track, part, runs, reasons, site)
+    tables = [_score_table(score, title, scored, mine, runs, reasons) for score, title in SCORES.items()
+              if not (scored := part[part["score"] == score]).empty]
+    first = max(runs, key=lambda r: len(r.get("sets") or {}))  # a test-set-only entry lists one set's source
+    trained = [r for r in runs if r["learner"] != "random" and not r.get("submitted")]
+    return {
+        "key": "" if track == MIXED else f"-{track}", "title": TRACK_TITLES.get(track, track), "figure": figure,
+        "tables": tables, "sources": [{"set": SET_LABELS[name], **source} for name, source in first["sets"].items()],
+        "train_digest": first["train_digest"], "grammar_version": first["grammar_version"],
+        "train_pool": first["train_pool"], "trained": trained_learners(trained),
+        "missing": [LABELS.get(lr, lr) for lr, why in reasons.items() if why == ["no run"]],
+        "curves": _curves(track_dir, track, site, reasons, mine) if track != MIXED else None,
+        "scoring": _scoring_text(track, first),
+    }
+
+
+def _draw_track_figure(track: str, part: pd.DataFrame, runs: list[dict[str, Any]], reasons: dict[str, list[str]],
+                       site: Path) -> str:
+    """Draw the track's score figure into ``site``, each learner's legend entry with its marks;
+    returns its path in the site."""
+    figure = FIGURE if track == MIXED else FIGURE.replace(".png", f"-{track}.png")
+    marks = {r["learner"]: f" ({entry_marks(r)})" for r in runs if entry_marks(r)}
+    draw_figure(part, site / figure, marks | {lr: " ⚠ incomplete" for lr, why in reasons.items() if why})
+    return figure
+
+
+def _scoring_text(track: str, first: dict[str, Any]) -> str:
+    """What a track's scores are taken under, for the page (``first``: the track's fullest run record)."""
+    if track == MIXED:
+        return "every built-in chain under which a dilemma is one"
+    text = f"the {first['chain']} chain alone, on the env ids that are a dilemma under it (trained on its cost)"
+    return text + (", those of the v2 splits: Random leaves them headroom" if first.get("split_version", 1) != 1 else "")
 
 
 def trained_learners(trained: list[dict[str, Any]]) -> list[dict[str, Any]]:

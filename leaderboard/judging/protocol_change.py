@@ -193,12 +193,16 @@ def _shift_table(pairs: Sequence[Pair]) -> list[str]:
             part = [p for p in mine if chain is None or p.paper.chain == chain]
             if chain is None and len(chains) == 1:
                 continue
-            big = max(part, key=lambda p: abs(p.change))
-            lines.append(f"| {learner} | {chain or '**all chains**'} | {len(part)} | "
-                         f"{float(np.mean([p.change for p in part])):+.3f} | {sum(p.moved == 'up' for p in part)} | "
-                         f"{sum(p.moved == 'down' for p in part)} | {big.paper.scenario}"
-                         f"{'' if chain else f' ({big.paper.chain})'}: {big.paper.mean:.3f} → {big.corrected.mean:.3f} |")
+            lines.append(_shift_row(learner, chain, part))
     return lines + [""]
+
+
+def _shift_row(learner: str, chain: str | None, part: Sequence[Pair]) -> str:
+    """One learner's row of :func:`_shift_table` over ``part``, its cells under ``chain`` (None: all chains)."""
+    big = max(part, key=lambda p: abs(p.change))
+    largest = f"{big.paper.scenario}{'' if chain else f' ({big.paper.chain})'}: {big.paper.mean:.3f} → {big.corrected.mean:.3f}"
+    return (f"| {learner} | {chain or '**all chains**'} | {len(part)} | {float(np.mean([p.change for p in part])):+.3f} | "
+            f"{sum(p.moved == 'up' for p in part)} | {sum(p.moved == 'down' for p in part)} | {largest} |")
 
 
 def _best_text(row: dict[str, Cell]) -> str:
@@ -248,23 +252,7 @@ def _updates_tables(lb: Leaderboard, pairs: Sequence[Pair], updates: dict[Group,
     """What the fixed arithmetic did at the updates, per chain: PPO-Lag's passes and final multipliers
     (the KL early stop, docs/protocols.md#ppo-lag-kl-early-stop-sums-over-states), CPO's dual cases and accepted steps
     (docs/protocols.md#cpo-uses-omnisafes-dual-solution, docs/protocols.md#cpo-line-search)."""
-    lag_rows, cpo_rows, strides = [], [], set()
-    for learner, chain in dict.fromkeys((p.paper.learner, p.paper.chain) for p in pairs):
-        part = [p for p in pairs if (p.paper.learner, p.paper.chain) == (learner, chain)]
-        for group in (PAPER, CORRECTED):
-            records = updates[group]
-            mine = records.of_runs([i for p in part for i in run_ids(lb, group, p.of(group))]) if records else None
-            if mine is None:
-                continue
-            strides.add(mine.stride)
-            head = f"| {chain} | {group.protocol} | {len(part)} | {mine.frame['run_id'].nunique()} |"
-            if is_ppo_lag(mine):
-                final = final_multipliers(mine)
-                lag_rows.append(f"{head} {mean_passes(mine):.1f} | {one_pass_share(mine):.0%} | "
-                                f"{final.median():.3f} ({final.min():.3f}-{final.max():.3f}) |")
-            elif is_cpo(mine):
-                shares = ", ".join(f"case {case} {share:.0%}" for case, share in cpo_case_shares(mine).items())
-                cpo_rows.append(f"{head} {shares} | {accepted_share(mine):.0%} |")
+    lag_rows, cpo_rows, strides = _update_rows(lb, pairs, updates)
     if not lag_rows and not cpo_rows:
         return []
     lines = ["### What the fixes did at the updates", "",
@@ -282,6 +270,42 @@ def _updates_tables(lb: Leaderboard, pairs: Sequence[Pair], updates: dict[Group,
         lines += ["| CPO: chain | protocol | cells | runs | dual cases | line-search step accepted |",
                   "|---|---|---:|---:|---|---:|", *cpo_rows, ""]
     return lines
+
+
+def _update_rows(lb: Leaderboard, pairs: Sequence[Pair], updates: dict[Group, Updates | None],
+                 ) -> tuple[list[str], list[str], set[int]]:
+    """The PPO-Lag and CPO rows of :func:`_updates_tables`, per (chain, protocol) with recorded updates,
+    and the strides at which the sources kept the updates."""
+    lag_rows: list[str] = []
+    cpo_rows: list[str] = []
+    strides: set[int] = set()
+    for learner, chain in dict.fromkeys((p.paper.learner, p.paper.chain) for p in pairs):
+        part = [p for p in pairs if (p.paper.learner, p.paper.chain) == (learner, chain)]
+        for group in (PAPER, CORRECTED):
+            records = updates[group]
+            mine = records.of_runs([i for p in part for i in run_ids(lb, group, p.of(group))]) if records else None
+            if mine is None:
+                continue
+            strides.add(mine.stride)
+            head = f"| {chain} | {group.protocol} | {len(part)} | {mine.frame['run_id'].nunique()} |"
+            if is_ppo_lag(mine):
+                lag_rows.append(f"{head} {_lag_update_cells(mine)} |")
+            elif is_cpo(mine):
+                cpo_rows.append(f"{head} {_cpo_update_cells(mine)} |")
+    return lag_rows, cpo_rows, strides
+
+
+def _lag_update_cells(mine: Updates) -> str:
+    """PPO-Lag's update columns: passes per update, the share stopped after one, the final multipliers."""
+    final = final_multipliers(mine)
+    return (f"{mean_passes(mine):.1f} | {one_pass_share(mine):.0%} | "
+            f"{final.median():.3f} ({final.min():.3f}-{final.max():.3f})")
+
+
+def _cpo_update_cells(mine: Updates) -> str:
+    """CPO's update columns: the share of each dual case, and of line-search steps accepted."""
+    shares = ", ".join(f"case {case} {share:.0%}" for case, share in cpo_case_shares(mine).items())
+    return f"{shares} | {accepted_share(mine):.0%}"
 
 
 def run_ids(lb: Leaderboard, group: Group, cell: Cell) -> list[str]:
