@@ -538,13 +538,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the selected sections (pinned to one CPU, one thread), optionally again at a baseline
-    revision, and write the report."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-
-    _discover_extensions()
+def _selected_sections(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[Benchmark]:
+    """The sections to run, in report order, after refusing a --results, --release or --only that
+    names nothing (before minutes of measuring)."""
     selected = ordered()
     if args.results is not None and not (args.results / "runs").is_dir():
         parser.error(f"--results {args.results}: no runs/ directory there (not a results directory)")
@@ -557,6 +553,17 @@ def main(argv: list[str] | None = None) -> int:
         if unknown:
             parser.error(f"unknown section(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
         selected = [b for b in selected if b.key in args.only]
+    return selected
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the selected sections (pinned to one CPU, one thread), optionally again at a baseline
+    revision, and write the report."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+
+    _discover_extensions()
+    selected = _selected_sections(parser, args)
 
     cpu = _pin_cpu(args.cpu)
     load_before = load_average()

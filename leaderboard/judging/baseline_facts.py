@@ -243,15 +243,17 @@ def _random_facts(pairs: Sequence[Pair]) -> dict[str, str]:
     return facts
 
 
+def _reproducing(part: Sequence[Pair], group: Group) -> int:
+    """How many of the paired cells reproduce the paper under ``group``'s protocol."""
+    return sum(p.of(group).verdict == "reproduces" for p in part)
+
+
 def _reproduce_facts(pairs: Sequence[Pair]) -> dict[str, str]:
     """How many cells reproduce the paper under each protocol, all learners run again and the constrained ones alone."""
     constrained = [p for p in pairs if p.paper.learner != RANDOM]
     rand = [p for p in pairs if p.paper.learner == RANDOM]
-    out = {}
-    for name, part in (("all", pairs), ("constrained", constrained), ("random", rand)):
-        for group in (PAPER, CORRECTED):
-            k = sum(p.of(group).verdict == "reproduces" for p in part)
-            out[f"reproduce_{name}_{group.protocol}"] = _count(k, len(part))
+    out = {f"reproduce_{name}_{group.protocol}": _count(_reproducing(part, group), len(part))
+           for name, part in (("all", pairs), ("constrained", constrained), ("random", rand)) for group in (PAPER, CORRECTED)}
     gained = [p for p in constrained if p.paper.verdict != "reproduces" and p.corrected.verdict == "reproduces"]
     lost = [p for p in constrained if p.paper.verdict == "reproduces" and p.corrected.verdict != "reproduces"]
     out["constrained_now_reproducing"] = "; ".join(f"{p.label} ({p.paper.verdict} -> reproduces)" for p in gained) or "none"

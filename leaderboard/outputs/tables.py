@@ -354,23 +354,26 @@ def protocols_markdown(lb: Leaderboard) -> str | None:
         paper = lb.group_table(Group("paper", preset))
         corrected = lb.group_table(Group("corrected", preset))
         lines += [f"## Preset `{md_escape(preset)}`", ""]
-        rows = []
         both = set(zip(paper["chain"], paper["scenario"])) & set(zip(corrected["chain"], corrected["scenario"]))
         pairs = [p for p in lb.pairs() if p in both]  # a row run under one protocol only has nothing to compare
-        for chain, scenario in pairs:
-            for learner in [*lb.learners, *REFERENCE_LEARNERS]:
-                a = _cell(paper, chain, scenario, learner)
-                b = _cell(corrected, chain, scenario, learner)
-                if a is None and b is None:
-                    continue
-                published = (a or b)["paper"]
-                diff = (b["mean"] - a["mean"]) if a is not None and b is not None else math.nan
-                rows.append([md_escape(chain), md_escape(scenario), md_escape(learner), _mean_std(a), _mean_std(b),
-                             fmt(diff, signed=True), fmt(published)])
+        rows = [row for chain, scenario in pairs for learner in [*lb.learners, *REFERENCE_LEARNERS]
+                if (row := _protocols_row(paper, corrected, chain, scenario, learner)) is not None]
         lines += _md_table(["Chain", "Scenario", "Learner", "paper protocol", "corrected protocol", "Δ", "published"], rows,
                            ["---", "---", "---", "---:", "---:", "---:", "---:"])
         lines.append("")
     return "\n".join(lines).rstrip() + "\n"
+
+
+def _protocols_row(paper: pd.DataFrame, corrected: pd.DataFrame, chain: str, scenario: str, learner: str,
+                   ) -> list[str] | None:
+    """One learner's row of :func:`protocols_markdown` in one Table 1 row; None if it ran under neither protocol."""
+    a = _cell(paper, chain, scenario, learner)
+    b = _cell(corrected, chain, scenario, learner)
+    if a is None and b is None:
+        return None
+    diff = (b["mean"] - a["mean"]) if a is not None and b is not None else math.nan
+    return [md_escape(chain), md_escape(scenario), md_escape(learner), _mean_std(a), _mean_std(b),
+            fmt(diff, signed=True), fmt((a or b)["paper"])]
 
 
 def _mean_std(cell: dict[str, Any] | None) -> str:

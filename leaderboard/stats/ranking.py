@@ -157,6 +157,22 @@ def _learners_of(ok: pd.DataFrame, learners: Sequence[str] | None) -> dict[tuple
     return out
 
 
+def _ranking_record(reference: tuple[float, float], missing: list[str], uneven: bool,
+                    min_headroom: float) -> dict[str, Any]:
+    """A row's references and whether it is ranked (:func:`ranking_rows`' columns after the row's keys).
+
+    ``reference``: (Random, best) exact metrics, NaN when unknown; ``missing``: the compared learners
+    without a usable run in the row; ``uneven``: its learners' runs cover different variants."""
+    random, best = reference
+    headroom = best - random
+    why_not = _not_normalised(headroom, uneven, min_headroom)
+    notes = (["no run of " + ", ".join(missing)] if missing else []) + ([why_not] if why_not else [])
+    normalised = not math.isnan(headroom) and headroom >= min_headroom and not uneven
+    return {"random": random, "best": best, "headroom": headroom, "normalised": normalised,
+            "normalised_note": why_not.removeprefix(NOT_NORMALISED), "missing": ", ".join(missing),
+            "in_score": normalised and not missing, "in_metric": not missing, "note": "; ".join(notes)}
+
+
 def ranking_rows(
     runs: pd.DataFrame,
     references: pd.DataFrame | Mapping[Any, Any] | None,
@@ -185,21 +201,10 @@ def ranking_rows(
         covers = _variants_per_learner(part)
         for chain, scenario in row_order(present):
             values = {"protocol": protocol, "preset": preset, "chain": chain, "scenario": scenario}
-            random, best = lookup.get(tuple(values[k] for k in ref_keys), (math.nan, math.nan))
-            headroom = best - random
+            reference = lookup.get(tuple(values[k] for k in ref_keys), (math.nan, math.nan))
             missing = [name for name in wanted if name not in present[(chain, scenario)]]
-            notes = []
-            if missing:
-                notes.append("no run of " + ", ".join(missing))
             uneven = len(set(covers.get((chain, scenario), {}).values())) > 1
-            why_not = _not_normalised(headroom, uneven, min_headroom)
-            if why_not:
-                notes.append(why_not)
-            normalised = not math.isnan(headroom) and headroom >= min_headroom and not uneven
-            records.append(values | {"random": random, "best": best, "headroom": headroom, "normalised": normalised,
-                                     "normalised_note": why_not.removeprefix(NOT_NORMALISED), "missing": ", ".join(missing),
-                                     "in_score": normalised and not missing, "in_metric": not missing,
-                                     "note": "; ".join(notes)})
+            records.append(values | _ranking_record(reference, missing, uneven, min_headroom))
     columns = ROW_KEYS + ["random", "best", "headroom", "normalised", "normalised_note", "missing", "in_score",
                           "in_metric", "note"]
     return pd.DataFrame(records, columns=columns)

@@ -152,17 +152,7 @@ def lay_out(tables: Sequence[SimTables], env_ids: Sequence[str], width: int | No
     both lay out their tables here, so they step the same tables by construction.
     """
     dims = {e: int(t.obs.shape[1]) for e, t in zip(env_ids, tables)}
-    observations = [t.obs for t in tables]
-    if width is None and len(set(dims.values())) > 1:
-        raise ValueError(
-            f"the copies of one simulator must share an observation size, got {dims}; "
-            "fleet only variants of one scenario together, use obs_type='grid', or pad_obs=True"
-        )
-    if width is not None:
-        if width < max(dims.values()):
-            raise ValueError(f"obs_dim={width} is narrower than the widest observation ({max(dims.values())}) of "
-                             f"{list(env_ids)}")
-        observations = [o if o.shape[1] == width else np.pad(o, ((0, 0), (0, width - o.shape[1]))) for o in observations]
+    observations = _padded([t.obs for t in tables], dims, width)
     offsets = np.cumsum([0] + [t.n_states for t in tables])[:-1].astype(np.int32)
     nxt = _joined([t.next.astype(np.int32, copy=False) + off if off else t.next for t, off in zip(tables, offsets)])
     done = _joined([t.done for t in tables])
@@ -189,6 +179,21 @@ def advance(next_state: Any, done: Any, state: Any, elapsed: Any, actions: Any, 
     nxt = next_state[k]
     elapsed = elapsed + 1
     return k, nxt, elapsed, done[nxt], elapsed > limit
+
+
+def _padded(observations: list[np.ndarray], dims: dict[str, int], width: int | None) -> list[np.ndarray]:
+    """Each graph's observation rows zero-padded on the right to ``width`` (None: they must all
+    have one width already, else a :class:`ValueError` that says how to mix scenarios)."""
+    if width is None:
+        if len(set(dims.values())) > 1:
+            raise ValueError(
+                f"the copies of one simulator must share an observation size, got {dims}; "
+                "fleet only variants of one scenario together, use obs_type='grid', or pad_obs=True"
+            )
+        return observations
+    if width < max(dims.values()):
+        raise ValueError(f"obs_dim={width} is narrower than the widest observation ({max(dims.values())}) of {list(dims)}")
+    return [o if o.shape[1] == width else np.pad(o, ((0, 0), (0, width - o.shape[1]))) for o in observations]
 
 
 class BatchedTrolleyEnv:
