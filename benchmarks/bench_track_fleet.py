@@ -26,10 +26,10 @@ from benchmarks import Context, Section, register
 from morality_gym.baselines.fleet import FleetRun, build_fleet
 from morality_gym.baselines.specs import learner_spec, protocol_spec
 from morality_gym.generalisation.selection import read_manifest
+from morality_gym.generalisation.sets import table_cache_dir
 from morality_gym.generator.splits import load_split
 from morality_gym.norms.metric import bind_chain
 from morality_gym.world.compact_observe import COMPACT_WIDTH
-from runners.execute.track_fleet import table_cache_dir
 
 LEARNERS = ("ppo", "ppo_shaped", "ppo_lag", "cpo")
 #: Runs per fleet: the release's seeds per learner and chain.
@@ -80,7 +80,7 @@ def measure(chain: str, runs: int, learners: tuple[str, ...] = LEARNERS, say: An
     runs on ``chain``'s v2 train pool (its first ``pool_size`` dilemmas: a quick build), with each
     phase's CPU seconds (:data:`PHASES`), over ``rollouts`` rollouts and updates; on a GPU after one
     untimed warm-up update (its first update pays its set-up). The pool's tables are read from
-    ``table_cache`` (default: the track's, :func:`runners.execute.track_fleet.table_cache_dir`)."""
+    ``table_cache`` (default: the track's, :func:`morality_gym.generalisation.sets.table_cache_dir`)."""
     load_split("train")
     pool = [bind_chain(chain, env_id) for env_id in read_manifest("train").env_ids(chain)[:pool_size]]
     cache = table_cache_dir() if table_cache is None else table_cache

@@ -35,5 +35,5 @@ top level (``python -m runners.<tool>``), as in :mod:`leaderboard`:
 the top level - the command-line tools
     :mod:`~runners.sweep` (compose, plan, launch, record), :mod:`~runners.table1` (Table 1, one sweep
     per protocol), :mod:`~runners.migrate` (old runs to the current run ids), :mod:`~runners.track`
-    (the generalisation track).
+    (the generalisation track), :mod:`~runners.cache` (the simulator-table cache: what it holds, pruning).
 """

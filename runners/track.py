@@ -56,11 +56,19 @@ from morality_gym.clitools import EXIT_TERMINATED, OneLineParser, add_debug_flag
 from morality_gym.constants import MAX_STEPS
 from morality_gym.generalisation.mixture import DilemmaMixtureEnv
 from morality_gym.generalisation.scoring import score_set
-from morality_gym.generalisation.sets import SEEN_SAMPLE, SETS, TRACK_CHAINS, EvalSet, load_sets, training_chain
+from morality_gym.generalisation.sets import (
+    SEEN_SAMPLE,
+    SETS,
+    TRACK_CHAINS,
+    EvalSet,
+    load_sets,
+    table_cache_dir,
+    training_chain,
+)
 from morality_gym.results.recording import git_commit
 from morality_gym.results.track_runs import PAIRS, RESULT, TrackError, check_done, expected_record, run_name
 from runners.execute import stopping
-from runners.execute.track_fleet import CURVE_EVERY, CurveRecorder, fleet_key, table_cache_dir, train_fleet
+from runners.execute.track_fleet import CURVE_EVERY, CurveRecorder, fleet_key, train_fleet
 
 LEARNERS = ("random", "ppo", "ppo_shaped", "ppo_lag", "cpo")
 #: The learners trained on a chain's step-wise cost: only a chain's track has one.

@@ -181,7 +181,7 @@ def test_submit_prints_the_scores_it_stored(policies: Path, tmp_path: Path) -> N
     assert "SwitchStandard-HumanB-v1: metric 1.0000" in again.stdout
 
 
-ENTRY_POINTS = ["morality_gym", "runners.sweep", "runners.table1", "runners.migrate", "leaderboard.build",
+ENTRY_POINTS = ["morality_gym", "runners.sweep", "runners.table1", "runners.migrate", "runners.cache", "leaderboard.build",
                 "leaderboard.submit", "leaderboard.compare", "leaderboard.engines", "leaderboard.screenshot"]
 
 

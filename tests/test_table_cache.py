@@ -6,24 +6,28 @@
   observation and the world layer's code.
 * A damaged, edited, renamed or pickled entry is refused on one line and rebuilt, never used.
 * A write that dies midway leaves no entry that a later process would trust.
+* Entries no process reads any more can be pruned by last use (``python -m runners.cache``).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import time
 import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from morality_gym.clitools import write_atomically
+from morality_gym.clitools import UserError, write_atomically
 from morality_gym.envs import table_cache
 from morality_gym.envs.batched import sim_tables
 from morality_gym.envs.drawn import DrawnBatchedTrolleyEnv
 from morality_gym.envs.registry import clear_graph_cache, parse_env_id
 from morality_gym.envs.table_cache import TableCacheWarning, entry_key, scenario_digest
+from runners import cache as cache_cli
 
 POOL = ["Switch7-Human-v1", "PushOrSwitch-Animal-v1", "PushStandard-AnimalA-v1", "Push2OrSwitch-Robot-v1"]
 ONE = "PushOrSwitch-Human-v1"
@@ -164,3 +168,28 @@ def test_a_write_that_dies_midway_leaves_no_entry(tmp_path, monkeypatch) -> None
         warnings.simplefilter("error")
         sim_tables(ONE, "compact", np.float32, cache_dir=tmp_path)
     assert _entry(tmp_path).is_file()
+
+
+def test_entries_are_listed_by_last_use_and_pruned_only_when_unused(tmp_path, capsys) -> None:
+    """A read marks its entry used, so pruning by age removes what no fleet reads any more and keeps
+    what one does, whatever code wrote it; the command says how much is this checkout's."""
+    for env_id in (ONE, "Switch7-Human-v1"):
+        sim_tables(env_id, "compact", np.float32, cache_dir=tmp_path)
+    used, unused = _entry(tmp_path), _entry(tmp_path, "Switch7-Human-v1")
+    month_ago = time.time() - 30 * 86400
+    for path in (used, unused):
+        os.utime(path, (month_ago, month_ago))
+    (tmp_path / ".left-by-a-killed-writer.npz.123.abc.tmp").write_bytes(b"half")
+    os.utime(tmp_path / ".left-by-a-killed-writer.npz.123.abc.tmp", (month_ago, month_ago))
+    sim_tables(ONE, "compact", np.float32, cache_dir=tmp_path)  # read back: touched
+    listed = table_cache.list_entries(tmp_path)
+    assert [e.path for e in listed][-1] == used and len(listed) == 3
+    assert all(e.this_code for e in listed if e.path.suffix == ".npz")
+    assert [e.env_id for e in listed if e.path.suffix == ".npz"] == ["Switch7-Human-v1", ONE]
+
+    assert cache_cli.main(["--dir", str(tmp_path), "--prune-unused-days", "14"]) == 0
+    out = capsys.readouterr().out
+    assert "3 entries" in out and "this checkout's world code: 2" in out and "removed 2 entries" in out, out
+    assert used.is_file() and not unused.exists() and len(list(tmp_path.iterdir())) == 1
+    with pytest.raises(UserError, match="no such folder"):
+        cache_cli.main(["--dir", str(tmp_path / "nope")])

@@ -319,7 +319,7 @@ def test_a_chains_track_trains_fleets_and_a_rerun_redoes_only_missing_runs(tmp_p
         assert record["engine"] == "fleet" and record["chain"] == "Utility" and record["trained_steps"] == 2048
         assert (runs / f"Utility-ppo_lag-s{seed}" / "model.zip").is_file()
     assert "fleet of 2 runs" in capsys.readouterr().out
-    from runners.execute.track_fleet import table_cache_dir
+    from morality_gym.generalisation.sets import table_cache_dir
 
     assert len(list(table_cache_dir().glob("*.npz"))) == len(POOL_A)  # the next session reads the pool's tables
     first = pd.read_parquet(runs / "Utility-ppo_lag-s2" / track.PAIRS)

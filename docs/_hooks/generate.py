@@ -211,6 +211,7 @@ COMMANDS: list[tuple[str, str]] = [
     ("leaderboard.screenshot", "PNG screenshots of a built leaderboard"),
     ("runners.migrate", "move an older results directory to the current run ids"),
     ("runners.track", "train and score the generalisation track's held-out splits"),
+    ("runners.cache", "what the simulator-table cache holds; prune the entries unused for N days"),
     ("leaderboard.track", "the generalisation track's table from a results directory or a track release"),
     ("leaderboard.track_release", "freeze the generalisation track's results into a checksummed release; verify one"),
     ("benchmarks.run", "speed benchmarks (BENCHMARKS.md)"),

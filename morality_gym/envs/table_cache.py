@@ -32,6 +32,12 @@ anyone can redo by deleting the folder.
 
 **Atomic.** Entries are written with :func:`~morality_gym.clitools.write_atomically`: a crash
 mid-write leaves the previous entry or none, never half of one that a later process trusts.
+
+**Pruned by use.** Every change of the world code is a new key, so the entries of older code are
+never read again; nothing deletes them on its own, since two checkouts (a long run pinned to an
+older commit beside a newer one) may share a folder. A read touches its entry's modification
+time, so it is the entry's last use: :func:`list_entries` tells the entries of this code from the
+others', and :func:`prune` removes those unused for a number of days (``python -m runners.cache``).
 """
 
 from __future__ import annotations
@@ -40,6 +46,8 @@ import dataclasses
 import hashlib
 import io
 import json
+import os
+import time
 import warnings
 from collections.abc import Mapping
 from functools import cache
@@ -155,7 +163,17 @@ def read_entry(path: Path, key: str, obs_dtype: Any) -> SimTables | None:
         return None
     for array in arrays.values():
         array.setflags(write=False)
+    _touch(path)
     return SimTables(**arrays)
+
+
+def _touch(path: Path) -> None:
+    """Mark the entry used now (its modification time is its last use, :func:`prune`); a
+    read-only cache folder is still read."""
+    try:
+        os.utime(path)
+    except OSError:
+        pass
 
 
 def _unsound(meta: Any, arrays: dict[str, np.ndarray], key: str, obs_dtype: np.dtype) -> str:
@@ -201,7 +219,66 @@ def write_entry(path: Path, key: str, env_id: str, tables: SimTables) -> Path:
     """Write ``tables`` as the entry ``path`` for ``key`` (atomically)."""
     arrays = {name: np.ascontiguousarray(getattr(tables, name)) for name in _ARRAYS}
     meta = {"format": FORMAT, "key": key, "env_id": env_id, "n_states": tables.n_states,
-            "sha256": {name: _array_digest(a) for name, a in arrays.items()}}
+            "world_code": world_code_digest(), "sha256": {name: _array_digest(a) for name, a in arrays.items()}}
     buffer = io.BytesIO()
     np.savez(buffer, allow_pickle=False, **arrays, **{_META: np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)})
     return write_atomically(path, lambda fh: fh.write(buffer.getbuffer()))
+
+
+@dataclasses.dataclass(frozen=True)
+class CacheEntry:
+    """One file of a table cache folder, as :func:`list_entries` sees it without checking its arrays."""
+
+    path: Path
+    size: int  # bytes
+    last_used: float  # seconds since the epoch (the file's modification time)
+    env_id: str | None  # None: the file's record cannot be read
+    #: Whether this code's world wrote it: True, False, or None when its record does not say (an
+    #: entry written before records carried it, or an unreadable file).
+    this_code: bool | None
+
+
+def list_entries(folder: Path) -> list[CacheEntry]:
+    """Every entry of a table cache ``folder`` (and every temporary file a killed writer left),
+    oldest use first. Only each file's small JSON record is read."""
+    found = []
+    for path in sorted(folder.glob("*.npz")) + sorted(folder.glob(".*.tmp")):
+        try:
+            stat = path.stat()
+        except OSError:
+            continue  # removed meanwhile
+        meta = _read_record(path) if path.suffix == ".npz" else None
+        code = meta.get("world_code") if isinstance(meta, dict) else None
+        found.append(CacheEntry(path, stat.st_size, stat.st_mtime, meta.get("env_id") if isinstance(meta, dict) else None,
+                                None if code is None else code == world_code_digest()))
+    return sorted(found, key=lambda e: e.last_used)
+
+
+def _read_record(path: Path) -> Any:
+    """An entry's JSON record, or None if the file has none that can be read."""
+    try:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as npz:
+            return json.loads(bytes(npz[_META]).decode())
+    except Exception:  # noqa: BLE001 - a damaged file is listed as such, whatever numpy or zipfile raises
+        return None
+
+
+def prune(folder: Path, unused_days: float, now: float | None = None) -> list[CacheEntry]:
+    """Remove the entries of ``folder`` not used for more than ``unused_days`` days; returns them.
+
+    By use, not by code: an entry of an older world code may still be read by a checkout of that
+    code sharing the folder, and one that is not will age out. A process reading an entry while it
+    is removed has it open already or finds none and builds the tables again."""
+    if unused_days < 0:
+        raise ValueError(f"unused_days must be >= 0, got {unused_days}")
+    cutoff = (time.time() if now is None else now) - unused_days * 86400
+    removed = []
+    for entry in list_entries(folder):
+        if entry.last_used < cutoff:
+            try:
+                entry.path.unlink()
+            except FileNotFoundError:
+                continue
+            removed.append(entry)
+    return removed
+

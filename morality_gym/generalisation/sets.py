@@ -43,6 +43,9 @@ from morality_gym.norms.chain import ChainError, builtin_chains
 from morality_gym.norms.metric import bind_chain
 from morality_gym.paper import table1_pairs
 
+#: The folder of :func:`table_cache_dir` under ``$MORALITY_GYM_CACHE``.
+TABLE_FOLDER: Final = "tables"
+
 SETS: Final[tuple[str, ...]] = ("seen", "test", "builtin")
 #: What each set is, for pages and result files.
 SET_LABELS: Final[dict[str, str]] = {
@@ -150,6 +153,14 @@ def builtin_pairs() -> dict[str, list[str]]:
     for chain, env_id in table1_pairs():
         chains.setdefault(env_id, []).append(chain)
     return chains
+
+
+def table_cache_dir() -> Path:
+    """Where the track keeps its pools' simulator tables (:mod:`morality_gym.envs.table_cache`):
+    beside the generated splits they are built from, so a session that starts or resumes a learner
+    reads them instead of enumerating the train pool's graphs again (minutes); ``python -m
+    runners.cache`` lists and prunes them."""
+    return cache_root() / TABLE_FOLDER
 
 
 def _values_file(name: str, digest: str, root: Path | None) -> Path:

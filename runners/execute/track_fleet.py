@@ -16,7 +16,7 @@ that stops, ``kill``) ends a fleet at its next update boundary with its state wr
 (:mod:`runners.execute.stopping`), so a resume loses nothing, rather than up to 5 minutes of every run.
 
 A session's fleet reads its pool's simulator tables from ``$MORALITY_GYM_CACHE/tables``
-(:func:`table_cache_dir`, :mod:`morality_gym.envs.table_cache`) instead of enumerating the pool's
+(:func:`~morality_gym.generalisation.sets.table_cache_dir`, :mod:`morality_gym.envs.table_cache`) instead of enumerating the pool's
 graphs again: the Utility train pool's fleet starts in about 15 s instead of minutes. The first
 session writes them; what is read is verified, and the tables are the same bits (tested).
 
@@ -45,7 +45,6 @@ from morality_gym.clitools import write_atomically
 from morality_gym.constants import MAX_STEPS
 from morality_gym.generalisation.scoring import score_set
 from morality_gym.generalisation.sets import EvalSet
-from morality_gym.generator.splits import cache_root
 from morality_gym.norms.metric import bind_chain
 from morality_gym.world.compact_observe import COMPACT_WIDTH
 from runners.execute import stopping
@@ -55,8 +54,6 @@ PROGRESS_EVERY_S = 30.0
 #: Env steps per run between two points of a learning curve: 20 points over the release's 10M
 #: budget; each point costs an exact scoring of the seen set per run (a few seconds each).
 CURVE_EVERY = 500_000
-#: The folder of :func:`table_cache_dir` under ``$MORALITY_GYM_CACHE``.
-TABLE_FOLDER = "tables"
 CURVE_FIELDS = ("learner", "chain", "seed", "steps", "mean_range_score", "cpu_seconds")
 
 
@@ -125,13 +122,6 @@ class CurveRecorder:
         self.write()  # the file held only the step-0 point retaken before the restore
 
 
-def table_cache_dir() -> Path:
-    """Where the track keeps its pools' simulator tables (:mod:`morality_gym.envs.table_cache`):
-    beside the generated splits they are built from, so a session that starts or resumes a learner
-    reads them instead of enumerating the train pool's graphs again (minutes)."""
-    return cache_root() / TABLE_FOLDER
-
-
 def fleet_key(learner: str, seeds: Sequence[int], budget: int, train_ids: Sequence[str], chain: str,
               train_digest: str, device: str = "cpu") -> dict[str, Any]:
     """What a fleet checkpoint of the track is for (another command's file is discarded). A fleet on
@@ -149,7 +139,7 @@ def train_fleet(learner: str, seeds: Sequence[int], budget: int, train_ids: Sequ
     """Train ``learner`` on the chain's mixture for every seed in one fleet; returns each seed's
     trained SB3 learner and what its result records. ``curve``: record its learning curves.
     ``device``: where the networks train (the mixture's tables stay on the host). ``table_cache``:
-    where the pool's tables are kept between sessions (:func:`table_cache_dir`)."""
+    where the pool's tables are kept between sessions (:func:`~morality_gym.generalisation.sets.table_cache_dir`)."""
     spec = learner_spec(learner)
     pool = [bind_chain(chain, env_id) for env_id in train_ids]
     t0 = time.perf_counter()
