@@ -288,12 +288,12 @@ def _run_learners(args: argparse.Namespace, train_ids: Sequence[str], sets: dict
                                                              args.budget)]
             if todo:
                 prefix = run_name(learner, None, chain=args.chain, version=version).removesuffix("-sexact")
-                key = fleet_key(learner, todo, args.budget, train_ids, args.chain, expected["train_digest"], device.name)
+                key = fleet_key(learner, todo, args.budget, train_ids, args.chain, expected["train_digest"], device)
                 c0 = time.process_time()
                 curve = (CurveRecorder(args.out / "curves" / f"{prefix}.csv", learner, args.chain, todo, sets["seen"],
                                        args.curve_every) if "seen" in sets else None)
                 trained = train_fleet(learner, todo, args.budget, train_ids, args.chain,
-                                      args.out / "fleets" / f"{prefix}.pt", key, curve=curve, device=device.name,
+                                      args.out / "fleets" / f"{prefix}.pt", key, curve=curve, device=device,
                                       table_cache=table_cache_dir())
                 # the curve sums the CPU of every session a resumed fleet trained in; else this process's alone
                 spent = curve.cpu_seconds() if curve is not None else time.process_time() - c0

@@ -19,6 +19,7 @@ import pytest
 import torch as th
 
 import morality_gym
+from morality_gym.baselines.device import Device
 from morality_gym.baselines.fleet import FleetRun, build_fleet
 from morality_gym.baselines.fleet.drawn_env import DrawnFleetEnv
 from morality_gym.baselines.specs import SpecError, learner_spec
@@ -447,7 +448,7 @@ def test_a_device_is_checked_before_anything_is_loaded_and_keeps_the_cpus_checkp
     key = track_fleet.fleet_key("ppo", [1], 10, POOL_A, "Utility", "d")
     assert key == {"track": "generalisation", "learner": "ppo", "seeds": [1], "budget": 10, "chain": "Utility",
                    "train_digest": "d", "pool": len(POOL_A)}
-    assert track_fleet.fleet_key("ppo", [1], 10, POOL_A, "Utility", "d", "cuda")["device"] == "cuda"
+    assert track_fleet.fleet_key("ppo", [1], 10, POOL_A, "Utility", "d", Device("cuda"))["device"] == "cuda"
 
 
 @pytest.mark.skipif(not th.cuda.is_available(), reason="needs a GPU (device=cuda); this machine has none")

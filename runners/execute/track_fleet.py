@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from morality_gym.baselines.device import CPU, Device
 from morality_gym.baselines.fleet import FleetCheckpoint, FleetRun, build_fleet
 from morality_gym.baselines.specs import learner_spec
 from morality_gym.clitools import write_atomically
@@ -123,22 +124,23 @@ class CurveRecorder:
 
 
 def fleet_key(learner: str, seeds: Sequence[int], budget: int, train_ids: Sequence[str], chain: str,
-              train_digest: str, device: str = "cpu") -> dict[str, Any]:
+              train_digest: str, device: Device = CPU) -> dict[str, Any]:
     """What a fleet checkpoint of the track is for (another command's file is discarded). A fleet on
     a GPU rounds differently, so its checkpoint is not resumed on the CPU nor the reverse; the CPU's
     key carries no device, as before devices were asked for (its checkpoints stay resumable)."""
     return {"track": "generalisation", "learner": learner, "seeds": [int(s) for s in seeds], "budget": int(budget),
             "chain": chain, "train_digest": train_digest, "pool": len(train_ids),
-            **({} if device == "cpu" else {"device": device})}
+            **({} if device.on_cpu else {"device": device.name})}
 
 
 def train_fleet(learner: str, seeds: Sequence[int], budget: int, train_ids: Sequence[str], chain: str,
                 checkpoint: Path, key: dict[str, Any], say: Callable[[str], None] = print,
-                curve: CurveRecorder | None = None, device: str = "cpu",
+                curve: CurveRecorder | None = None, device: Device = CPU,
                 table_cache: Path | None = None) -> dict[int, tuple[Any, dict[str, Any]]]:
     """Train ``learner`` on the chain's mixture for every seed in one fleet; returns each seed's
     trained SB3 learner and what its result records. ``curve``: record its learning curves.
-    ``device``: where the networks train (the mixture's tables stay on the host). ``table_cache``:
+    ``device``: where the networks train (the mixture's tables stay on the host), as the command
+    checked it once (:class:`~morality_gym.baselines.device.Device`). ``table_cache``:
     where the pool's tables are kept between sessions (:func:`~morality_gym.generalisation.sets.table_cache_dir`)."""
     spec = learner_spec(learner)
     pool = [bind_chain(chain, env_id) for env_id in train_ids]
@@ -175,7 +177,7 @@ def train_fleet(learner: str, seeds: Sequence[int], budget: int, train_ids: Sequ
     for k, (seed, trained) in enumerate(zip(seeds, fleet.learners())):
         info = {"engine": "fleet", "fleet_runs": len(seeds), "fleet_seconds": round(seconds, 1),
                 "hparams": {**dict(spec.hparams), **hparams}, "protocol": "paper", "n_envs": spec.n_envs,
-                "device": device,
+                "device": device.name,
                 "net_arch": list(spec.net_arch), "activation": spec.activation,
                 "policy": f"MlpPolicy on the compact observation ({COMPACT_WIDTH} numbers, morality_gym.world.compact_observe)",
                 "trained_steps": int(trained.trained_steps), **({"failed": failed[k]} if k in failed else {})}
