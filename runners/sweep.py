@@ -154,7 +154,7 @@ def make_plan(sweep: SweepConfig) -> Plan:
     checkpointed = fleets_to_form(sweep.results_dir, [r.run_id for r in todo]) if sweep.checkpoint_every_s > 0 else []
     jobs = dispatch_order(make_jobs(todo, sweep.engine, sweep.fleet_size, workers,
                                     {a.spec.name: a.rates.fleet_speedup for a in sweep.algos}, checkpointed,
-                                    mix_scenarios=not sweep.device.on_cpu, device_rates=device_rates(sweep.device.kind, sweep.algos)),
+                                    mix_scenarios=not sweep.device.on_cpu, device_rates=device_rates(sweep.device.kind, sweep.algos, sweep.fleet_update)),
                           workers)
     idle = jobs_estimate(jobs, done, workers) + sweep_overheads(sweep.results_dir, sweep.mlflow, len(todo))
     machine = None if sweep.launcher["name"] == "slurm" else MachineLoad.now()  # SLURM: other nodes' load
@@ -211,7 +211,8 @@ def print_plan(plan_: Plan, sweep: SweepConfig, console: Console) -> None:
         f"estimated time for what remains: [bold]{escape(_estimate_text(plan_))}[/bold]"
     )
     note = device_estimate_note(sweep.device.kind, [a for a in sweep.algos
-                                               if fleet_trains(a.spec.target) and learner_trains(a.spec.target)])
+                                               if fleet_trains(a.spec.target) and learner_trains(a.spec.target)],
+                                sweep.fleet_update)
     if note:
         _warn(console, f"note: {note}")
     engine = _engine_line(plan_, sweep)

@@ -120,6 +120,52 @@ def test_a_gpu_sweep_is_priced_at_the_measured_device_rates(tmp_path: Path) -> N
     assert "CPO: no cuda rates are measured" in note and "not a GPU estimate" in note
 
 
+def test_a_compiled_gpu_sweep_is_priced_at_the_measured_compiled_gain(tmp_path: Path) -> None:
+    """fleet_update=compiled on cuda: fleets are priced at the eager rates times the gain measured
+    with the compiled update (and its sharing of the card); a learner with no measured gain keeps
+    its eager rates, and the note says which is which."""
+    from morality_gym.baselines.specs import fleet_trains
+    from morality_gym.baselines.targets import learner_trains
+    from runners.plan.estimate import device_estimate_note, device_rates
+    from runners.plan.fleets import make_jobs
+    from runners.plan.runs import expand_sweep
+
+    overrides = ("algo=[ppo,ppo_lag,cpo]", "chain=utility", "scenario=[switch_standard,switch5]", "preset=paper",
+                 "device=cuda", "launcher.workers=4")
+    eager = _sweep_config(tmp_path, *overrides)
+    compiled = _sweep_config(tmp_path, *overrides, "fleet_update=compiled")
+    plain, fast = device_rates("cuda", eager.algos), device_rates("cuda", compiled.algos, "compiled")
+    for name, gain, shared in (("ppo", 1.297, {8: 4.28}), ("cpo", 1.496, {8: 2.82})):
+        assert fast[name].fleet_steps_per_s == pytest.approx({k: v * gain for k, v in plain[name].fleet_steps_per_s.items()})
+        assert dict(fast[name].processes) == shared
+    assert fast["ppo_lag"] == plain["ppo_lag"]  # nothing measured compiled: eager's rates
+    fleet_trained = [a for a in compiled.algos if fleet_trains(a.spec.target) and learner_trains(a.spec.target)]
+    note = device_estimate_note("cuda", fleet_trained, "compiled")
+    assert "times the gain measured for PPO (1.30x at K=336), CPO (1.50x at K=336)" in note, note
+    assert "PPO Lag: no compiled gain is measured" in note, note
+    assert "compiled" not in device_estimate_note("cuda", fleet_trained)  # an eager sweep's note says nothing of it
+
+    runs = expand_sweep(compiled)
+
+    def fleet_seconds(rates):
+        jobs = make_jobs(runs, "fleet", 336, 4, mix_scenarios=True, device_rates=rates)
+        totals: dict[str, float] = {}
+        for job in (j for j in jobs if j.engine == "fleet"):
+            name = job.runs[0].config.algo.name
+            totals[name] = totals.get(name, 0.0) + job.est_seconds
+        return totals
+
+    before, after = fleet_seconds(plain), fleet_seconds(fast)
+    assert after["ppo"] < before["ppo"] and after["cpo"] < before["cpo"] and after["ppo_lag"] == before["ppo_lag"]
+
+
+def test_a_bad_compiled_gain_is_refused_naming_its_key(tmp_path: Path) -> None:
+    from runners.compose.sweep_config import ConfigError
+
+    with pytest.raises(ConfigError, match=r"planning\.devices\.cuda\.compiled_gain needs fleet sizes >= 1 with a compiled/eager ratio > 0"):
+        _sweep_config(tmp_path, "algo=ppo", "chain=utility", "scenario=[switch5]", "algo.ppo.planning.devices.cuda.compiled_gain={336: 0}")
+
+
 def test_bad_device_rates_are_refused_with_where_they_are(tmp_path: Path) -> None:
     from runners.compose.sweep_config import ConfigError
 

@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from morality_gym.baselines import typed
-from morality_gym.baselines.specs import LearnerSpec
+from morality_gym.baselines.specs import DEFAULT_UPDATE_ENGINE, LearnerSpec
 from morality_gym.clitools import did_you_mean, duration
 from runners.record.mlflow_mirror import tracking_uri
 
@@ -51,11 +51,29 @@ class DeviceRate:
     ``processes``: the aggregate rate of N processes sharing the device over one process's, by N
     (1 process: 1); ``measured_on``: the card and the date, printed with the estimate, since
     another card trains at another speed.
+
+    ``compiled_gain`` and ``compiled_processes``, for sweeps with ``fleet_update=compiled``: one
+    process's rate with the compiled update over the eager one's, by the fleet sizes where both
+    were measured, and the aggregate of N processes over one with it (the compiled update frees
+    the host, so processes share the card differently). A learner without them is priced at its
+    eager rates, and the plan says so (:func:`device_estimate_note`).
     """
 
     measured_on: str = ""
     fleet_steps_per_s: Mapping[int, float] = field(default_factory=dict)
     processes: Mapping[int, float] = field(default_factory=dict)
+    compiled_gain: Mapping[int, float] = field(default_factory=dict)
+    compiled_processes: Mapping[int, float] = field(default_factory=dict)
+
+    def for_update(self, update: str) -> DeviceRate:
+        """The rates of fleets whose update runs on the ``update`` engine: eager as measured; compiled
+        as eager times the measured gain (interpolated in log K between the sizes where it was
+        measured, held beyond them), with the compiled processes' sharing."""
+        if update != "compiled" or not self.compiled_gain:
+            return self
+        gains = {math.log(k): g for k, g in self.compiled_gain.items()}
+        rates = {k: v * _interpolate(gains, math.log(k)) for k, v in self.fleet_steps_per_s.items()}
+        return DeviceRate(self.measured_on, rates, self.compiled_processes or self.processes)
 
 
 @dataclass(frozen=True)
@@ -195,17 +213,24 @@ def _device_rate(at: str, given: Mapping[str, Any], factor: float) -> DeviceRate
     for key in set(given) - _DEVICE_RATE_KEYS:  # a typo would silently price the device at nothing measured
         raise PlanningError(f"{at}: unknown key {key!r}{did_you_mean(str(key), sorted(_DEVICE_RATE_KEYS))}; "
                             f"valid: {sorted(_DEVICE_RATE_KEYS)}")
+    rates = _positive_table(at, given, "fleet_steps_per_s", "at least one fleet size >= 1 with a rate > 0")
+    if not rates:
+        raise PlanningError(f"{at}.fleet_steps_per_s needs at least one fleet size >= 1 with a rate > 0, got {rates}")
+    processes = _positive_table(at, given, "processes", "process counts >= 1 with aggregate factors > 0")
+    gain = _positive_table(at, given, "compiled_gain", "fleet sizes >= 1 with a compiled/eager ratio > 0")
+    shared = _positive_table(at, given, "compiled_processes", "process counts >= 1 with aggregate factors > 0")
+    return DeviceRate(str(given.get("measured_on") or ""), {k: v / factor for k, v in rates.items()}, processes, gain, shared)
+
+
+def _positive_table(at: str, given: Mapping[str, Any], key: str, needs: str) -> dict[int, float]:
+    """``given[key]`` as {int: float}, sorted, every key >= 1 and every value > 0 (empty if not given)."""
     try:
-        rates = {int(k): float(v) for k, v in dict(given.get("fleet_steps_per_s") or {}).items()}
-        processes = {int(k): float(v) for k, v in dict(given.get("processes") or {}).items()}
+        table = {int(k): float(v) for k, v in dict(given.get(key) or {}).items()}
     except (TypeError, ValueError, AttributeError) as exc:
         raise PlanningError(f"{at}: fleet sizes, process counts and rates must be numbers ({exc})") from exc
-    if not rates or min(rates) < 1 or min(rates.values()) <= 0:
-        raise PlanningError(f"{at}.fleet_steps_per_s needs at least one fleet size >= 1 with a rate > 0, got {rates}")
-    if processes and (min(processes) < 1 or min(processes.values()) <= 0):
-        raise PlanningError(f"{at}.processes needs process counts >= 1 with aggregate factors > 0, got {processes}")
-    return DeviceRate(str(given.get("measured_on") or ""), {k: v / factor for k, v in sorted(rates.items())},
-                      dict(sorted(processes.items())))
+    if table and (min(table) < 1 or min(table.values()) <= 0):
+        raise PlanningError(f"{at}.{key} needs {needs}, got {table}")
+    return dict(sorted(table.items()))
 
 
 def _planning_for(where: str, planning: Mapping[str, Any], protocol: str | None) -> dict[str, Any]:
@@ -496,14 +521,16 @@ class PricedLearner(Protocol):
     def rates(self) -> LearnerRates: ...
 
 
-def device_rates(kind: str, algos: Sequence[PricedLearner]) -> dict[str, DeviceRate]:
-    """The measured fleet rates on a ``kind`` of device (``cuda``), by algo name (none on the CPU)."""
+def device_rates(kind: str, algos: Sequence[PricedLearner], update: str = DEFAULT_UPDATE_ENGINE) -> dict[str, DeviceRate]:
+    """The measured fleet rates on a ``kind`` of device (``cuda``), by algo name (none on the CPU),
+    for fleets whose update runs on the ``update`` engine (:meth:`DeviceRate.for_update`)."""
     if kind == "cpu":
         return {}
-    return {a.spec.name: a.rates.device_rates[kind] for a in algos if kind in a.rates.device_rates}
+    return {a.spec.name: a.rates.device_rates[kind].for_update(update) for a in algos if kind in a.rates.device_rates}
 
 
-def device_estimate_note(kind: str, fleet_trained: Sequence[PricedLearner]) -> str | None:
+def device_estimate_note(kind: str, fleet_trained: Sequence[PricedLearner], update: str = DEFAULT_UPDATE_ENGINE,
+                         ) -> str | None:
     """What the estimate is worth on a ``kind`` of device, for the learners whose runs fleets train there.
 
     Fleets of learners with measured device rates (``planning.devices`` in conf/algo) are priced
@@ -523,4 +550,21 @@ def device_estimate_note(kind: str, fleet_trained: Sequence[PricedLearner]) -> s
     if unpriced:
         parts.append(f"{', '.join(a.spec.label for a in unpriced)}: no {kind} rates are measured, so their runs are priced "
                      "at CPU rates and that part is not a GPU estimate (benchmarks/gpu_check.sh measures them)")
+    if update == "compiled" and priced:
+        parts.append(_compiled_note(kind, priced))
     return "; ".join(parts) or None
+
+
+def _compiled_note(kind: str, priced: Sequence[PricedLearner]) -> str:
+    """How compiled fleets are priced: at the eager rates times a measured gain, or (none measured) at eager rates."""
+    gained = [a for a in priced if a.rates.device_rates[kind].compiled_gain]
+    plain = [a for a in priced if not a.rates.device_rates[kind].compiled_gain]
+    parts = []
+    if gained:
+        parts.append("compiled updates at the eager rates times the gain measured for " + ", ".join(
+            f"{a.spec.label} ({', '.join(f'{g:.2f}x at K={k}' for k, g in a.rates.device_rates[kind].compiled_gain.items())})"
+            for a in gained))
+    if plain:
+        parts.append(f"{', '.join(a.spec.label for a in plain)}: no compiled gain is measured, so their compiled fleets are "
+                     "priced at eager rates")
+    return "; ".join(parts)
